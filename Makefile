@@ -1,0 +1,29 @@
+# make setup: .venv with the package (editable) and everything it needs; idempotent.
+# make demo:  the main job (see README).   make test: the whole test suite.
+PYTHON ?= python3
+VENV := .venv
+STAMP := $(VENV)/.installed
+export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)
+DEMO_OUT ?= out/demo
+
+.PHONY: setup demo test bench clean
+
+setup: $(STAMP)
+
+$(STAMP): setup.py setup.cfg package.xml Makefile
+	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --quiet --upgrade "pip>=24"
+	$(VENV)/bin/python -m pip install --quiet --editable ".[ros,test]"
+	touch $(STAMP)
+
+demo: setup
+	$(VENV)/bin/robotino-geom-mpc analyze
+
+test: setup
+	$(VENV)/bin/python -m pytest -q test
+
+bench: setup
+	$(VENV)/bin/robotino-geom-mpc bench
+
+clean:
+	rm -rf $(VENV) build install log out *.egg-info

@@ -1,0 +1,1 @@
+"""The math core: plain numpy/scipy, never rclpy."""

@@ -1,0 +1,1 @@
+"""MCAP recording (rosbag2 conventions), replay and reports."""

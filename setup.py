@@ -1,0 +1,68 @@
+"""ament_python package robotino_geom_mpc (see README.md)."""
+
+from glob import glob
+
+from setuptools import setup
+
+PACKAGE = "robotino_geom_mpc"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=[
+        PACKAGE,
+        f"{PACKAGE}.core",
+        f"{PACKAGE}.cli",
+        f"{PACKAGE}.nodes",
+        f"{PACKAGE}.recording",
+        "robotino_sim_node",
+    ],
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+    ],
+    python_requires=">=3.10",
+    install_requires=[
+        "setuptools",
+        "numpy>=1.26,<3",
+        "scipy>=1.11,<2",
+        "PyYAML>=6.0,<7",
+        "matplotlib>=3.8,<4",
+        "tqdm>=4.66,<5",
+        "osqp>=1.0,<2",
+        "mcap>=1.2,<2",
+        "mcap-ros2-support>=0.5,<1",
+    ],
+    extras_require={
+        "ros": [
+            "ros-jazzy-rclpy==7.1.6",
+            "ros-jazzy-rmw-fastrtps-cpp==8.4.3",
+            "ros-jazzy-common-interfaces==5.3.6",
+            "ros-jazzy-rosgraph-msgs==2.0.3",
+        ],
+        "test": [
+            "pytest>=8,<10",
+            "hypothesis>=6.100,<7",
+            "rosbags>=0.10,<0.12",
+            "colcon-common-extensions==0.3.0",
+            "daqp>=0.5,<1",
+            "quadprog>=0.1.11,<0.2",
+        ],
+    },
+    zip_safe=True,
+    maintainer="robotino_geom_mpc developers",
+    maintainer_email="robotino-geom-mpc@example.org",
+    description="Geometric decoupling plus decoupled MPC for the Festo Robotino (ROS 2 Jazzy).",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "robotino-geom-mpc = robotino_geom_mpc.cli:main",
+            "plant_node = robotino_sim_node.plant_node:main",
+            "controller_node = robotino_geom_mpc.nodes.controller_node:main",
+            "trajectory_node = robotino_geom_mpc.nodes.trajectory_node:main",
+            "recorder_node = robotino_geom_mpc.recording.recorder_node:main",
+        ],
+    },
+)

@@ -1,0 +1,279 @@
+"""Benchmarks behind `robotino-geom-mpc bench`: a registry of functions, each returning named figures.
+
+A benchmark is one function ``fn(quick: bool) -> dict[str, float]`` decorated
+with ``@benchmark("name", "what it measures")``; adding a benchmark is adding
+one such function here. A benchmark that cannot run on this machine (e.g. no
+ROS) raises `BenchmarkSkipped`. Timings use `time.perf_counter` and report
+medians over repeats.
+
+Registered here:
+
+* ``controller_step``: one full control step of `MotionController.step`
+  (three MPCs, eq. 56, then T(theta), eqs. 33-37, then the inverse drive)
+  against OSQP solving the same three per-axis MPC problems (eqs. 50-54,
+  stacked into one QP, warm-started, tight tolerances) on the same inputs in
+  the same run; both must give the same commanded accelerations u. The
+  closed-form MPC alone (eq. 56, `DecoupledMPC.delta_u`) is timed as well.
+* ``offline_sim``: real-time factor of the offline closed loop on paper-circle.
+* ``dds``: the nodes over DDS (`nodes.dds_bench`), skipped when ROS 2 is missing.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+from .core.controller import MotionController
+from .core.mpc import DecoupledMPC
+from .core.params import ControlParams, RobotinoParams, load_params
+from .core.trajectory import make_reference, preview
+
+__all__ = [
+    "Benchmark",
+    "BenchmarkError",
+    "BenchmarkSkipped",
+    "REGISTRY",
+    "benchmark",
+    "run_benchmarks",
+    "bench_controller_step",
+    "bench_offline_sim",
+]
+
+
+class BenchmarkError(RuntimeError):
+    """A benchmark whose two sides disagree or whose result is not a positive finite number."""
+
+
+class BenchmarkSkipped(Exception):
+    """Raised by a benchmark that cannot run here; the message says why."""
+
+
+@dataclass(frozen=True)
+class Benchmark:
+    """A registered benchmark: its name, a one-line description and the function."""
+
+    name: str
+    description: str
+    func: Callable[[bool], dict[str, float]]
+
+
+REGISTRY: dict[str, Benchmark] = {}
+
+
+def benchmark(name: str, description: str) -> Callable[[Callable[[bool], dict[str, float]]], Callable]:
+    """Decorator registering ``fn(quick) -> {key: value}`` under `name` (run in registration order)."""
+
+    def register(func: Callable[[bool], dict[str, float]]) -> Callable[[bool], dict[str, float]]:
+        if name in REGISTRY:
+            raise ValueError(f"benchmark {name!r} registered twice")
+        REGISTRY[name] = Benchmark(name, description, func)
+        return func
+
+    return register
+
+
+def _median_per_call(passes: list[Callable[[], None]], calls: int, repeats: int) -> list[float]:
+    """Median wall time per call [s] of each pass (`calls` calls each), repeats interleaved."""
+    samples: list[list[float]] = [[] for _ in passes]
+    for _ in range(repeats):
+        for run_once, store in zip(passes, samples):
+            start = time.perf_counter()
+            run_once()
+            store.append((time.perf_counter() - start) / calls)
+    return [statistics.median(store) for store in samples]
+
+
+def _step_inputs(steps: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, RobotinoParams, ControlParams]:
+    """Measured states and previews of `steps` ticks along paper-circle from rest.
+
+    The states are the reference's plus 10 um / 0.1 mm/s noise, what a
+    well-tracking closed loop measures (no voltage saturation).
+    """
+    robot, control = load_params()
+    reference = make_reference("paper-circle")
+    rng = np.random.default_rng(seed)
+    Ts, N = control.period_s, control.horizon
+    times = np.arange(steps) * Ts
+    pos, vel, _, _ = reference.sample(times)
+    X = np.empty((steps, 6))
+    X[:, 0::2] = pos + rng.normal(0.0, 1e-5, size=pos.shape)
+    X[:, 1::2] = vel + rng.normal(0.0, 1e-4, size=vel.shape)
+    previews = np.stack([preview(reference, t, Ts, N) for t in times])
+    return X, previews, robot, control
+
+
+class _OsqpMPC:
+    """The three per-axis MPC problems of one step as one QP for OSQP (warm-started, tight tolerances).
+
+    Variables Delta U = (Delta u_x(k..k+N-1), Delta u_y(...), Delta u_theta(...));
+    cost 1/2 Delta U^T blockdiag(F_1p^T Q_p F_1p + R_p) Delta U - Delta U^T blockdiag(F_1p^T Q_p) e,
+    e = Y_d - G_p x(k) - F_2p u(k-1) (eqs. 50-54), whose minimiser is eq. (56).
+    """
+
+    def __init__(self, mpc: DecoupledMPC, eps: float = 1e-10) -> None:
+        self.mpc = mpc
+        N = mpc.horizon
+        P = sp.block_diag([sp.csc_matrix(np.triu(h)) for h in mpc.hessian], format="csc")
+        self._lin = [mpc.q[a] * mpc.F_1p[a].T for a in range(3)]
+        self.solver = osqp.OSQP()
+        self.solver.setup(
+            P=P, q=np.zeros(3 * N), A=sp.csc_matrix((0, 3 * N)), l=np.zeros(0), u=np.zeros(0),
+            eps_abs=eps, eps_rel=eps, max_iter=100000, polishing=False, warm_starting=True, verbose=False,
+        )
+        self.N = N
+        self._solved = osqp.SolverStatus.OSQP_SOLVED
+
+    def linear_terms(self, x: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray) -> np.ndarray:
+        e = self.mpc.free_error(x, u_prev, Y_d)  # (N, 3)
+        return -np.concatenate([self._lin[a] @ e[:, a] for a in range(3)])
+
+    def solve(self, q: np.ndarray) -> np.ndarray:
+        """Delta u(k) of the three axes for the linear term `q`."""
+        self.solver.update(q=q)
+        result = self.solver.solve(raise_error=False)
+        if result.info.status_val != self._solved:
+            raise BenchmarkError(f"OSQP did not solve the MPC QP: {result.info.status}")
+        return result.x[:: self.N]
+
+
+@benchmark("controller_step", "MotionController.step (MPCs + T(theta) + inverse drive) vs OSQP on the same MPC QPs")
+def bench_controller_step(quick: bool) -> dict[str, float]:
+    """Time the controller's step against OSQP on identical per-step MPC problems.
+
+    The controller runs first over a sequence of measured states and previews
+    along paper-circle; OSQP then solves the stacked QP of the same steps with
+    the states, previews and u(k-1) the controller saw. OSQP's time counts
+    only `update` + `solve` (building the linear term is left out) while the
+    controller's covers the whole step, T(theta) and inverse drive included,
+    so ``controller_step_speedup_vs_osqp`` is a lower bound on the speed-up of
+    a controller over one built on OSQP; ``closed_form_mpc_speedup_vs_osqp``
+    compares the MPC parts alone.
+
+    Raises
+    ------
+    BenchmarkError
+        If OSQP's u(k) = u(k-1) + Delta u(k) differs from the controller's u.
+    """
+    steps, repeats = (200, 3) if quick else (1000, 7)
+    X, previews, robot, control = _step_inputs(steps)
+    controller = MotionController(robot, control)
+
+    # the controller's own u(k-1) (after its anti-windup) is the input both sides see
+    u_prev = np.empty((steps, 3))
+    u_ctrl = np.empty((steps, 3))
+    controller.reset()
+    for k in range(steps):
+        u_prev[k] = controller.u_prev
+        u_ctrl[k] = controller.step(X[k], previews[k]).u
+
+    def controller_pass() -> None:
+        controller.reset()
+        for k in range(steps):
+            controller.step(X[k], previews[k])
+
+    qp = _OsqpMPC(DecoupledMPC(robot, control))
+    q_terms = [qp.linear_terms(X[k].reshape(3, 2), u_prev[k], previews[k]) for k in range(steps)]
+    u_osqp = np.array([u_prev[k] + qp.solve(q_terms[k]) for k in range(steps)])
+    scale = max(1.0, float(np.abs(u_ctrl).max()))
+    diff = float(np.abs(u_osqp - u_ctrl).max())
+    if not diff <= 1e-6 * scale:
+        raise BenchmarkError(f"OSQP and the controller disagree on u by {diff:.3g} (scale {scale:.3g})")
+
+    def osqp_pass() -> None:
+        for q in q_terms:
+            qp.solve(q)
+
+    states = X.reshape(steps, 3, 2)
+
+    def closed_form_pass() -> None:
+        for k in range(steps):
+            qp.mpc.delta_u(states[k], u_prev[k], previews[k])
+
+    ctrl_s, osqp_s, closed_s = _median_per_call([controller_pass, osqp_pass, closed_form_pass], steps, repeats)
+    return {
+        "controller_step_us": ctrl_s * 1e6,
+        "osqp_mpc_solve_us": osqp_s * 1e6,
+        "closed_form_mpc_us": closed_s * 1e6,
+        "controller_step_speedup_vs_osqp": osqp_s / ctrl_s,
+        "closed_form_mpc_speedup_vs_osqp": osqp_s / closed_s,
+        "osqp_max_u_difference": diff,
+        "controller_steps_timed": float(steps),
+    }
+
+
+@benchmark("offline_sim", "offline closed loop (plant + controller + reference) on paper-circle, real-time factor")
+def bench_offline_sim(quick: bool) -> dict[str, float]:
+    """Simulated seconds per wall-clock second of `simulation.run_scenario` on paper-circle."""
+    from .simulation import run_scenario
+
+    duration_s, repeats = (5.0, 1) if quick else (60.0, 3)
+    robot, control = load_params()
+    (wall_s,) = _median_per_call(
+        [lambda: run_scenario("paper-circle", robot, control, duration_s=duration_s, seed=0, progress=False)],
+        1,
+        repeats,
+    )
+    return {
+        "offline_sim_realtime_factor": duration_s / wall_s,
+        "offline_sim_wall_s": wall_s,
+        "offline_sim_duration_s": duration_s,
+    }
+
+
+@benchmark("dds", "the nodes over DDS: lockstep real-time factor, realtime missed ticks and latency")
+def bench_dds(quick: bool) -> dict[str, float]:
+    """The figures of `robotino_geom_mpc.nodes.dds_bench.dds_benchmarks`, skipped without ROS 2."""
+    try:
+        from .nodes.dds_bench import dds_benchmarks
+    except ImportError as exc:
+        raise BenchmarkSkipped(f"ROS 2 not available: {exc}") from None
+    return dds_benchmarks(quick)
+
+
+def run_benchmarks(
+    quick: bool = False, names: list[str] | None = None, log: Callable[[str], None] | None = None
+) -> dict[str, float]:
+    """Run the registered benchmarks (all, or `names`) and merge their figures into one dict.
+
+    Parameters
+    ----------
+    quick
+        Fewer steps and repeats (a smoke run; figures are noisier).
+    names
+        Benchmarks to run, in registry order when None.
+    log
+        Receives one progress line per benchmark (default: stderr).
+
+    Raises
+    ------
+    BenchmarkError
+        If a name is unknown, a benchmark's sides disagree, or a figure is
+        not a positive finite number.
+    """
+    log = log or (lambda line: print(line, file=sys.stderr, flush=True))
+    selected = list(REGISTRY) if names is None else list(names)
+    unknown = [n for n in selected if n not in REGISTRY]
+    if unknown:
+        raise BenchmarkError(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(REGISTRY)}")
+    results: dict[str, float] = {}
+    for name in selected:
+        entry = REGISTRY[name]
+        log(f"bench {name}: {entry.description} ...")
+        try:
+            figures = entry.func(quick)
+        except BenchmarkSkipped as exc:
+            log(f"bench {name}: skipped ({exc})")
+            continue
+        for key, value in figures.items():
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise BenchmarkError(f"benchmark {name} returned {key} = {value!r}, not a finite number >= 0")
+            results[key] = float(value)
+    return results

@@ -1,0 +1,51 @@
+"""`robotino-geom-mpc bench`: run the registered benchmarks (robotino_geom_mpc.benchmarks).
+
+Progress goes to stderr; a table of the figures goes to stdout, and with
+--json the last line of stdout is one JSON object of all figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from . import UsageError
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register the `bench` verb."""
+    parser = sub.add_parser(
+        "bench",
+        help="time the control step against OSQP and the offline simulation",
+        description="Run the benchmarks: one control step against OSQP on the same MPC problems, "
+        "the offline simulation's real-time factor, and any further registered benchmark.",
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object of all figures as the last line")
+    parser.add_argument("--quick", action="store_true", help="fewer steps and repeats (smoke run, noisier figures)")
+    parser.add_argument("--only", nargs="+", metavar="NAME", default=None, help="run only these benchmarks")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the benchmarks and print their figures; returns the exit status."""
+    from ..benchmarks import REGISTRY, BenchmarkError, run_benchmarks
+
+    if args.only is not None:
+        unknown = [name for name in args.only if name not in REGISTRY]
+        if unknown:
+            raise UsageError(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(REGISTRY)}")
+    try:
+        results = run_benchmarks(quick=args.quick, names=args.only)
+    except BenchmarkError as exc:  # a failed benchmark, not a usage error
+        print(f"robotino-geom-mpc bench: failed: {exc}", file=sys.stderr)
+        return 1
+    width = max((len(key) for key in results), default=0)
+    for key, value in results.items():
+        print(f"{key:<{width}}  {value:.6g}")
+    if args.json:
+        print(json.dumps(results, sort_keys=True))
+    return 0

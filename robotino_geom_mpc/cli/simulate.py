@@ -1,0 +1,108 @@
+"""`robotino-geom-mpc simulate`: one offline closed-loop run, its metrics.json and figures.
+
+Runs `simulation.run_scenario` (plant + controller + reference, no ROS) and
+writes DIR/metrics.json, DIR/run.npz and the PNGs of `plots.write_plots`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+from . import UsageError
+
+__all__ = ["add_parser", "run", "positive_seconds", "seed_value"]
+
+SETTLE_TIME_S = 1.0
+
+
+def positive_seconds(text: str) -> float:
+    """argparse type: a finite duration > 0 in seconds."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be finite and > 0 s, got {text!r}")
+    return value
+
+
+def seed_value(text: str) -> int:
+    """argparse type: a non-negative integer seed."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
+    return value
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register the `simulate` verb."""
+    parser = sub.add_parser(
+        "simulate",
+        help="run a scenario offline (no ROS) and write metrics.json and the figures",
+        description="Run one scenario in the offline closed loop (plant + controller + reference) "
+        "and write DIR/metrics.json, DIR/run.npz and the PNGs (paper Figs. 4-6, voltages, errors).",
+    )
+    parser.add_argument(
+        "--scenario",
+        required=True,
+        help="scenario name: paper-circle, lemniscate, point-to-point or robustness",
+    )
+    parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/<scenario>)")
+    parser.add_argument("--duration", type=positive_seconds, default=None, metavar="S",
+                        help="simulated time [s] (default: the scenario's length)")
+    parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def _fmt(value: float | None, unit: str) -> str:
+    return "n/a" if value is None else f"{value:.3g} {unit}"
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the scenario, write the outputs, print a summary; returns the exit status."""
+    from ..core.params import load_params
+    from ..plots import write_plots
+    from ..results import compute_metrics, save_run, write_metrics
+    from ..simulation import SCENARIOS, run_scenario
+
+    if args.scenario not in SCENARIOS:
+        raise UsageError(f"unknown scenario {args.scenario!r}; choose from {', '.join(SCENARIOS)}")
+    robot, control = load_params(args.params)
+    out = args.out if args.out is not None else Path("out") / args.scenario
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"cannot create output folder {out}: {exc.strerror or exc}") from None
+
+    start = time.perf_counter()
+    data = run_scenario(
+        args.scenario, robot, control, duration_s=args.duration, seed=args.seed, progress=not args.no_progress
+    )
+    wall_s = time.perf_counter() - start
+
+    metrics = compute_metrics(data, settle_time_s=SETTLE_TIME_S)
+    metrics["wall_time_s"] = wall_s
+    metrics["realtime_factor"] = metrics["duration_s"] / wall_s
+    write_metrics(metrics, out / "metrics.json")
+    save_run(data, out / "run.npz")
+    figures = write_plots(data, out, settle_time_s=SETTLE_TIME_S)
+
+    m = metrics
+    print(f"scenario {m['scenario']}: {m['duration_s']:.3g} s simulated in {wall_s:.3g} s")
+    print(f"  position error after {SETTLE_TIME_S:g} s: rms {_fmt(m['rms_position_error_m'], 'm')}, "
+          f"max {_fmt(m['max_position_error_m'], 'm')}")
+    print(f"  max |theta error|: {_fmt(m['max_abs_theta_error_rad'], 'rad')}")
+    within = "within" if m["current_within_nominal"] else "ABOVE"
+    print(f"  peak current {m['peak_current_a']:.3g} A ({within} nominal {m['nominal_current_a']:g} A), "
+          f"peak voltage {m['peak_voltage_v']:.3g} V (supply {m['supply_voltage_v']:g} V)")
+    print(f"  wrote {out / 'metrics.json'}, {out / 'run.npz'} and {len(figures)} figures")
+    return 0

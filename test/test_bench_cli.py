@@ -1,0 +1,119 @@
+"""`robotino-geom-mpc bench`: the JSON line, the benchmark registry, and the OSQP side's QP.
+
+Only structure and sanity are checked (keys present, values positive and
+finite); no test asserts a speed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from robotino_geom_mpc import benchmarks
+from robotino_geom_mpc.benchmarks import BenchmarkError, BenchmarkSkipped, _OsqpMPC, benchmark, run_benchmarks
+from robotino_geom_mpc.cli import main
+from robotino_geom_mpc.core.mpc import DecoupledMPC
+from robotino_geom_mpc.core.params import load_params
+
+REQUIRED_KEYS = ("controller_step_speedup_vs_osqp", "offline_sim_realtime_factor")
+
+
+def test_bench_json_quick_last_line():
+    # the DDS benchmark (nodes.dds_bench) starts ROS processes and is tested with it
+    proc = subprocess.run(
+        [sys.executable, "-m", "robotino_geom_mpc", "bench", "--json", "--quick", "--only", "controller_step", "offline_sim"],
+        capture_output=True, text=True, timeout=300, env=dict(os.environ),
+    )
+    assert proc.returncode == 0, proc.stderr
+    figures = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert isinstance(figures, dict)
+    for key in REQUIRED_KEYS:
+        assert key in figures
+    for key, value in figures.items():
+        assert isinstance(value, (int, float)) and math.isfinite(value), key
+    for key in REQUIRED_KEYS + ("controller_step_us", "osqp_mpc_solve_us"):
+        assert figures[key] > 0, key
+    # the two sides of the comparison agreed on u (the benchmark checks it; the figure says by how much)
+    assert figures["osqp_max_u_difference"] < 1e-3
+    assert "Traceback" not in proc.stderr
+
+
+def test_osqp_qp_is_the_closed_form_mpc_problem():
+    """The stacked QP OSQP solves has the closed form (eq. 56) as its minimiser, whole horizon."""
+    robot, control = load_params()
+    mpc = DecoupledMPC(robot, control)
+    qp = _OsqpMPC(mpc)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        x = rng.normal(0.0, 0.1, (3, 2))
+        u_prev = rng.normal(0.0, 1.0, 3)
+        Y_d = rng.normal(0.0, 0.01, (mpc.horizon, 3))
+        qp.solver.update(q=qp.linear_terms(x, u_prev, Y_d))
+        dU = qp.solver.solve(raise_error=False).x.reshape(3, mpc.horizon).T
+        closed = mpc.solve(x, u_prev, Y_d)
+        np.testing.assert_allclose(dU, closed, rtol=0, atol=1e-8 * np.abs(closed).max())
+        # and the first increment is what the receding-horizon law applies
+        np.testing.assert_allclose(qp.solve(qp.linear_terms(x, u_prev, Y_d)), closed[0], atol=1e-8 * np.abs(closed).max())
+
+
+@pytest.fixture
+def registry(monkeypatch):
+    fresh: dict = {}
+    monkeypatch.setattr(benchmarks, "REGISTRY", fresh)
+    return fresh
+
+
+def test_adding_a_benchmark_is_one_registered_function(registry):
+    @benchmark("first", "returns one figure")
+    def first(quick):
+        return {"a_figure": 2.0 if quick else 3.0}
+
+    @benchmark("no_ros", "cannot run here")
+    def no_ros(quick):
+        raise BenchmarkSkipped("no DDS")
+
+    lines = []
+    assert run_benchmarks(quick=True, log=lines.append) == {"a_figure": 2.0}
+    assert run_benchmarks(quick=False, log=lines.append) == {"a_figure": 3.0}
+    assert any("skipped (no DDS)" in line for line in lines)
+    with pytest.raises(ValueError, match="twice"):
+        benchmark("first", "again")(first)
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -1.0, "fast"])
+def test_benchmark_with_bad_figure_fails(registry, value):
+    benchmark("bad", "bad figure")(lambda quick: {"figure": value})
+    with pytest.raises(BenchmarkError, match="figure"):
+        run_benchmarks(log=lambda line: None)
+
+
+def test_unknown_benchmark_name(registry, capsys):
+    benchmark("known", "ok")(lambda quick: {"x": 1.0})
+    with pytest.raises(BenchmarkError, match="unknown benchmark nope"):
+        run_benchmarks(names=["nope"], log=lambda line: None)
+    assert main(["bench", "--only", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown benchmark nope" in err and "known" in err
+
+
+def test_failed_benchmark_exits_1_with_one_line(registry, capsys):
+    def broken(quick):
+        raise BenchmarkError("sides disagree")
+
+    benchmark("broken", "fails")(broken)
+    assert main(["bench", "--json"]) == 1
+    err = capsys.readouterr().err
+    assert "sides disagree" in err and "Traceback" not in err
+
+
+def test_dds_benchmark_skipped_without_ros(monkeypatch):
+    monkeypatch.setitem(sys.modules, "robotino_geom_mpc.nodes.dds_bench", None)  # import fails
+    lines = []
+    assert run_benchmarks(quick=True, names=["dds"], log=lines.append) == {}
+    assert "skipped" in lines[-1]

@@ -1,0 +1,196 @@
+"""One control step of Fig. 3: three decoupled MPCs -> T(theta) -> inverse DC drive -> wheel voltages.
+
+This is the whole controller the controller node wraps and the offline
+simulation calls once per period; it knows nothing of ROS.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from .constrained import ConstrainedMPC
+from .decoupling import DecouplingField
+from .drive import InverseDrive, MotorKinematics
+from .model import acceleration_block, wheel_forces
+from .mpc import DecoupledMPC, axis_dampings
+from .params import ControlParams, RobotinoParams
+
+__all__ = ["ControllerInputError", "ControlOutput", "MotionController", "state_from_odometry"]
+
+
+class ControllerInputError(ValueError):
+    """A measured state or reference preview with the wrong shape or non-finite values."""
+
+
+class ControlOutput(NamedTuple):
+    """Result of one control step (immutable).
+
+    Attributes
+    ----------
+    voltages
+        Wheel voltages U_1..3 [V] to hold over the next period, within +-supply.
+    currents
+        Commanded wheel currents i = F r / (gear Km) [A], F = T(theta) u.
+    u
+        Commanded accelerations (u_x, u_y, u_theta) of the MPCs (eq. 48).
+    saturated
+        True when a voltage was clipped to the supply.
+    infeasible
+        True when the constrained mode could not meet its limits (always False in closed form).
+    compute_time_s
+        Wall-clock time of the step [s].
+    """
+
+    voltages: np.ndarray
+    currents: np.ndarray
+    u: np.ndarray
+    saturated: bool
+    infeasible: bool
+    compute_time_s: float
+
+
+class MotionController:
+    """MPCs (eqs. 48-56) -> decoupling field T(theta) (eqs. 33-37) -> inverse drive (eq. 10).
+
+    Parameters
+    ----------
+    robot
+        The controller's model of the robot.
+    control
+        Period, horizon, weights and mode (`closed_form` or `constrained`).
+
+    Notes
+    -----
+    One step, for the measured body state X = (x, x', y, y', theta, theta')
+    and the reference positions y_d(k+1) .. y_d(k+N):
+
+    1. u(k) = u(k-1) + Delta u(k), Delta u(k) the first component of eq. (56)
+       (or of the constrained QP, `constrained.ConstrainedMPC`);
+    2. wheel forces F = T(theta_m) u(k) with T(theta) = T(0) diag(R(theta), 1)
+       evaluated at the mid-period heading theta_m = theta + theta' Ts / 2 (the
+       forces are held while the body turns), currents i = F r / (gear Km);
+    3. voltages from `drive.InverseDrive` with the motor speeds of the
+       measured velocity and their rate under the commanded acceleration
+       u - (k/M) v, clipped to the supply. When clipped, u(k) is replaced by
+       the acceleration the clipped voltages give (anti-windup), so the next
+       Delta u starts from what the robot really receives.
+    """
+
+    def __init__(self, robot: RobotinoParams, control: ControlParams) -> None:
+        self.robot = robot
+        self.control = control
+        self.period_s = float(control.period_s)
+        self.horizon = int(control.horizon)
+        self.mpc = DecoupledMPC(robot, control)
+        self.field = DecouplingField(robot)
+        self.kinematics = MotorKinematics(robot)
+        self.drive = InverseDrive(robot, self.period_s)
+        # i = (r / (gear Km)) T(0) diag(R(theta), 1) u: the fast path of DecouplingField.field
+        self._current_T0 = robot.r / (robot.gear_ratio * robot.torque_constant_n_m_per_a) * self.field.T0
+        self._damping = axis_dampings(robot)
+        self._damping_rates = tuple(self._damping.tolist())
+        self._K = self.mpc.stacked_gain
+        self.constrained = ConstrainedMPC(robot, control, self.mpc) if control.mode == "constrained" else None
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous input and the drive's current estimate (robot at rest, drives off)."""
+        self.u_prev = np.zeros(3)
+        self.drive.reset()
+        if self.constrained is not None:
+            self.constrained.reset()
+
+    def _acceleration_of_current(self, theta_m: float, current: np.ndarray) -> np.ndarray:
+        """Body acceleration (x'', y'', theta'') the wheel currents give (friction aside), eq. (9)."""
+        return acceleration_block(theta_m, self.robot) @ wheel_forces(current, self.robot)
+
+    def _rate_of_current(self, theta: float, theta_m: float, velocity: np.ndarray, current: np.ndarray) -> np.ndarray:
+        """Motor-speed rate under the acceleration the currents give (used when the voltage saturates)."""
+        acc = self._acceleration_of_current(theta_m, current) - self._damping * velocity
+        return self.kinematics.speeds_and_rates(theta, velocity, acc)[1]
+
+    def _bad_input(self, X: np.ndarray, Y_d: np.ndarray) -> ControllerInputError:
+        if not np.all(np.isfinite(X)):
+            return ControllerInputError(f"X must be finite, got {X.tolist()}")
+        return ControllerInputError("preview must be finite")
+
+    def step(self, X: object, preview: object) -> ControlOutput:
+        """One control period: voltages for the measured state and the reference preview.
+
+        Parameters
+        ----------
+        X
+            Measured body state (x, x', y, y', theta, theta'), shape (6,).
+        preview
+            Reference positions (x_d, y_d, theta_d) at t + Ts, ..., t + N Ts, shape (N, 3).
+
+        Returns
+        -------
+        ControlOutput
+
+        Raises
+        ------
+        ControllerInputError
+            For a wrong shape or a NaN / Inf; the state of the controller is unchanged.
+        """
+        start = time.perf_counter()
+        X = np.asarray(X, dtype=float)
+        Y_d = np.asarray(preview, dtype=float)
+        if X.shape != (6,):
+            raise ControllerInputError(f"X must have shape (6,), got {X.shape}")
+        if Y_d.shape != (self.horizon, 3):
+            raise ControllerInputError(f"preview must have shape ({self.horizon}, 3), got {Y_d.shape}")
+        z = np.concatenate((Y_d.ravel(), X, self.u_prev))
+        if not np.isfinite(z).all():
+            raise self._bad_input(X, Y_d)
+        theta, w = float(X[4]), float(X[5])
+        theta_m = theta + 0.5 * self.period_s * w
+        infeasible = False
+        if self.constrained is None:
+            u = self.u_prev + self._K @ z
+        else:
+            u, infeasible = self.constrained.solve(X, self.u_prev, Y_d, self.drive.current_estimate)
+        c, s = math.cos(theta_m), math.sin(theta_m)
+        ux, uy, uw = u.tolist()
+        currents = self._current_T0 @ np.array([c * ux - s * uy, s * ux + c * uy, uw])
+        velocity = X[1::2]
+        vx, vy = float(X[1]), float(X[3])
+        dx, dy, dw = self._damping_rates
+        acceleration = (ux - dx * vx, uy - dy * vy, uw - dw * w)
+        omega, omega_rate = self.kinematics.speeds_and_rates(theta, (vx, vy, w), acceleration)
+        voltages, saturated, mean_current = self.drive.step(
+            currents, omega, omega_rate, lambda i: self._rate_of_current(theta, theta_m, velocity, i)
+        )
+        self.u_prev = self._acceleration_of_current(theta_m, mean_current) if saturated else u
+        return ControlOutput(voltages, currents, u, saturated, infeasible, time.perf_counter() - start)
+
+
+def state_from_odometry(pose: object, twist_body: object) -> np.ndarray:
+    """Body state X = (x, x', y, y', theta, theta') of eq. (2) from an odometry measurement.
+
+    Parameters
+    ----------
+    pose
+        Measured (x, y, theta) in the odom frame.
+    twist_body
+        (v_x, v_y, theta') in the robot frame, as nav_msgs/Odometry carries it.
+
+    Returns
+    -------
+    ndarray, shape (6,)
+        The velocity rotated into the odom frame by the *measured* heading
+        (all a controller on the robot knows).
+    """
+    pose = np.asarray(pose, dtype=float)
+    twist = np.asarray(twist_body, dtype=float)
+    if pose.shape != (3,):
+        raise ControllerInputError(f"pose must have shape (3,), got {pose.shape}")
+    if twist.shape != (3,):
+        raise ControllerInputError(f"twist_body must have shape (3,), got {twist.shape}")
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    vx, vy = float(twist[0]), float(twist[1])
+    return np.array([pose[0], c * vx - s * vy, pose[1], s * vx + c * vy, pose[2], twist[2]])

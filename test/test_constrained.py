@@ -1,0 +1,139 @@
+"""Constrained mode: QP against the closed form, limits checked with the model, optimality against quadprog."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import quadprog
+from scipy.integrate import solve_ivp
+
+from robotino_geom_mpc.core import model
+from robotino_geom_mpc.core.constrained import ConstrainedMPC
+from robotino_geom_mpc.core.controller import MotionController
+from robotino_geom_mpc.core.decoupling import DecouplingField
+from robotino_geom_mpc.core.drive import MotorKinematics, ZOHDrive
+from robotino_geom_mpc.core.mpc import DecoupledMPC, axis_dampings
+from robotino_geom_mpc.core.params import load_params
+
+
+@pytest.fixture(scope="module")
+def setup():
+    robot, control = load_params()
+    control = replace(control, mode="constrained")
+    mpc = DecoupledMPC(robot, control)
+    return robot, control, mpc, ConstrainedMPC(robot, control, mpc)
+
+
+def _moving_state():
+    return np.array([0.01, 0.2, -0.02, 0.1, 0.3, 0.2])
+
+
+def _currents(robot, theta_mid, u):
+    """Wheel currents of u with the decoupling field and the model (independent of the QP's rows)."""
+    F = DecouplingField(robot).field(theta_mid) @ u
+    return model.currents_from_forces(F, robot)
+
+
+def test_qp_equals_closed_form_when_limits_are_inactive(setup):
+    robot, control, mpc, qp = setup
+    X = _moving_state()
+    u_prev = np.array([0.1, -0.05, 0.2])
+    Y_d = X[0::2] + np.outer(np.arange(1, 5) * control.period_s, X[1::2])
+    closed = mpc.solve(X.reshape(3, 2), u_prev, Y_d)
+    dU, infeasible = qp.solve_increments(X, u_prev, Y_d, np.zeros(3), use_closed_form=False)
+    assert not infeasible
+    np.testing.assert_allclose(dU, closed, rtol=0, atol=1e-9)
+    # and the limits are indeed inactive there
+    *_, rows = qp.constraint_rows(X, u_prev, Y_d, np.zeros(3))
+    assert np.max(np.abs(rows[:, 0] + rows[:, 1:] @ closed.ravel())) < 0.9
+
+
+def test_active_limits_hold_and_the_optimum_matches_quadprog(setup):
+    robot, control, mpc, qp = setup
+    X = _moving_state()
+    u_prev = np.zeros(3)
+    Y_d = np.tile(X[0::2] + np.array([0.05, -0.03, 0.2]), (control.horizon, 1))  # far: amperes wanted
+    closed = mpc.solve(X.reshape(3, 2), u_prev, Y_d)
+    theta_mid = X[4] + 0.5 * control.period_s * X[5]
+    assert np.max(np.abs(_currents(robot, theta_mid, u_prev + closed[0]))) > 2 * robot.nominal_current_a
+    dU, infeasible = qp.solve_increments(X, u_prev, Y_d, np.zeros(3))
+    assert not infeasible
+    u = u_prev + np.cumsum(dU, axis=0)
+    # currents of the applied step from the model, and of the later steps at the reference's headings
+    assert np.max(np.abs(_currents(robot, theta_mid, u[0]))) <= robot.nominal_current_a * (1 + 1e-6)
+    for j in range(1, control.horizon):
+        heading = 0.5 * (Y_d[j - 1, 2] + Y_d[j, 2])
+        assert np.max(np.abs(_currents(robot, heading, u[j]))) <= robot.nominal_current_a * (1 + 1e-6)
+    # the applied step's voltage from the drive relations with the measured velocity
+    zoh = ZOHDrive(robot.resistance_ohm, robot.inductance_h, robot.torque_constant_n_m_per_a, control.period_s)
+    v = X[1::2]
+    omega, rate = MotorKinematics(robot).speeds_and_rates(X[4], v, u[0] - axis_dampings(robot) * v)
+    U0 = zoh.voltage(_currents(robot, theta_mid, u[0]), np.zeros(3), omega, rate)
+    assert np.max(np.abs(U0)) <= robot.supply_voltage_v * (1 + 1e-6)
+    # on the coupled plant the current stays near the limit all along the period, not only on average
+    # (average and end are bounded; the back-EMF rising within the period allows a hump of ~1 %)
+    sol = solve_ivp(
+        lambda t, s: model.coupled_rhs(s, U0, robot),
+        (0.0, control.period_s),
+        np.concatenate((X, np.zeros(3))),
+        method="DOP853",
+        rtol=1e-10,
+        atol=1e-12,
+        dense_output=True,
+    )
+    currents_along = sol.sol(np.linspace(0.0, control.period_s, 201))[6:9]
+    assert np.max(np.abs(currents_along)) <= robot.nominal_current_a * 1.02
+    # optimality: a second solver (dual active set) on the same QP
+    P = np.zeros((12, 12))
+    for a in range(3):
+        P[a::3, a::3] = mpc.hessian[a]
+    e = mpc.free_error(X.reshape(3, 2), u_prev, Y_d)
+    g = np.zeros(12)
+    for a in range(3):
+        g[a::3] = mpc.q[a] * mpc.F_1p[a].T @ e[:, a]
+    *_, rows = qp.constraint_rows(X, u_prev, Y_d, np.zeros(3))
+    h, G = rows[:, 0], rows[:, 1:]
+    C = np.vstack((-G, G)).T  # quadprog: C^T z >= b
+    b = np.concatenate((h - 1.0, -1.0 - h))
+    ref = quadprog.solve_qp(P, g, C, b)[0]
+    np.testing.assert_allclose(dU.ravel(), ref, rtol=0, atol=1e-6 * np.max(np.abs(ref)))
+
+
+def _min_total_violation(G, h, eps=1e-7):
+    """min sum(s), |G z + h| <= 1 + s, s >= 0, by quadprog with a tiny regulariser (an LP check)."""
+    m, n = G.shape
+    P = eps * np.eye(n + m)
+    q = -np.concatenate((np.zeros(n), np.ones(m)))  # quadprog minimises 1/2 x'Px - q'x
+    eye = np.eye(m)
+    C = np.vstack((np.hstack((-G, eye)), np.hstack((G, eye)), np.hstack((np.zeros((m, n)), eye)))).T
+    b = np.concatenate((h - 1.0, -1.0 - h, np.zeros(m)))
+    x = quadprog.solve_qp(P, q, C, b)[0]
+    return np.sum(np.maximum(np.abs(G @ x[:n] + h) - 1.0, 0.0))
+
+
+def test_infeasible_state_is_flagged_with_least_violation(setup):
+    robot, control, mpc, qp = setup
+    # 2.5 m/s along x: even -i_nom cannot bring two wheels' voltages below the supply
+    X = np.array([0.0, 2.5, 0.0, 0.0, 0.0, 0.0])
+    Y_d = X[0::2] + np.outer(np.arange(1, 5) * control.period_s, X[1::2])
+    dU, infeasible = qp.solve_increments(X, np.zeros(3), Y_d, np.zeros(3))
+    assert infeasible
+    assert np.all(np.isfinite(dU))
+    *_, rows = qp.constraint_rows(X, np.zeros(3), Y_d, np.zeros(3))
+    h, G = rows[:, 0], rows[:, 1:]
+    violation = np.sum(np.maximum(np.abs(G @ dU.ravel() + h) - 1.0, 0.0))
+    best = _min_total_violation(G, h)
+    assert best > 1e-3
+    assert violation <= best + 1e-5
+
+
+def test_controller_in_constrained_mode_reports_infeasible_and_stays_in_supply(setup):
+    robot, control, _, _ = setup
+    ctl = MotionController(robot, control)
+    X = np.array([0.0, 2.5, 0.0, 0.0, 0.0, 0.0])
+    out = ctl.step(X, X[0::2] + np.outer(np.arange(1, 5) * control.period_s, X[1::2]))
+    assert out.infeasible
+    assert np.all(np.isfinite(out.voltages)) and np.max(np.abs(out.voltages)) <= robot.supply_voltage_v
+    # a feasible state afterwards clears the flag
+    out = ctl.step(np.zeros(6), np.zeros((4, 3)))
+    assert not out.infeasible

@@ -1,0 +1,125 @@
+"""One control step against the model: decoupling field, drive simulated on the coupled plant, input errors."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from robotino_geom_mpc.core import model
+from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, state_from_odometry
+from robotino_geom_mpc.core.decoupling import DecouplingField
+from robotino_geom_mpc.core.mpc import DecoupledMPC
+from robotino_geom_mpc.core.params import load_params
+from robotino_sim_node.plant import RobotinoPlant
+
+
+@pytest.fixture(scope="module")
+def params():
+    return load_params()
+
+
+X0 = np.array([0.01, 0.15, -0.02, -0.1, 0.4, 0.3])
+
+
+def _preview(X, control, offset=(0.0, 0.0, 0.0)):
+    steps = np.arange(1, control.horizon + 1)[:, None] * control.period_s
+    return X[0::2] + steps * X[1::2] + np.asarray(offset)
+
+
+def _period_on_plant(robot, state, U, Ts):
+    """Coupled plant (model.coupled_rhs) over one period with U held: end state and mean currents."""
+
+    def rhs(t, s):
+        return np.concatenate((model.coupled_rhs(s[:9], U, robot), s[6:9]))
+
+    sol = solve_ivp(rhs, (0.0, Ts), np.concatenate((state, np.zeros(3))), method="DOP853", rtol=1e-10, atol=1e-12)
+    return sol.y[:9, -1], sol.y[9:, -1] / Ts
+
+
+def test_step_is_mpc_then_decoupling_field_then_currents(params):
+    robot, control = params
+    ctl = MotionController(robot, control)
+    Y_d = _preview(X0, control, (1e-4, -2e-4, 1e-4))
+    out = ctl.step(X0, Y_d)
+    expected_u = MotionController(robot, control).u_prev + DecoupledMPC(robot, control).solve(
+        X0.reshape(3, 2), np.zeros(3), Y_d
+    )[0]
+    np.testing.assert_allclose(out.u, expected_u, rtol=1e-12, atol=1e-12)
+    theta_mid = X0[4] + 0.5 * control.period_s * X0[5]
+    F = DecouplingField(robot).field(theta_mid) @ out.u
+    np.testing.assert_allclose(out.currents, model.currents_from_forces(F, robot), rtol=1e-12, atol=1e-15)
+    assert not out.saturated and not out.infeasible and out.compute_time_s > 0
+
+
+def test_voltages_give_the_commanded_currents_on_the_coupled_plant(params):
+    """Several periods on the moving robot: each period's mean current is the command (drive lag aside)."""
+    robot, control = params
+    ctl = MotionController(robot, control)
+    state = np.concatenate((X0, np.zeros(3)))
+    for k in range(4):
+        out = ctl.step(state[:6], _preview(state[:6], control, (2e-5 * (k + 1), 1e-5, -1e-5)))
+        state, mean = _period_on_plant(robot, state, out.voltages, control.period_s)
+        np.testing.assert_allclose(mean, out.currents, atol=2e-3 * max(1.0, np.abs(out.currents).max()))
+
+
+def test_saturation_clips_and_feeds_back_the_achieved_acceleration(params):
+    robot, control = params
+    ctl = MotionController(robot, control)
+    out = ctl.step(X0, _preview(X0, control, (0.2, 0.0, 0.0)))
+    assert out.saturated
+    assert np.max(np.abs(out.voltages)) == pytest.approx(robot.supply_voltage_v)
+    _, mean = _period_on_plant(robot, np.concatenate((X0, np.zeros(3))), out.voltages, control.period_s)
+    theta_mid = X0[4] + 0.5 * control.period_s * X0[5]
+    achieved = model.acceleration_block(theta_mid, robot) @ model.wheel_forces(mean, robot)
+    np.testing.assert_allclose(ctl.u_prev, achieved, atol=0.01 * np.abs(achieved).max())
+    assert np.abs(out.u).max() > 2 * np.abs(achieved).max()
+
+
+def test_reset_restores_the_initial_behaviour(params):
+    robot, control = params
+    ctl = MotionController(robot, control)
+    first = ctl.step(X0, _preview(X0, control, (1e-4, 0, 0)))
+    ctl.step(X0, _preview(X0, control, (3e-4, 0, 0)))
+    ctl.reset()
+    again = ctl.step(X0, _preview(X0, control, (1e-4, 0, 0)))
+    np.testing.assert_array_equal(first.voltages, again.voltages)
+
+
+@pytest.mark.parametrize(
+    "X, preview, match",
+    [
+        (np.array([0, 0, np.nan, 0, 0, 0.0]), np.zeros((4, 3)), "X must be finite"),
+        (np.zeros(6), np.full((4, 3), np.inf), "preview must be finite"),
+        (np.zeros(5), np.zeros((4, 3)), r"X must have shape \(6,\)"),
+        (np.zeros(6), np.zeros((3, 3)), r"preview must have shape \(4, 3\)"),
+    ],
+)
+def test_bad_input_raises_and_leaves_the_state(params, X, preview, match):
+    robot, control = params
+    ctl = MotionController(robot, control)
+    ctl.step(X0, _preview(X0, control, (1e-4, 0, 0)))
+    u_before, i_before = ctl.u_prev.copy(), ctl.drive.current_estimate.copy()
+    with pytest.raises(ControllerInputError, match=match):
+        ctl.step(X, preview)
+    np.testing.assert_array_equal(ctl.u_prev, u_before)
+    np.testing.assert_array_equal(ctl.drive.current_estimate, i_before)
+
+
+def test_constrained_mode_equals_closed_form_when_limits_are_inactive(params):
+    robot, control = params
+    a = MotionController(robot, control)
+    b = MotionController(robot, replace(control, mode="constrained"))
+    for k in range(3):
+        Y_d = _preview(X0, control, (1e-5 * k, 0, 0))
+        out_a, out_b = a.step(X0, Y_d), b.step(X0, Y_d)
+        np.testing.assert_allclose(out_b.voltages, out_a.voltages, atol=1e-9)
+        assert not out_b.infeasible
+
+
+def test_state_from_odometry_inverts_the_plants_measurement(params):
+    robot, _ = params
+    plant = RobotinoPlant(robot, state0=np.concatenate((X0, np.zeros(3))))
+    np.testing.assert_allclose(state_from_odometry(*plant.odometry()), X0, atol=1e-15)
+    with pytest.raises(ControllerInputError, match="twist_body"):
+        state_from_odometry(np.zeros(3), np.zeros(2))

@@ -91,15 +91,22 @@ class MotionController:
         self.drive = InverseDrive(robot, self.period_s)
         # i = (r / (gear Km)) T(0) diag(R(theta), 1) u: the fast path of DecouplingField.field
         self._current_T0 = robot.r / (robot.gear_ratio * robot.torque_constant_n_m_per_a) * self.field.T0
+        self._current_T0_rows = tuple(map(tuple, self._current_T0.tolist()))
         self._damping = axis_dampings(robot)
         self._damping_rates = tuple(self._damping.tolist())
-        self._K = self.mpc.stacked_gain
+        # Delta u_a = (K_ref Y_d)_a + kp pos_a + kv vel_a + ku u_a(k-1): the stacked gain of
+        # eq. (56) split into its reference part and its per-axis state part (block-diagonal).
+        K, N = self.mpc.stacked_gain, self.horizon
+        self._K_ref = K[:, : 3 * N].copy()
+        self._K_state = tuple(
+            (float(K[a, 3 * N + 2 * a]), float(K[a, 3 * N + 2 * a + 1]), float(K[a, 3 * N + 6 + a])) for a in range(3)
+        )
         self.constrained = ConstrainedMPC(robot, control, self.mpc) if control.mode == "constrained" else None
         self.reset()
 
     def reset(self) -> None:
         """Forget the previous input and the drive's current estimate (robot at rest, drives off)."""
-        self.u_prev = np.zeros(3)
+        self._u_prev = [0.0, 0.0, 0.0]
         self.drive.reset()
         if self.constrained is not None:
             self.constrained.reset()
@@ -113,10 +120,20 @@ class MotionController:
         acc = self._acceleration_of_current(theta_m, current) - self._damping * velocity
         return self.kinematics.speeds_and_rates(theta, velocity, acc)[1]
 
-    def _bad_input(self, X: np.ndarray, Y_d: np.ndarray) -> ControllerInputError:
-        if not np.all(np.isfinite(X)):
-            return ControllerInputError(f"X must be finite, got {X.tolist()}")
-        return ControllerInputError("preview must be finite")
+    def _check(self, X: object, preview: object) -> tuple[list[float], np.ndarray]:
+        """X as Python floats and the preview as an array, or ControllerInputError naming the bad one."""
+        X = np.asarray(X, dtype=float)
+        Y_d = np.asarray(preview, dtype=float)
+        if X.shape != (6,):
+            raise ControllerInputError(f"X must have shape (6,), got {X.shape}")
+        if Y_d.shape != (self.horizon, 3):
+            raise ControllerInputError(f"preview must have shape ({self.horizon}, 3), got {Y_d.shape}")
+        x = X.tolist()
+        if not all(map(math.isfinite, x)):
+            raise ControllerInputError(f"X must be finite, got {x}")
+        if not np.isfinite(Y_d).all():
+            raise ControllerInputError("preview must be finite")
+        return x, Y_d
 
     def step(self, X: object, preview: object) -> ControlOutput:
         """One control period: voltages for the measured state and the reference preview.
@@ -136,37 +153,53 @@ class MotionController:
         ------
         ControllerInputError
             For a wrong shape or a NaN / Inf; the state of the controller is unchanged.
+
+        Notes
+        -----
+        The closed-form path is a hundred-odd multiply-adds; it runs on Python
+        floats because numpy's per-call overhead on 3-vectors would dominate.
         """
         start = time.perf_counter()
-        X = np.asarray(X, dtype=float)
-        Y_d = np.asarray(preview, dtype=float)
-        if X.shape != (6,):
-            raise ControllerInputError(f"X must have shape (6,), got {X.shape}")
-        if Y_d.shape != (self.horizon, 3):
-            raise ControllerInputError(f"preview must have shape ({self.horizon}, 3), got {Y_d.shape}")
-        z = np.concatenate((Y_d.ravel(), X, self.u_prev))
-        if not np.isfinite(z).all():
-            raise self._bad_input(X, Y_d)
-        theta, w = float(X[4]), float(X[5])
+        x, Y_d = self._check(X, preview)
+        px, vx, py, vy, theta, w = x
         theta_m = theta + 0.5 * self.period_s * w
         infeasible = False
         if self.constrained is None:
-            u = self.u_prev + self._K @ z
+            rx, ry, rw = (self._K_ref @ Y_d.reshape(-1)).tolist()
+            (kpx, kvx, kux), (kpy, kvy, kuy), (kpw, kvw, kuw) = self._K_state
+            upx, upy, upw = self._u_prev
+            u = [
+                upx + rx + kpx * px + kvx * vx + kux * upx,
+                upy + ry + kpy * py + kvy * vy + kuy * upy,
+                upw + rw + kpw * theta + kvw * w + kuw * upw,
+            ]
         else:
-            u, infeasible = self.constrained.solve(X, self.u_prev, Y_d, self.drive.current_estimate)
+            u_arr, infeasible = self.constrained.solve(
+                np.array(x), np.array(self._u_prev), Y_d, self.drive.current_estimate
+            )
+            u = u_arr.tolist()
+        ux, uy, uw = u
         c, s = math.cos(theta_m), math.sin(theta_m)
-        ux, uy, uw = u.tolist()
-        currents = self._current_T0 @ np.array([c * ux - s * uy, s * ux + c * uy, uw])
-        velocity = X[1::2]
-        vx, vy = float(X[1]), float(X[3])
+        rx, ry = c * ux - s * uy, s * ux + c * uy
+        (a0, b0, e0), (a1, b1, e1), (a2, b2, e2) = self._current_T0_rows
+        currents = [a0 * rx + b0 * ry + e0 * uw, a1 * rx + b1 * ry + e1 * uw, a2 * rx + b2 * ry + e2 * uw]
         dx, dy, dw = self._damping_rates
-        acceleration = (ux - dx * vx, uy - dy * vy, uw - dw * w)
-        omega, omega_rate = self.kinematics.speeds_and_rates(theta, (vx, vy, w), acceleration)
+        omega, omega_rate = self.kinematics.speeds_and_rates_floats(theta, (vx, vy, w), (ux - dx * vx, uy - dy * vy, uw - dw * w))
         voltages, saturated, mean_current = self.drive.step(
-            currents, omega, omega_rate, lambda i: self._rate_of_current(theta, theta_m, velocity, i)
+            currents,
+            omega,
+            omega_rate,
+            lambda i: self._rate_of_current(theta, theta_m, np.array((vx, vy, w)), i),
         )
-        self.u_prev = self._acceleration_of_current(theta_m, mean_current) if saturated else u
-        return ControlOutput(voltages, currents, u, saturated, infeasible, time.perf_counter() - start)
+        self._u_prev = self._acceleration_of_current(theta_m, mean_current).tolist() if saturated else u
+        return ControlOutput(
+            voltages, np.array(currents), np.array(u), saturated, infeasible, time.perf_counter() - start
+        )
+
+    @property
+    def u_prev(self) -> np.ndarray:
+        """u(k-1), the accelerations applied in the last period (eq. 48)."""
+        return np.array(self._u_prev)
 
 
 def state_from_odometry(pose: object, twist_body: object) -> np.ndarray:

@@ -39,7 +39,7 @@ L (i*_k - i*_{k-1})/Ts with the back-EMF at the tick lags by 9.5 mA
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -140,16 +140,22 @@ class InverseDrive:
             raise DriveError(f"period_s must be finite and > 0, got {period_s!r}")
         self.zoh = ZOHDrive(p.resistance_ohm, p.inductance_h, p.torque_constant_n_m_per_a, float(period_s))
         self.supply_voltage_v = p.supply_voltage_v
-        self.current_estimate = np.zeros(3)
-        # The relations are linear: their rows over (i*, i_0, omega, omega'), read off the basis,
-        # give an unclipped period in two dot products.
+        # The relations are linear: their coefficients over (i*, i_0, omega, omega'), read off the
+        # basis, give an unclipped period in a few scalar products per wheel.
         basis = np.eye(4)
-        self._voltage_row = self.zoh.voltage(*basis)
-        self._end_row = self.zoh.end_current(basis[1], self._voltage_row, basis[2], basis[3])
+        voltage_row = self.zoh.voltage(*basis)
+        self._voltage_row = tuple(voltage_row.tolist())
+        self._end_row = tuple(self.zoh.end_current(basis[1], voltage_row, basis[2], basis[3]).tolist())
+        self.reset()
+
+    @property
+    def current_estimate(self) -> np.ndarray:
+        """Predicted currents at the start of the next period [A]."""
+        return np.array(self._i0)
 
     def reset(self, currents: np.ndarray | None = None) -> None:
         """Start again from known currents (default zero: a robot at rest, drives off)."""
-        self.current_estimate = np.zeros(3) if currents is None else self._vec(currents, "currents").copy()
+        self._i0 = [0.0, 0.0, 0.0] if currents is None else self._vec(currents, "currents").tolist()
 
     @staticmethod
     def _vec(value: object, name: str) -> np.ndarray:
@@ -160,9 +166,9 @@ class InverseDrive:
 
     def step(
         self,
-        i_cmd: np.ndarray,
-        omega: np.ndarray,
-        omega_rate: np.ndarray,
+        i_cmd: Sequence[float],
+        omega: Sequence[float],
+        omega_rate: Sequence[float],
         rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> tuple[np.ndarray, bool, np.ndarray]:
         """Voltages for one period and the current they give.
@@ -191,20 +197,28 @@ class InverseDrive:
         mean_current : ndarray, shape (3,)
             The period-average current the clipped voltages give (= i_cmd unless saturated).
         """
-        zoh, i0 = self.zoh, self.current_estimate
-        S = np.array((i_cmd, i0, omega, omega_rate))
-        U = self._voltage_row @ S
+        vc, vs, vw, vr = self._voltage_row
+        (c0, c1, c2), (s0, s1, s2), (w0, w1, w2), (r0, r1, r2) = i_cmd, self._i0, omega, omega_rate
+        U = [vc * c0 + vs * s0 + vw * w0 + vr * r0, vc * c1 + vs * s1 + vw * w1 + vr * r1, vc * c2 + vs * s2 + vw * w2 + vr * r2]
         limit = self.supply_voltage_v
-        if max(map(abs, U.tolist())) <= limit:
-            self.current_estimate = self._end_row @ S
-            return U, False, i_cmd
+        if max(abs(U[0]), abs(U[1]), abs(U[2])) <= limit:
+            ec, es, ew, er = self._end_row
+            self._i0 = [
+                ec * c0 + es * s0 + ew * w0 + er * r0,
+                ec * c1 + es * s1 + ew * w1 + er * r1,
+                ec * c2 + es * s2 + ew * w2 + er * r2,
+            ]
+            return np.array(U), False, np.array(i_cmd, dtype=float)
+        i0 = self._i0
+        zoh, i0_arr = self.zoh, np.array(i0)
+        omega, omega_rate = np.asarray(omega, dtype=float), np.asarray(omega_rate, dtype=float)
         U = np.clip(U, -limit, limit)
-        mean = zoh.mean_current(i0, U, omega, omega_rate)
+        mean = zoh.mean_current(i0_arr, U, omega, omega_rate)
         if rate_of_current is not None:
             for _ in range(_SATURATION_PASSES):
-                omega_rate = rate_of_current(mean)
-                mean = zoh.mean_current(i0, U, omega, omega_rate)
-        self.current_estimate = zoh.end_current(i0, U, omega, omega_rate)
+                omega_rate = np.asarray(rate_of_current(mean), dtype=float)
+                mean = zoh.mean_current(i0_arr, U, omega, omega_rate)
+        self._i0 = zoh.end_current(i0_arr, U, omega, omega_rate).tolist()
         return U, True, mean
 
 
@@ -223,13 +237,16 @@ class MotorKinematics:
 
     def __init__(self, p: RobotinoParams) -> None:
         self.W0 = p.gear_ratio / p.r * np.column_stack((wheel_directions(0.0), np.full(3, p.l)))
+        self._W0 = tuple(map(tuple, self.W0.tolist()))
 
     def matrix(self, theta: float) -> np.ndarray:
         """W(theta), shape (3, 3): omega = W(theta) (x', y', theta')."""
         c, s = math.cos(theta), math.sin(theta)
         return self.W0 @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
-    def speeds_and_rates(self, theta: float, velocity, acceleration) -> tuple[np.ndarray, np.ndarray]:
+    def speeds_and_rates(
+        self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Motor speeds omega and their rate omega' for a body velocity and acceleration.
 
         Parameters
@@ -244,10 +261,21 @@ class MotorKinematics:
         omega, omega_rate : ndarray, shape (3,)
             omega' = W(theta) a + theta' W'(theta) v, where W'(theta) v = W(theta) (-y', x', 0).
         """
+        omega, rate = self.speeds_and_rates_floats(theta, velocity, acceleration)
+        return np.array(omega), np.array(rate)
+
+    def speeds_and_rates_floats(
+        self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
+    ) -> tuple[list[float], list[float]]:
+        """`speeds_and_rates` on Python floats, for the per-tick path."""
         vx, vy, w = velocity[0], velocity[1], velocity[2]
         ax, ay, aw = acceleration[0], acceleration[1], acceleration[2]
         c, s = math.cos(theta), math.sin(theta)
         bx, by = ax - w * vy, ay + w * vx
-        body = np.array([[c * vx - s * vy, c * bx - s * by], [s * vx + c * vy, s * bx + c * by], [w, aw]])
-        out = self.W0 @ body
-        return out[:, 0], out[:, 1]
+        px, py = c * vx - s * vy, s * vx + c * vy
+        qx, qy = c * bx - s * by, s * bx + c * by
+        (a0, b0, e0), (a1, b1, e1), (a2, b2, e2) = self._W0
+        return (
+            [a0 * px + b0 * py + e0 * w, a1 * px + b1 * py + e1 * w, a2 * px + b2 * py + e2 * w],
+            [a0 * qx + b0 * qy + e0 * aw, a1 * qx + b1 * qy + e1 * aw, a2 * qx + b2 * qy + e2 * aw],
+        )

@@ -44,18 +44,23 @@ def test_bench_json_quick_last_line():
     assert "Traceback" not in proc.stderr
 
 
-def test_osqp_qp_is_the_closed_form_mpc_problem():
-    """The stacked QP OSQP solves has the closed form (eq. 56) as its minimiser, whole horizon."""
+@pytest.mark.parametrize("stacked", [False, True])
+def test_osqp_qp_is_the_closed_form_mpc_problem(stacked):
+    """The QPs OSQP solves have the closed form (eq. 56) as their minimiser, whole horizon."""
     robot, control = load_params()
     mpc = DecoupledMPC(robot, control)
-    qp = _OsqpMPC(mpc)
+    qp = _OsqpMPC(mpc, stacked=stacked)
+    N = mpc.horizon
     rng = np.random.default_rng(3)
     for _ in range(5):
         x = rng.normal(0.0, 0.1, (3, 2))
         u_prev = rng.normal(0.0, 1.0, 3)
-        Y_d = rng.normal(0.0, 0.01, (mpc.horizon, 3))
-        qp.solver.update(q=qp.linear_terms(x, u_prev, Y_d))
-        dU = qp.solver.solve(raise_error=False).x.reshape(3, mpc.horizon).T
+        Y_d = rng.normal(0.0, 0.01, (N, 3))
+        whole = []
+        for solver, q in zip(qp.solvers, qp.linear_terms(x, u_prev, Y_d)):
+            solver.update(q=q)
+            whole.append(solver.solve(raise_error=False).x)
+        dU = np.concatenate(whole).reshape(3, N).T
         closed = mpc.solve(x, u_prev, Y_d)
         np.testing.assert_allclose(dU, closed, rtol=0, atol=1e-8 * np.abs(closed).max())
         # and the first increment is what the receding-horizon law applies

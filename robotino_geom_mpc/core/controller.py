@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import time
+from operator import mul
 from typing import NamedTuple
 
 import numpy as np
@@ -27,7 +28,7 @@ class ControllerInputError(ValueError):
 
 
 class ControlOutput(NamedTuple):
-    """Result of one control step (immutable).
+    """Result of one control step (immutable; the 3-vectors are tuples of floats).
 
     Attributes
     ----------
@@ -45,9 +46,9 @@ class ControlOutput(NamedTuple):
         Wall-clock time of the step [s].
     """
 
-    voltages: np.ndarray
-    currents: np.ndarray
-    u: np.ndarray
+    voltages: tuple[float, float, float]
+    currents: tuple[float, float, float]
+    u: tuple[float, float, float]
     saturated: bool
     infeasible: bool
     compute_time_s: float
@@ -97,7 +98,7 @@ class MotionController:
         # Delta u_a = (K_ref Y_d)_a + kp pos_a + kv vel_a + ku u_a(k-1): the stacked gain of
         # eq. (56) split into its reference part and its per-axis state part (block-diagonal).
         K, N = self.mpc.stacked_gain, self.horizon
-        self._K_ref = K[:, : 3 * N].copy()
+        self._K_ref = tuple(tuple(K[a, a : 3 * N : 3].tolist()) for a in range(3))
         self._K_state = tuple(
             (float(K[a, 3 * N + 2 * a]), float(K[a, 3 * N + 2 * a + 1]), float(K[a, 3 * N + 6 + a])) for a in range(3)
         )
@@ -120,20 +121,21 @@ class MotionController:
         acc = self._acceleration_of_current(theta_m, current) - self._damping * velocity
         return self.kinematics.speeds_and_rates(theta, velocity, acc)[1]
 
-    def _check(self, X: object, preview: object) -> tuple[list[float], np.ndarray]:
-        """X as Python floats and the preview as an array, or ControllerInputError naming the bad one."""
+    def _check(self, X: object, preview: object) -> tuple[list[float], list[list[float]]]:
+        """X and the preview as Python floats, or ControllerInputError naming the bad one."""
         X = np.asarray(X, dtype=float)
         Y_d = np.asarray(preview, dtype=float)
         if X.shape != (6,):
             raise ControllerInputError(f"X must have shape (6,), got {X.shape}")
         if Y_d.shape != (self.horizon, 3):
             raise ControllerInputError(f"preview must have shape ({self.horizon}, 3), got {Y_d.shape}")
-        x = X.tolist()
-        if not all(map(math.isfinite, x)):
-            raise ControllerInputError(f"X must be finite, got {x}")
-        if not np.isfinite(Y_d).all():
-            raise ControllerInputError("preview must be finite")
-        return x, Y_d
+        x, y = X.tolist(), Y_d.tolist()
+        # A sum is finite iff its terms are, short of overflow (values near 1e308 are garbage too).
+        if not math.isfinite(sum(x)):
+            raise ControllerInputError(f"X must be finite and of physical magnitude, got {x}")
+        if not math.isfinite(sum(map(sum, y))):
+            raise ControllerInputError("preview must be finite and of physical magnitude")
+        return x, y
 
     def step(self, X: object, preview: object) -> ControlOutput:
         """One control period: voltages for the measured state and the reference preview.
@@ -160,12 +162,13 @@ class MotionController:
         floats because numpy's per-call overhead on 3-vectors would dominate.
         """
         start = time.perf_counter()
-        x, Y_d = self._check(X, preview)
+        x, y = self._check(X, preview)
         px, vx, py, vy, theta, w = x
         theta_m = theta + 0.5 * self.period_s * w
         infeasible = False
         if self.constrained is None:
-            rx, ry, rw = (self._K_ref @ Y_d.reshape(-1)).tolist()
+            (kyx, kyy, kyw), (yx, yy, yw) = self._K_ref, zip(*y)
+            rx, ry, rw = sum(map(mul, kyx, yx)), sum(map(mul, kyy, yy)), sum(map(mul, kyw, yw))
             (kpx, kvx, kux), (kpy, kvy, kuy), (kpw, kvw, kuw) = self._K_state
             upx, upy, upw = self._u_prev
             u = [
@@ -175,7 +178,7 @@ class MotionController:
             ]
         else:
             u_arr, infeasible = self.constrained.solve(
-                np.array(x), np.array(self._u_prev), Y_d, self.drive.current_estimate
+                np.array(x), np.array(self._u_prev), np.array(y), self.drive.current_estimate
             )
             u = u_arr.tolist()
         ux, uy, uw = u
@@ -193,7 +196,7 @@ class MotionController:
         )
         self._u_prev = self._acceleration_of_current(theta_m, mean_current).tolist() if saturated else u
         return ControlOutput(
-            voltages, np.array(currents), np.array(u), saturated, infeasible, time.perf_counter() - start
+            tuple(voltages), tuple(currents), tuple(u), saturated, infeasible, time.perf_counter() - start
         )
 
     @property

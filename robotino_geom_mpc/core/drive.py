@@ -170,7 +170,7 @@ class InverseDrive:
         omega: Sequence[float],
         omega_rate: Sequence[float],
         rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
-    ) -> tuple[np.ndarray, bool, np.ndarray]:
+    ) -> tuple[Sequence[float], bool, Sequence[float]]:
         """Voltages for one period and the current they give.
 
         Parameters
@@ -190,12 +190,12 @@ class InverseDrive:
 
         Returns
         -------
-        voltages : ndarray, shape (3,)
+        voltages : sequence of 3 floats
             Clipped to +-supply.
         saturated : bool
             True when any voltage was clipped.
-        mean_current : ndarray, shape (3,)
-            The period-average current the clipped voltages give (= i_cmd unless saturated).
+        mean_current : sequence of 3 floats
+            The period-average current the clipped voltages give (i_cmd itself unless saturated).
         """
         vc, vs, vw, vr = self._voltage_row
         (c0, c1, c2), (s0, s1, s2), (w0, w1, w2), (r0, r1, r2) = i_cmd, self._i0, omega, omega_rate
@@ -208,7 +208,7 @@ class InverseDrive:
                 ec * c1 + es * s1 + ew * w1 + er * r1,
                 ec * c2 + es * s2 + ew * w2 + er * r2,
             ]
-            return np.array(U), False, np.array(i_cmd, dtype=float)
+            return U, False, i_cmd
         i0 = self._i0
         zoh, i0_arr = self.zoh, np.array(i0)
         omega, omega_rate = np.asarray(omega, dtype=float), np.asarray(omega_rate, dtype=float)
@@ -219,7 +219,7 @@ class InverseDrive:
                 omega_rate = np.asarray(rate_of_current(mean), dtype=float)
                 mean = zoh.mean_current(i0_arr, U, omega, omega_rate)
         self._i0 = zoh.end_current(i0_arr, U, omega, omega_rate).tolist()
-        return U, True, mean
+        return U.tolist(), True, mean.tolist()
 
 
 class MotorKinematics:

@@ -306,8 +306,8 @@ class RobotinoPlant:
 
     @property
     def pose(self) -> np.ndarray:
-        """(x, y, theta) [m, m, rad]."""
-        return self._w[[0, 2, 4]]
+        """(x, y, theta) [m, m, rad], a copy."""
+        return self._w[0:5:2].copy()
 
     @property
     def body_state(self) -> np.ndarray:
@@ -360,13 +360,16 @@ class RobotinoPlant:
             (v_x, v_y, theta') in the robot frame (as nav_msgs/Odometry's
             twist): the odom-frame velocity rotated by -theta; noise-free.
         """
-        std = np.asarray(noise_std, dtype=float)
-        if std.shape != (2,) or not np.isfinite(std).all() or (std < 0.0).any():
+        try:
+            std_pos, std_angle = (float(v) for v in noise_std)
+        except (TypeError, ValueError):
+            raise PlantError(f"noise_std must be two non-negative numbers (m, rad), got {noise_std!r}") from None
+        if not (std_pos >= 0.0 and std_angle >= 0.0 and math.isfinite(std_pos + std_angle)):
             raise PlantError(f"noise_std must be two non-negative numbers (m, rad), got {noise_std!r}")
-        pose = self.pose
-        if std.any():
-            pose = pose + (rng if rng is not None else self._rng).normal(0.0, std[[0, 0, 1]])
-        w = self._w
-        c, s = math.cos(w[4]), math.sin(w[4])
-        twist = np.array([c * w[1] + s * w[3], -s * w[1] + c * w[3], w[5]])
+        x, vx, y, vy, theta, w = self._w[:6].tolist()
+        pose = np.array((x, y, theta))
+        if std_pos or std_angle:
+            pose += (rng if rng is not None else self._rng).normal(0.0, (std_pos, std_pos, std_angle))
+        c, s = math.cos(theta), math.sin(theta)
+        twist = np.array((c * vx + s * vy, -s * vx + c * vy, w))
         return pose, twist

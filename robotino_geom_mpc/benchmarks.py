@@ -180,13 +180,16 @@ def bench_controller_step(quick: bool) -> dict[str, float]:
     X, previews, robot, control = _step_inputs(steps)
     controller = MotionController(robot, control)
 
-    # the controller's own u(k-1) (after its anti-windup) is the input both sides see
+    # the controller's own u(k-1) (after its anti-windup) and pose estimate are the inputs both sides see
     u_prev = np.empty((steps, 3))
     u_ctrl = np.empty((steps, 3))
+    X_used = X.copy()
     controller.reset()
     for k in range(steps):
         u_prev[k] = controller.u_prev
         u_ctrl[k] = controller.step(X[k], previews[k]).u
+        if controller.estimator is not None:
+            X_used[k, 0::2] = controller.estimator.estimate
 
     def controller_pass() -> None:
         controller.reset()
@@ -196,7 +199,7 @@ def bench_controller_step(quick: bool) -> dict[str, float]:
     mpc = DecoupledMPC(robot, control)
     solvers = {"per_axis": _OsqpMPC(mpc, stacked=False), "stacked": _OsqpMPC(mpc, stacked=True)}
     q_terms = {
-        name: [qp.linear_terms(X[k].reshape(3, 2), u_prev[k], previews[k]) for k in range(steps)]
+        name: [qp.linear_terms(X_used[k].reshape(3, 2), u_prev[k], previews[k]) for k in range(steps)]
         for name, qp in solvers.items()
     }
     scale = max(1.0, float(np.abs(u_ctrl).max()))
@@ -216,7 +219,7 @@ def bench_controller_step(quick: bool) -> dict[str, float]:
 
         return run
 
-    states = X.reshape(steps, 3, 2)
+    states = X_used.reshape(steps, 3, 2)
 
     def closed_form_pass() -> None:
         for k in range(steps):

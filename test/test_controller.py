@@ -11,6 +11,7 @@ from robotino_geom_mpc.core.controller import ControllerInputError, MotionContro
 from robotino_geom_mpc.core.decoupling import DecouplingField
 from robotino_geom_mpc.core.mpc import DecoupledMPC
 from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.simulation import run_scenario
 from robotino_sim_node.plant import RobotinoPlant
 
 
@@ -25,6 +26,14 @@ X0 = np.array([0.01, 0.15, -0.02, -0.1, 0.4, 0.3])
 def _preview(X, control, offset=(0.0, 0.0, 0.0)):
     steps = np.arange(1, control.horizon + 1)[:, None] * control.period_s
     return X[0::2] + steps * X[1::2] + np.asarray(offset)
+
+
+def _noisy_track(X, control, n, seed=0, sigma=1e-3):
+    """n states along the constant-velocity track of X, with white noise on the pose (x, y, theta)."""
+    t = np.arange(n)[:, None] * control.period_s
+    states = np.tile(X, (n, 1))
+    states[:, 0::2] = X[0::2] + t * X[1::2] + np.random.default_rng(seed).normal(0.0, sigma, (n, 3))
+    return states
 
 
 def _period_on_plant(robot, state, U, Ts):
@@ -76,14 +85,16 @@ def test_saturation_clips_and_feeds_back_the_achieved_acceleration(params):
     assert np.abs(out.u).max() > 2 * np.abs(achieved).max()
 
 
-def test_reset_restores_the_initial_behaviour(params):
+@pytest.mark.parametrize("tau", [0.0, 0.5])
+def test_reset_restores_the_initial_behaviour(params, tau):
     robot, control = params
-    ctl = MotionController(robot, control)
-    first = ctl.step(X0, _preview(X0, control, (1e-4, 0, 0)))
+    ctl = MotionController(robot, replace(control, odometry_filter_time_constant_s=tau))
+    states = _noisy_track(X0, control, 5)
+    first = [ctl.step(X, _preview(X, control, (1e-4, 0, 0))).voltages for X in states]
     ctl.step(X0, _preview(X0, control, (3e-4, 0, 0)))
     ctl.reset()
-    again = ctl.step(X0, _preview(X0, control, (1e-4, 0, 0)))
-    np.testing.assert_array_equal(first.voltages, again.voltages)
+    again = [ctl.step(X, _preview(X, control, (1e-4, 0, 0))).voltages for X in states]
+    np.testing.assert_array_equal(first, again)
 
 
 @pytest.mark.parametrize(
@@ -97,22 +108,32 @@ def test_reset_restores_the_initial_behaviour(params):
 )
 def test_bad_input_raises_and_leaves_the_state(params, X, preview, match):
     robot, control = params
-    ctl = MotionController(robot, control)
-    ctl.step(X0, _preview(X0, control, (1e-4, 0, 0)))
+    control = replace(control, odometry_filter_time_constant_s=0.5)
+    ctl, twin = MotionController(robot, control), MotionController(robot, control)
+    states = _noisy_track(X0, control, 3)
+    for ctrl in (ctl, twin):
+        for X_k in states[:2]:
+            ctrl.step(X_k, _preview(X_k, control, (1e-4, 0, 0)))
     u_before, i_before = ctl.u_prev.copy(), ctl.drive.current_estimate.copy()
+    estimate_before = ctl.estimator.estimate
     with pytest.raises(ControllerInputError, match=match):
         ctl.step(X, preview)
     np.testing.assert_array_equal(ctl.u_prev, u_before)
     np.testing.assert_array_equal(ctl.drive.current_estimate, i_before)
+    assert ctl.estimator.estimate == estimate_before
+    Y_d = _preview(states[2], control, (1e-4, 0, 0))
+    assert ctl.step(states[2], Y_d)[:3] == twin.step(states[2], Y_d)[:3]
 
 
-def test_constrained_mode_equals_closed_form_when_limits_are_inactive(params):
+@pytest.mark.parametrize("tau", [0.0, 0.5])
+def test_constrained_mode_equals_closed_form_when_limits_are_inactive(params, tau):
     robot, control = params
+    control = replace(control, odometry_filter_time_constant_s=tau)
     a = MotionController(robot, control)
     b = MotionController(robot, replace(control, mode="constrained"))
-    for k in range(3):
-        Y_d = _preview(X0, control, (1e-5 * k, 0, 0))
-        out_a, out_b = a.step(X0, Y_d), b.step(X0, Y_d)
+    for k, X in enumerate(_noisy_track(X0, control, 3, sigma=1e-5)):  # states along X0's velocity
+        Y_d = _preview(X, control, (1e-5 * k, 0, 0))
+        out_a, out_b = a.step(X, Y_d), b.step(X, Y_d)
         np.testing.assert_allclose(out_b.voltages, out_a.voltages, atol=1e-9)
         assert not out_b.infeasible
 
@@ -123,3 +144,49 @@ def test_state_from_odometry_inverts_the_plants_measurement(params):
     np.testing.assert_allclose(state_from_odometry(*plant.odometry()), X0, atol=1e-15)
     with pytest.raises(ControllerInputError, match="twist_body"):
         state_from_odometry(np.zeros(3), np.zeros(2))
+
+
+def test_filter_off_is_the_raw_pose_and_on_is_the_same_law_on_the_estimate(params):
+    """Filter on = the unfiltered computation (tau = 0) fed the estimated pose, bit for bit."""
+    robot, control = params
+    on = MotionController(robot, replace(control, odometry_filter_time_constant_s=0.5))
+    off = MotionController(robot, replace(control, odometry_filter_time_constant_s=0.0))
+    assert off.estimator is None
+    states = _noisy_track(X0, control, 30, seed=4)
+    for k, X in enumerate(states):
+        Y_d = _preview(X0, control, (0.0, 0.0, 0.0)) + (k + 1e-3) * control.period_s * X0[1::2]
+        out_on = on.step(X, Y_d)
+        X_est = X.copy()
+        X_est[0::2] = on.estimator.estimate
+        out_off = off.step(X_est, Y_d)
+        assert out_on[:5] == out_off[:5]
+    assert np.abs(X_est[0::2] - X[0::2]).max() > 1e-4  # the estimate did differ from the measurement
+
+
+def test_measured_heading_jumping_by_two_pi_does_not_disturb_the_filtered_controller(params):
+    robot, control = params
+    control = replace(control, odometry_filter_time_constant_s=0.5)
+    a, b = MotionController(robot, control), MotionController(robot, control)
+    states = _noisy_track(X0, control, 8, seed=5)
+    for k, X in enumerate(states):
+        Y_d = _preview(X, control, (1e-5, 0.0, 1e-5))
+        X_wrapped = X.copy()
+        X_wrapped[4] += 2 * np.pi if k >= 4 else 0.0
+        out_a, out_b = a.step(X, Y_d), b.step(X_wrapped, Y_d)
+        np.testing.assert_allclose(out_b.voltages, out_a.voltages, rtol=0, atol=1e-9)
+    raw = MotionController(robot, replace(control, odometry_filter_time_constant_s=0.0))
+    assert raw.step(X_wrapped, Y_d).saturated  # the raw pose would have been an error of 2 pi
+
+
+def test_filter_keeps_odometry_noise_out_of_the_currents_in_closed_loop(params):
+    """Robustness scenario (model mismatch, 1 mm / 1 mrad pose noise): raw pose exceeds the nominal current."""
+    robot, control = params
+    peaks = {}
+    for tau in (0.0, 0.5):
+        run = run_scenario("robustness", robot, replace(control, odometry_filter_time_constant_s=tau), duration_s=1.5)
+        peaks[tau] = np.abs(run.currents).max()
+        saturated = run.flags["saturated"].any()
+        error = np.hypot(*(run.pose[:, :2] - run.reference[:, :2]).T)
+    assert peaks[0.0] > robot.nominal_current_a
+    assert peaks[0.5] <= robot.nominal_current_a and not saturated
+    assert error.max() < 1e-3

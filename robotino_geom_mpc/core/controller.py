@@ -16,6 +16,7 @@ import numpy as np
 from .constrained import ConstrainedMPC
 from .decoupling import DecouplingField
 from .drive import InverseDrive, MotorKinematics
+from .estimator import OdometryFilter
 from .model import acceleration_block, wheel_forces
 from .mpc import DecoupledMPC, axis_dampings
 from .params import ControlParams, RobotinoParams
@@ -62,13 +63,19 @@ class MotionController:
     robot
         The controller's model of the robot.
     control
-        Period, horizon, weights and mode (`closed_form` or `constrained`).
+        Period, horizon, weights, mode (`closed_form` or `constrained`) and the
+        time constant of the odometry filter (0 = the measured pose as it is).
 
     Notes
     -----
     One step, for the measured body state X = (x, x', y, y', theta, theta')
     and the reference positions y_d(k+1) .. y_d(k+N):
 
+    0. with ``control.odometry_filter_time_constant_s`` > 0, the pose (x, y, theta)
+       is replaced by its estimate from `estimator.OdometryFilter` (predicted
+       with the measured velocity, corrected towards the measured pose), so
+       pose noise does not reach u through the MPC's position gain; the
+       velocities are used as measured;
     1. u(k) = u(k-1) + Delta u(k), Delta u(k) the first component of eq. (56)
        (or of the constrained QP, `constrained.ConstrainedMPC`);
     2. wheel forces F = T(theta_m) u(k) with T(theta) = T(0) diag(R(theta), 1)
@@ -102,13 +109,17 @@ class MotionController:
         self._K_state = tuple(
             (float(K[a, 3 * N + 2 * a]), float(K[a, 3 * N + 2 * a + 1]), float(K[a, 3 * N + 6 + a])) for a in range(3)
         )
+        tau = float(control.odometry_filter_time_constant_s)
+        self.estimator = OdometryFilter(self.period_s, tau) if tau > 0.0 else None
         self.constrained = ConstrainedMPC(robot, control, self.mpc) if control.mode == "constrained" else None
         self.reset()
 
     def reset(self) -> None:
-        """Forget the previous input and the drive's current estimate (robot at rest, drives off)."""
+        """Forget the previous input, the drive's current estimate and the pose estimate (robot at rest, drives off)."""
         self._u_prev = [0.0, 0.0, 0.0]
         self.drive.reset()
+        if self.estimator is not None:
+            self.estimator.reset()
         if self.constrained is not None:
             self.constrained.reset()
 
@@ -154,7 +165,7 @@ class MotionController:
         Raises
         ------
         ControllerInputError
-            For a wrong shape or a NaN / Inf; the state of the controller is unchanged.
+            For a wrong shape or a NaN / Inf; the state of the controller (and of its filter) is unchanged.
 
         Notes
         -----
@@ -164,6 +175,8 @@ class MotionController:
         start = time.perf_counter()
         x, y = self._check(X, preview)
         px, vx, py, vy, theta, w = x
+        if self.estimator is not None:
+            px, py, theta = self.estimator.update(px, vx, py, vy, theta, w)
         theta_m = theta + 0.5 * self.period_s * w
         infeasible = False
         if self.constrained is None:
@@ -178,7 +191,7 @@ class MotionController:
             ]
         else:
             u_arr, infeasible = self.constrained.solve(
-                np.array(x), np.array(self._u_prev), np.array(y), self.drive.current_estimate
+                np.array((px, vx, py, vy, theta, w)), np.array(self._u_prev), np.array(y), self.drive.current_estimate
             )
             u = u_arr.tolist()
         ux, uy, uw = u

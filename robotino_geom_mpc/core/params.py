@@ -97,6 +97,16 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
         "closed_form: unconstrained MPC (eq. 56); constrained: QP with wheel current and voltage limits",
         choices=("closed_form", "constrained"),
     ),
+    ParamSpec(
+        "control.odometry_filter_time_constant_s",
+        float,
+        "Time constant tau of the odometry pose filter (core.estimator): the position the MPCs see follows the "
+        "measured pose through a first-order lag tau, carried by the measured velocity; 0 = raw pose (the paper)",
+        "s",
+        0.0,
+        60.0,
+        False,
+    ),
 )
 
 ALL_SPECS: tuple[ParamSpec, ...] = ROBOT_SPECS + CONTROL_SPECS
@@ -216,7 +226,7 @@ class RobotinoParams:
 
 @dataclass(frozen=True)
 class ControlParams:
-    """Controller settings: control period, horizon, per-axis weights and mode."""
+    """Controller settings: control period, horizon, per-axis weights, mode and odometry filter."""
 
     period_s: float
     horizon: int
@@ -227,6 +237,7 @@ class ControlParams:
     r_y: float
     r_theta: float
     mode: str
+    odometry_filter_time_constant_s: float
 
     @property
     def q(self) -> tuple[float, float, float]:

@@ -1,0 +1,158 @@
+"""Odometry filter against independent truths: Lyapunov variance, exact tracks, the Kalman DARE, heading wrap."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
+
+from robotino_geom_mpc.core.estimator import EstimatorError, OdometryFilter, filter_gain, noise_std_ratio
+from robotino_geom_mpc.core.mpc import discretize_axis
+
+TS = 0.01
+
+
+def _run(filt, states):
+    """Feed rows (x, x', y, y', theta, theta') and return the estimates, shape (n, 3)."""
+    return np.array([filt.update(*row) for row in states.tolist()])
+
+
+def _track(n, pos0, vel, acc=(0.0, 0.0, 0.0)):
+    """Constant-acceleration track sampled at k Ts: rows (x, x', y, y', theta, theta')."""
+    t = np.arange(n)[:, None] * TS
+    pos = np.asarray(pos0) + np.asarray(vel) * t + 0.5 * np.asarray(acc) * t**2
+    v = np.asarray(vel) + np.asarray(acc) * t
+    return np.column_stack((pos[:, 0], v[:, 0], pos[:, 1], v[:, 1], pos[:, 2], v[:, 2])), pos
+
+
+@pytest.mark.parametrize("tau", [0.05, 0.5])
+def test_white_pose_noise_is_reduced_to_the_steady_state_variance(tau):
+    """Estimate error = AR(1) e(k) = (1 - L) e(k-1) + L n(k): its variance from the discrete Lyapunov equation."""
+    n, sigma = 200_000, (1e-3, 2e-3, 1e-3)
+    states, truth = _track(n, (0.1, -0.2, 0.3), (0.3, -0.1, 0.5))
+    noise = np.random.default_rng(7).normal(0.0, sigma, (n, 3))
+    noisy = states.copy()
+    noisy[:, 0::2] += noise
+    filt = OdometryFilter(TS, tau)
+    error = _run(filt, noisy) - truth
+    L = 1.0 - math.exp(-TS / tau)
+    burn = int(20 * tau / TS)
+    for axis in range(3):
+        expected_var = solve_discrete_lyapunov(np.array([[1.0 - L]]), np.array([[L**2 * sigma[axis] ** 2]]))[0, 0]
+        assert np.std(error[burn:, axis]) == pytest.approx(math.sqrt(expected_var), rel=0.04)
+        assert np.mean(error[burn:, axis]) == pytest.approx(0.0, abs=0.1 * math.sqrt(expected_var))
+    assert noise_std_ratio(filt.gain) == pytest.approx(math.sqrt(expected_var) / sigma[2], rel=1e-12)
+
+
+def test_gain_is_the_steady_state_kalman_gain_of_the_random_walk_model():
+    """p(k) = p(k-1) + Ts v + w, z = p + n with var w / var n = L^2 / (1 - L): DARE gives the same L."""
+    for tau in (0.05, 0.5, 3.0):
+        L = OdometryFilter(TS, tau).gain
+        r = 1e-6
+        q = r * L**2 / (1.0 - L)
+        P = solve_discrete_are(np.eye(1), np.eye(1), np.array([[q]]), np.array([[r]]))[0, 0]  # prior covariance
+        assert P / (P + r) == pytest.approx(L, rel=1e-9)
+        assert L == pytest.approx(TS / tau, rel=TS / tau)  # first-order lag: L ~ Ts / tau
+
+
+def test_constant_acceleration_track_is_followed_without_bias():
+    states, truth = _track(3000, (1.0, -2.0, 3.0), (0.4, -0.3, 1.5), (0.5, 0.2, -0.7))
+    filt = OdometryFilter(TS, 0.5)
+    np.testing.assert_allclose(_run(filt, states), truth, rtol=0, atol=1e-12)
+
+
+def test_friction_axis_error_stays_within_the_trapezoid_bound():
+    """ZOH axis of eq. (49) with friction and random inputs: |error| <= (Ts^3 / 12) max|v''| (1 - L) / L."""
+    damping, tau, n = 5.0, 0.5, 2000
+    A_d, B_d = discretize_axis(damping, TS)
+    u = np.random.default_rng(3).uniform(-2.0, 2.0, n)
+    x = np.zeros((n, 2))
+    x[0] = (0.2, 0.1)
+    for k in range(1, n):
+        x[k] = A_d @ x[k - 1] + B_d * u[k - 1]
+    states = np.column_stack((x[:, 0], x[:, 1], x[:, 0], x[:, 1], x[:, 0], x[:, 1]))
+    error = _run(OdometryFilter(TS, tau), states) - x[:, [0]]
+    L = 1.0 - math.exp(-TS / tau)
+    v_second = damping * (np.abs(u).max() + damping * np.abs(x[:, 1]).max())  # |v''| = d |u - d v|
+    bound = TS**3 / 12.0 * v_second * (1.0 - L) / L
+    assert np.abs(error).max() <= bound
+    assert np.abs(error).max() > 0.01 * bound  # the bound is of the right order, not vacuous
+
+
+def test_pose_step_is_followed_with_the_time_constant():
+    """Robot at rest, pose jumps by d: the estimate approaches it as d (1 - exp(-t / tau)), the continuous lag."""
+    tau, d = 0.3, np.array([0.01, -0.02, 0.05])
+    filt = OdometryFilter(TS, tau)
+    assert filt.update(0.0, 0.0, 0.0, 0.0, 0.0, 0.0) == (0.0, 0.0, 0.0)
+    est = _run(filt, np.tile(np.array([d[0], 0.0, d[1], 0.0, d[2], 0.0]), (100, 1)))
+    t = np.arange(1, 101)[:, None] * TS
+    np.testing.assert_allclose(est, d * (1.0 - np.exp(-t / tau)), rtol=1e-12, atol=1e-15)
+
+
+def test_first_measurement_initialises_and_reset_restores_it():
+    states, _ = _track(50, (0.1, 0.2, 0.3), (0.2, 0.1, 0.4))
+    noisy = states + np.random.default_rng(1).normal(0.0, 1e-3, states.shape)
+    filt = OdometryFilter(TS, 0.5)
+    assert not filt.initialized and filt.estimate is None
+    first = _run(filt, noisy)
+    np.testing.assert_array_equal(first[0], noisy[0, 0::2])
+    filt.reset()
+    assert not filt.initialized
+    np.testing.assert_array_equal(_run(filt, noisy), first)
+
+
+def test_measured_heading_wrapped_to_pi_leaves_the_estimate_on_its_branch():
+    """theta crosses pi; the measurement wrapped to (-pi, pi] gives the same estimate as the continuous one."""
+    states, truth = _track(600, (0.0, 0.0, 2.5), (0.1, 0.0, 1.5))
+    states[:, 4::2] += np.random.default_rng(2).normal(0.0, 1e-3, (600, 1))
+    wrapped = states.copy()
+    wrapped[:, 4] = np.angle(np.exp(1j * states[:, 4]))
+    assert np.abs(np.diff(wrapped[:, 4])).max() > 6.0  # the measurement does jump by 2 pi
+    a = _run(OdometryFilter(TS, 0.5), states)
+    b = _run(OdometryFilter(TS, 0.5), wrapped)
+    np.testing.assert_allclose(b, a, rtol=0, atol=1e-12)
+    assert truth[-1, 2] > math.pi and abs(b[-1, 2] - truth[-1, 2]) < 3e-3
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_non_finite_measurement_is_rejected_without_touching_the_state(bad):
+    states, _ = _track(20, (0.1, 0.2, 0.3), (0.2, 0.1, 0.4))
+    filt, twin = OdometryFilter(TS, 0.5), OdometryFilter(TS, 0.5)
+    _run(filt, states[:10])
+    _run(twin, states[:10])
+    row = states[10].tolist()
+    row[3] = bad
+    with pytest.raises(EstimatorError, match="measurement must be finite"):
+        filt.update(*row)
+    assert filt.estimate == twin.estimate
+    np.testing.assert_array_equal(_run(filt, states[10:]), _run(twin, states[10:]))
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda: OdometryFilter(TS, 0.0), "time_constant_s"),
+        (lambda: OdometryFilter(TS, math.nan), "time_constant_s"),
+        (lambda: OdometryFilter(0.0, 0.5), "period_s"),
+        (lambda: filter_gain(TS, -1.0), "time_constant_s"),
+        (lambda: noise_std_ratio(0.0), "gain"),
+    ],
+)
+def test_bad_settings_raise_naming_the_argument(call, match):
+    with pytest.raises(EstimatorError, match=match):
+        call()
+
+
+def test_zero_time_constant_means_the_raw_measurement():
+    assert filter_gain(TS, 0.0) == 1.0
+    assert noise_std_ratio(1.0) == 1.0
+
+
+def test_velocity_bias_becomes_the_predicted_position_bias():
+    """Measured velocity v + b: the fixed point of e = (1 - L)(e + b Ts) is e = b Ts (1 - L) / L."""
+    tau, b = 0.5, np.array([0.003, -0.002, 0.01])
+    states, truth = _track(int(30 * tau / TS), (0.0, 0.0, 0.0), (0.3, 0.1, -0.2))
+    states[:, 1::2] += b
+    L = 1.0 - math.exp(-TS / tau)
+    error = _run(OdometryFilter(TS, tau), states)[-1] - truth[-1]
+    np.testing.assert_allclose(error, b * TS * (1.0 - L) / L, rtol=1e-6)

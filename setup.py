@@ -34,6 +34,7 @@ setup(
         "osqp>=1.0,<2",
         "mcap>=1.2,<2",
         "mcap-ros2-support>=0.5,<1",
+        "zstandard>=0.22,<1",
     ],
     extras_require={
         "ros": [

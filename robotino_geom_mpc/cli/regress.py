@@ -1,0 +1,59 @@
+"""`robotino-geom-mpc regress BAG`: the recorded odometry and previews through a fresh controller.
+
+Prints the largest deviation between the recomputed and the recorded wheel
+voltages; exit status 0 when it is within ``--tol`` (default 1e-12 V), 1 on
+a mismatch, 2 when the recording cannot be used (see `recording.regress`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from . import UsageError
+
+__all__ = ["add_parser", "run"]
+
+
+def _tolerance(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of volts, got {text!r}") from None
+    if not math.isfinite(value) or value < 0.0:
+        raise argparse.ArgumentTypeError(f"must be finite and >= 0, got {text!r}")
+    return value
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register the `regress` verb."""
+    parser = sub.add_parser(
+        "regress",
+        help="recompute a recording's wheel voltages with a fresh controller and compare",
+        description="Feed the recorded odometry and reference previews of each control tick into a fresh "
+        "controller and compare its voltages with the recorded ones (exit 1 beyond --tol).",
+    )
+    parser.add_argument("bag", type=Path, metavar="BAG", help="bag directory or .mcap file")
+    parser.add_argument("--params", type=Path, default=None,
+                        help="ROS 2 parameter file (default: the parameters stored in the recording)")
+    parser.add_argument("--tol", type=_tolerance, default=1e-12, metavar="V",
+                        help="largest accepted deviation [V] (default 1e-12)")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the regression and print its verdict."""
+    from robotino_geom_mpc.recording.bag import BagError
+    from robotino_geom_mpc.recording.regress import regress_bag
+
+    try:
+        result = regress_bag(args.bag, params_file=args.params, tolerance_v=args.tol)
+    except BagError as exc:
+        raise UsageError(str(exc)) from None
+    where = "" if result.worst_time_s is None else f" at t = {result.worst_time_s:.3f} s"
+    verdict = "PASS" if result.passed else "FAIL"
+    print(f"{verdict}: {result.compared} of {result.ticks} ticks compared, max deviation "
+          f"{result.max_deviation_v:.3e} V{where} (tolerance {result.tolerance_v:g} V)")
+    return 0 if result.passed else 1

@@ -1,0 +1,49 @@
+"""`robotino-geom-mpc report BAG --out DIR`: metrics.json and the figures of a recorded run.
+
+The same keys and figures as ``simulate`` and ``run`` (`recording.report.report_bag`,
+which ``run`` also calls). The run parameters come from the recording, or
+from ``--params``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from . import UsageError
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register the `report` verb."""
+    parser = sub.add_parser(
+        "report",
+        help="metrics.json and the figures of a recorded run (bag directory or .mcap)",
+        description="Extract the run (true pose, reference, currents, voltages per control tick) from a "
+        "recording and write DIR/metrics.json and the figures, as simulate and run do.",
+    )
+    parser.add_argument("bag", type=Path, metavar="BAG", help="bag directory or .mcap file")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    parser.add_argument("--params", type=Path, default=None,
+                        help="ROS 2 parameter file (default: the parameters stored in the recording)")
+    parser.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Write the report; a bag that cannot be read or lacks a run's topics is a UsageError."""
+    from robotino_geom_mpc.recording.bag import BagError
+    from robotino_geom_mpc.recording.report import report_bag
+
+    try:
+        metrics = report_bag(args.bag, args.out, params_file=args.params)
+    except BagError as exc:
+        raise UsageError(str(exc)) from None
+    if args.json:
+        print(json.dumps(metrics, indent=2, sort_keys=True))
+    else:
+        print(f"{metrics['samples']} ticks; metrics and figures in {args.out}")
+    return 0

@@ -1,0 +1,103 @@
+"""QoS profiles as rosbag2 stores them (metadata version 9) and rosbag2's rule for adapting to publishers."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rclpy.duration import Duration
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    LivelinessPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+
+__all__ = ["profile_to_dict", "dict_to_profile", "adapt_request_to_offers", "adapt_offer_to_recorded"]
+
+
+def _duration(value: Duration) -> dict[str, int]:
+    sec, nsec = divmod(int(value.nanoseconds), 1_000_000_000)
+    return {"sec": sec, "nsec": nsec}
+
+
+def profile_to_dict(qos: QoSProfile) -> dict[str, Any]:
+    """One offered QoS profile in rosbag2's version-9 form (policies as lower-case names).
+
+    An infinite duration (RMW_DURATION_INFINITE, 2**63 - 1 ns) becomes
+    ``{sec: 9223372036, nsec: 854775807}`` as rosbag2 writes it.
+    """
+    return {
+        "history": qos.history.name.lower(),
+        "depth": int(qos.depth),
+        "reliability": qos.reliability.name.lower(),
+        "durability": qos.durability.name.lower(),
+        "deadline": _duration(qos.deadline),
+        "lifespan": _duration(qos.lifespan),
+        "liveliness": qos.liveliness.name.lower(),
+        "liveliness_lease_duration": _duration(qos.liveliness_lease_duration),
+        "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions),
+    }
+
+
+def _policy(enum: type, value: Any) -> Any:
+    if isinstance(value, int):
+        return enum(value)
+    return enum[str(value).upper()]
+
+
+def dict_to_profile(item: dict[str, Any]) -> QoSProfile:
+    """Inverse of `profile_to_dict` (also accepts the integer policies of metadata version <= 8)."""
+
+    def dur(key: str) -> Duration:
+        d = item.get(key) or {"sec": 0, "nsec": 0}
+        return Duration(nanoseconds=int(d["sec"]) * 1_000_000_000 + int(d["nsec"]))
+
+    history = _policy(HistoryPolicy, item.get("history", "keep_last"))
+    return QoSProfile(
+        history=history,
+        depth=max(int(item.get("depth", 10)), 1),
+        reliability=_policy(ReliabilityPolicy, item.get("reliability", "reliable")),
+        durability=_policy(DurabilityPolicy, item.get("durability", "volatile")),
+        deadline=dur("deadline"),
+        lifespan=dur("lifespan"),
+        liveliness=_policy(LivelinessPolicy, item.get("liveliness", "system_default")),
+        liveliness_lease_duration=dur("liveliness_lease_duration"),
+        avoid_ros_namespace_conventions=bool(item.get("avoid_ros_namespace_conventions", False)),
+    )
+
+
+def adapt_request_to_offers(offers: list[QoSProfile], depth: int) -> QoSProfile:
+    """A subscription QoS that matches every publisher (rosbag2's rule).
+
+    Reliable only if every publisher offers reliable, transient local only if
+    every publisher offers it (then latched messages are received). History:
+    keep-last `depth`, or keep-all for ``depth == 0``. Keep-all is what makes
+    a reliable recording lossless: a sample the transport dropped is resent
+    only after the writer's next heartbeat (Fast DDS: every 3 s), and the
+    reader holds the samples received after it until then; a keep-last queue
+    shorter than that (1000 messages are 1 s at 1 kHz) would overflow.
+    """
+    reliable = bool(offers) and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offers)
+    latched = bool(offers) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offers)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_ALL if depth == 0 else HistoryPolicy.KEEP_LAST,
+        depth=max(depth, 1),
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
+
+
+def adapt_offer_to_recorded(profiles: list[dict[str, Any]], depth: int = 10) -> QoSProfile:
+    """The QoS a replay publisher offers: the recorded offer when all publishers agreed, else reliable volatile."""
+    if profiles:
+        first = dict_to_profile(profiles[0])
+        same = all(
+            (p.reliability, p.durability) == (first.reliability, first.durability)
+            for p in map(dict_to_profile, profiles)
+        )
+        if same:
+            first.history = HistoryPolicy.KEEP_LAST
+            first.depth = max(first.depth, depth)
+            return first
+    return QoSProfile(depth=depth)

@@ -1,0 +1,206 @@
+"""Recorder node: every topic of the running system (or a list) into a rosbag2-compatible MCAP bag.
+
+Topics are picked up as they appear (the graph is polled every
+``discovery_period_s``) and subscribed serialized (``raw=True``): the CDR
+bytes go into the bag without being deserialised. The subscription QoS
+follows the publishers' offers as rosbag2 does (reliable / transient local
+only when every publisher offers it, so the latched ``reference_path`` is
+captured), with a keep-all history (``qos_depth``, see
+`qos.adapt_request_to_offers`); hidden topics (a name component starting
+with ``_``) are skipped. Messages published before the recorder has matched
+a topic are not in the bag (as with ``ros2 bag record``): a lockstep run
+makes the plant wait for the recorder's subscriptions (``lockstep_wait_for``).
+
+Times: ``log_time`` is the receive time on the system clock (the DDS
+reception timestamp), as ``ros2 bag record`` does by default; with
+``use_sim_time:=true`` it is the node's ROS time (/clock) at reception, as
+``ros2 bag record --use-sim-time`` does. ``publish_time`` is always the
+publisher's DDS source timestamp (system clock), so causal order between
+nodes on one machine survives in the bag.
+
+Run parameters: started with the system's ``--params-file`` the recorder
+receives the ``/**`` robot/motor/control parameters too; it stores them (and
+its ``scenario`` parameter) in an MCAP metadata record ``robotino_geom_mpc``
+written when the bag opens, and in metadata.yaml's custom_data, so a
+recording carries what `report` and `regress` need.
+
+Crash safety: the chunk in progress is closed and handed to the OS every
+``flush_period_s`` (default 0.5 s) and whenever it reaches
+``chunk_size_bytes``; after SIGKILL at most that much is lost and
+`BagReader` reads the rest. SIGINT/SIGTERM stop the node cleanly: messages
+already queued are taken and written, then the summary, the indexes and
+metadata.yaml.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+from robotino_geom_mpc.core.params import ALL_SPECS
+from robotino_geom_mpc.recording.bag import (
+    RUN_METADATA,
+    BagError,
+    BagWriter,
+    default_bag_name,
+    default_compression,
+    message_class,
+)
+from robotino_geom_mpc.recording.qos import adapt_request_to_offers, profile_to_dict
+
+__all__ = ["RecorderNode", "main"]
+
+def _hidden(topic: str) -> bool:
+    return any(part.startswith("_") for part in topic.split("/") if part)
+
+
+class RecorderNode(Node):
+    """Records topics serialized into a `BagWriter`; see the module docstring for the behaviour."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("recorder", **kwargs)
+        ro = {"read_only": True}
+        self.declare_parameter("output", "", ParameterDescriptor(
+            description="Bag directory to create (default rosbag2_YYYY_MM_DD-HH_MM_SS in the working directory)", **ro))
+        self.declare_parameter("topics", [""], ParameterDescriptor(
+            description="Topics to record; empty: every (non-hidden) topic of the system, as it appears",
+            type=ParameterType.PARAMETER_STRING_ARRAY, **ro))
+        self.declare_parameter("discovery_period_s", 0.1, ParameterDescriptor(
+            description="Period of the graph polling for new topics [s]",
+            floating_point_range=[FloatingPointRange(from_value=0.01, to_value=10.0)], **ro))
+        self.declare_parameter("flush_period_s", 0.5, ParameterDescriptor(
+            description="Longest time a received message waits in memory before its chunk is written [s]",
+            floating_point_range=[FloatingPointRange(from_value=0.01, to_value=60.0)], **ro))
+        self.declare_parameter("chunk_size_bytes", 512 * 1024, ParameterDescriptor(
+            description="Uncompressed size after which an MCAP chunk is closed [bytes]",
+            integer_range=[IntegerRange(from_value=1024, to_value=64 * 1024 * 1024, step=1)], **ro))
+        self.declare_parameter("compression", default_compression(), ParameterDescriptor(
+            description="Chunk compression: zstd, lz4 or none", additional_constraints="zstd|lz4|none", **ro))
+        self.declare_parameter("qos_depth", 0, ParameterDescriptor(
+            description="History of the recording subscriptions: 0 keep-all (lossless, see recording.qos), "
+            "else keep-last with this depth",
+            integer_range=[IntegerRange(from_value=0, to_value=100000, step=1)], **ro))
+        self.declare_parameter("scenario", "", ParameterDescriptor(
+            description="Scenario name stored with the run parameters (for reports)", **ro))
+        for spec in ALL_SPECS:  # filled from the system's --params-file (/** section); stored, not used
+            self.declare_parameter(spec.name, None, ParameterDescriptor(
+                description=f"{spec.description} (stored in the bag)", dynamic_typing=True, **ro))
+
+        p = self.get_parameter
+        compression = p("compression").value
+        if compression not in ("zstd", "lz4", "none"):
+            raise BagError(f"parameter 'compression' must be zstd, lz4 or none, got {compression!r}")
+        self._wanted = {self.resolve_topic_name(t) for t in p("topics").value if t} or None
+        self._depth = int(p("qos_depth").value)
+        output = p("output").value or default_bag_name()
+        self.writer = BagWriter(output, compression=compression, chunk_size=int(p("chunk_size_bytes").value))
+        self._store_run_parameters()
+        self._channels: dict[str, int] = {}
+        self._recording_subs: list[Any] = []
+        self._use_sim_time = bool(p("use_sim_time").value)
+        self._discover()
+        self.create_timer(float(p("discovery_period_s").value), self._discover)
+        self.create_timer(float(p("flush_period_s").value), self.writer.flush)
+        self.get_logger().info(f"recording into {Path(output).resolve()} ({compression})")
+
+    def _store_run_parameters(self) -> None:
+        values = {}
+        for spec in ALL_SPECS:
+            value = self.get_parameter(spec.name).value
+            if value is not None:
+                values[spec.name] = value
+        record = {"scenario": self.get_parameter("scenario").value, "parameters": json.dumps(values, sort_keys=True)}
+        self.writer.add_metadata(RUN_METADATA, record)
+        self.writer.flush()
+        for key, value in record.items():
+            self.writer.custom_data[f"{RUN_METADATA}.{key}"] = value
+
+    def _discover(self) -> None:
+        """Subscribe every wanted topic that has a publisher and is not recorded yet."""
+        for name, types in self.get_topic_names_and_types():
+            if name in self._channels or _hidden(name) or (self._wanted is not None and name not in self._wanted):
+                continue
+            infos = self.get_publishers_info_by_topic(name)
+            if not infos:
+                continue
+            type_name = types[0]
+            if len(types) > 1:
+                self.get_logger().warn(f"topic {name} has several types {types}; recording {type_name}")
+            try:
+                cls = message_class(type_name)
+                channel = self.writer.add_topic(
+                    name,
+                    type_name,
+                    [profile_to_dict(i.qos_profile) for i in infos],
+                    str(infos[0].topic_type_hash),
+                )
+            except BagError as exc:
+                self.get_logger().error(f"cannot record {name}: {exc}")
+                self._channels[name] = -1
+                continue
+            self._channels[name] = channel
+            qos = adapt_request_to_offers([i.qos_profile for i in infos], self._depth)
+            self._recording_subs.append(
+                self.create_subscription(cls, name, self._callback(channel), qos, raw=True)
+            )
+            self.get_logger().info(f"recording {name} [{type_name}]")
+
+    def _callback(self, channel: int):
+        def on_message(data: bytes, info: dict[str, int]) -> None:
+            if self._use_sim_time:
+                log_time = self.get_clock().now().nanoseconds
+            else:
+                log_time = info["received_timestamp"]
+            self.writer.write(channel, log_time, data, info["source_timestamp"],
+                              info.get("publication_sequence_number", 0))
+
+        return on_message
+
+    def close(self) -> None:
+        """Finish the bag (summary, indexes, metadata.yaml)."""
+        self.writer.close()
+        self.get_logger().info(f"bag closed: {self.writer.message_count} messages on {len(self._channels)} topics")
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of ``ros2 run robotino_geom_mpc recorder_node``: record until SIGINT/SIGTERM."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.append(True))
+    try:
+        node = RecorderNode()
+    except BagError as exc:
+        print(f"recorder_node: error: {exc}", file=sys.stderr)
+        rclpy.shutdown()
+        sys.exit(2)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while not stop:
+            executor.spin_once(timeout_sec=0.05)
+        # take what DDS had already received (bounded: a live publisher keeps sending), then finish the file
+        idle, deadline = 0, time.monotonic() + 0.5
+        while idle < 5 and time.monotonic() < deadline:
+            before = node.writer.message_count
+            executor.spin_once(timeout_sec=0.01)
+            idle = idle + 1 if node.writer.message_count == before else 0
+    finally:
+        node.close()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

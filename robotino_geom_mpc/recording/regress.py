@@ -1,0 +1,148 @@
+"""Replay regression: a recording's odometry and reference previews through a fresh controller.
+
+A fresh `core.controller.MotionController`, built from the run parameters
+the recording stores (or a parameter file), is stepped once per recorded
+control tick with exactly what the controller node got: the ``odom``
+message of the tick converted by the node's own `odometry_state` and the
+``reference_preview`` of the same stamp converted by its
+`preview_positions` (lockstep; without a preview of the same stamp, as in
+realtime mode, the latest preview published before the recorded answer).
+Its voltages are compared with the recorded ``wheel_voltages`` answer of
+the tick (paired through the controller's ``diagnostics``, stamped with
+the tick, see `report`). Deterministic code on identical inputs gives
+identical floats, so the tolerance is 1e-12 V.
+
+Limits: a parameter change during the run (the node rebuilds its
+controller) or a watchdog reset in realtime mode is not replayed; those
+recordings show a deviation from that tick on.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from bisect import bisect_left
+from dataclasses import dataclass
+
+import numpy as np
+
+from robotino_geom_mpc.core.controller import ControllerInputError, MotionController
+from robotino_geom_mpc.nodes.controller_node import InputRejected, odometry_state, preview_positions
+from robotino_geom_mpc.recording.bag import BagError, BagReader
+from robotino_geom_mpc.recording.report import (
+    by_publish_time,
+    controller_diagnostics,
+    find_topic,
+    resolve_parameters,
+    stamp_ns,
+)
+
+__all__ = ["RegressionResult", "regress_bag"]
+
+
+@dataclass(frozen=True)
+class RegressionResult:
+    """Outcome of `regress_bag`.
+
+    Attributes
+    ----------
+    ticks
+        Odometry ticks stepped through the controller.
+    compared
+        Ticks with a recorded answer that was compared.
+    max_deviation_v
+        Largest |recomputed - recorded| voltage over all compared ticks [V].
+    worst_time_s
+        Tick time (relative to the first tick) of that deviation, or None.
+    tolerance_v
+        The tolerance of the verdict.
+    """
+
+    ticks: int
+    compared: int
+    max_deviation_v: float
+    worst_time_s: float | None
+    tolerance_v: float
+
+    @property
+    def passed(self) -> bool:
+        return self.compared > 0 and self.max_deviation_v <= self.tolerance_v
+
+
+def regress_bag(
+    bag: BagReader | str | os.PathLike,
+    params_file: str | os.PathLike | None = None,
+    tolerance_v: float = 1e-12,
+) -> RegressionResult:
+    """Recompute the controller's voltages from a recording and compare them to the recorded ones.
+
+    Raises
+    ------
+    BagError
+        If the recording lacks ``odom``, ``reference_preview`` or
+        ``wheel_voltages``, or a tick has no preview to feed the controller.
+    """
+    if not math.isfinite(tolerance_v) or tolerance_v < 0.0:
+        raise BagError(f"tolerance must be finite and >= 0, got {tolerance_v!r}")
+    if not isinstance(bag, BagReader):
+        bag = BagReader(bag)
+    robot, control, _, _ = resolve_parameters(bag, params_file)
+    odom = by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry"))
+    previews = by_publish_time(bag, find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory"))
+    voltages = by_publish_time(bag, find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray"))
+    diags = by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False))
+    volt_t = [p for p, _ in voltages]
+    answers: dict[int, np.ndarray] = {}  # tick stamp -> recorded voltages
+    for publish, msg in diags:
+        if controller_diagnostics(msg) is None:
+            continue
+        i = bisect_left(volt_t, publish) - 1
+        if i >= 0:
+            answers.setdefault(stamp_ns(msg.header.stamp), np.array(voltages[i][1].data))
+    by_stamp: dict[int, object] = {}
+    for _, msg in previews:
+        by_stamp.setdefault(stamp_ns(msg.header.stamp), msg)
+    prev_t = [p for p, _ in previews]
+
+    controller = MotionController(robot, control)
+    theta = 0.0
+    seen: set[int] = set()
+    ticks = compared = 0
+    worst, worst_stamp = 0.0, None
+    first_stamp = None
+    for index, (publish, msg) in enumerate(odom):
+        stamp = stamp_ns(msg.header.stamp)
+        if stamp in seen:
+            continue  # a lockstep tick the plant resent: the node answers it once
+        seen.add(stamp)
+        first_stamp = stamp if first_stamp is None else first_stamp
+        try:
+            X = odometry_state(msg, theta)
+        except InputRejected:
+            expected = np.zeros(3)
+        else:
+            preview = by_stamp.get(stamp)
+            if preview is None:
+                answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
+                i = bisect_left(prev_t, answer_publish) - 1
+                if i < 0:
+                    raise BagError(f"{bag.path}: no reference_preview before the tick at stamp {stamp} ns")
+                preview = previews[i][1]
+            positions = preview_positions(preview, control.horizon, theta)
+            theta = X[4]
+            try:
+                expected = controller.step(X, positions[1:]).voltages
+            except ControllerInputError:
+                expected = np.zeros(3)
+        ticks += 1
+        recorded = answers.get(stamp)
+        if recorded is None or recorded.shape != (3,):
+            continue
+        compared += 1
+        deviation = float(np.max(np.abs(np.asarray(expected) - recorded)))
+        if worst_stamp is None or deviation > worst:
+            worst, worst_stamp = deviation, stamp
+    if ticks == 0:
+        raise BagError(f"{bag.path}: no odometry tick in the recording")
+    worst_time = None if worst_stamp is None else (worst_stamp - first_stamp) * 1e-9
+    return RegressionResult(ticks, compared, worst, worst_time, float(tolerance_v))

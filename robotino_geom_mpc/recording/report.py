@@ -1,0 +1,281 @@
+"""A run's `RunData`, metrics.json and figures from a recording alone (the same code path `run` uses).
+
+How a recording maps onto `results.RunData` (one sample per control tick k):
+
+* tick times t_k: the header stamps of ``ground_truth/odom`` (the first
+  message of each stamp: a lockstep tick the plant resends counts once),
+  relative to the first tick;
+* pose: ``ground_truth/odom`` position and yaw (unwrapped);
+* reference: point 0 of the ``reference_preview`` stamped t_k (the
+  reference at t_k itself), else the ``reference_path`` pose stamped t_k
+  (linear interpolation between path samples otherwise);
+* currents: the signed peak currents of the period after tick k, which the
+  plant publishes once it has integrated that period (as `simulation`
+  records them): the first ``wheel_currents`` published after the tick's
+  ``ground_truth/odom`` and before the next tick's (by publish time);
+* voltages: the controller's answer to tick k, found through its
+  ``diagnostics`` (stamped t_k, published right after the voltages: the
+  last ``wheel_voltages`` published before it), else the first
+  ``wheel_voltages`` published after the tick's ``odom``; the diagnostics
+  also give the ``saturated`` / ``infeasible`` flags and the compute time;
+* scalars (control period, horizon, nominal current, supply voltage) and
+  the scenario name: from the run parameters the recorder stores (MCAP
+  metadata record ``robotino_geom_mpc``), else from a parameter file given
+  by the caller, else from the default preset (noted in ``meta``).
+
+Ticks lacking one of these (e.g. the last tick, answered after the recorder
+stopped) are left out; ``meta["ticks_dropped"]`` counts them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from bisect import bisect_left, bisect_right
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from robotino_geom_mpc.core.params import ParamError, load_params, params_from_values
+from robotino_geom_mpc.plots import write_plots
+from robotino_geom_mpc.recording.bag import RUN_METADATA, BagError, BagReader
+from robotino_geom_mpc.results import RunData, compute_metrics, write_metrics
+
+__all__ = [
+    "find_topic",
+    "run_parameters",
+    "resolve_parameters",
+    "by_publish_time",
+    "controller_diagnostics",
+    "stamp_ns",
+    "yaw",
+    "run_data_from_bag",
+    "report_bag",
+]
+
+
+
+def stamp_ns(stamp: Any) -> int:
+    """builtin_interfaces/Time as integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def yaw(q: Any) -> float:
+    """Yaw (rad) of a quaternion message (ZYX convention)."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def find_topic(bag: BagReader, suffix: str, type_name: str, required: bool = True) -> str | None:
+    """The recorded topic named ``/<suffix>`` (or ``/<ns>/<suffix>``) of type `type_name`.
+
+    Raises
+    ------
+    BagError
+        If `required` and there is no such topic, or there are several.
+    """
+    names = [
+        n for n, t in bag.topics.items() if (n == "/" + suffix or n.endswith("/" + suffix)) and t.type == type_name
+    ]
+    if len(names) == 1:
+        return names[0]
+    if len(names) > 1:
+        exact = [n for n in names if n == "/" + suffix]
+        if exact:
+            return exact[0]
+        raise BagError(f"{bag.path}: several {suffix} topics ({', '.join(names)})")
+    if required:
+        raise BagError(f"{bag.path}: no '{suffix}' topic of type {type_name} in the recording")
+    return None
+
+
+def run_parameters(bag: BagReader) -> tuple[dict[str, Any] | None, str]:
+    """The robot/control parameters (flat dotted names) and scenario stored by the recorder, if any."""
+    record = bag.metadata.get(RUN_METADATA)
+    if record is None:
+        prefix = RUN_METADATA + "."
+        record = {k[len(prefix):]: v for k, v in bag.custom_data.items() if k.startswith(prefix)}
+    scenario = record.get("scenario", "") or ""
+    text = record.get("parameters")
+    if not text:
+        return None, scenario
+    try:
+        values = json.loads(text)
+    except json.JSONDecodeError:
+        raise BagError(f"{bag.path}: the stored run parameters are not valid JSON") from None
+    return (values or None), scenario
+
+
+def resolve_parameters(bag: BagReader, params_file: str | os.PathLike | None):
+    """(robot, control, stored scenario, source): `params_file` if given, else the stored values, else the preset."""
+    values, scenario = run_parameters(bag)
+    if params_file is not None:
+        robot, control = load_params(params_file)
+        source = str(params_file)
+    elif values is not None:
+        try:
+            robot, control = params_from_values(values, f"the run parameters stored in {bag.path}")
+        except ParamError as exc:
+            raise BagError(str(exc)) from None
+        source = "recording"
+    else:
+        robot, control = load_params()
+        source = "default preset (the recording stores no run parameters)"
+    return robot, control, scenario, source
+
+
+def by_publish_time(bag: BagReader, topic: str | None) -> list[tuple[int, Any]]:
+    """(publish time [ns], deserialised message) of a topic, in publish-time order ([] for None)."""
+    if topic is None:
+        return []
+    items = [(m.publish_time_ns, msg) for m, msg in bag.decoded([topic])]
+    items.sort(key=lambda item: item[0])
+    return items
+
+
+def _first_per_stamp(items: list[tuple[int, Any]]) -> dict[int, tuple[int, Any]]:
+    out: dict[int, tuple[int, Any]] = {}
+    for publish, msg in items:
+        out.setdefault(stamp_ns(msg.header.stamp), (publish, msg))
+    return out
+
+
+def _first_after(times: list[int], items: list, t: int, before: int | None = None):
+    i = bisect_right(times, t)
+    if i < len(items) and (before is None or times[i] < before):
+        return items[i][1]
+    return None
+
+
+def controller_diagnostics(msg: Any) -> dict[str, str] | None:
+    """Key-values of the controller's tracking status in a DiagnosticArray (None if it has none)."""
+    for status in msg.status:
+        keys = {kv.key: kv.value for kv in status.values}
+        if "error_x_m" in keys:
+            return keys
+    return None
+
+
+def run_data_from_bag(
+    bag: BagReader | str | os.PathLike,
+    params_file: str | os.PathLike | None = None,
+    scenario: str | None = None,
+) -> RunData:
+    """Extract the `RunData` of a recorded run (see the module docstring for the mapping).
+
+    Raises
+    ------
+    BagError
+        If the bag lacks ``ground_truth/odom``, ``wheel_currents`` or
+        ``wheel_voltages``, or no tick has all its data.
+    """
+    if not isinstance(bag, BagReader):
+        bag = BagReader(bag)
+    robot, control, stored_scenario, source = resolve_parameters(bag, params_file)
+    truth_topic = find_topic(bag, "ground_truth/odom", "nav_msgs/msg/Odometry")
+    truth = sorted(_first_per_stamp(by_publish_time(bag, truth_topic)).items())
+    currents = by_publish_time(bag, find_topic(bag, "wheel_currents", "std_msgs/msg/Float64MultiArray"))
+    voltages = by_publish_time(bag, find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray"))
+    odom = _first_per_stamp(by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry", False)))
+    previews = _first_per_stamp(by_publish_time(
+        bag, find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory", False)))
+    diags: dict[int, tuple[int, dict[str, str]]] = {}
+    for publish, msg in by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray",
+                                                         False)):
+        values = controller_diagnostics(msg)
+        if values is not None:
+            diags.setdefault(stamp_ns(msg.header.stamp), (publish, values))
+    path = by_publish_time(bag, find_topic(bag, "reference_path", "nav_msgs/msg/Path", False))
+    path_t = path_ref = None
+    if path:
+        poses = path[-1][1].poses
+        if poses:
+            path_t = np.array([stamp_ns(p.header.stamp) for p in poses], dtype=np.int64)
+            path_ref = np.array([(p.pose.position.x, p.pose.position.y, yaw(p.pose.orientation)) for p in poses])
+            path_ref[:, 2] = np.unwrap(path_ref[:, 2])
+
+    cur_t = [p for p, _ in currents]
+    volt_t = [p for p, _ in voltages]
+    truth_publish = [p for _, (p, _) in truth]
+    rows: list[tuple] = []
+    for k, (stamp, (publish, msg)) in enumerate(truth):
+        next_publish = truth_publish[k + 1] if k + 1 < len(truth) else None
+        current = _first_after(cur_t, currents, publish, next_publish)
+        diag = diags.get(stamp)
+        if diag is not None:
+            i = bisect_left(volt_t, diag[0]) - 1
+            voltage = voltages[i][1] if i >= 0 else None
+        else:
+            after = odom[stamp][0] if stamp in odom else publish
+            voltage = _first_after(volt_t, voltages, after, next_publish)
+        if stamp in previews and previews[stamp][1].points:
+            tf = previews[stamp][1].points[0].transforms[0]
+            reference = (tf.translation.x, tf.translation.y, yaw(tf.rotation))
+        elif path_t is not None and path_t[0] <= stamp <= path_t[-1]:
+            reference = tuple(np.interp(stamp, path_t, path_ref[:, j]) for j in range(3))
+        else:
+            reference = None
+        if current is None or voltage is None or reference is None or len(current.data) != 3 or len(voltage.data) != 3:
+            continue
+        pose = msg.pose.pose
+        rows.append((stamp, (pose.position.x, pose.position.y, yaw(pose.orientation)), reference,
+                     tuple(current.data), tuple(voltage.data), diag[1] if diag else None))
+    if not rows:
+        raise BagError(f"{bag.path}: no control tick with pose, reference, currents and voltages in the recording")
+    t0 = rows[0][0]
+    pose = np.array([r[1] for r in rows])
+    reference = np.array([r[2] for r in rows])
+    pose[:, 2] = np.unwrap(pose[:, 2])
+    reference[:, 2] = np.unwrap(reference[:, 2])
+    flags: dict[str, np.ndarray] = {}
+    compute = None
+    if all(r[5] is not None for r in rows):
+        for name in ("saturated", "infeasible"):
+            flags[name] = np.array([r[5].get(name) == "true" for r in rows])
+        compute = np.array([float(r[5]["compute_time_ms"]) * 1e-3 for r in rows])
+    return RunData(
+        scenario=scenario or stored_scenario or "recording",
+        t=np.array([(r[0] - t0) * 1e-9 for r in rows]),
+        pose=pose,
+        reference=reference,
+        currents=np.array([r[3] for r in rows]),
+        voltages=np.array([r[4] for r in rows]),
+        control_period_s=control.period_s,
+        horizon=control.horizon,
+        nominal_current_a=robot.nominal_current_a,
+        supply_voltage_v=robot.supply_voltage_v,
+        flags=flags,
+        compute_time_s=compute,
+        meta={
+            "source": "recording",
+            "bag": str(bag.path),
+            "parameters": source,
+            "ticks_dropped": len(truth) - len(rows),
+            "bag_problems": list(bag.problems),
+        },
+    )
+
+
+def report_bag(
+    bag: BagReader | str | os.PathLike,
+    out_dir: str | os.PathLike,
+    params_file: str | os.PathLike | None = None,
+    settle_time_s: float = 1.0,
+) -> dict[str, Any]:
+    """Write ``out_dir/metrics.json`` and the figures of a recorded run; returns the metrics.
+
+    Uses `results.compute_metrics` / `results.write_metrics` and
+    `plots.write_plots`, the same code as ``simulate`` and ``run``.
+
+    Raises
+    ------
+    BagError
+        If the bag cannot be read or lacks the topics of a run.
+    """
+    run = run_data_from_bag(bag, params_file)
+    out = Path(out_dir)
+    metrics = compute_metrics(run, settle_time_s=settle_time_s)
+    write_metrics(metrics, out / "metrics.json")
+    write_plots(run, out, settle_time_s=settle_time_s)
+    return metrics

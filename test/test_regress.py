@@ -1,0 +1,79 @@
+"""Replay regression on a recording of the real nodes (plant, controller, trajectory in lockstep, recorder).
+
+The recorded odometry and previews through a fresh controller give the recorded voltages to 1e-12;
+one voltage perturbed by 1e-9 V in a copy of the bag makes it fail, naming that deviation.
+"""
+
+from __future__ import annotations
+
+import pytest
+from rclpy.serialization import deserialize_message, serialize_message
+from std_msgs.msg import Float64MultiArray
+
+from recording_helpers import PYTHON, Processes, wait_for
+from robotino_geom_mpc.cli import main
+from robotino_geom_mpc.core.params import default_params_file
+from robotino_geom_mpc.recording.bag import RUN_METADATA, BagReader, BagWriter
+from robotino_geom_mpc.recording.regress import regress_bag
+
+PARAMS = str(default_params_file())
+# what the plant waits for before tick 0: the controller's and the recorder's subscriptions
+WAIT_FOR = ('lockstep_wait_for:=["odom:2", "/clock:2", "ground_truth/odom:1", "wheel_currents:1", '
+            '"reference_preview:2", "wheel_voltages:2", "diagnostics:1"]')
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """A 1 s lockstep paper-circle run of the real nodes, recorded."""
+    tmp = tmp_path_factory.mktemp("regress")
+    procs = Processes(tmp)
+    bag = tmp / "bag"
+    try:
+        rec = procs.start("recorder", [PYTHON, "-m", "robotino_geom_mpc.recording.recorder_node", "--ros-args",
+                                       "--params-file", PARAMS, "-p", f"output:={bag}", "-p", "scenario:=paper-circle"])
+        node_args = ["--ros-args", "--params-file", PARAMS, "-p", "mode:=lockstep"]
+        procs.start("trajectory", [PYTHON, "-m", "robotino_geom_mpc.nodes.trajectory_node", *node_args,
+                                   "-p", "scenario:=paper-circle"])
+        procs.start("controller", [PYTHON, "-m", "robotino_geom_mpc.nodes.controller_node", *node_args])
+        plant = procs.start("plant", [PYTHON, "-m", "robotino_sim_node.plant_node", *node_args,
+                                      "-p", "duration_s:=1.0", "-p", WAIT_FOR])
+        assert plant.wait(120) == 0, plant.log_path.read_text()
+        wait_for(lambda: "recording /wheel_voltages" in rec.log_path.read_text(), 10.0, "the recorder")
+        assert Processes.stop(rec) == 0
+    finally:
+        procs.close()
+    return bag
+
+
+def test_regression_reproduces_the_recorded_voltages(recording, capsys):
+    result = regress_bag(recording)
+    assert result.ticks == 100 and result.compared == 100
+    assert result.max_deviation_v <= 1e-12 and result.passed
+    assert main(["regress", str(recording)]) == 0
+    assert "PASS" in capsys.readouterr().out
+
+
+def test_regression_fails_on_a_perturbed_voltage(recording, tmp_path, capsys):
+    source = BagReader(recording)
+    copy = tmp_path / "perturbed"
+    seen = 0
+    with BagWriter(copy) as out:
+        out.add_metadata(RUN_METADATA, source.metadata[RUN_METADATA])
+        channels = {name: out.add_topic(name, info.type, info.offered_qos_profiles, info.type_description_hash)
+                    for name, info in source.topics.items()}
+        for m in source.messages():
+            data = m.data
+            if m.topic == "/wheel_voltages":
+                seen += 1
+                if seen == 50:
+                    msg = deserialize_message(data, Float64MultiArray)
+                    msg.data = [msg.data[0], msg.data[1] + 1e-9, msg.data[2]]
+                    data = serialize_message(msg)
+            out.write(channels[m.topic], m.log_time_ns, data, m.publish_time_ns, m.sequence)
+    result = regress_bag(copy)
+    assert not result.passed
+    assert result.max_deviation_v == pytest.approx(1e-9, rel=1e-3)
+    assert result.worst_time_s == pytest.approx(0.49, abs=1e-9)  # the 50th tick, t = 49 Ts
+    assert main(["regress", str(copy)]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL" in out and "1.000e-09 V" in out

@@ -1,0 +1,159 @@
+"""`report` on a synthetic lockstep recording gives what `compute_metrics` gives on the same data."""
+
+from __future__ import annotations
+
+import json
+import math
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, Transform
+from nav_msgs.msg import Odometry, Path
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Float64MultiArray
+from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+
+from robotino_geom_mpc.cli import main
+from robotino_geom_mpc.core.params import default_params_file, read_parameter_file
+from robotino_geom_mpc.plots import FIGURE_SIZES_IN
+from robotino_geom_mpc.recording.bag import RUN_METADATA, BagWriter
+from robotino_geom_mpc.recording.report import report_bag, run_data_from_bag
+from robotino_geom_mpc.results import RunData, compute_metrics, read_metrics
+
+TS = 0.01
+HORIZON = 4
+N_TICKS = 300
+
+
+def _quat(theta):
+    return 0.0, 0.0, math.sin(theta / 2), math.cos(theta / 2)
+
+
+def _stamp(msg, ns):
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(ns), 10**9)
+    return msg
+
+
+def _odom(ns, pose):
+    msg = _stamp(Odometry(), ns)
+    msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+    msg.pose.pose.position.x, msg.pose.pose.position.y = pose[0], pose[1]
+    q = msg.pose.pose.orientation
+    q.x, q.y, q.z, q.w = _quat(pose[2])
+    return msg
+
+
+def _reference(t):
+    return np.stack([0.5 * np.sin(t), 0.5 - 0.5 * np.cos(t), 1.5 * t], axis=-1)  # theta crosses pi
+
+
+def _preview(ns):
+    msg = _stamp(MultiDOFJointTrajectory(), ns)
+    for j, (x, y, th) in enumerate(_reference(ns * 1e-9 + TS * np.arange(HORIZON + 1))):
+        tf = Transform()
+        tf.translation.x, tf.translation.y = float(x), float(y)
+        tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = _quat(float(th))
+        msg.points.append(MultiDOFJointTrajectoryPoint(transforms=[tf]))
+    return msg
+
+
+def _diag(ns, saturated, compute_ms):
+    status = DiagnosticStatus(name="robotino_geom_mpc: controller", values=[
+        KeyValue(key="error_x_m", value="0"), KeyValue(key="compute_time_ms", value=f"{compute_ms:.4f}"),
+        KeyValue(key="saturated", value=str(saturated).lower()), KeyValue(key="infeasible", value="false")])
+    return _stamp(DiagnosticArray(status=[status]), ns)
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    """A lockstep recording written message by message, and the RunData it stands for."""
+    rng = np.random.default_rng(7)
+    t = TS * np.arange(N_TICKS)
+    reference = _reference(t)
+    pose = reference + rng.normal(0.0, 2e-3, size=reference.shape)
+    currents = rng.uniform(-1.2, 1.2, size=(N_TICKS, 3))
+    voltages = rng.uniform(-12.0, 12.0, size=(N_TICKS, 3))
+    saturated = rng.random(N_TICKS) < 0.1
+    compute_ms = np.round(rng.uniform(0.05, 0.3, size=N_TICKS), 4)
+    values = read_parameter_file(default_params_file())
+    values["motor.nominal_current_a"] = 0.9  # differs from the preset: the stored values must be used
+    path = tmp_path_factory.mktemp("report") / "bag"
+    with BagWriter(path) as bag:
+        bag.add_metadata(RUN_METADATA, {"scenario": "synthetic-circle", "parameters": json.dumps(values)})
+        ch = {name: bag.add_topic("/" + name, typ) for name, typ in [
+            ("odom", "nav_msgs/msg/Odometry"), ("ground_truth/odom", "nav_msgs/msg/Odometry"),
+            ("wheel_currents", "std_msgs/msg/Float64MultiArray"), ("wheel_voltages", "std_msgs/msg/Float64MultiArray"),
+            ("reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory"),
+            ("diagnostics", "diagnostic_msgs/msg/DiagnosticArray"), ("reference_path", "nav_msgs/msg/Path")]}
+        path_msg = Path()
+        for k, (x, y, th) in enumerate(reference):
+            ps = _stamp(PoseStamped(), k * TS * 1e9)
+            ps.pose.position.x, ps.pose.position.y = x, y
+            path_msg.poses.append(ps)
+        bag.write(ch["reference_path"], 1, serialize_message(path_msg), 1)
+
+        def put(name, msg, publish):  # log time 50 us after the publish time, as a recorder would see it
+            bag.write(ch[name], publish + 50_000, serialize_message(msg), publish)
+
+        for k in range(N_TICKS):
+            ns, base = int(round(k * TS * 1e9)), 10**9 + k * 10**6  # wall time of tick k: 1 ms per tick
+            put("reference_preview", _preview(ns), base - 300_000)  # the trajectory runs one tick ahead
+            put("odom", _odom(ns, pose[k] + 1e-4), base)
+            put("ground_truth/odom", _odom(ns, pose[k]), base + 10_000)
+            if k == N_TICKS - 1:
+                break  # the recorder stopped before the controller answered the last tick
+            if k == 100:  # the plant resends a tick: the same stamp again, counted once
+                put("ground_truth/odom", _odom(ns, pose[k]), base + 100_000)
+            put("wheel_voltages", Float64MultiArray(data=list(voltages[k])), base + 200_000)
+            put("diagnostics", _diag(ns, saturated[k], compute_ms[k]), base + 210_000)
+            # the plant integrates the period after tick k, then publishes its peak currents
+            put("wheel_currents", Float64MultiArray(data=list(currents[k])), base + 500_000)
+    n = N_TICKS - 1
+    expected = RunData(
+        scenario="synthetic-circle", t=t[:n], pose=pose[:n], reference=reference[:n], currents=currents[:n],
+        voltages=voltages[:n], control_period_s=TS, horizon=HORIZON, nominal_current_a=0.9,
+        supply_voltage_v=values["motor.supply_voltage_v"],
+        flags={"saturated": saturated[:n], "infeasible": np.zeros(n, bool)}, compute_time_s=compute_ms[:n] * 1e-3,
+    )
+    return path, expected
+
+
+def _assert_same_metrics(got: dict, want: dict) -> None:
+    assert set(got) == set(want)
+    for key, value in want.items():
+        if isinstance(value, float):
+            assert got[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
+        else:
+            assert got[key] == value, key
+
+
+def test_run_data_matches_the_recorded_series(synthetic):
+    path, expected = synthetic
+    run = run_data_from_bag(path)
+    assert run.n == expected.n and run.scenario == expected.scenario
+    np.testing.assert_allclose(run.t, expected.t, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(run.pose, expected.pose, rtol=0, atol=1e-12)  # theta unwrapped past pi
+    np.testing.assert_allclose(run.reference, expected.reference, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(run.currents, expected.currents)
+    np.testing.assert_array_equal(run.voltages, expected.voltages)
+    np.testing.assert_array_equal(run.flags["saturated"], expected.flags["saturated"])
+    assert run.meta["ticks_dropped"] == 1
+
+
+def test_report_gives_the_metrics_of_compute_metrics(synthetic, tmp_path):
+    path, expected = synthetic
+    metrics = report_bag(path, tmp_path / "out")
+    _assert_same_metrics(metrics, compute_metrics(expected))
+    _assert_same_metrics(read_metrics(tmp_path / "out" / "metrics.json"), compute_metrics(expected))
+    assert {p.stem for p in (tmp_path / "out").glob("*.png")} == set(FIGURE_SIZES_IN)
+
+
+def test_report_verb(synthetic, tmp_path, capsys):
+    path, expected = synthetic
+    mcap = next(path.glob("*.mcap"))  # a bare .mcap works too
+    assert main(["report", str(mcap), "--out", str(tmp_path / "o")]) == 0
+    _assert_same_metrics(read_metrics(tmp_path / "o" / "metrics.json"), compute_metrics(expected))
+    capsys.readouterr()
+    assert main(["report", str(tmp_path / "none"), "--out", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no such bag" in err

@@ -18,6 +18,12 @@ __all__ = ["UsageError", "main", "VERBS"]
 # verb name -> module under robotino_geom_mpc.cli
 VERBS: dict[str, str] = {
     "analyze": "analyze",
+    "simulate": "simulate",
+    "bench": "bench",
+    "replay": "replay",
+    "report": "report",
+    "regress": "regress",
+    "run": "run",
 }
 
 

@@ -1,0 +1,182 @@
+"""`robotino-geom-mpc run`: the closed loop over DDS, one process per node, recorded, with metrics and figures.
+
+Starts the recorder (unless ``--no-record``), the trajectory, the controller
+and the plant simulator as separate processes (``python -m MODULE --ros-args
+...``, each in its own process group, output in DIR/logs/), waits for the
+plant to end the run (it knows the duration), stops every node (SIGINT, then
+SIGTERM and SIGKILL after a grace period; also on Ctrl-C or when a node
+fails, which is reported with its stderr tail and exit status 1), and writes
+DIR/metrics.json and the figures from the recording (DIR/bag) through
+`recording.report.report_bag`, the code behind ``report``.
+
+In ``--lockstep`` (the default) the plant owns /clock and waits, before tick
+0, for every subscription of the loop and of the recorder, so the recording
+holds the whole run; the metrics then equal those of ``simulate`` on the same
+scenario and parameters. ``robustness`` gives the controller the mismatched
+model (`simulation.controller_model`) and the plant the odometry noise of
+`simulation.ROBUSTNESS_NOISE`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import signal
+import sys
+import time
+from pathlib import Path
+
+from . import UsageError
+
+__all__ = ["add_parser", "run", "node_arguments"]
+
+GRACE_S = 5.0
+# after the plant's last tick: time for the controller's last answer to reach the recorder
+LINGER_S = 0.5
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be finite and > 0 s, got {text!r}")
+    return value
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register the `run` verb."""
+    parser = sub.add_parser(
+        "run",
+        help="run a scenario over DDS (plant, controller, trajectory, recorder as processes)",
+        description="Run one scenario as ROS 2 nodes over DDS, record it, and write DIR/metrics.json "
+        "and the figures from the recording.",
+    )
+    parser.add_argument("--scenario", required=True,
+                        help="paper-circle, lemniscate, point-to-point or robustness")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--lockstep", dest="lockstep", action="store_true", default=True,
+                      help="the plant drives /clock, one control period per command (default; deterministic)")
+    mode.add_argument("--realtime", dest="lockstep", action="store_false",
+                      help="wall-clock timers at the control rate")
+    parser.add_argument("--duration", type=_seconds, default=None, metavar="S",
+                        help="run length [s] (default: the scenario's length)")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/run-<scenario>)")
+    parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the odometry noise (default 0)")
+    parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def node_arguments(
+    scenario: str,
+    params_file: Path,
+    duration_s: float,
+    lockstep: bool,
+    seed: int = 0,
+    bag: Path | None = None,
+) -> dict[str, list[str]]:
+    """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`."""
+    from ..core.params import ROBOT_SPECS, load_params
+    from ..nodes.dds_bench import LOCKSTEP_WAIT_FOR
+    from ..nodes.processes import ros_args
+    from ..simulation import ROBUSTNESS_NOISE, controller_model
+
+    robot, _ = load_params(params_file)
+    mode = "lockstep" if lockstep else "realtime"
+    sim = {"use_sim_time": lockstep}
+    model = controller_model(scenario, robot)
+    mismatch = {s.name: getattr(model, s.attr) for s in ROBOT_SPECS if getattr(model, s.attr) != getattr(robot, s.attr)}
+    noise = ROBUSTNESS_NOISE if scenario == "robustness" else (0.0, 0.0)
+    wait_for = list(LOCKSTEP_WAIT_FOR)
+    if bag is not None:  # the recorder subscribes every topic (its /clock subscription is a recording one)
+        wait_for = ["odom:2", "/clock:4", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
+                    "wheel_currents:1", "joint_states:1", "diagnostics:1"]
+    args = {}
+    if bag is not None:
+        args["recorder_node"] = ros_args(params_file, {"output": str(bag), "scenario": scenario})
+    args["trajectory_node"] = ros_args(params_file, {"scenario": scenario, "mode": mode, **sim})
+    args["controller_node"] = ros_args(params_file, {"mode": mode, **sim, **mismatch})
+    args["plant_node"] = ros_args(params_file, {
+        "mode": mode,
+        "duration_s": float(duration_s),
+        "seed": int(seed),
+        "odometry_noise.position_m": float(noise[0]),
+        "odometry_noise.yaw_rad": float(noise[1]),
+        "lockstep_wait_for": wait_for,
+    })
+    return args
+
+
+def _raise_interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
+    from ..core.params import default_params_file, load_params
+    from ..core.trajectory import make_reference
+    from ..nodes.processes import NodeFailed, NodeGroup
+    from ..simulation import SCENARIOS
+
+    if args.scenario not in SCENARIOS:
+        raise UsageError(f"unknown scenario {args.scenario!r}; choose from {', '.join(SCENARIOS)}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    params_file = (args.params or default_params_file()).resolve()
+    _, control = load_params(params_file)
+    duration = args.duration if args.duration is not None else make_reference(args.scenario).duration_s
+    out = args.out if args.out is not None else Path("out") / f"run-{args.scenario}"
+    bag = None if args.no_record else out.resolve() / "bag"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        if bag is not None and bag.exists():
+            shutil.rmtree(bag)  # the previous run's recording
+    except OSError as exc:
+        raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
+
+    node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag)
+    mode = "lockstep" if args.lockstep else "realtime"
+    print(f"run {args.scenario} over DDS ({mode}, {duration:g} s, Ts = {control.period_s:g} s); logs in {out / 'logs'}")
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    group = NodeGroup(log_dir=out / "logs")
+    start = time.monotonic()
+    try:
+        nodes = {name: group.start(name, argv) for name, argv in node_args.items()}
+        # the plant ends the run; lockstep may be slower than real time on a loaded machine
+        limit = duration + 60.0 if not args.lockstep else 60.0 + 20.0 * duration
+        if not group.wait(nodes["plant_node"], limit):
+            print(f"robotino-geom-mpc run: error: the run did not end within {limit:g} s", file=sys.stderr)
+            return 1
+        time.sleep(LINGER_S)
+        group.check()
+        for name in ("controller_node", "trajectory_node", "recorder_node"):
+            if name in nodes and group.stop_node(nodes[name], GRACE_S) not in (0, -signal.SIGINT):
+                raise NodeFailed(f"{name} did not stop cleanly:\n{nodes[name].stderr_tail()}")
+    except NodeFailed as exc:
+        print(f"robotino-geom-mpc run: error: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        group.stop(GRACE_S)
+        signal.signal(signal.SIGTERM, previous)
+    wall = time.monotonic() - start
+    print(f"  {duration:g} s run in {wall:.1f} s wall (with startup)")
+    if bag is None:
+        print("  not recorded (--no-record): no metrics or figures")
+        return 0
+    from ..recording.bag import BagError
+    from ..recording.report import report_bag
+
+    try:
+        metrics = report_bag(bag, out, params_file)
+    except BagError as exc:
+        print(f"robotino-geom-mpc run: error: {exc}", file=sys.stderr)
+        return 1
+    print(f"  position error after settle: rms {metrics['rms_position_error_m']:.3g} m, "
+          f"max {metrics['max_position_error_m']:.3g} m; peak current {metrics['peak_current_a']:.3g} A, "
+          f"peak voltage {metrics['peak_voltage_v']:.3g} V")
+    print(f"  wrote {out / 'metrics.json'} and the figures; recording in {bag}")
+    return 0

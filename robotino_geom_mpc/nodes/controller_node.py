@@ -1,0 +1,281 @@
+"""Controller node: one `MotionController.step` (three MPCs, eq. 56 -> T(theta), eqs. 33-37 -> inverse drive) per odometry.
+
+Topics (relative names)
+-----------------------
+subscribes ``odom``               nav_msgs/Odometry (pose in ``odom``, twist in ``base_link``)
+           ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory (N + 1 points, see trajectory_node)
+publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layout label ``wheel_voltage_v``
+           ``diagnostics``        diagnostic_msgs/DiagnosticArray, one status ``robotino_geom_mpc: controller``
+                                  per tick, header.stamp = the odometry stamp, values: ``error_x_m``,
+                                  ``error_y_m``, ``error_theta_rad`` (measured - reference at t_k),
+                                  ``compute_time_ms`` (the step), ``saturated``, ``infeasible``,
+                                  ``watchdog`` (waiting, ok, stale_odom, stale_reference), ``rejected``
+                                  (inputs refused so far)
+
+Each odometry message is one control tick: the node computes on its arrival,
+which keeps the odometry-to-voltage latency to one step. The preview used is
+the one whose stamp equals the odometry stamp in ``lockstep`` (the odometry
+waits for it if it comes first), the freshest in ``realtime``. In lockstep a
+repeated odometry stamp (the plant resends a tick) is answered again only if
+the first answer could not be delivered (no matched subscriber then), so no
+tick is answered twice.
+
+A steady-clock watchdog checks the arrival age of the odometry and of the
+preview: older than ``odom_timeout_s`` / ``reference_timeout_s`` (after the
+first of each arrived) means zero volts (realtime), a throttled warning, the
+watchdog state in the diagnostics, and a controller reset when data return.
+In lockstep the plant holds the time, so the watchdog only reports.
+
+A NaN/Inf or wrongly sized input is rejected with a throttled warning and
+never reaches the output: the tick gets zero volts and an ERROR diagnostic.
+
+Parameters: the robot/control parameters of config/*.yaml (``/**``
+section) plus `CONTROLLER_SPECS`; a change rebuilds (and resets) the controller.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, state_from_odometry
+from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
+from robotino_geom_mpc.nodes.common import (
+    CONTROL_QOS,
+    PUBLISH_QOS,
+    SpecParameters,
+    monotonic,
+    quaternion_to_yaw,
+    run_node,
+    spec_defaults,
+    stamp_to_ns,
+    unwrap_near,
+)
+
+__all__ = ["CONTROLLER_SPECS", "ControllerNode", "odometry_state", "preview_positions", "main"]
+
+STATUS_NAME = "robotino_geom_mpc: controller"
+
+CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("mode", str, "realtime: freshest preview, watchdog outputs zero volts; lockstep: preview of the same stamp",
+              choices=("realtime", "lockstep")),
+    ParamSpec("odom_timeout_s", float, "Odometry older than this is stale (zero volts)", "s", 0.0, 60.0, True),
+    ParamSpec("reference_timeout_s", float, "Reference preview older than this is stale (zero volts)", "s", 0.0, 60.0,
+              True),
+)
+_DEFAULTS = {"mode": "realtime", "odom_timeout_s": 0.1, "reference_timeout_s": 0.1}
+
+
+class InputRejected(ValueError):
+    """An odometry or preview message with non-finite values or the wrong size."""
+
+
+def odometry_state(msg: Odometry, previous_theta: float) -> np.ndarray:
+    """Body state X = (x, x', y, y', theta, theta') (eq. 2) of an odometry message.
+
+    theta is unwrapped next to `previous_theta`; the base_link twist is
+    rotated into ``odom`` by the measured heading (`core.controller.state_from_odometry`).
+
+    Raises
+    ------
+    InputRejected
+        If any value used is not finite.
+    """
+    p, q, tw = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
+    raw = (p.x, p.y, q.x, q.y, q.z, q.w, tw.linear.x, tw.linear.y, tw.angular.z)
+    if not all(math.isfinite(v) for v in raw):
+        raise InputRejected("odom contains non-finite values")
+    theta = unwrap_near(quaternion_to_yaw(q), previous_theta)
+    return state_from_odometry((p.x, p.y, theta), (tw.linear.x, tw.linear.y, tw.angular.z))
+
+
+def preview_positions(msg: MultiDOFJointTrajectory, horizon: int, theta_near: float) -> np.ndarray:
+    """Reference positions (x, y, theta) of points 0..N, shape (N + 1, 3); theta unwrapped from `theta_near`.
+
+    Raises
+    ------
+    InputRejected
+        If the message does not have N + 1 points with one transform each, or holds non-finite values.
+    """
+    if len(msg.points) != horizon + 1:
+        raise InputRejected(f"reference_preview has {len(msg.points)} points, need N + 1 = {horizon + 1}")
+    out = np.empty((horizon + 1, 3))
+    theta = theta_near
+    for j, point in enumerate(msg.points):
+        if len(point.transforms) != 1:
+            raise InputRejected(f"reference_preview point {j} has {len(point.transforms)} transforms, need 1")
+        tf = point.transforms[0]
+        tr, q = tf.translation, tf.rotation
+        if not all(math.isfinite(v) for v in (tr.x, tr.y, q.x, q.y, q.z, q.w)):
+            raise InputRejected(f"reference_preview point {j} contains non-finite values")
+        theta = unwrap_near(quaternion_to_yaw(q), theta)
+        out[j] = (tr.x, tr.y, theta)
+    return out
+
+
+def _array(values, label: str) -> Float64MultiArray:
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=3, stride=3)]
+    msg.data = [float(v) for v in values]
+    return msg
+
+
+class ControllerNode(Node):
+    """The controller node (see the module docstring for its interface)."""
+
+    def __init__(self) -> None:
+        super().__init__("robotino_controller")
+        self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS, {**spec_defaults(), **_DEFAULTS},
+                                     self._on_params, fixed=("mode",))
+        self.robot, self.control = self.params.robot_control()
+        self.controller = MotionController(self.robot, self.control)
+        self.lockstep = self.params["mode"] == "lockstep"
+
+        self.voltage_pub = self.create_publisher(Float64MultiArray, "wheel_voltages", PUBLISH_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", PUBLISH_QOS)
+        self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, CONTROL_QOS)
+        self.preview_sub = self.create_subscription(
+            MultiDOFJointTrajectory, "reference_preview", self._on_preview, CONTROL_QOS
+        )
+
+        self.theta = 0.0  # last measured (continuous) yaw
+        self.previews: dict[int, np.ndarray] = {}  # stamp [ns] -> (N + 1, 3)
+        self.latest_preview: np.ndarray | None = None
+        self.pending: tuple[int, np.ndarray] | None = None  # lockstep: odometry waiting for its preview
+        self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, voltages
+        self.odom_time = self.preview_time = None  # steady arrival times
+        self.watchdog_state = "waiting"
+        self.rejected = 0
+        timeout = min(self.params["odom_timeout_s"], self.params["reference_timeout_s"])
+        self.watchdog = self.create_timer(timeout / 2, self._check_watchdog,
+                                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(f"controller ready ({self.params['mode']}, mode {self.control.mode}, "
+                               f"N = {self.control.horizon}, Ts = {self.control.period_s:g} s)")
+
+    def _on_params(self, changed: dict) -> None:
+        self.robot, self.control = self.params.robot_control()
+        self.controller = MotionController(self.robot, self.control)
+        self.previews.clear()
+        self.latest_preview = None
+
+    # inputs -------------------------------------------------------------------------------------
+    def _reject(self, stamp, reason: str) -> None:
+        self.rejected += 1
+        self.get_logger().warn(f"rejected input: {reason}; zero volts", throttle_duration_sec=1.0)
+        self.voltage_pub.publish(_array((0.0, 0.0, 0.0), "wheel_voltage_v"))
+        self._diagnose(stamp, DiagnosticStatus.ERROR, f"rejected input: {reason}", None, None, None)
+
+    def _on_preview(self, msg: MultiDOFJointTrajectory) -> None:
+        try:
+            positions = preview_positions(msg, self.control.horizon, self.theta)
+        except InputRejected as exc:
+            self.rejected += 1
+            self.get_logger().warn(f"rejected reference_preview: {exc}", throttle_duration_sec=1.0)
+            return
+        self.preview_time = monotonic()
+        self.latest_preview = positions
+        if not self.lockstep:
+            return
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.previews[stamp] = positions
+        if self.pending is not None and self.pending[0] == stamp:
+            odom_stamp, X = self.pending
+            self.pending = None
+            self._control(msg.header.stamp, odom_stamp, X, positions)
+
+    def _on_odom(self, msg: Odometry) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        try:
+            X = odometry_state(msg, self.theta)
+        except InputRejected as exc:
+            self._reject(msg.header.stamp, str(exc))
+            return
+        self.odom_time = monotonic()
+        if self.answered is not None and self.answered[0] == stamp and self.lockstep:
+            if not self.answered[1] and self.voltage_pub.get_subscription_count() > 0:
+                self.voltage_pub.publish(_array(self.answered[2], "wheel_voltage_v"))
+                self.answered = (stamp, True, self.answered[2])
+            return
+        self.theta = X[4]
+        if self.lockstep:
+            for old in [s for s in self.previews if s < stamp]:
+                del self.previews[old]
+            positions = self.previews.get(stamp)
+            if positions is None:
+                self.pending = (stamp, X)
+                return
+        else:
+            positions = self.latest_preview
+            if positions is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
+                return  # stale reference: the watchdog outputs zero volts
+        self._control(msg.header.stamp, stamp, X, positions)
+
+    # control ------------------------------------------------------------------------------------
+    def _control(self, stamp_msg, stamp: int, X: np.ndarray, positions: np.ndarray) -> None:
+        try:
+            out = self.controller.step(X, positions[1:])
+        except ControllerInputError as exc:
+            self._reject(stamp_msg, str(exc))
+            return
+        compute_s = out.compute_time_s
+        voltages = [float(v) for v in out.voltages]
+        delivered = self.voltage_pub.get_subscription_count() > 0
+        self.voltage_pub.publish(_array(voltages, "wheel_voltage_v"))
+        self.answered = (stamp, delivered, voltages)
+        error = X[[0, 2, 4]] - positions[0]
+        flags = (bool(out.saturated), bool(out.infeasible))
+        level = DiagnosticStatus.WARN if any(flags) else DiagnosticStatus.OK
+        self._diagnose(stamp_msg, level, "tracking", error, compute_s, flags)
+
+    def _diagnose(self, stamp, level, message: str, error, compute_s, flags) -> None:
+        status = DiagnosticStatus(level=level, name=STATUS_NAME, message=message, hardware_id="robotino")
+        values = []
+        if error is not None:
+            values += [KeyValue(key=f"error_{axis}", value=f"{e:.9g}")
+                       for axis, e in zip(("x_m", "y_m", "theta_rad"), error)]
+            values.append(KeyValue(key="compute_time_ms", value=f"{compute_s * 1e3:.4f}"))
+            values += [KeyValue(key="saturated", value=str(flags[0]).lower()),
+                       KeyValue(key="infeasible", value=str(flags[1]).lower())]
+        values += [KeyValue(key="watchdog", value=self.watchdog_state),
+                   KeyValue(key="rejected", value=str(self.rejected))]
+        status.values = values
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = stamp
+        self.diag_pub.publish(msg)
+
+    # watchdog -----------------------------------------------------------------------------------
+    def _check_watchdog(self) -> None:
+        if self.odom_time is None or self.preview_time is None:
+            return
+        now = monotonic()
+        if now - self.odom_time > self.params["odom_timeout_s"]:
+            state = "stale_odom"
+        elif now - self.preview_time > self.params["reference_timeout_s"]:
+            state = "stale_reference"
+        else:
+            state = "ok"
+        previous, self.watchdog_state = self.watchdog_state, state
+        if state == "ok" or self.lockstep:  # lockstep: the plant holds the time; report only
+            return
+        if previous == "ok":
+            self.controller.reset()  # u(k-1) of the Delta-u form is stale when data return
+        self.get_logger().warn(f"watchdog: {state.replace('_', ' ')}; zero volts", throttle_duration_sec=1.0)
+        self.voltage_pub.publish(_array((0.0, 0.0, 0.0), "wheel_voltage_v"))
+        self._diagnose(self.get_clock().now().to_msg(), DiagnosticStatus.WARN, f"watchdog: {state}", None, None,
+                       None)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run robotino_geom_mpc controller_node``."""
+    return run_node(ControllerNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,249 @@
+"""The control loop over DDS, measured: lockstep real-time factor, realtime missed ticks and latency.
+
+Both functions start the three nodes as processes (`processes.NodeGroup`)
+on the current ROS_DOMAIN_ID and watch the loop from an in-process probe
+node that subscribes what goes over DDS:
+
+* `bench_lockstep`: the plant in lockstep on a scenario; the real-time
+  factor is simulated time over the wall time between the first and the
+  last /clock the probe receives (startup and discovery excluded);
+* `bench_realtime`: the plant in realtime at the control rate; per odometry
+  message the controller's answer is the first wheel_voltages published
+  after it: a tick is missed when none is published before the next
+  odometry; the latency is the DDS reception time of the answer at the
+  probe minus the DDS source time of the odometry (both system-clock
+  timestamps of the middleware, so the probe's own executor does not count;
+  transport on both legs and the control step do).
+
+`LoopProbe` also keeps the samples a run is judged by (ground truth, point
+0 of the preview, currents, voltages) so tests can compare the loop with
+`simulation.run_scenario` without the recorder.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.context import Context
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMsg
+from std_msgs.msg import Float64MultiArray
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from robotino_geom_mpc.core.params import default_params_file, load_params
+from robotino_geom_mpc.nodes.common import quaternion_to_yaw, stamp_to_ns, unwrap_near
+from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
+
+# subscriptions of the controller and the trajectory (use_sim_time: one /clock subscription each, plus
+# the trajectory's own) the plant waits for before tick 0
+LOCKSTEP_WAIT_FOR = ("odom:1", "/clock:3", "reference_preview:1")
+
+__all__ = ["LOCKSTEP_WAIT_FOR", "PROBE_WAIT_FOR", "LoopProbe", "ProbeSpinner", "lockstep_nodes", "bench_lockstep", "bench_realtime", "dds_benchmarks"]
+
+
+# with the probe too
+PROBE_WAIT_FOR = ("odom:2", "/clock:4", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
+                  "wheel_currents:1")
+
+
+# a deep reader queue: the probe may lag behind the loop but must not lose samples
+PROBE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class LoopProbe(Node):
+    """Subscribes the loop's topics and keeps what arrives, with steady receive times."""
+
+    def __init__(self, context: Context, clock_only: bool = False) -> None:
+        super().__init__("robotino_loop_probe", context=context)
+        self.lock = threading.Lock()
+        self.clock_times: list[float] = []
+        self.truth: dict[int, tuple[float, float, float]] = {}
+        self.reference: dict[int, tuple[float, float, float]] = {}
+        self.currents: list[list[float]] = []
+        self.voltages: list[list[float]] = []
+        self.odom_times: list[float] = []
+        self.voltage_times: list[float] = []
+        self.create_subscription(ClockMsg, "/clock", self._on_clock, PROBE_QOS)
+        if clock_only:
+            return
+        self.create_subscription(Odometry, "ground_truth/odom", self._on_truth, PROBE_QOS)
+        self.create_subscription(Odometry, "odom", self._on_odom, PROBE_QOS)
+        self.create_subscription(MultiDOFJointTrajectory, "reference_preview", self._on_preview, PROBE_QOS)
+        self.create_subscription(Float64MultiArray, "wheel_currents", self._on_currents, PROBE_QOS)
+        self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_voltages, PROBE_QOS)
+        self._theta = 0.0
+
+    def _on_clock(self, msg: ClockMsg) -> None:
+        self.clock_times.append(time.monotonic())
+
+    def _on_odom(self, msg: Odometry, info: dict) -> None:
+        self.odom_times.append(info["source_timestamp"] * 1e-9)
+
+    def _on_truth(self, msg: Odometry) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        if stamp not in self.truth:
+            p = msg.pose.pose.position
+            self._theta = unwrap_near(quaternion_to_yaw(msg.pose.pose.orientation), self._theta)
+            self.truth[stamp] = (p.x, p.y, self._theta)
+
+    def _on_preview(self, msg: MultiDOFJointTrajectory) -> None:
+        tf = msg.points[0].transforms[0]
+        self.reference[stamp_to_ns(msg.header.stamp)] = (
+            tf.translation.x, tf.translation.y, quaternion_to_yaw(tf.rotation))
+
+    def _on_currents(self, msg: Float64MultiArray) -> None:
+        self.currents.append(list(msg.data))
+
+    def _on_voltages(self, msg: Float64MultiArray, info: dict) -> None:
+        self.voltage_times.append((info["source_timestamp"] * 1e-9, info["received_timestamp"] * 1e-9))
+        self.voltages.append(list(msg.data))
+
+    def run_data(self, scenario: str, params_file: str | os.PathLike | None = None):
+        """The lockstep run as `results.RunData` (one sample per tick; plant currents, controller voltages)."""
+        from robotino_geom_mpc.results import RunData
+
+        robot, control = load_params(params_file)
+        stamps = sorted(self.truth)
+        n = min(len(stamps), len(self.currents), len(self.voltages))
+        stamps = stamps[:n]
+        t = np.array(stamps, dtype=float) * 1e-9
+        ref = np.array([self.reference[s] for s in stamps])
+        ref[:, 2] = np.unwrap(ref[:, 2])
+        return RunData(
+            scenario=scenario,
+            t=t,
+            pose=np.array([self.truth[s] for s in stamps]),
+            reference=ref,
+            currents=np.array(self.currents[:n]),
+            voltages=np.array(self.voltages[:n]),
+            control_period_s=control.period_s,
+            horizon=control.horizon,
+            nominal_current_a=robot.nominal_current_a,
+            supply_voltage_v=robot.supply_voltage_v,
+        )
+
+
+class ProbeSpinner:
+    """An rclpy context with the probe, spun in a background thread."""
+
+    def __init__(self, clock_only: bool = False) -> None:
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.probe = LoopProbe(self.context, clock_only)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.probe)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        try:
+            while self.context.ok():
+                self.executor.spin_once(timeout_sec=0.05)
+        except Exception:  # context shut down while spinning
+            pass
+
+    def close(self) -> None:
+        self.context.try_shutdown()
+        self.thread.join(timeout=5.0)
+        self.executor.shutdown()
+        self.probe.destroy_node()
+
+
+def lockstep_nodes(
+    group: NodeGroup,
+    scenario: str,
+    duration_s: float,
+    params_file: str | os.PathLike | None = None,
+    wait_for: list[str] | None = None,
+    realtime: bool = False,
+    plant_overrides: dict[str, Any] | None = None,
+):
+    """Start trajectory, controller and plant (lockstep unless `realtime`); returns the plant's process.
+
+    `wait_for` is the plant's ``lockstep_wait_for`` (`LOCKSTEP_WAIT_FOR`, the
+    three nodes, when None): add the subscriptions of any other node that
+    must see tick 0 (a probe, the recorder).
+    """
+    params_file = params_file or default_params_file()
+    mode = "realtime" if realtime else "lockstep"
+    sim = {"use_sim_time": not realtime}
+    group.start("trajectory_node", ros_args(params_file, {"scenario": scenario, "mode": mode, **sim}))
+    group.start("controller_node", ros_args(params_file, {"mode": mode, **sim}))
+    return group.start(
+        "plant_node",
+        ros_args(params_file, {
+            "mode": mode,
+            "duration_s": float(duration_s),
+            "lockstep_wait_for": list(wait_for or LOCKSTEP_WAIT_FOR),
+            **(plant_overrides or {}),
+        }),
+    )
+
+
+def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, timeout_s: float = 300.0) -> dict:
+    """Run the lockstep loop; returns ``{"lockstep_dds_realtime_factor": ..., "ticks": ...}``."""
+    spinner = ProbeSpinner(clock_only=True)
+    try:
+        with NodeGroup() as group:
+            clock_wait = [w if not w.startswith("/clock:") else "/clock:4" for w in LOCKSTEP_WAIT_FOR]
+            plant = lockstep_nodes(group, scenario, duration_s, wait_for=clock_wait)
+            if not group.wait(plant, timeout_s):
+                raise TimeoutError(f"lockstep run of {duration_s} s did not end within {timeout_s} s")
+        times = spinner.probe.clock_times
+        ticks = len(times)
+        wall = times[-1] - times[0]
+        _, control = load_params()
+        return {"lockstep_dds_realtime_factor": (ticks - 1) * control.period_s / wall, "ticks": ticks}
+    finally:
+        spinner.close()
+
+
+def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", timeout_s: float | None = None) -> dict:
+    """Run the realtime loop for `duration_s`; missed ticks and odom-to-voltage latency (median, p99) in ms."""
+    spinner = ProbeSpinner()
+    try:
+        with NodeGroup() as group:
+            plant = lockstep_nodes(group, scenario, duration_s, realtime=True)
+            group.wait(plant, timeout_s or duration_s + 60.0)
+        probe = spinner.probe
+        odom = np.sort(probe.odom_times)
+        sent = np.array([v[0] for v in probe.voltage_times])
+        order = np.argsort(sent)
+        sent, received = sent[order], np.array([v[1] for v in probe.voltage_times])[order]
+        latencies, missed = [], 0
+        # from the first answered tick on (the controller answers once a preview has arrived)
+        first = max(int(np.searchsorted(odom, sent[0])) - 1, 0) if len(sent) else len(odom)
+        for k in range(first, len(odom) - 1):
+            j = np.searchsorted(sent, odom[k])
+            if j < len(sent) and sent[j] < odom[k + 1]:
+                latencies.append(received[j] - odom[k])
+            else:
+                missed += 1
+        lat = np.array(latencies) * 1e3
+        return {
+            "realtime_missed_ticks": int(missed),
+            "realtime_ticks": int(len(odom)),
+        "realtime_expected_ticks": int(round(duration_s / load_params()[1].period_s)),
+            "realtime_latency_median_ms": float(np.median(lat)) if len(lat) else math.nan,
+            "realtime_latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else math.nan,
+        }
+    finally:
+        spinner.close()
+
+
+def dds_benchmarks(quick: bool = False) -> dict[str, float]:
+    """The figures `bench` reports: lockstep real-time factor on paper-circle, realtime 100 Hz loop."""
+    out = bench_lockstep(duration_s=5.0 if quick else 22.0)
+    out.update(bench_realtime(duration_s=10.0 if quick else 60.0))
+    return {k: out[k] for k in ("lockstep_dds_realtime_factor", "realtime_missed_ticks",
+                                "realtime_latency_p99_ms", "realtime_latency_median_ms")}

@@ -1,0 +1,173 @@
+"""Start the nodes as separate processes and stop them cleanly (what `ros2 launch` would do; used by `run`, bench, tests).
+
+Each node runs as ``sys.executable -m MODULE --ros-args ...`` in its own
+process group with stdout/stderr in files, so a Ctrl-C of the caller does not
+reach the nodes directly and every node is stopped in order: SIGINT, then
+SIGTERM and SIGKILL after grace periods, nothing left running.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["NODE_MODULES", "NodeFailed", "NodeProcess", "NodeGroup", "ros_args"]
+
+# executable name (setup.py console_scripts) -> module run with `python -m`
+NODE_MODULES: dict[str, str] = {
+    "plant_node": "robotino_sim_node.plant_node",
+    "controller_node": "robotino_geom_mpc.nodes.controller_node",
+    "trajectory_node": "robotino_geom_mpc.nodes.trajectory_node",
+    "recorder_node": "robotino_geom_mpc.recording.recorder_node",
+}
+
+
+class NodeFailed(RuntimeError):
+    """A node process exited with a non-zero status; the message names it and quotes its stderr tail."""
+
+
+def _format(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (list, tuple)):  # a YAML flow sequence; strings quoted
+        return "[" + ",".join(json.dumps(v) if isinstance(v, str) else _format(v) for v in value) + "]"
+    return str(value)
+
+
+def ros_args(params_file: str | os.PathLike | None = None, overrides: dict[str, Any] | None = None) -> list[str]:
+    """``--ros-args [--params-file F] -p name:=value ...`` (overrides win over the file, as in rcl)."""
+    args = ["--ros-args"]
+    if params_file is not None:
+        args += ["--params-file", str(params_file)]
+    for name, value in (overrides or {}).items():
+        args += ["-p", f"{name}:={_format(value)}"]
+    return args
+
+
+@dataclass
+class NodeProcess:
+    """One running node: its name, the Popen, and the files holding its output."""
+
+    name: str
+    popen: subprocess.Popen
+    stdout_path: Path
+    stderr_path: Path
+
+    def stderr_tail(self, lines: int = 15) -> str:
+        """The last lines of the node's stderr (and stdout, where rclpy logs go)."""
+        text = []
+        for path in (self.stdout_path, self.stderr_path):
+            try:
+                text += path.read_text(errors="replace").splitlines()
+            except OSError:
+                pass
+        return "\n".join(text[-lines:])
+
+
+@dataclass
+class NodeGroup:
+    """The processes of one run; a context manager that always stops them all.
+
+    Parameters
+    ----------
+    log_dir
+        Where each node's stdout/stderr go (a temporary directory if None).
+    env
+        Extra environment variables for the nodes.
+    """
+
+    log_dir: Path | None = None
+    env: dict[str, str] = field(default_factory=dict)
+    nodes: list[NodeProcess] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.log_dir is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="robotino_nodes_")
+            self.log_dir = Path(self._tmp.name)
+        self.log_dir = Path(self.log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+
+    def start(self, executable: str, args: list[str]) -> NodeProcess:
+        """Start `executable` (a key of `NODE_MODULES`) with `args` in its own process group."""
+        out = self.log_dir / f"{executable}.out.log"
+        err = self.log_dir / f"{executable}.err.log"
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0", **self.env}
+        with open(out, "wb") as fout, open(err, "wb") as ferr:
+            popen = subprocess.Popen(
+                [sys.executable, "-m", NODE_MODULES[executable], *args],
+                stdout=fout,
+                stderr=ferr,
+                stdin=subprocess.DEVNULL,
+                env=env,
+                start_new_session=True,
+            )
+        node = NodeProcess(executable, popen, out, err)
+        self.nodes.append(node)
+        return node
+
+    def check(self) -> None:
+        """Raise `NodeFailed` if a node has exited with a non-zero status."""
+        for node in self.nodes:
+            code = node.popen.poll()
+            if code not in (None, 0):
+                raise NodeFailed(f"{node.name} exited with status {code}:\n{node.stderr_tail()}")
+
+    def wait(self, node: NodeProcess, timeout_s: float | None = None, poll_s: float = 0.05) -> bool:
+        """Wait until `node` exits (True) or `timeout_s` passes (False); raise `NodeFailed` if any node fails."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            self.check()
+            if node.popen.poll() is not None:
+                return True
+            if deadline is not None and time.monotonic() > deadline:
+                return False
+            time.sleep(poll_s)
+
+    def stop(self, grace_s: float = 5.0) -> None:
+        """SIGINT every running node, then SIGTERM, then SIGKILL, each after `grace_s`; reap all."""
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            running = [n for n in self.nodes if n.popen.poll() is None]
+            if not running:
+                break
+            for node in running:
+                try:
+                    os.killpg(node.popen.pid, sig)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + grace_s
+            while time.monotonic() < deadline and any(n.popen.poll() is None for n in running):
+                time.sleep(0.02)
+        for node in self.nodes:
+            if node.popen.poll() is None:
+                node.popen.wait()
+
+    def stop_node(self, node: NodeProcess, grace_s: float = 5.0) -> int:
+        """Stop one node the same way; returns its exit status."""
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            if node.popen.poll() is not None:
+                break
+            try:
+                os.killpg(node.popen.pid, sig)
+            except ProcessLookupError:
+                pass
+            try:
+                node.popen.wait(timeout=grace_s)
+            except subprocess.TimeoutExpired:
+                continue
+        return node.popen.wait()
+
+    def __enter__(self) -> NodeGroup:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -1,0 +1,276 @@
+"""Trajectory node: streams the N-step reference preview the MPCs track (eq. 54) and the whole reference path.
+
+Topics (relative names)
+-----------------------
+publishes  ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory, `PUBLISH_QOS`:
+                                  header.stamp = the tick time t_k, frame ``odom``, one joint ``base_link``
+                                  (the planar pose of the robot), N + 1 points j = 0..N with
+                                  time_from_start = j Ts: transforms (x_d, y_d, yaw quaternion of theta_d),
+                                  velocities and accelerations (linear x, y and angular z, in ``odom``).
+                                  Point 0 is the reference at t_k itself (tracking error, recording);
+                                  points 1..N are `core.trajectory.preview` (x_d(k+1) .. x_d(k+N)).
+           ``reference_path``     nav_msgs/Path, `LATCHED_QOS` (transient local), the whole reference
+                                  sampled every control period, published once.
+subscribes ``/clock``             rosgraph_msgs/Clock (lockstep only, reliable).
+
+Timing
+------
+``realtime``: a timer on the node clock (sim time when ``use_sim_time``)
+publishes the preview every control period; the reference starts (t = 0)
+at the first tick at which a controller subscribes the preview.
+
+Each pose of ``reference_path`` is stamped with the time the reference
+passes there (start time + t), so a recording can be matched with the
+odometry stamps in both modes.
+
+``lockstep``: driven by the plant's /clock. On the clock of tick k the node
+publishes the preview of tick k + 1 (and, on the first clock, the one of
+tick k first). The preview of the next tick is thus computed while the
+controller and the plant work on the current one, and is waiting at the
+controller when the next odometry arrives: the critical path of a tick is
+plant -> controller -> plant only. A repeated clock (the plant resends a
+tick nobody answered) publishes both previews again; the controller keys
+previews by stamp, so repeats are harmless.
+
+Parameters: ``control.period_s`` and ``control.horizon`` of config/*.yaml
+(``/**`` section) plus `TRAJECTORY_SPECS` and ``waypoints`` (a flat list
+x1, y1, theta1, x2, ... for point-to-point; empty: the scenario's default).
+"""
+
+from __future__ import annotations
+
+
+import numpy as np
+from builtin_interfaces.msg import Duration
+from geometry_msgs.msg import PoseStamped, Transform, Twist
+from nav_msgs.msg import Path
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock as ClockMsg
+from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+
+from robotino_geom_mpc.core.params import CONTROL_SPECS, ParamSpec
+from robotino_geom_mpc.core.trajectory import SCENARIOS, TrajectoryError, make_reference, preview
+from robotino_geom_mpc.nodes.common import (
+    CLOCK_SUB_QOS,
+    PUBLISH_QOS,
+    LATCHED_QOS,
+    NodeStartError,
+    SpecParameters,
+    ns_to_stamp,
+    run_node,
+    spec_defaults,
+    stamp_to_ns,
+    yaw_to_quaternion,
+)
+
+__all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "preview_message", "main"]
+
+FRAME = "odom"
+JOINT = "base_link"
+
+TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("scenario", str, "Reference scenario", choices=SCENARIOS + ("robustness",)),
+    ParamSpec("mode", str, "realtime: timer on the node clock; lockstep: driven by /clock",
+              choices=("realtime", "lockstep")),
+)
+_DEFAULTS = {"scenario": "paper-circle", "mode": "realtime"}
+
+
+def _twist(values: np.ndarray) -> Twist:
+    msg = Twist()
+    msg.linear.x, msg.linear.y, msg.angular.z = (float(v) for v in values)
+    return msg
+
+
+def preview_message(
+    reference,
+    t_ns: int,
+    period_s: float,
+    horizon: int,
+    msg: MultiDOFJointTrajectory | None = None,
+    rates: tuple[np.ndarray, np.ndarray] | None = None,
+) -> MultiDOFJointTrajectory:
+    """The preview of tick time `t_ns` as a MultiDOFJointTrajectory (N + 1 points, see the module docstring).
+
+    `msg`, a message of an earlier call with the same horizon and period, is updated in place (cheaper);
+    `rates`, the velocities and accelerations at the N + 1 times if already known, spares sampling them.
+    """
+    t = t_ns * 1e-9
+    if rates is None:
+        pos, vel, acc, _ = reference.sample(t + period_s * np.arange(horizon + 1))
+    else:
+        (vel, acc), pos = rates, np.empty((horizon + 1, 3))
+        pos[0] = reference.position(t)
+    pos[1:] = preview(reference, t, period_s, horizon)
+    if msg is None:
+        msg = MultiDOFJointTrajectory()
+        msg.header.frame_id = FRAME
+        msg.joint_names = [JOINT]
+        period_ns = int(round(period_s * 1e9))
+        for j in range(horizon + 1):
+            sec, nanosec = divmod(j * period_ns, 1_000_000_000)
+            msg.points.append(
+                MultiDOFJointTrajectoryPoint(
+                    transforms=[Transform()], velocities=[Twist()], accelerations=[Twist()],
+                    time_from_start=Duration(sec=sec, nanosec=nanosec),
+                )
+            )
+    msg.header.stamp = ns_to_stamp(t_ns)
+    half = 0.5 * pos[:, 2]
+    qz, qw = np.sin(half).tolist(), np.cos(half).tolist()
+    for j, point in enumerate(msg.points):
+        tf = point.transforms[0]
+        tf.translation.x, tf.translation.y = pos[j, 0].item(), pos[j, 1].item()
+        tf.rotation.z, tf.rotation.w = qz[j], qw[j]
+        v, a = point.velocities[0], point.accelerations[0]
+        v.linear.x, v.linear.y, v.angular.z = vel[j].tolist()
+        a.linear.x, a.linear.y, a.angular.z = acc[j].tolist()
+    return msg
+
+
+class TrajectoryNode(Node):
+    """The trajectory node (see the module docstring for its interface)."""
+
+    def __init__(self) -> None:
+        super().__init__("robotino_trajectory")
+        specs = CONTROL_SPECS + TRAJECTORY_SPECS
+        self.params = SpecParameters(
+            self, specs, {**spec_defaults(CONTROL_SPECS), **_DEFAULTS}, self._on_params, fixed=("mode",)
+        )
+        self.declare_parameter(
+            "waypoints",
+            Parameter.Type.DOUBLE_ARRAY,
+            ParameterDescriptor(
+                description="point-to-point waypoints as a flat list x1 [m], y1 [m], theta1 [rad], x2, ...; "
+                "empty: the scenario's default",
+                additional_constraints="a multiple of 3 finite values",
+            ),
+        )
+        self.add_on_set_parameters_callback(self._check_waypoints)
+        self.add_post_set_parameters_callback(
+            lambda params: self._on_params({}) if any(p.name == "waypoints" for p in params) else None
+        )
+        try:
+            self.reference = self._make_reference(self.params["scenario"], self._waypoints())
+        except TrajectoryError as exc:
+            raise NodeStartError(str(exc)) from None
+        self.lockstep = self.params["mode"] == "lockstep"
+        self.preview_pub = self.create_publisher(MultiDOFJointTrajectory, "reference_preview", PUBLISH_QOS)
+        self.path_pub = self.create_publisher(Path, "reference_path", LATCHED_QOS)
+        self.last_clock_ns: int | None = None
+        self.last_published_ns: int | None = None
+        self.start_ns: int | None = 0 if self.lockstep else None  # node-clock time of the reference's t = 0
+        self.preview_msg: MultiDOFJointTrajectory | None = None  # reused (horizon and period fixed)
+        self.grid: tuple[np.ndarray, np.ndarray] | None = None  # lockstep: velocities, accelerations at k Ts
+        if self.lockstep:
+            self.clock_sub = self.create_subscription(ClockMsg, "/clock", self._on_clock, CLOCK_SUB_QOS)
+        else:
+            self.timer = self.create_timer(self.params["control.period_s"], self._on_timer)
+        if self.start_ns is not None:
+            self._publish_path()
+        self.get_logger().info(
+            f"trajectory '{self.params['scenario']}' ({self.reference.duration_s:g} s, "
+            f"N = {self.params['control.horizon']}, {self.params['mode']})"
+        )
+
+    # parameters ---------------------------------------------------------------------------------
+    def _waypoints(self, value=None) -> np.ndarray | None:
+        if value is None:
+            param = self.get_parameter_or("waypoints", Parameter("waypoints", Parameter.Type.DOUBLE_ARRAY, []))
+            value = param.value if param.type_ != Parameter.Type.NOT_SET else []
+        flat = list(value or [])
+        if not flat:
+            return None
+        if len(flat) % 3 or not np.all(np.isfinite(flat)):
+            raise TrajectoryError(f"parameter 'waypoints' must hold a multiple of 3 finite values, got {flat!r}")
+        return np.asarray(flat, dtype=float).reshape(-1, 3)
+
+    @staticmethod
+    def _make_reference(scenario: str, waypoints: np.ndarray | None):
+        if waypoints is not None and scenario != "point-to-point":
+            raise TrajectoryError(f"parameter 'waypoints' applies to point-to-point only, not to {scenario!r}")
+        return make_reference(scenario) if waypoints is None else make_reference(scenario, waypoints=waypoints)
+
+    def _check_waypoints(self, params: list[Parameter]) -> SetParametersResult:
+        names = {p.name: p.value for p in params}
+        scenario = names.get("scenario", self.params["scenario"])
+        if ("waypoints" not in names and "scenario" not in names) or scenario not in TRAJECTORY_SPECS[0].choices:
+            return SetParametersResult(successful=True)  # an unknown scenario: the spec's check refuses it
+        try:
+            wp = self._waypoints(names["waypoints"]) if "waypoints" in names else self._waypoints()
+            self._make_reference(scenario, wp)
+        except TrajectoryError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _on_params(self, changed: dict) -> None:
+        self.preview_msg = self.grid = None
+        self.reference = self._make_reference(self.params["scenario"], self._waypoints())
+        if self.start_ns is not None:
+            self._publish_path()
+
+    # publishing ---------------------------------------------------------------------------------
+    def _rates(self, t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Velocities and accelerations of a lockstep tick from the grid sampled once (None off the grid)."""
+        period_ns = int(round(self.params["control.period_s"] * 1e9))
+        horizon = self.params["control.horizon"]
+        k, off = divmod(t_ns, period_ns)
+        if self.grid is None:  # sampled once per reference: one vectorised call instead of one per tick
+            times = np.arange(int(self.reference.duration_s / self.params["control.period_s"]) + horizon + 2)
+            self.grid = self.reference.sample(times * self.params["control.period_s"])[1:3]
+        if off or k < 0 or k + horizon >= len(self.grid[0]):
+            return None
+        return self.grid[0][k : k + horizon + 1], self.grid[1][k : k + horizon + 1]
+
+    def _publish_preview(self, t_ns: int, reference_t_ns: int) -> None:
+        msg = self.preview_msg = preview_message(
+            self.reference, reference_t_ns, self.params["control.period_s"], self.params["control.horizon"],
+            self.preview_msg, self._rates(reference_t_ns) if self.lockstep else None,
+        )
+        msg.header.stamp = ns_to_stamp(t_ns)
+        self.preview_pub.publish(msg)
+        self.last_published_ns = t_ns
+
+    def _on_clock(self, msg: ClockMsg) -> None:
+        now = stamp_to_ns(msg.clock)
+        period_ns = int(round(self.params["control.period_s"] * 1e9))
+        if now == self.last_clock_ns or self.last_published_ns != now:
+            self._publish_preview(now, now)  # first tick, a jump, or a resent tick
+        self._publish_preview(now + period_ns, now + period_ns)
+        self.last_clock_ns = now
+
+    def _on_timer(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        if self.start_ns is None:
+            if self.preview_pub.get_subscription_count() == 0:
+                return  # the reference starts when a controller listens
+            self.start_ns = now
+            self._publish_path()
+        self._publish_preview(now, now - self.start_ns)
+
+    def _publish_path(self) -> None:
+        period = self.params["control.period_s"]
+        times = np.arange(0.0, self.reference.duration_s + 0.5 * period, period)
+        pos = self.reference.position(times)
+        path = Path()
+        path.header.frame_id = FRAME
+        path.header.stamp = ns_to_stamp(self.start_ns)
+        for t, (x, y, theta) in zip(times, pos):
+            pose = PoseStamped()
+            pose.header.frame_id = FRAME
+            pose.header.stamp = ns_to_stamp(self.start_ns + int(round(t * 1e9)))
+            pose.pose.position.x, pose.pose.position.y = float(x), float(y)
+            pose.pose.orientation = yaw_to_quaternion(float(theta))
+            path.poses.append(pose)
+        self.path_pub.publish(path)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run robotino_geom_mpc trajectory_node``."""
+    return run_node(TrajectoryNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

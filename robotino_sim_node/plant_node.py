@@ -1,0 +1,376 @@
+"""Plant simulator node: the Robotino (three DC drives + body, `RobotinoPlant`) on DDS.
+
+Topics (relative names)
+-----------------------
+subscribes ``wheel_voltages``      std_msgs/Float64MultiArray, 3 values [V] (forward_command_controller convention)
+publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``base_link`` (REP-105), pose with
+                                   the odometry noise, twist in ``base_link`` (noise-free), covariances: x, y, yaw
+                                   variance from the noise settings, z/roll/pitch and twist 1e-12 (planar, exact)
+           ``ground_truth/odom``   nav_msgs/Odometry, the noise-free state (for metrics)
+           ``wheel_currents``      std_msgs/Float64MultiArray, 3 values [A], layout label ``wheel_current_a``: per
+                                   drive the largest |armature current| over the control period that followed the
+                                   previous measurement, signed like the current at its end (what
+                                   `simulation.run_scenario` records); published after the next tick's odom and
+                                   before its ground truth (and once more after the last period)
+           ``joint_states``        sensor_msgs/JointState, joints ``wheel0_joint``..``wheel2_joint``: angle [rad],
+                                   angular velocity [rad/s], effort = wheel torque gear Km i [N m]
+           ``/clock``              rosgraph_msgs/Clock (lockstep only)
+
+All publishers use `PUBLISH_QOS`, the subscription `CONTROL_QOS` (see `nodes.common`).
+
+Modes
+-----
+``realtime``: a steady-clock physics timer integrates at ``physics_rate_hz``
+with the last command (zero volts when it is older than
+``command_timeout_s``, as a real drive's watchdog does) and a publish timer
+sends the measurements every control period, stamped with the node clock;
+after ``duration_s`` (if > 0) the node exits.
+
+``lockstep``: the plant owns time and repeats `simulation.run_scenario`'s
+tick: tick k is the state at t_k = k Ts; it publishes the odometry (noise
+drawn from ``default_rng(seed)``, as the offline loop does), /clock and the
+other measurements of tick k, waits for the command of tick k, integrates
+one control period with it, and publishes tick k + 1. Startup handshake:
+tick 0 goes out only when the ``wheel_voltages`` publisher is matched and
+every ``lockstep_wait_for`` entry ``topic:count`` has that many
+subscriptions (matched readers of the plant's own publishers, the graph
+for other topics: the controller, the trajectory, a recorder); the current
+tick is published again when no command arrives within
+``lockstep_resend_s``, so no discovery race can deadlock the loop (the
+controller answers a repeated tick only if its first answer could not be
+delivered, so no tick is answered twice). With ``duration_s`` > 0 the run
+has n = round(duration_s / Ts) ticks; when tick n - 1 is answered the node
+logs its real-time factor and exits (status 0).
+
+Parameters: the robot/control parameters of config/*.yaml (``/**`` section;
+a plant-robot mismatch is the plant and the controller reading different
+files or overrides) plus those in `PLANT_SPECS`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.task import Future
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from robotino_geom_mpc.core.params import ParamSpec
+from robotino_geom_mpc.nodes.common import (
+    CONTROL_QOS,
+    PUBLISH_QOS,
+    NodeStartError,
+    SpecParameters,
+    all_finite,
+    monotonic,
+    ns_to_stamp,
+    run_node,
+    spec_defaults,
+)
+from robotino_sim_node.plant import RobotinoPlant
+
+__all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
+
+JOINT_NAMES = ("wheel0_joint", "wheel1_joint", "wheel2_joint")
+ODOM_FRAME = "odom"
+BASE_FRAME = "base_link"
+# variance for the planar-motion axes (z, roll, pitch known to be 0) and for noise-free quantities
+_CERTAIN = 1e-12
+
+PLANT_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("mode", str, "realtime: wall timers; lockstep: advance one control period per command, publish /clock",
+              choices=("realtime", "lockstep")),
+    ParamSpec("duration_s", float, "Length of the run; 0 runs until stopped", "s", 0.0, 1e6, False),
+    ParamSpec("physics_rate_hz", float, "Integration rate in realtime mode", "Hz", 0.0, 1e5, True),
+    ParamSpec("command_timeout_s", float, "Realtime: a command older than this means zero volts", "s", 0.0, 60.0, True),
+    ParamSpec("lockstep_resend_s", float, "Lockstep: publish the current tick again after this long without a command",
+              "s", 0.0, 60.0, True),
+    ParamSpec("odometry_noise.position_m", float, "Standard deviation of the odometry x, y noise", "m", 0.0, 1.0, False),
+    ParamSpec("odometry_noise.yaw_rad", float, "Standard deviation of the odometry yaw noise", "rad", 0.0, 1.0, False),
+    ParamSpec("seed", int, "Seed of the odometry noise", "", 0, 2**31 - 1, False),
+)
+
+_PLANT_DEFAULTS = {
+    "mode": "realtime",
+    "duration_s": 0.0,
+    "physics_rate_hz": 500.0,
+    "command_timeout_s": 0.1,
+    "lockstep_resend_s": 0.5,
+    "odometry_noise.position_m": 0.0,
+    "odometry_noise.yaw_rad": 0.0,
+    "seed": 0,
+}
+
+
+DEFAULT_WAIT_FOR = ("odom:1", "/clock:2")  # the controller; the controller's and trajectory's clocks
+
+
+def _parse_wait_for(entries) -> list[tuple[str, int]]:
+    out = []
+    for entry in entries or []:
+        topic, _, count = str(entry).rpartition(":")
+        if not topic or not count.isdigit():
+            raise ValueError(f"parameter 'lockstep_wait_for': entry {entry!r} is not 'topic:count'")
+        out.append((topic, int(count)))
+    return out
+
+
+def _check_wait_for(params: list[Parameter]) -> SetParametersResult:
+    for param in params:
+        if param.name == "lockstep_wait_for":
+            try:
+                _parse_wait_for(param.value)
+            except ValueError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+    return SetParametersResult(successful=True)
+
+
+def _array(values: np.ndarray, label: str) -> Float64MultiArray:
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=3, stride=3)]
+    msg.data = [float(v) for v in values]
+    return msg
+
+
+class PlantNode(Node):
+    """The plant simulator node (see the module docstring for its interface)."""
+
+    def __init__(self) -> None:
+        super().__init__("robotino_plant")
+        self.params = SpecParameters(
+            self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params, fixed=("mode",)
+        )
+        self.robot, self.control = self.params.robot_control()
+        self.plant = RobotinoPlant(self.robot)
+        self.lockstep = self.params["mode"] == "lockstep"
+        self.period_ns = int(round(self.control.period_s * 1e9))
+        self.rng = np.random.default_rng(self.params["seed"])  # the noise stream of `simulation.run_scenario`
+        self.done = Future()
+        self.exit_status = 0
+
+        self.odom_pub = self.create_publisher(Odometry, "odom", PUBLISH_QOS)
+        self.truth_pub = self.create_publisher(Odometry, "ground_truth/odom", PUBLISH_QOS)
+        self.current_pub = self.create_publisher(Float64MultiArray, "wheel_currents", PUBLISH_QOS)
+        self.joint_pub = self.create_publisher(JointState, "joint_states", PUBLISH_QOS)
+        self.clock_pub = self.create_publisher(ClockMsg, "/clock", PUBLISH_QOS) if self.lockstep else None
+        self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command, CONTROL_QOS)
+        self.declare_parameter(
+            "lockstep_wait_for",
+            list(DEFAULT_WAIT_FOR),
+            ParameterDescriptor(
+                description="Lockstep: 'topic:count' entries, at least count subscriptions on each topic before "
+                "tick 0 (the plant's own publishers count matched readers, other topics the graph)",
+                additional_constraints="each entry 'topic:count' with count >= 0",
+            ),
+        )
+        self.add_on_set_parameters_callback(_check_wait_for)
+        try:
+            _parse_wait_for(self.get_parameter("lockstep_wait_for").value)
+        except ValueError as exc:
+            raise NodeStartError(str(exc)) from None
+
+        self.voltages = np.zeros(3)
+        self.peak_currents = np.zeros(3)
+        self.measurement: tuple[np.ndarray, np.ndarray] | None = None
+        self.have_period = False  # a period has been integrated since the first measurement
+        self._build_messages()
+        self.command_time = -math.inf  # steady time of the last valid command
+        self.tick = 0
+        self.last_tick = (
+            max(1, int(round(self.params["duration_s"] / self.control.period_s))) - 1
+            if self.params["duration_s"] > 0
+            else None
+        )
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if self.lockstep:
+            self.started = False
+            self.busy_s = self.wait_s = 0.0  # time spent stepping / waiting for commands
+            self.published_at = monotonic()
+            self.start_timer = self.create_timer(0.01, self._try_start, clock=steady)
+            self.resend_timer = self.create_timer(self.params["lockstep_resend_s"] / 2, self._resend, clock=steady)
+        else:
+            self.started_at = monotonic()
+            self.physics_time: float | None = None  # steady time the plant has been integrated up to
+            self.physics_timer = self.create_timer(1.0 / self.params["physics_rate_hz"], self._physics, clock=steady)
+            self.publish_timer = self.create_timer(self.control.period_s, self._publish_realtime, clock=steady)
+        self.get_logger().info(f"plant simulator ready ({self.params['mode']}, Ts = {self.control.period_s:g} s)")
+
+    # parameters ---------------------------------------------------------------------------------
+    def _on_params(self, changed: dict) -> None:
+        robot, self.control = self.params.robot_control()
+        if robot != self.robot:
+            self.robot = robot
+            self.plant = RobotinoPlant(robot, state0=self.plant.state)
+        self._build_messages()
+        if "seed" in changed:
+            self.rng = np.random.default_rng(self.params["seed"])
+
+    # lockstep -----------------------------------------------------------------------------------
+    def _subscribers_of(self, topic: str) -> int:
+        own = {"odom": self.odom_pub, "ground_truth/odom": self.truth_pub, "wheel_currents": self.current_pub,
+               "joint_states": self.joint_pub, "/clock": self.clock_pub, "clock": self.clock_pub}
+        pub = own.get(topic)
+        return pub.get_subscription_count() if pub is not None else self.count_subscribers(topic)
+
+    def _try_start(self) -> None:
+        ready = self.command_sub.get_publisher_count() >= 1 and all(
+            self._subscribers_of(topic) >= count
+            for topic, count in _parse_wait_for(self.get_parameter("lockstep_wait_for").value)
+        )
+        if ready:
+            self.start_timer.cancel()
+            self.started = True
+            self.started_at = monotonic()
+            self._publish_tick(fresh=True)
+
+    def _resend(self) -> None:
+        if self.started and monotonic() - self.published_at > self.params["lockstep_resend_s"]:
+            self.get_logger().warn(f"no command for tick {self.tick} (t = {self._time_ns() * 1e-9:.3f} s): resending")
+            self._publish_tick(fresh=False)
+
+    def _time_ns(self) -> int:
+        return self.tick * self.period_ns
+
+    def _publish_tick(self, fresh: bool) -> None:
+        """Odometry first (the controller's critical path), then /clock, the currents and the rest."""
+        stamp = ns_to_stamp(self._time_ns())
+        self._publish_measurements(stamp, fresh, clock=True)
+        self.published_at = monotonic()
+
+    def _on_command(self, msg: Float64MultiArray) -> None:
+        valid = len(msg.data) == 3 and all_finite(msg.data)
+        if not valid:
+            self.get_logger().warn(
+                f"rejected wheel_voltages with {len(msg.data)} values (need 3 finite values): zero volts",
+                throttle_duration_sec=1.0,
+            )
+        if not self.lockstep:
+            if valid:
+                self.voltages = np.array(msg.data, dtype=float)
+                self.command_time = monotonic()
+            return
+        if not self.started or self.done.done():
+            return
+        begin = monotonic()
+        self.wait_s += begin - self.published_at
+        self.plant.step(np.array(msg.data, dtype=float) if valid else np.zeros(3), self.control.period_s)
+        self.peak_currents = self.plant.peak_abs_currents
+        self.have_period = True
+        if self.last_tick is not None and self.tick >= self.last_tick:
+            self._publish_currents()  # of the last period; no tick follows
+            wall = monotonic() - self.started_at
+            simulated = (self.tick + 1) * self.control.period_s
+            self.get_logger().info(
+                f"run over: {self.tick + 1} ticks, {simulated:g} s simulated in {wall:.2f} s (real-time factor "
+                f"{simulated / wall:.1f}; per tick {1e3 * self.busy_s / (self.tick + 1):.2f} ms in the plant, "
+                f"{1e3 * self.wait_s / (self.tick + 1):.2f} ms waiting for the command)"
+            )
+            self.done.set_result(True)  # the last tick is answered: the run is over
+            return
+        self.tick += 1
+        self._publish_tick(fresh=True)
+        self.busy_s += monotonic() - begin
+
+    # realtime -----------------------------------------------------------------------------------
+    def _physics(self) -> None:
+        """Integrate up to now in fixed steps (catching up on late timer calls, so plant time is wall time)."""
+        dt = 1.0 / self.params["physics_rate_hz"]
+        now = monotonic()
+        if self.physics_time is None:
+            self.physics_time = now
+        steps = min(int((now - self.physics_time) / dt), 1000)
+        for _ in range(steps):
+            fresh = self.physics_time - self.command_time <= self.params["command_timeout_s"]
+            self.plant.step(self.voltages if fresh else np.zeros(3), dt)
+            self.peak_currents = np.maximum(self.peak_currents, self.plant.peak_abs_currents)
+            self.physics_time += dt
+        if now - self.physics_time > 1.0:  # more than a second behind: drop it rather than run away
+            self.physics_time = now
+
+    def _publish_realtime(self) -> None:
+        if self.last_tick is not None and monotonic() - self.started_at >= self.params["duration_s"]:
+            self.done.set_result(True)
+            return
+        self._publish_measurements(self.get_clock().now().to_msg(), fresh=True)
+        self.have_period = True
+
+    # measurements -------------------------------------------------------------------------------
+    def _build_messages(self) -> None:
+        """Messages filled once (frames, names, covariances) and updated in place each tick."""
+        sp, sy = self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"]
+        self.odom_msg = _odometry_template(sp, sy)
+        self.truth_msg = _odometry_template(0.0, 0.0)
+        self.joint_msg = JointState(name=list(JOINT_NAMES))
+
+    def _publish_currents(self) -> None:
+        """Signed peak current of each drive over the period just integrated (as `simulation` records it)."""
+        self.current_pub.publish(_array(np.copysign(self.peak_currents, self.plant.currents), "wheel_current_a"))
+        self.peak_currents = np.zeros(3)
+
+    def _publish_measurements(self, stamp, fresh: bool, clock: bool = False) -> None:
+        """Odom (noisy; the same measurement again when not `fresh`), /clock, currents, ground truth, joints.
+
+        The currents of the period just integrated go out after this tick's odometry and before its
+        ground truth, so in publish order they follow the previous tick's ground truth.
+        """
+        if fresh or self.measurement is None:
+            noise = (self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"])
+            self.measurement = self.plant.odometry(self.rng, noise)
+        pose, twist = self.measurement
+        self.odom_pub.publish(_fill_odometry(self.odom_msg, stamp, pose, twist))
+        if clock:
+            self.clock_pub.publish(ClockMsg(clock=stamp))
+        if fresh and self.have_period:
+            self._publish_currents()
+        self.truth_pub.publish(_fill_odometry(self.truth_msg, stamp, self.plant.pose, twist))
+        joints = self.joint_msg
+        joints.header.stamp = stamp
+        joints.position = self.plant.wheel_angles.tolist()
+        joints.velocity = self.plant.wheel_speeds.tolist()
+        joints.effort = (self.robot.gear_ratio * self.robot.torque_constant_n_m_per_a * self.plant.currents).tolist()
+        self.joint_pub.publish(joints)
+
+
+def _odometry_template(sigma_position: float, sigma_yaw: float) -> Odometry:
+    """An Odometry with frames and covariances set: pose variance from the noise, z/roll/pitch certain (planar)."""
+    msg = Odometry()
+    msg.header.frame_id = ODOM_FRAME
+    msg.child_frame_id = BASE_FRAME
+    pose_var = (max(sigma_position**2, _CERTAIN),) * 2 + (_CERTAIN,) * 3 + (max(sigma_yaw**2, _CERTAIN),)
+    msg.pose.covariance = np.diag(pose_var).ravel()
+    msg.twist.covariance = np.diag([_CERTAIN] * 6).ravel()  # twist from noise-free wheel speeds
+    return msg
+
+
+def _fill_odometry(msg: Odometry, stamp, pose: np.ndarray, twist_body: np.ndarray) -> Odometry:
+    msg.header.stamp = stamp
+    position = msg.pose.pose.position
+    x, y, theta = pose.tolist()
+    position.x, position.y = x, y
+    q = msg.pose.pose.orientation
+    q.z, q.w = math.sin(0.5 * theta), math.cos(0.5 * theta)
+    twist = msg.twist.twist
+    twist.linear.x, twist.linear.y, twist.angular.z = twist_body.tolist()
+    return msg
+
+
+def _all_specs() -> tuple[ParamSpec, ...]:
+    from robotino_geom_mpc.core.params import ALL_SPECS
+
+    return ALL_SPECS + PLANT_SPECS
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run robotino_geom_mpc plant_node``."""
+    return run_node(PlantNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

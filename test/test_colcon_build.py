@@ -1,0 +1,78 @@
+"""`colcon build` of the package into a temporary directory: the ament layout, and an installed node on DDS."""
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from nav_msgs.msg import Path as PathMsg
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.nodes.common import LATCHED_QOS
+from robotino_geom_mpc.nodes.harness import Harness
+from robotino_geom_mpc.nodes.processes import ros_args
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = "robotino_geom_mpc"
+EXECUTABLES = ("plant_node", "controller_node", "trajectory_node", "recorder_node")
+
+
+@pytest.fixture(scope="module")
+def install(tmp_path_factory):
+    base = tmp_path_factory.mktemp("colcon")
+    colcon = Path(sys.executable).with_name("colcon")
+    proc = subprocess.run(
+        [str(colcon), "--log-base", str(base / "log"), "build", "--base-paths", str(REPO),
+         "--build-base", str(base / "build"), "--install-base", str(base / "install"),
+         "--packages-select", PACKAGE],
+        capture_output=True, text=True, timeout=300, cwd=base,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return base / "install" / PACKAGE
+
+
+def test_ament_layout(install):
+    for name in EXECUTABLES:
+        exe = install / "lib" / PACKAGE / name
+        assert exe.is_file() and os.access(exe, os.X_OK), exe
+    assert (install / "share" / "ament_index" / "resource_index" / "packages" / PACKAGE).is_file()
+    share = install / "share" / PACKAGE
+    assert (share / "package.xml").is_file()
+    assert (share / "launch" / "robotino_geom_mpc.launch.py").is_file()
+    assert sorted(p.name for p in (share / "config").glob("*.yaml")) == sorted(
+        p.name for p in (REPO / "config").glob("*.yaml"))
+
+
+def test_installed_executable_answers_on_dds(install):
+    site = next((install / "lib").glob("python3*/site-packages"))
+    env = {**os.environ, "PYTHONPATH": str(site),
+           "AMENT_PREFIX_PATH": f"{install}{os.pathsep}{os.environ.get('AMENT_PREFIX_PATH', sys.prefix)}"}
+    share_config = install / "share" / PACKAGE / "config" / "robotino2.yaml"
+    with Harness("colcon_test") as h:
+        paths = h.collect("/colcon_probe/reference_path", PathMsg, LATCHED_QOS)
+        previews = h.collect("/colcon_probe/reference_preview", MultiDOFJointTrajectory)  # as a controller would
+        proc = subprocess.Popen(
+            [str(install / "lib" / PACKAGE / "trajectory_node"),
+             *ros_args(share_config, {"scenario": "lemniscate"}), "-r", "__ns:=/colcon_probe"],
+            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+        )
+        try:
+            assert h.spin_until(lambda: len(paths) == 1 and len(previews) >= 3, 30.0)
+            assert len(previews[0].points) == load_params(share_config)[1].horizon + 1
+        finally:
+            os.killpg(proc.pid, signal.SIGTERM)  # a clean stop on SIGTERM too
+            out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0 and b"Traceback" not in err
+
+
+def test_launch_file_compiles_and_names_what_exists(install):
+    launch = REPO / "launch" / "robotino_geom_mpc.launch.py"
+    compile(launch.read_text(), str(launch), "exec")
+    text = launch.read_text()
+    for name in EXECUTABLES:
+        assert f'executable="{name}"' in text
+        assert (install / "lib" / PACKAGE / name).is_file()
+    assert '"robotino3.yaml"' in text and (install / "share" / PACKAGE / "config" / "robotino3.yaml").is_file()

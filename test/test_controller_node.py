@@ -1,0 +1,196 @@
+"""The controller node alone over DDS: a harness feeds odometry and previews and checks voltages and diagnostics."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from nav_msgs.msg import Odometry
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from robotino_geom_mpc.core.controller import MotionController
+from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.core.trajectory import make_reference, preview
+from robotino_geom_mpc.nodes.common import PUBLISH_QOS, ns_to_stamp, stamp_to_ns, yaw_to_quaternion
+from robotino_geom_mpc.nodes.harness import Harness
+from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
+from robotino_geom_mpc.nodes.trajectory_node import preview_message
+
+NODE = "robotino_controller"
+
+
+def odometry(stamp_ns, x, y, theta, vx_body=0.0, vy_body=0.0, wz=0.0):
+    msg = Odometry()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+    msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
+    msg.pose.pose.orientation = yaw_to_quaternion(theta)
+    msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.angular.z = vx_body, vy_body, wz
+    return msg
+
+
+def values(diag):
+    (status,) = diag.status
+    return status, {kv.key: kv.value for kv in status.values}
+
+
+@pytest.fixture(scope="module")
+def harness():
+    with Harness("controller_test") as h:
+        h.voltages = h.collect("wheel_voltages", Float64MultiArray)
+        h.diagnostics = h.collect("diagnostics", DiagnosticArray)
+        h.odom_pub = h.node.create_publisher(Odometry, "odom", PUBLISH_QOS)
+        h.preview_pub = h.node.create_publisher(MultiDOFJointTrajectory, "reference_preview", PUBLISH_QOS)
+        yield h
+
+
+@pytest.fixture(scope="module")
+def lockstep_controller(harness, tmp_path_factory):
+    with NodeGroup(log_dir=tmp_path_factory.mktemp("controller")) as group:
+        node = group.start("controller_node", ros_args(None, {"mode": "lockstep"}))
+        h = harness
+        assert h.spin_until(lambda: h.odom_pub.get_subscription_count() >= 1
+                            and h.preview_pub.get_subscription_count() >= 1
+                            and h.node.count_publishers("wheel_voltages") >= 1, 30.0), node.stderr_tail()
+        yield node
+
+
+def test_lockstep_voltages_equal_the_core_controller(harness, lockstep_controller):
+    h = harness
+    robot, control = load_params()
+    Ts_ns = round(control.period_s * 1e9)
+    reference = make_reference("lemniscate")
+    core = MotionController(robot, control)
+    # measured states: a little off the reference, turning, moving (twist in base_link)
+    states = []
+    for k in range(3):
+        x, y, th = reference.position((100 + k) * control.period_s)
+        states.append((x + 0.002, y - 0.001 * k, th + 0.01, 0.1, 0.05 - 0.01 * k, 0.2))
+    start_v, start_d = len(h.voltages), len(h.diagnostics)
+    for k, (x, y, th, vxb, vyb, wz) in enumerate(states):
+        stamp = (100 + k) * Ts_ns
+        if k == 1:  # odometry before its preview: the controller waits for the preview of the same stamp
+            h.odom_pub.publish(odometry(stamp, x, y, th, vxb, vyb, wz))
+            h.spin_for(0.3)
+            assert len(h.voltages) == start_v + 1
+            h.preview_pub.publish(preview_message(reference, stamp, control.period_s, control.horizon))
+        else:
+            h.preview_pub.publish(preview_message(reference, stamp, control.period_s, control.horizon))
+            h.spin_for(0.1)
+            h.odom_pub.publish(odometry(stamp, x, y, th, vxb, vyb, wz))
+        assert h.spin_until(lambda: len(h.voltages) >= start_v + k + 1 and len(h.diagnostics) >= start_d + k + 1)
+        c, s = math.cos(th), math.sin(th)
+        X = np.array([x, c * vxb - s * vyb, y, s * vxb + c * vyb, th, wz])
+        t = stamp * 1e-9
+        out = core.step(X, preview(reference, t, control.period_s, control.horizon))
+        got = h.voltages[start_v + k]
+        assert list(got.layout.dim)[0].size == 3
+        assert np.allclose(got.data, out.voltages, rtol=1e-12, atol=1e-12)
+        diag = h.diagnostics[start_d + k]
+        assert stamp_to_ns(diag.header.stamp) == stamp
+        status, kv = values(diag)
+        error = np.array([x, y, th]) - reference.position(t)
+        for axis, e in zip(("error_x_m", "error_y_m", "error_theta_rad"), error):
+            assert float(kv[axis]) == pytest.approx(e, rel=1e-8, abs=1e-12)
+        assert kv["saturated"] == str(bool(out.saturated)).lower()
+        assert kv["infeasible"] == "false" and float(kv["compute_time_ms"]) >= 0.0
+    # a resent odometry stamp that was answered already gets no second answer
+    h.odom_pub.publish(odometry(stamp, *states[-1]))
+    h.spin_for(0.3)
+    assert len(h.voltages) == start_v + len(states)
+
+
+def test_topics_and_qos(harness, lockstep_controller):
+    graph = dict(harness.node.get_topic_names_and_types())
+    assert graph["/wheel_voltages"] == ["std_msgs/msg/Float64MultiArray"]
+    assert graph["/diagnostics"] == ["diagnostic_msgs/msg/DiagnosticArray"]
+    (info,) = [i for i in harness.node.get_publishers_info_by_topic("/wheel_voltages") if i.node_name == NODE]
+    assert info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    assert info.qos_profile.durability == DurabilityPolicy.VOLATILE
+
+
+def test_nan_odometry_gives_zero_volts_and_an_error_diagnostic(harness, lockstep_controller):
+    h = harness
+    _, control = load_params()
+    stamp = 500 * round(control.period_s * 1e9)
+    h.preview_pub.publish(preview_message(make_reference("paper-circle"), stamp, control.period_s, control.horizon))
+    start_v, start_d = len(h.voltages), len(h.diagnostics)
+    h.odom_pub.publish(odometry(stamp, math.nan, 0.0, 0.0))
+    assert h.spin_until(lambda: len(h.voltages) > start_v and len(h.diagnostics) > start_d)
+    assert list(h.voltages[start_v].data) == [0.0, 0.0, 0.0]
+    status, kv = values(h.diagnostics[start_d])
+    assert status.level == DiagnosticStatus.ERROR and "non-finite" in status.message
+    assert int(kv["rejected"]) >= 1
+
+
+def test_wrongly_sized_preview_is_rejected(harness, lockstep_controller):
+    h = harness
+    _, control = load_params()
+    stamp = 600 * round(control.period_s * 1e9)
+    bad = preview_message(make_reference("paper-circle"), stamp, control.period_s, control.horizon + 2)
+    start_v = len(h.voltages)
+    h.preview_pub.publish(bad)
+    h.spin_for(0.1)
+    h.odom_pub.publish(odometry(stamp, 0.0, 0.0, 0.0))
+    h.spin_for(0.5)
+    assert len(h.voltages) == start_v  # no preview of that stamp was accepted: no answer computed from it
+
+
+def test_parameter_set_is_validated_and_refusal_keeps_the_old_value(harness, lockstep_controller):
+    h = harness
+    (bad,) = h.set_parameters(NODE, {"control.horizon": 0})
+    assert not bad.successful and "control.horizon" in bad.reason
+    (bad_choice,) = h.set_parameters(NODE, {"control.mode": "fuzzy"})
+    assert not bad_choice.successful and "control.mode" in bad_choice.reason
+    (fixed,) = h.set_parameters(NODE, {"mode": "realtime"})
+    assert not fixed.successful and "restart" in fixed.reason
+    (exclusive,) = h.set_parameters(NODE, {"robot.mass_kg": 0.0})
+    assert not exclusive.successful and "> 0" in exclusive.reason
+    assert h.get_parameters(NODE, ["control.horizon", "control.mode", "robot.mass_kg", "mode"]) == [
+        4, "closed_form", 21.4, "lockstep"]
+    (good,) = h.set_parameters(NODE, {"control.q_x": 2.0e6})
+    assert good.successful
+    assert h.get_parameters(NODE, ["control.q_x"]) == [2.0e6]
+
+
+def test_realtime_watchdog_outputs_zero_volts_on_stale_odometry(harness, tmp_path_factory):
+    """In a namespace (relative topic names), apart from the lockstep controller."""
+    h = harness
+    _, control = load_params()
+    reference = make_reference("paper-circle")
+    voltages = h.collect("/rt/wheel_voltages", Float64MultiArray)
+    diagnostics = h.collect("/rt/diagnostics", DiagnosticArray)
+    odom_pub = h.node.create_publisher(Odometry, "/rt/odom", PUBLISH_QOS)
+    preview_pub = h.node.create_publisher(MultiDOFJointTrajectory, "/rt/reference_preview", PUBLISH_QOS)
+    with NodeGroup(log_dir=tmp_path_factory.mktemp("controller_rt")) as group:
+        args = ros_args(None, {"mode": "realtime", "odom_timeout_s": 0.2, "reference_timeout_s": 0.2})
+        node = group.start("controller_node", [*args, "-r", "__ns:=/rt"])
+        assert h.spin_until(lambda: odom_pub.get_subscription_count() >= 1
+                            and preview_pub.get_subscription_count() >= 1
+                            and h.node.count_publishers("/rt/wheel_voltages") >= 1, 30.0), node.stderr_tail()
+        h.spin_for(0.2)
+        for k in range(5):
+            stamp = k * round(control.period_s * 1e9)
+            preview_pub.publish(preview_message(reference, stamp, control.period_s, control.horizon))
+            odom_pub.publish(odometry(stamp, 0.0, 0.0, 0.0))
+            h.spin_for(0.03)
+        assert h.spin_until(lambda: len(voltages) >= 4), node.stderr_tail()
+        answered = len(voltages)
+        assert any(any(v != 0.0 for v in m.data) for m in voltages[:answered])
+        start_d = len(diagnostics)
+        h.spin_for(1.0)  # nothing arrives: stale after 0.2 s
+        zeros = voltages[answered:]
+        assert zeros and all(list(m.data) == [0.0, 0.0, 0.0] for m in zeros)
+        states = [values(d)[1]["watchdog"] for d in diagnostics[start_d:]]
+        assert "stale_odom" in states
+
+
+def test_refuses_to_start_with_an_out_of_range_horizon():
+    proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc.nodes.controller_node",
+                           *ros_args(None, {"control.horizon": 0})], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert "control.horizon" in proc.stderr and "Traceback" not in proc.stderr

@@ -1,0 +1,141 @@
+"""The plant simulator node alone over DDS: a harness node drives it in lockstep and checks what it publishes."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from nav_msgs.msg import Odometry
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.nodes.common import PUBLISH_QOS, quaternion_to_yaw, stamp_to_ns
+from robotino_geom_mpc.nodes.harness import Harness
+from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
+from robotino_sim_node.plant import RobotinoPlant
+
+NOISE = (0.002, 0.003)
+SEED = 7
+
+
+def _pose(msg):
+    p = msg.pose.pose.position
+    return np.array([p.x, p.y, quaternion_to_yaw(msg.pose.pose.orientation)])
+
+
+@pytest.fixture(scope="module")
+def plant_run(tmp_path_factory):
+    """A lockstep plant of 4 ticks driven by the harness: commands, what came back, the exit status."""
+    robot, control = load_params()
+    Ts = control.period_s
+    commands = [[2.0, -1.0, 0.5], [math.nan, 0.0, 0.0], [1.0, 2.0], [0.0, 3.0, -3.0]]
+    with NodeGroup(log_dir=tmp_path_factory.mktemp("plant")) as group, Harness("plant_test") as h:
+        odom = h.collect("odom", Odometry)
+        truth = h.collect("ground_truth/odom", Odometry)
+        clock = h.collect("/clock", Clock)
+        currents = h.collect("wheel_currents", Float64MultiArray)
+        joints = h.collect("joint_states", JointState)
+        pub = h.node.create_publisher(Float64MultiArray, "wheel_voltages", PUBLISH_QOS)
+        plant = group.start("plant_node", ros_args(None, {
+            "mode": "lockstep", "duration_s": 4 * Ts, "lockstep_wait_for": ["odom:1", "/clock:1"],
+            "odometry_noise.position_m": NOISE[0], "odometry_noise.yaw_rad": NOISE[1], "seed": SEED,
+            "lockstep_resend_s": 0.3,
+        }))
+        assert h.spin_until(lambda: len(odom) >= 1, 30.0), plant.stderr_tail()
+        # no command for tick 0: the plant resends it (same stamp, same measurement)
+        assert h.spin_until(lambda: len(odom) >= 2, 5.0)
+        graph = dict(h.node.get_topic_names_and_types())
+        infos = h.node.get_publishers_info_by_topic("/odom")
+        for k, command in enumerate(commands):
+            h.spin_until(lambda: len(truth) >= k + 2, 5.0)  # tick k (plus the resent tick 0)
+            pub.publish(Float64MultiArray(data=command))
+            assert h.spin_until(lambda: len(currents) >= k + 1, 10.0), plant.stderr_tail()
+        assert group.wait(plant, 10.0)
+        h.spin_for(0.2)
+        return dict(robot=robot, Ts=Ts, commands=commands, odom=odom, truth=truth, clock=clock,
+                    currents=currents, joints=joints, graph=graph, infos=infos, status=plant.popen.returncode,
+                    stderr=plant.stderr_tail(50))
+
+
+def test_topics_types_and_qos(plant_run):
+    graph = plant_run["graph"]
+    assert graph["/odom"] == ["nav_msgs/msg/Odometry"]
+    assert graph["/ground_truth/odom"] == ["nav_msgs/msg/Odometry"]
+    assert graph["/wheel_currents"] == ["std_msgs/msg/Float64MultiArray"]
+    assert graph["/joint_states"] == ["sensor_msgs/msg/JointState"]
+    assert graph["/clock"] == ["rosgraph_msgs/msg/Clock"]
+    (info,) = plant_run["infos"]
+    assert info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    assert info.qos_profile.durability == DurabilityPolicy.VOLATILE
+
+
+def test_stamps_clock_frames_and_resend(plant_run):
+    Ts_ns = round(plant_run["Ts"] * 1e9)
+    odom = plant_run["odom"]
+    stamps = [stamp_to_ns(m.header.stamp) for m in odom]
+    assert stamps == [0, 0] + [k * Ts_ns for k in range(1, 4)]  # tick 0 resent once, then one per command
+    assert np.array_equal(_pose(odom[0]), _pose(odom[1]))  # the resent tick is the same measurement
+    assert [stamp_to_ns(c.clock) for c in plant_run["clock"]] == stamps
+    for msg in odom + plant_run["truth"]:
+        assert (msg.header.frame_id, msg.child_frame_id) == ("odom", "base_link")
+
+
+def test_states_match_an_offline_plant_with_bad_commands_as_zero_volts(plant_run):
+    robot, Ts = plant_run["robot"], plant_run["Ts"]
+    offline = RobotinoPlant(robot)
+    truth = [m for i, m in enumerate(plant_run["truth"]) if i != 1]  # drop the resent tick 0
+    applied = [[2.0, -1.0, 0.5], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 3.0, -3.0]]
+    for k, U in enumerate(applied):
+        assert np.allclose(_pose(truth[k]), offline.pose, rtol=0, atol=1e-12)
+        offline.step(np.array(U), Ts)
+        expected = np.copysign(offline.peak_abs_currents, offline.currents)
+        assert np.allclose(plant_run["currents"][k].data, expected, rtol=1e-12, atol=1e-15)
+        assert plant_run["currents"][k].layout.dim[0].label == "wheel_current_a"
+        if k + 1 < len(truth):
+            t = truth[k + 1]
+            assert np.allclose(_pose(t), offline.pose, rtol=0, atol=1e-12)
+            c, s = math.cos(offline.pose[2]), math.sin(offline.pose[2])
+            v = offline.body_state[[1, 3, 5]]
+            body = (c * v[0] + s * v[1], -s * v[0] + c * v[1], v[2])  # twist in base_link
+            tw = t.twist.twist
+            assert np.allclose((tw.linear.x, tw.linear.y, tw.angular.z), body, rtol=0, atol=1e-12)
+            joint = [j for j in plant_run["joints"] if stamp_to_ns(j.header.stamp) == stamp_to_ns(t.header.stamp)][0]
+            assert list(joint.name) == ["wheel0_joint", "wheel1_joint", "wheel2_joint"]
+            assert np.allclose(joint.velocity, offline.wheel_speeds, rtol=0, atol=1e-12)
+            torque = robot.gear_ratio * robot.torque_constant_n_m_per_a * offline.currents
+            assert np.allclose(joint.effort, torque, rtol=0, atol=1e-12)
+
+
+def test_odometry_noise_and_covariance(plant_run):
+    rng = np.random.default_rng(SEED)  # the noise stream of simulation.run_scenario
+    sigma = np.array([NOISE[0], NOISE[0], NOISE[1]])
+    odom = [m for i, m in enumerate(plant_run["odom"]) if i != 1]
+    truth = [m for i, m in enumerate(plant_run["truth"]) if i != 1]
+    for o, t in zip(odom, truth):
+        expected = rng.normal(0.0, sigma)
+        assert np.allclose(_pose(o) - _pose(t), expected, rtol=1e-9, atol=1e-12)
+        cov = np.array(o.pose.covariance).reshape(6, 6)
+        assert np.allclose(np.diag(cov)[[0, 1, 5]], sigma**2)
+        assert np.count_nonzero(cov - np.diag(np.diag(cov))) == 0
+        assert np.allclose(np.array(t.pose.covariance).reshape(6, 6)[[0, 1, 5], [0, 1, 5]], 1e-12)
+
+
+def test_ends_after_the_last_tick_cleanly(plant_run):
+    assert plant_run["status"] == 0
+    assert "Traceback" not in plant_run["stderr"]
+
+
+@pytest.mark.parametrize("override, name", [
+    ({"odometry_noise.position_m": -0.1}, "odometry_noise.position_m"),
+    ({"robot.mass_kg": 0.0}, "robot.mass_kg"),
+    ({"mode": "fast"}, "mode"),
+])
+def test_refuses_to_start_with_a_bad_parameter(override, name):
+    proc = subprocess.run([sys.executable, "-m", "robotino_sim_node.plant_node", *ros_args(None, override)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert name in proc.stderr and "Traceback" not in proc.stderr

@@ -1,0 +1,65 @@
+"""`robotino-geom-mpc run`: nodes as processes, recorded, metrics from the recording equal `simulate`'s."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from robotino_geom_mpc.core.params import default_params_file, load_params
+from robotino_geom_mpc.results import compute_metrics
+from robotino_geom_mpc.simulation import run_scenario
+
+DURATION_S = 3.0
+
+
+def _cli(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "robotino_geom_mpc", *args], capture_output=True, text=True,
+                          timeout=timeout, env=os.environ.copy())
+
+
+def _no_node_left(out_dir):
+    """No process of this run is left: none has the run's folder on its command line."""
+    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
+    return str(out_dir) not in ps
+
+
+def test_run_lockstep_records_and_reports_the_metrics_of_simulate(tmp_path):
+    out = tmp_path / "run"
+    proc = _cli("run", "--scenario", "paper-circle", "--duration", str(DURATION_S), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    assert _no_node_left(out)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert sorted(p.name for p in out.glob("*.png"))  # the same figures as simulate
+    robot, control = load_params()
+    want = compute_metrics(run_scenario("paper-circle", robot, control, duration_s=DURATION_S))
+    for key, value in want.items():
+        if key.startswith("compute_time"):
+            continue  # wall-clock measurements
+        if isinstance(value, float) and math.isfinite(value):
+            assert metrics[key] == pytest.approx(value, rel=1e-6, abs=1e-12), key
+        else:
+            assert metrics[key] == value, key
+    for name in ("plant_node", "controller_node", "trajectory_node", "recorder_node"):
+        assert "Traceback" not in (out / "logs" / f"{name}.err.log").read_text()
+
+
+def test_a_failing_node_is_named_and_nothing_is_left_running(tmp_path):
+    params = yaml.safe_load(default_params_file().read_text())
+    params["robotino_controller"] = {"ros__parameters": {"mode": "turbo"}}  # only the controller refuses
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(params))
+    out = tmp_path / "failed"
+    proc = _cli("run", "--scenario", "paper-circle", "--duration", "1", "--out", str(out), "--params", str(bad),
+                "--no-record", timeout=120)
+    assert proc.returncode == 1
+    assert "controller_node exited with status 2" in proc.stderr and "mode" in proc.stderr
+    assert _no_node_left(out)
+
+
+def test_unknown_scenario_is_a_usage_error(tmp_path):
+    proc = _cli("run", "--scenario", "spiral", "--out", str(tmp_path / "x"), timeout=60)
+    assert proc.returncode == 2 and "spiral" in proc.stderr

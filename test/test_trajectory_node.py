@@ -1,0 +1,123 @@
+"""The trajectory node alone over DDS: /clock in, previews and the latched reference path out."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from nav_msgs.msg import Path
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.core.trajectory import make_reference
+from robotino_geom_mpc.nodes.common import LATCHED_QOS, PUBLISH_QOS, ns_to_stamp, quaternion_to_yaw, stamp_to_ns
+from robotino_geom_mpc.nodes.harness import Harness
+from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
+
+NODE = "robotino_trajectory"
+WAYPOINTS = [0.3, 0.1, 0.0, 0.3, 0.1, 1.0]
+
+
+def positions(msg):
+    out = []
+    for point in msg.points:
+        tf = point.transforms[0]
+        out.append((tf.translation.x, tf.translation.y, quaternion_to_yaw(tf.rotation)))
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def trajectory(tmp_path_factory):
+    with NodeGroup(log_dir=tmp_path_factory.mktemp("trajectory")) as group, Harness("trajectory_test") as h:
+        h.previews = h.collect("reference_preview", MultiDOFJointTrajectory)
+        h.clock_pub = h.node.create_publisher(Clock, "/clock", PUBLISH_QOS)
+        node = group.start("trajectory_node", ros_args(None, {
+            "mode": "lockstep", "scenario": "point-to-point", "waypoints": WAYPOINTS}))
+        assert h.spin_until(lambda: h.clock_pub.get_subscription_count() >= 1
+                            and h.node.count_publishers("reference_preview") >= 1, 30.0), node.stderr_tail()
+        h.spin_for(0.2)
+        yield h
+
+
+def test_previews_follow_the_clock_one_tick_ahead(trajectory):
+    h = trajectory
+    _, control = load_params()
+    Ts, N = control.period_s, control.horizon
+    Ts_ns = round(Ts * 1e9)
+    reference = make_reference("point-to-point", waypoints=np.reshape(WAYPOINTS, (-1, 3)))
+    ticks = [150, 151, 152]
+    for k in ticks:
+        h.clock_pub.publish(Clock(clock=ns_to_stamp(k * Ts_ns)))
+        h.spin_for(0.05)
+    assert h.spin_until(lambda: len(h.previews) >= 4)
+    h.spin_for(0.2)
+    stamps = [stamp_to_ns(m.header.stamp) for m in h.previews]
+    assert stamps == [k * Ts_ns for k in (150, 151, 152, 153)]  # the first clock also gives its own tick
+    for msg, stamp in zip(h.previews, stamps):
+        assert msg.header.frame_id == "odom" and list(msg.joint_names) == ["base_link"]
+        assert len(msg.points) == N + 1
+        assert [stamp_to_ns(p.time_from_start) for p in msg.points] == [j * Ts_ns for j in range(N + 1)]
+        t = stamp * 1e-9 + Ts * np.arange(N + 1)
+        pos, vel, acc, _ = reference.sample(t)
+        assert np.allclose(positions(msg), pos, rtol=0, atol=1e-12)
+        v = np.array([(p.velocities[0].linear.x, p.velocities[0].linear.y, p.velocities[0].angular.z)
+                      for p in msg.points])
+        a = np.array([(p.accelerations[0].linear.x, p.accelerations[0].linear.y, p.accelerations[0].angular.z)
+                      for p in msg.points])
+        assert np.allclose(v, vel, rtol=0, atol=1e-12) and np.allclose(a, acc, rtol=0, atol=1e-12)
+    assert np.ptp(positions(h.previews[-1])[:, 0]) > 0  # the first move is under way: the points differ
+
+
+def test_a_repeated_clock_repeats_both_previews(trajectory):
+    h = trajectory
+    Ts_ns = round(load_params()[1].period_s * 1e9)
+    before = len(h.previews)
+    h.clock_pub.publish(Clock(clock=ns_to_stamp(152 * Ts_ns)))
+    assert h.spin_until(lambda: len(h.previews) >= before + 2)
+    assert [stamp_to_ns(m.header.stamp) for m in h.previews[before:]] == [152 * Ts_ns, 153 * Ts_ns]
+
+
+def test_reference_path_is_latched_for_a_late_subscriber(trajectory):
+    h = trajectory
+    _, control = load_params()
+    (info,) = h.node.get_publishers_info_by_topic("/reference_path")
+    assert info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    assert info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    paths = h.collect("reference_path", Path, LATCHED_QOS)  # subscribes long after the publication
+    assert h.spin_until(lambda: len(paths) == 1)
+    reference = make_reference("point-to-point", waypoints=np.reshape(WAYPOINTS, (-1, 3)))
+    t = np.array([stamp_to_ns(p.header.stamp) * 1e-9 for p in paths[0].poses])
+    assert t[0] == 0.0 and t[-1] == pytest.approx(reference.duration_s, abs=control.period_s / 2)
+    got = np.array([(p.pose.position.x, p.pose.position.y, quaternion_to_yaw(p.pose.orientation))
+                    for p in paths[0].poses])
+    assert np.allclose(got, reference.position(t), rtol=0, atol=1e-9)
+    assert paths[0].header.frame_id == "odom"
+    volatile = h.collect("reference_path", Path, QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+    h.spin_for(0.5)
+    assert volatile == []  # published once, not streamed
+
+
+def test_parameter_set_is_validated(trajectory):
+    h = trajectory
+    (bad,) = h.set_parameters(NODE, {"scenario": "spiral"})
+    assert not bad.successful and "scenario" in bad.reason
+    (bad_wp,) = h.set_parameters(NODE, {"waypoints": [1.0, 2.0]})
+    assert not bad_wp.successful and "waypoints" in bad_wp.reason
+    (bad_period,) = h.set_parameters(NODE, {"control.period_s": -0.01})
+    assert not bad_period.successful and "control.period_s" in bad_period.reason
+    assert h.get_parameters(NODE, ["scenario", "waypoints", "control.period_s"]) == [
+        "point-to-point", WAYPOINTS, load_params()[1].period_s]
+
+
+@pytest.mark.parametrize("override, name", [
+    ({"scenario": "point-to-point", "waypoints": [1.0, 2.0, 3.0, 4.0]}, "waypoints"),
+    ({"scenario": "paper-circle", "waypoints": [1.0, 2.0, 3.0]}, "waypoints"),
+    ({"scenario": "spiral"}, "scenario"),
+])
+def test_refuses_to_start_with_a_bad_parameter(override, name):
+    proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc.nodes.trajectory_node",
+                           *ros_args(None, override)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert name in proc.stderr and "Traceback" not in proc.stderr

@@ -17,7 +17,7 @@ $(STAMP): setup.py setup.cfg package.xml Makefile
 	touch $(STAMP)
 
 demo: setup
-	$(VENV)/bin/robotino-geom-mpc analyze
+	$(VENV)/bin/robotino-geom-mpc run --scenario paper-circle --out $(DEMO_OUT)
 
 test: setup
 	$(VENV)/bin/python -m pytest -q test

@@ -9,21 +9,23 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from robotino_geom_mpc.core.params import ParamError
 
 __all__ = ["UsageError", "main", "VERBS"]
 
-# verb name -> module under robotino_geom_mpc.cli
+# verb -> one-line summary; the verb's module is robotino_geom_mpc.cli.<verb>, imported only when
+# that verb runs, so a verb does not pay for the others' imports.
 VERBS: dict[str, str] = {
-    "analyze": "analyze",
-    "simulate": "simulate",
-    "bench": "bench",
-    "replay": "replay",
-    "report": "report",
-    "regress": "regress",
-    "run": "run",
+    "analyze": "check the decoupling field and the functional-controllability orders",
+    "simulate": "run a scenario offline (no ROS) and write metrics.json and the figures",
+    "run": "run a scenario over DDS (plant, controller, trajectory, recorder as processes)",
+    "report": "metrics.json and the figures of a recorded run (bag directory or .mcap)",
+    "replay": "republish a recorded bag over DDS (original timing, optional /clock)",
+    "regress": "recompute a recording's wheel voltages with a fresh controller and compare",
+    "bench": "time the control step against OSQP and the offline simulation",
 }
 
 
@@ -37,21 +39,28 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
+    """The command's parser: only `verb`'s module is imported; the other verbs get their summary."""
     parser = _Parser(
         prog="robotino-geom-mpc",
         description="Geometric decoupling plus decoupled MPC for the Festo Robotino.",
     )
     sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
     sub.required = True
-    for verb, module in VERBS.items():
-        importlib.import_module(f"{__name__}.{module}").add_parser(sub)
+    for name, summary in VERBS.items():
+        if name == verb:
+            importlib.import_module(f"{__name__}.{name}").add_parser(sub)
+        else:
+            sub.add_parser(name, help=summary)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Parse `argv` and run the verb; returns the exit status."""
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    verb = next((a for a in argv if not a.startswith("-")), None)
+    os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)  # a venv install: message definitions live there
+    args = build_parser(verb if verb in VERBS else None).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except (UsageError, ParamError) as exc:

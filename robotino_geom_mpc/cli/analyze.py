@@ -11,7 +11,7 @@ import numpy as np
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
-from robotino_geom_mpc.cli import UsageError
+from robotino_geom_mpc.cli import VERBS, UsageError
 from robotino_geom_mpc.core.decoupling import B_decoupled, DecouplingField, check_decoupling
 from robotino_geom_mpc.core.functional import functional_controllability
 from robotino_geom_mpc.core.model import acceleration_block, g_theta
@@ -23,7 +23,7 @@ __all__ = ["add_parser", "run", "printed_acceleration_block", "errata", "build_r
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser = sub.add_parser(
         "analyze",
-        help="check the decoupling field and the functional-controllability orders",
+        help=VERBS["analyze"],
         description=(
             "Subspace dimensions of Section III, T(theta) and conditions (12)-(21) over a theta grid "
             "that includes pi/2 + k pi, functional-controllability orders (Section IV) by two routes, "

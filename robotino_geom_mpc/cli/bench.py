@@ -10,7 +10,7 @@ import argparse
 import json
 import sys
 
-from . import UsageError
+from . import VERBS, UsageError
 
 __all__ = ["add_parser", "run"]
 
@@ -19,7 +19,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the `bench` verb."""
     parser = sub.add_parser(
         "bench",
-        help="time the control step against OSQP and the offline simulation",
+        help=VERBS["bench"],
         description="Run the benchmarks: one control step against OSQP on the same MPC problems, "
         "the offline simulation's real-time factor, and any further registered benchmark.",
     )

@@ -11,7 +11,7 @@ import argparse
 import math
 from pathlib import Path
 
-from . import UsageError
+from . import VERBS, UsageError
 
 __all__ = ["add_parser", "run"]
 
@@ -30,7 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the `regress` verb."""
     parser = sub.add_parser(
         "regress",
-        help="recompute a recording's wheel voltages with a fresh controller and compare",
+        help=VERBS["regress"],
         description="Feed the recorded odometry and reference previews of each control tick into a fresh "
         "controller and compare its voltages with the recorded ones (exit 1 beyond --tol).",
     )

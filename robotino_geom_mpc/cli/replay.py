@@ -13,7 +13,7 @@ import math
 import sys
 from pathlib import Path
 
-from . import UsageError
+from . import VERBS, UsageError
 
 __all__ = ["add_parser", "run", "positive_float"]
 
@@ -33,7 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the `replay` verb."""
     parser = sub.add_parser(
         "replay",
-        help="republish a recorded bag over DDS (original timing, optional /clock)",
+        help=VERBS["replay"],
         description="Republish the messages of a bag (rosbag2 directory or bare .mcap) with their recorded "
         "timing scaled by --rate. A damaged bag (truncated, corrupt chunk) is reported and what can be read "
         "is replayed (exit status 1).",

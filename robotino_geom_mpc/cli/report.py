@@ -11,7 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
-from . import UsageError
+from . import VERBS, UsageError
 
 __all__ = ["add_parser", "run"]
 
@@ -20,7 +20,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the `report` verb."""
     parser = sub.add_parser(
         "report",
-        help="metrics.json and the figures of a recorded run (bag directory or .mcap)",
+        help=VERBS["report"],
         description="Extract the run (true pose, reference, currents, voltages per control tick) from a "
         "recording and write DIR/metrics.json and the figures, as simulate and run do.",
     )

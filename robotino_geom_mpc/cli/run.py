@@ -27,7 +27,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import UsageError
+from . import VERBS, UsageError
 
 __all__ = ["add_parser", "run", "node_arguments"]
 
@@ -50,7 +50,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the `run` verb."""
     parser = sub.add_parser(
         "run",
-        help="run a scenario over DDS (plant, controller, trajectory, recorder as processes)",
+        help=VERBS["run"],
         description="Run one scenario as ROS 2 nodes over DDS, record it, and write DIR/metrics.json "
         "and the figures from the recording.",
     )

@@ -11,7 +11,7 @@ import math
 import time
 from pathlib import Path
 
-from . import UsageError
+from . import VERBS, UsageError
 
 __all__ = ["add_parser", "run", "positive_seconds", "seed_value"]
 
@@ -44,7 +44,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the `simulate` verb."""
     parser = sub.add_parser(
         "simulate",
-        help="run a scenario offline (no ROS) and write metrics.json and the figures",
+        help=VERBS["simulate"],
         description="Run one scenario in the offline closed loop (plant + controller + reference) "
         "and write DIR/metrics.json, DIR/run.npz and the PNGs (paper Figs. 4-6, voltages, errors).",
     )

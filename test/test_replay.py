@@ -1,9 +1,10 @@
 """`robotino-geom-mpc replay` over real DDS: order, relative timing (scaled by --rate) and /clock.
 
-Documented jitter: a message arrives within `JITTER_S` of its due time relative to the first
-message (the replayer sleeps to each due time; the margin covers DDS delivery and the
-subscriber's executor on a loaded 2-core machine). Each topic keeps its recorded order; across
-topics, messages closer in time than the jitter may arrive swapped (separate DDS readers).
+Documented jitter: a message is sent within `JITTER_S` of its due time relative to the first
+message (the replayer sleeps to each due time; the margin covers its wake-up on a loaded 2-core
+machine). Sending times are the DDS source timestamps the subscriber receives. Each topic keeps
+its recorded order; across topics, messages closer in time than the jitter may arrive swapped
+(separate DDS readers).
 """
 
 from __future__ import annotations
@@ -28,7 +29,11 @@ JITTER_S = 0.03
 
 
 class Listener:
-    """A node in the test process that notes every message with its arrival time."""
+    """A node in the test process that notes every message with the time the replay sent it.
+
+    The time is the DDS source timestamp (the sender's system clock, in s), so the
+    test measures the replay's timing and not this process's scheduling.
+    """
 
     def __init__(self, topics: dict[str, type]) -> None:
         self.context = rclpy.Context()
@@ -45,9 +50,9 @@ class Listener:
         self.thread.start()
 
     def _cb(self, topic):
-        def cb(msg):
+        def cb(msg, info):
             with self.lock:
-                self.got.append((topic, time.monotonic(), msg))
+                self.got.append((topic, info["source_timestamp"] * 1e-9, msg))
 
         return cb
 

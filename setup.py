@@ -35,6 +35,7 @@ setup(
         "mcap>=1.2,<2",
         "mcap-ros2-support>=0.5,<1",
         "zstandard>=0.22,<1",
+        "rosbags>=0.10,<0.12",  # fast CDR decoding in the controller node (rclpy fallback)
     ],
     extras_require={
         "ros": [
@@ -46,7 +47,6 @@ setup(
         "test": [
             "pytest>=8,<10",
             "hypothesis>=6.100,<7",
-            "rosbags>=0.10,<0.12",
             "colcon-common-extensions==0.3.0",
             "daqp>=0.5,<1",
             "quadprog>=0.1.11,<0.2",

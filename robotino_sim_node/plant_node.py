@@ -66,11 +66,11 @@ from robotino_geom_mpc.core.params import ParamSpec
 from robotino_geom_mpc.nodes.common import (
     CONTROL_QOS,
     PUBLISH_QOS,
+    CdrTemplate,
     NodeStartError,
     SpecParameters,
     all_finite,
     monotonic,
-    ns_to_stamp,
     run_node,
     spec_defaults,
 )
@@ -132,11 +132,18 @@ def _check_wait_for(params: list[Parameter]) -> SetParametersResult:
     return SetParametersResult(successful=True)
 
 
-def _array(values: np.ndarray, label: str) -> Float64MultiArray:
-    msg = Float64MultiArray()
+_STAMP = ("header.stamp.sec", "header.stamp.nanosec")
+_ODOM_FIELDS = _STAMP + (
+    "pose.pose.position.x", "pose.pose.position.y", "pose.pose.orientation.z", "pose.pose.orientation.w",
+    "twist.twist.linear.x", "twist.twist.linear.y", "twist.twist.angular.z",
+)
+
+
+def _array_template(label: str) -> CdrTemplate:
+    """Float64MultiArray of 3 values, layout label `label` (forward_command_controller convention)."""
+    msg = Float64MultiArray(data=[0.0] * 3)
     msg.layout.dim = [MultiArrayDimension(label=label, size=3, stride=3)]
-    msg.data = [float(v) for v in values]
-    return msg
+    return CdrTemplate(msg, ("data[0]", "data[1]", "data[2]"))
 
 
 class PlantNode(Node):
@@ -240,8 +247,7 @@ class PlantNode(Node):
 
     def _publish_tick(self, fresh: bool) -> None:
         """Odometry first (the controller's critical path), then /clock, the currents and the rest."""
-        stamp = ns_to_stamp(self._time_ns())
-        self._publish_measurements(stamp, fresh, clock=True)
+        self._publish_measurements(divmod(self._time_ns(), 1_000_000_000), fresh, clock=True)
         self.published_at = monotonic()
 
     def _on_command(self, msg: Float64MultiArray) -> None:
@@ -298,44 +304,49 @@ class PlantNode(Node):
         if self.last_tick is not None and monotonic() - self.started_at >= self.params["duration_s"]:
             self.done.set_result(True)
             return
-        self._publish_measurements(self.get_clock().now().to_msg(), fresh=True)
+        self._publish_measurements(divmod(self.get_clock().now().nanoseconds, 1_000_000_000), fresh=True)
         self.have_period = True
 
     # measurements -------------------------------------------------------------------------------
     def _build_messages(self) -> None:
-        """Messages filled once (frames, names, covariances) and updated in place each tick."""
+        """Serialized templates (frames, names, covariances set once) patched each tick (`CdrTemplate`)."""
         sp, sy = self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"]
-        self.odom_msg = _odometry_template(sp, sy)
-        self.truth_msg = _odometry_template(0.0, 0.0)
-        self.joint_msg = JointState(name=list(JOINT_NAMES))
+        self.odom_cdr = CdrTemplate(_odometry_template(sp, sy), _ODOM_FIELDS)
+        self.truth_cdr = (
+            self.odom_cdr if sp == sy == 0.0 else CdrTemplate(_odometry_template(0.0, 0.0), _ODOM_FIELDS)
+        )
+        self.current_cdr = _array_template("wheel_current_a")
+        self.joint_cdr = _joint_template()
+        self.clock_cdr = CdrTemplate(ClockMsg(), ("clock.sec", "clock.nanosec"))
+        self.effort_per_a = self.robot.gear_ratio * self.robot.torque_constant_n_m_per_a
 
     def _publish_currents(self) -> None:
         """Signed peak current of each drive over the period just integrated (as `simulation` records it)."""
-        self.current_pub.publish(_array(np.copysign(self.peak_currents, self.plant.currents), "wheel_current_a"))
+        self.current_pub.publish(self.current_cdr.pack(*np.copysign(self.peak_currents, self.plant.currents).tolist()))
         self.peak_currents = np.zeros(3)
 
-    def _publish_measurements(self, stamp, fresh: bool, clock: bool = False) -> None:
+    def _publish_measurements(self, stamp: tuple[int, int], fresh: bool, clock: bool = False) -> None:
         """Odom (noisy; the same measurement again when not `fresh`), /clock, currents, ground truth, joints.
 
-        The currents of the period just integrated go out after this tick's odometry and before its
-        ground truth, so in publish order they follow the previous tick's ground truth.
+        `stamp` is (sec, nanosec). The currents of the period just integrated go out after this tick's
+        odometry and before its ground truth, so in publish order they follow the previous tick's ground truth.
         """
         if fresh or self.measurement is None:
             noise = (self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"])
             self.measurement = self.plant.odometry(self.rng, noise)
         pose, twist = self.measurement
-        self.odom_pub.publish(_fill_odometry(self.odom_msg, stamp, pose, twist))
+        twist = twist.tolist()
+        self.odom_pub.publish(self.odom_cdr.pack(*stamp, *_odometry_values(pose.tolist(), twist)))
         if clock:
-            self.clock_pub.publish(ClockMsg(clock=stamp))
+            self.clock_pub.publish(self.clock_cdr.pack(*stamp))
         if fresh and self.have_period:
             self._publish_currents()
-        self.truth_pub.publish(_fill_odometry(self.truth_msg, stamp, self.plant.pose, twist))
-        joints = self.joint_msg
-        joints.header.stamp = stamp
-        joints.position = self.plant.wheel_angles.tolist()
-        joints.velocity = self.plant.wheel_speeds.tolist()
-        joints.effort = (self.robot.gear_ratio * self.robot.torque_constant_n_m_per_a * self.plant.currents).tolist()
-        self.joint_pub.publish(joints)
+        self.truth_pub.publish(self.truth_cdr.pack(*stamp, *_odometry_values(self.plant.pose.tolist(), twist)))
+        plant = self.plant
+        self.joint_pub.publish(self.joint_cdr.pack(
+            *stamp, *plant.wheel_angles.tolist(), *plant.wheel_speeds.tolist(),
+            *(self.effort_per_a * plant.currents).tolist(),
+        ))
 
 
 def _odometry_template(sigma_position: float, sigma_yaw: float) -> Odometry:
@@ -349,16 +360,18 @@ def _odometry_template(sigma_position: float, sigma_yaw: float) -> Odometry:
     return msg
 
 
-def _fill_odometry(msg: Odometry, stamp, pose: np.ndarray, twist_body: np.ndarray) -> Odometry:
-    msg.header.stamp = stamp
-    position = msg.pose.pose.position
-    x, y, theta = pose.tolist()
-    position.x, position.y = x, y
-    q = msg.pose.pose.orientation
-    q.z, q.w = math.sin(0.5 * theta), math.cos(0.5 * theta)
-    twist = msg.twist.twist
-    twist.linear.x, twist.linear.y, twist.angular.z = twist_body.tolist()
-    return msg
+def _joint_template() -> CdrTemplate:
+    """JointState of the three wheels: stamp, then position, velocity and effort of wheels 0..2."""
+    joints = JointState(name=list(JOINT_NAMES), position=[0.0] * 3, velocity=[0.0] * 3, effort=[0.0] * 3)
+    return CdrTemplate(joints, _STAMP + tuple(
+        f"{field}[{j}]" for field in ("position", "velocity", "effort") for j in range(3)
+    ))
+
+
+def _odometry_values(pose: list[float], twist_body: list[float]) -> tuple[float, ...]:
+    """The `_ODOM_FIELDS` after the stamp: x, y, yaw quaternion (z, w), body twist (vx, vy, omega)."""
+    x, y, theta = pose
+    return (x, y, math.sin(0.5 * theta), math.cos(0.5 * theta), *twist_body)
 
 
 def _all_specs() -> tuple[ParamSpec, ...]:

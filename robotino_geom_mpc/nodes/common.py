@@ -27,10 +27,14 @@ QoS, chosen on purpose:
 from __future__ import annotations
 
 import math
+import random
+import re
 import signal
+import struct
 import sys
 import threading
 import time
+from operator import itemgetter
 from pathlib import Path
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -50,6 +54,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
 
 from robotino_geom_mpc.core.params import (
     ALL_SPECS,
@@ -67,6 +72,8 @@ __all__ = [
     "LATCHED_QOS",
     "CLOCK_SUB_QOS",
     "NodeStartError",
+    "CdrTemplate",
+    "CdrTemplateError",
     "SpecParameters",
     "preset_defaults",
     "spec_defaults",
@@ -229,6 +236,40 @@ def spec_defaults(specs: Iterable[ParamSpec] = ALL_SPECS) -> dict[str, Any]:
     return {s.name: values[s.name] for s in specs}
 
 
+class MalformedMessage(ValueError):
+    """Serialized bytes that do not decode as the expected message type."""
+
+
+def cdr_reader(msg_type: type, type_name: str) -> Callable[[bytes], Any]:
+    """A decoder of serialized `msg_type` messages (e.g. ``"nav_msgs/msg/Odometry"`` for `type_name`).
+
+    rosbags' generated CDR readers build the message 2-3 times faster than
+    rclpy's C-to-Python conversion; without rosbags (a ROS install where it is
+    not on the path) rclpy's `deserialize_message` decodes. Both give objects
+    with the message's field names. Undecodable bytes raise `MalformedMessage`.
+    """
+    try:
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:
+
+        def decode(data: bytes) -> Any:
+            try:
+                return deserialize_message(data, msg_type)
+            except Exception as exc:  # rclpy raises various errors for garbage
+                raise MalformedMessage(f"{type_name}: {exc}") from None
+
+        return decode
+    store = get_typestore(Stores.ROS2_JAZZY)
+
+    def decode_fast(data: bytes) -> Any:
+        try:
+            return store.deserialize_cdr(data, type_name)
+        except Exception as exc:  # SerdeError, struct.error, IndexError on truncated data
+            raise MalformedMessage(f"{type_name}: {exc}") from None
+
+    return decode_fast
+
+
 def stamp_to_ns(stamp: TimeMsg) -> int:
     """builtin_interfaces/Time as integer nanoseconds."""
     return stamp.sec * 1_000_000_000 + stamp.nanosec
@@ -259,6 +300,184 @@ def unwrap_near(angle: float, reference: float) -> float:
 def all_finite(values: Iterable[float]) -> bool:
     """True when every value is a finite float."""
     return bool(np.all(np.isfinite(np.fromiter(values, dtype=float))))
+
+
+class CdrTemplateError(ValueError):
+    """A `CdrTemplate` field path that does not name one fixed-size primitive with an unambiguous offset."""
+
+
+# struct codes of the fixed-size primitive ROS 2 types
+_PRIMITIVES = {
+    "double": "d", "float": "f", "boolean": "?", "uint8": "B", "int8": "b",
+    "int16": "h", "uint16": "H", "int32": "i", "uint32": "I", "int64": "q", "uint64": "Q",
+}
+_COMPONENT = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+)\])?$")
+_CONTAINER = re.compile(r"(?:sequence<(?P<seq>[^,>]+)(?:,\s*\d+)?>|(?P<arr>[^\[]+)\[\d+\])$")
+
+
+def _resolve(msg: Any, path: str) -> tuple[Any, str, int | None, str]:
+    """(object holding the field, field name, element index or None, struct code) of a field path."""
+    obj, parts = msg, path.split(".")
+    for depth, part in enumerate(parts):
+        match = _COMPONENT.match(part)
+        fields = obj.get_fields_and_field_types() if hasattr(obj, "get_fields_and_field_types") else {}
+        if match is None or match.group(1) not in fields:
+            raise CdrTemplateError(f"field path {path!r}: no field {part!r} in {type(obj).__name__}")
+        name, index = match.group(1), match.group(2)
+        kind = fields[name]
+        container = _CONTAINER.match(kind)
+        if index is not None:
+            if container is None:
+                raise CdrTemplateError(f"field path {path!r}: {name!r} ({kind}) is not a sequence or array")
+            kind = container.group("seq") or container.group("arr")
+            index = int(index)
+            if index >= len(getattr(obj, name)):
+                raise CdrTemplateError(f"field path {path!r}: index {index} beyond the template's "
+                                       f"{len(getattr(obj, name))} elements")
+        elif container is not None:
+            raise CdrTemplateError(f"field path {path!r}: {name!r} ({kind}) is a sequence or array; "
+                                   f"patch its elements, e.g. {name}[0]")
+        if depth == len(parts) - 1:
+            if kind not in _PRIMITIVES:
+                raise CdrTemplateError(f"field path {path!r}: {kind} is not a fixed-size primitive "
+                                       "(strings and sequences change the layout)")
+            return obj, name, index, _PRIMITIVES[kind]
+        obj = getattr(obj, name) if index is None else getattr(obj, name)[index]
+    raise CdrTemplateError(f"field path {path!r} is empty")  # unreachable for a non-empty split
+
+
+def _assign(holder: Any, name: str, index: int | None, value: Any) -> None:
+    if index is None:
+        setattr(holder, name, value)
+    else:
+        getattr(holder, name)[index] = value
+
+
+_ROUNDS = 3  # serializations with random field values (16 when a field is one byte: few values to tell apart)
+
+
+def _sentinel(code: str, rng: random.Random) -> Any:
+    """A random value of type `code` (finite for floating-point types)."""
+    if code == "?":
+        return rng.random() < 0.5
+    size = struct.calcsize("<" + code)
+    while True:
+        value = struct.unpack("<" + code, rng.randbytes(size))[0]
+        if code not in "fd" or math.isfinite(value):
+            return value
+
+
+class CdrTemplate:
+    """Serialized bytes of a fixed-layout message, rebuilt per sample by patching a few fields in place.
+
+    rclpy's conversion of a Python message to C costs far more than the DDS
+    write itself; ``Publisher.publish`` also takes the serialized bytes. The
+    template serializes `msg` once (``rclpy.serialization.serialize_message``,
+    so the bytes are those the normal publish would send) and `pack` writes
+    new values of the `paths` fields at their offsets with one precompiled
+    `struct.Struct`.
+
+    Parameters
+    ----------
+    msg
+        A message with every constant field set (frame ids, names, covariances,
+        layout labels, sequence lengths). It is not modified.
+    paths
+        The fields `pack` sets, dotted with element indices, e.g.
+        ``'header.stamp.sec'``, ``'pose.pose.position.x'``, ``'data[1]'``,
+        ``'points[3].transforms[0].rotation.w'``. Each must be a fixed-size
+        primitive (numbers, booleans).
+
+    Raises
+    ------
+    CdrTemplateError
+        When a path does not name a fixed-size primitive (a string, a whole
+        sequence, a nested message, an element beyond the template's length),
+        when paths repeat, or when a field's byte offset cannot be determined
+        unambiguously.
+
+    Notes
+    -----
+    Only fixed-layout samples qualify: every string and sequence length is
+    frozen in the template, so a message whose variable-length fields change
+    from sample to sample cannot be templated. Each offset is found, not
+    computed: the patched fields are set to random sentinel values, and again
+    to others, and a field's offset is the one position holding its value in
+    each of these serializations. (A byte diff would
+    not do: the serializer leaves alignment padding uninitialised, so padding
+    bytes differ between calls; the template keeps those of its one call,
+    which no reader looks at.)
+    """
+
+    def __init__(self, msg: Any, paths: Iterable[str]) -> None:
+        self.paths = tuple(paths)
+        self.msg_type = type(msg)
+        if len(set(self.paths)) != len(self.paths):
+            raise CdrTemplateError(f"field paths repeat: {self.paths}")
+        if not self.paths:
+            raise CdrTemplateError("no field paths to patch")
+        template = serialize_message(msg)
+        probe = deserialize_message(template, self.msg_type)  # a copy; `msg` stays as it is
+        fields = [_resolve(probe, path) for path in self.paths]
+        endian = "<" if template[1] & 1 else ">"  # CDR encapsulation: odd representation id = little endian
+        codes = [field[3] for field in fields]
+        sizes = [struct.calcsize(endian + code) for code in codes]
+        rng = random.Random(0x5EED)
+        rounds: list[tuple[bytes, list[bytes]]] = []  # (serialization, packed sentinel of each field)
+        for _ in range(_ROUNDS if min(sizes) > 1 else 16):
+            packed = []
+            for holder, name, index, code in fields:
+                value = _sentinel(code, rng)
+                _assign(holder, name, index, value)
+                packed.append(struct.pack(endian + code, value))
+            data = serialize_message(probe)
+            if len(data) != len(template):
+                raise CdrTemplateError(f"field paths {self.paths}: their values change the serialized length")
+            rounds.append((data, packed))
+        base = rounds[0][0]
+        offsets = []
+        for i, (path, size) in enumerate(zip(self.paths, sizes)):
+            candidates, off = [], base.find(rounds[0][1][i])
+            while off >= 0:
+                if all(data[off:off + size] == packed[i] for data, packed in rounds):
+                    candidates.append(off)
+                off = base.find(rounds[0][1][i], off + 1)
+            if len(candidates) != 1:
+                raise CdrTemplateError(f"field path {path!r}: no unambiguous byte offset "
+                                       f"({len(candidates)} candidates)")
+            offsets.append(candidates[0])
+        order = sorted(range(len(offsets)), key=offsets.__getitem__)
+        fmt, picks, gaps, end = endian, [], [], offsets[order[0]]
+        for i in order:
+            if offsets[i] < end:
+                raise CdrTemplateError(f"field paths {self.paths[i]!r} and another overlap")
+            if offsets[i] > end:
+                fmt += f"{offsets[i] - end}s"
+                picks.append(len(self.paths) + len(gaps))
+                gaps.append(template[end:offsets[i]])
+            fmt += fields[i][3]
+            picks.append(i)
+            end = offsets[i] + struct.calcsize(endian + fields[i][3])
+        self.offsets = tuple(offsets)
+        self._head, self._tail = template[:offsets[order[0]]], template[end:]
+        self._gaps = tuple(gaps)
+        self._struct = struct.Struct(fmt)
+        self._pick = itemgetter(*picks) if len(picks) > 1 else lambda values: (values[picks[0]],)
+        self.size = len(template)
+
+    def pack(self, *values: Any) -> bytes:
+        """The serialized message with the `paths` fields set to `values` (in the order of `paths`).
+
+        Raises
+        ------
+        CdrTemplateError
+            When the number of values is not the number of paths.
+        struct.error
+            When a value does not fit its field's type (e.g. an integer out of range).
+        """
+        if len(values) != len(self.paths):
+            raise CdrTemplateError(f"{len(values)} values for {len(self.paths)} field paths")
+        return b"".join((self._head, self._struct.pack(*self._pick(values + self._gaps)), self._tail))
 
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:

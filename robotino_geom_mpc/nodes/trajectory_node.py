@@ -54,6 +54,7 @@ from robotino_geom_mpc.core.params import CONTROL_SPECS, ParamSpec
 from robotino_geom_mpc.core.trajectory import SCENARIOS, TrajectoryError, make_reference, preview
 from robotino_geom_mpc.nodes.common import (
     CLOCK_SUB_QOS,
+    CdrTemplate,
     PUBLISH_QOS,
     LATCHED_QOS,
     NodeStartError,
@@ -65,7 +66,7 @@ from robotino_geom_mpc.nodes.common import (
     yaw_to_quaternion,
 )
 
-__all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "preview_message", "main"]
+__all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "preview_message", "preview_values", "preview_template", "main"]
 
 FRAME = "odom"
 JOINT = "base_link"
@@ -84,17 +85,24 @@ def _twist(values: np.ndarray) -> Twist:
     return msg
 
 
-def preview_message(
+# the fields of point j a preview sets, in the order of `preview_values`
+_POINT_FIELDS = (
+    "transforms[0].translation.x", "transforms[0].translation.y", "transforms[0].rotation.z",
+    "transforms[0].rotation.w", "velocities[0].linear.x", "velocities[0].linear.y", "velocities[0].angular.z",
+    "accelerations[0].linear.x", "accelerations[0].linear.y", "accelerations[0].angular.z",
+)
+
+
+def preview_values(
     reference,
     t_ns: int,
     period_s: float,
     horizon: int,
-    msg: MultiDOFJointTrajectory | None = None,
     rates: tuple[np.ndarray, np.ndarray] | None = None,
-) -> MultiDOFJointTrajectory:
-    """The preview of tick time `t_ns` as a MultiDOFJointTrajectory (N + 1 points, see the module docstring).
+) -> list[float]:
+    """The values of the N + 1 preview points of tick time `t_ns`, flat, point after point in `_POINT_FIELDS` order.
 
-    `msg`, a message of an earlier call with the same horizon and period, is updated in place (cheaper);
+    Point 0 is the reference at t itself, points 1..N `core.trajectory.preview` (eq. 54).
     `rates`, the velocities and accelerations at the N + 1 times if already known, spares sampling them.
     """
     t = t_ns * 1e-9
@@ -104,30 +112,48 @@ def preview_message(
         (vel, acc), pos = rates, np.empty((horizon + 1, 3))
         pos[0] = reference.position(t)
     pos[1:] = preview(reference, t, period_s, horizon)
-    if msg is None:
-        msg = MultiDOFJointTrajectory()
-        msg.header.frame_id = FRAME
-        msg.joint_names = [JOINT]
-        period_ns = int(round(period_s * 1e9))
-        for j in range(horizon + 1):
-            sec, nanosec = divmod(j * period_ns, 1_000_000_000)
-            msg.points.append(
-                MultiDOFJointTrajectoryPoint(
-                    transforms=[Transform()], velocities=[Twist()], accelerations=[Twist()],
-                    time_from_start=Duration(sec=sec, nanosec=nanosec),
-                )
-            )
-    msg.header.stamp = ns_to_stamp(t_ns)
     half = 0.5 * pos[:, 2]
-    qz, qw = np.sin(half).tolist(), np.cos(half).tolist()
-    for j, point in enumerate(msg.points):
-        tf = point.transforms[0]
-        tf.translation.x, tf.translation.y = pos[j, 0].item(), pos[j, 1].item()
-        tf.rotation.z, tf.rotation.w = qz[j], qw[j]
-        v, a = point.velocities[0], point.accelerations[0]
-        v.linear.x, v.linear.y, v.angular.z = vel[j].tolist()
-        a.linear.x, a.linear.y, a.angular.z = acc[j].tolist()
+    return np.column_stack((pos[:, :2], np.sin(half), np.cos(half), vel, acc)).ravel().tolist()
+
+
+def _preview_skeleton(period_s: float, horizon: int) -> MultiDOFJointTrajectory:
+    """The constant part of a preview: frame, joint, N + 1 points with one transform each and their times."""
+    msg = MultiDOFJointTrajectory()
+    msg.header.frame_id = FRAME
+    msg.joint_names = [JOINT]
+    period_ns = int(round(period_s * 1e9))
+    for j in range(horizon + 1):
+        sec, nanosec = divmod(j * period_ns, 1_000_000_000)
+        msg.points.append(
+            MultiDOFJointTrajectoryPoint(
+                transforms=[Transform()], velocities=[Twist()], accelerations=[Twist()],
+                time_from_start=Duration(sec=sec, nanosec=nanosec),
+            )
+        )
     return msg
+
+
+def preview_message(
+    reference, t_ns: int, period_s: float, horizon: int, rates: tuple[np.ndarray, np.ndarray] | None = None
+) -> MultiDOFJointTrajectory:
+    """The preview of tick time `t_ns` as a MultiDOFJointTrajectory (N + 1 points, see the module docstring)."""
+    msg = _preview_skeleton(period_s, horizon)
+    msg.header.stamp = ns_to_stamp(t_ns)
+    values = iter(preview_values(reference, t_ns, period_s, horizon, rates))
+    for point in msg.points:
+        tf, v, a = point.transforms[0], point.velocities[0], point.accelerations[0]
+        tf.translation.x, tf.translation.y, tf.rotation.z, tf.rotation.w = (next(values) for _ in range(4))
+        v.linear.x, v.linear.y, v.angular.z = (next(values) for _ in range(3))
+        a.linear.x, a.linear.y, a.angular.z = (next(values) for _ in range(3))
+    return msg
+
+
+def preview_template(period_s: float, horizon: int) -> CdrTemplate:
+    """`CdrTemplate` of the preview: `pack(sec, nanosec, *preview_values(...))` are the bytes of `preview_message`."""
+    paths = ("header.stamp.sec", "header.stamp.nanosec") + tuple(
+        f"points[{j}].{field}" for j in range(horizon + 1) for field in _POINT_FIELDS
+    )
+    return CdrTemplate(_preview_skeleton(period_s, horizon), paths)
 
 
 class TrajectoryNode(Node):
@@ -162,7 +188,7 @@ class TrajectoryNode(Node):
         self.last_clock_ns: int | None = None
         self.last_published_ns: int | None = None
         self.start_ns: int | None = 0 if self.lockstep else None  # node-clock time of the reference's t = 0
-        self.preview_msg: MultiDOFJointTrajectory | None = None  # reused (horizon and period fixed)
+        self.preview_cdr: CdrTemplate | None = None  # built on first use (horizon and period fixed)
         self.grid: tuple[np.ndarray, np.ndarray] | None = None  # lockstep: velocities, accelerations at k Ts
         if self.lockstep:
             self.clock_sub = self.create_subscription(ClockMsg, "/clock", self._on_clock, CLOCK_SUB_QOS)
@@ -206,7 +232,7 @@ class TrajectoryNode(Node):
         return SetParametersResult(successful=True)
 
     def _on_params(self, changed: dict) -> None:
-        self.preview_msg = self.grid = None
+        self.preview_cdr = self.grid = None
         self.reference = self._make_reference(self.params["scenario"], self._waypoints())
         if self.start_ns is not None:
             self._publish_path()
@@ -225,12 +251,12 @@ class TrajectoryNode(Node):
         return self.grid[0][k : k + horizon + 1], self.grid[1][k : k + horizon + 1]
 
     def _publish_preview(self, t_ns: int, reference_t_ns: int) -> None:
-        msg = self.preview_msg = preview_message(
-            self.reference, reference_t_ns, self.params["control.period_s"], self.params["control.horizon"],
-            self.preview_msg, self._rates(reference_t_ns) if self.lockstep else None,
-        )
-        msg.header.stamp = ns_to_stamp(t_ns)
-        self.preview_pub.publish(msg)
+        period_s, horizon = self.params["control.period_s"], self.params["control.horizon"]
+        if self.preview_cdr is None:
+            self.preview_cdr = preview_template(period_s, horizon)
+        values = preview_values(self.reference, reference_t_ns, period_s, horizon,
+                                self._rates(reference_t_ns) if self.lockstep else None)
+        self.preview_pub.publish(self.preview_cdr.pack(*divmod(t_ns, 1_000_000_000), *values))
         self.last_published_ns = t_ns
 
     def _on_clock(self, msg: ClockMsg) -> None:

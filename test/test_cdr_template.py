@@ -1,0 +1,167 @@
+"""`CdrTemplate`: patched bytes are the serialization of the message built the normal way, for each templated type.
+
+Independent truths: rclpy's own deserializer (the message read back equals
+the one built field by field) and rosbags' CDR reader/writer (a second
+implementation: re-encoded, with zero padding, both byte strings are
+identical, and the raw strings differ only at bytes that re-encode to zero,
+i.e. the alignment padding rmw leaves uninitialised).
+"""
+
+import math
+import sys
+
+import numpy as np
+import pytest
+from nav_msgs.msg import Odometry
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.typesys import Stores, get_typestore
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState, RegionOfInterest
+from std_msgs.msg import Float64MultiArray
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.core.trajectory import make_reference
+from robotino_geom_mpc.nodes import controller_node
+from robotino_geom_mpc.nodes.common import CdrTemplate, CdrTemplateError
+from robotino_geom_mpc.nodes.trajectory_node import preview_message, preview_template, preview_values
+from robotino_sim_node import plant_node
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+rng = np.random.default_rng(20261122)
+
+
+def _same_wire(packed: bytes, msg, typename: str) -> None:
+    """`packed` reads back as `msg` and equals its serialization but for alignment padding."""
+    assert deserialize_message(packed, type(msg)) == msg
+    normal = serialize_message(msg)
+    assert len(packed) == len(normal)
+    canon = TYPESTORE.serialize_cdr(TYPESTORE.deserialize_cdr(packed, typename), typename)
+    assert canon == TYPESTORE.serialize_cdr(TYPESTORE.deserialize_cdr(normal, typename), typename)
+    differ = np.flatnonzero(np.frombuffer(packed, np.uint8) != np.frombuffer(normal, np.uint8))
+    assert all(i >= len(canon) or canon[i] == 0 for i in differ)  # only padding (alignment, trailing) may differ
+
+
+def _stamp() -> tuple[int, int]:
+    return int(rng.integers(0, 2**31)), int(rng.integers(0, 10**9))
+
+
+def _floats(n: int) -> list[float]:
+    return (rng.standard_normal(n) * 10.0 ** rng.integers(-300, 300, n)).tolist()
+
+
+@pytest.mark.parametrize("noise", [(0.0, 0.0), (0.002, 0.003)])
+def test_odometry_of_the_plant(noise):
+    template = CdrTemplate(plant_node._odometry_template(*noise), plant_node._ODOM_FIELDS)
+    for _ in range(20):
+        sec, nanosec = _stamp()
+        x, y, theta, vx, vy, omega = _floats(3) + _floats(3)
+        theta = float(rng.uniform(-20, 20))
+        msg = plant_node._odometry_template(*noise)
+        msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+        msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
+        msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(theta / 2), math.cos(theta / 2)
+        msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.angular.z = vx, vy, omega
+        packed = template.pack(sec, nanosec, *plant_node._odometry_values([x, y, theta], [vx, vy, omega]))
+        _same_wire(packed, msg, "nav_msgs/msg/Odometry")
+        assert msg.header.frame_id == "odom" and msg.child_frame_id == "base_link"
+
+
+@pytest.mark.parametrize("template, label", [
+    (plant_node._array_template("wheel_current_a"), "wheel_current_a"),
+    (controller_node._voltage_template(), "wheel_voltage_v"),
+])
+def test_three_value_arrays(template, label):
+    for _ in range(20):
+        values = _floats(3)
+        msg = Float64MultiArray(data=values)
+        msg.layout.dim = [plant_node.MultiArrayDimension(label=label, size=3, stride=3)]
+        _same_wire(template.pack(*values), msg, "std_msgs/msg/Float64MultiArray")
+
+
+def test_joint_states_and_clock():
+    joints, clock = plant_node._joint_template(), CdrTemplate(Clock(), ("clock.sec", "clock.nanosec"))
+    for _ in range(20):
+        sec, nanosec = _stamp()
+        values = _floats(9)
+        msg = JointState(name=list(plant_node.JOINT_NAMES), position=values[:3], velocity=values[3:6],
+                         effort=values[6:])
+        msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+        _same_wire(joints.pack(sec, nanosec, *values), msg, "sensor_msgs/msg/JointState")
+        expected = Clock()
+        expected.clock.sec, expected.clock.nanosec = sec, nanosec
+        _same_wire(clock.pack(sec, nanosec), expected, "rosgraph_msgs/msg/Clock")
+
+
+def test_reference_preview():
+    _, control = load_params()
+    reference = make_reference("paper-circle")
+    template = preview_template(control.period_s, control.horizon)
+    for t_ns in rng.integers(0, 30 * 10**9, 5).tolist():
+        msg = preview_message(reference, t_ns, control.period_s, control.horizon)
+        values = preview_values(reference, t_ns, control.period_s, control.horizon)
+        assert len(msg.points) == control.horizon + 1
+        _same_wire(template.pack(*divmod(t_ns, 10**9), *values), msg, "trajectory_msgs/msg/MultiDOFJointTrajectory")
+    assert deserialize_message(template.pack(*divmod(t_ns, 10**9), *values), MultiDOFJointTrajectory).points[
+        3].transforms[0].translation.x == values[30]
+
+
+def test_one_byte_and_integer_fields():
+    """Booleans and unsigned integers (few byte values to tell apart) are located too."""
+    paths = ("x_offset", "y_offset", "height", "width", "do_rectify")
+    template = CdrTemplate(RegionOfInterest(), paths)
+    for _ in range(20):
+        values = [int(v) for v in rng.integers(0, 2**32, 4)] + [bool(rng.integers(0, 2))]
+        msg = RegionOfInterest(**dict(zip(paths, values)))
+        _same_wire(template.pack(*values), msg, "sensor_msgs/msg/RegionOfInterest")
+
+
+@pytest.mark.parametrize("msg, path, reason", [
+    (Odometry(), "header.frame_id", "not a fixed-size primitive"),
+    (Odometry(), "header.stamp", "not a fixed-size primitive"),
+    (Float64MultiArray(data=[1.0]), "data", "is a sequence or array"),
+    (Float64MultiArray(data=[1.0]), "data[1]", "beyond the template"),
+    (JointState(name=["a"]), "name[0]", "not a fixed-size primitive"),
+    (Odometry(), "pose.pose.position.q", "no field 'q'"),
+    (Odometry(), "pose.covariance[40]", "beyond the template"),
+    (Odometry(), "header.stamp.sec[0]", "not a sequence or array"),
+])
+def test_variable_length_or_bad_paths_fail_loudly(msg, path, reason):
+    with pytest.raises(CdrTemplateError, match=reason):
+        CdrTemplate(msg, [path])
+
+
+def test_repeated_or_missing_paths_and_wrong_value_count_fail_loudly():
+    with pytest.raises(CdrTemplateError, match="repeat"):
+        CdrTemplate(Clock(), ["clock.sec", "clock.sec"])
+    with pytest.raises(CdrTemplateError, match="no field paths"):
+        CdrTemplate(Clock(), [])
+    template = CdrTemplate(Clock(), ["clock.sec", "clock.nanosec"])
+    with pytest.raises(CdrTemplateError, match="1 values for 2"):
+        template.pack(1)
+
+
+def test_template_does_not_change_the_message():
+    msg = Float64MultiArray(data=[1.5, 2.5])
+    CdrTemplate(msg, ["data[0]", "data[1]"])
+    assert msg == Float64MultiArray(data=[1.5, 2.5])
+
+
+@pytest.mark.parametrize("with_rosbags", [True, False])
+def test_cdr_reader_decodes_odometry_with_either_decoder(monkeypatch, with_rosbags):
+    """rosbags' reader and rclpy's fallback decode to the same field values; garbage is MalformedMessage."""
+    from robotino_geom_mpc.nodes.common import MalformedMessage, cdr_reader
+
+    if not with_rosbags:
+        monkeypatch.setitem(sys.modules, "rosbags.typesys", None)  # import fails as if not installed
+    read = cdr_reader(Odometry, "nav_msgs/msg/Odometry")
+    msg = Odometry()
+    msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 345
+    msg.pose.pose.position.x, msg.pose.pose.orientation.w = 0.25, 1.0
+    msg.twist.twist.angular.z = -0.5
+    got = read(serialize_message(msg))
+    assert (got.header.stamp.sec, got.header.stamp.nanosec, got.child_frame_id) == (12, 345, "base_link")
+    assert (got.pose.pose.position.x, got.pose.pose.orientation.w, got.twist.twist.angular.z) == (0.25, 1.0, -0.5)
+    with pytest.raises(MalformedMessage):
+        read(b"\x00\x01\x00\x00\x07")

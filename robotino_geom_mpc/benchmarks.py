@@ -124,7 +124,7 @@ class _OsqpMPC:
 
     def __init__(self, mpc: DecoupledMPC, stacked: bool, eps: float = 1e-10) -> None:
         self.mpc = mpc
-        self.N = N = mpc.horizon
+        self.N = mpc.horizon
         hessians = [sp.csc_matrix(np.triu(h)) for h in mpc.hessian]
         blocks = [sp.block_diag(hessians, format="csc")] if stacked else hessians
         self._lin = [mpc.q[a] * mpc.F_1p[a].T for a in range(3)]

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import os
 import sys
 
 from robotino_geom_mpc.core.params import ParamError
 
-__all__ = ["UsageError", "main", "VERBS"]
+__all__ = ["UsageError", "main", "VERBS", "positive_seconds", "seed_value"]
 
 # verb -> one-line summary; the verb's module is robotino_geom_mpc.cli.<verb>, imported only when
 # that verb runs, so a verb does not pay for the others' imports.
@@ -31,6 +32,28 @@ VERBS: dict[str, str] = {
 
 class UsageError(Exception):
     """An error in what the user asked for; reported in one line, exit status 2."""
+
+
+def positive_seconds(text: str) -> float:
+    """argparse type: a finite duration > 0 in seconds."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be finite and > 0 s, got {text!r}")
+    return value
+
+
+def seed_value(text: str) -> int:
+    """argparse type: a non-negative integer seed."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
+    return value
 
 
 class _Parser(argparse.ArgumentParser):

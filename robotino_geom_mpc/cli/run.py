@@ -20,30 +20,19 @@ model (`simulation.controller_model`) and the plant the odometry noise of
 from __future__ import annotations
 
 import argparse
-import math
 import shutil
 import signal
 import sys
 import time
 from pathlib import Path
 
-from . import VERBS, UsageError
+from . import VERBS, UsageError, positive_seconds, seed_value
 
 __all__ = ["add_parser", "run", "node_arguments"]
 
 GRACE_S = 5.0
 # after the plant's last tick: time for the controller's last answer to reach the recorder
 LINGER_S = 0.5
-
-
-def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
-    if not math.isfinite(value) or value <= 0.0:
-        raise argparse.ArgumentTypeError(f"must be finite and > 0 s, got {text!r}")
-    return value
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -61,11 +50,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                       help="the plant drives /clock, one control period per command (default; deterministic)")
     mode.add_argument("--realtime", dest="lockstep", action="store_false",
                       help="wall-clock timers at the control rate")
-    parser.add_argument("--duration", type=_seconds, default=None, metavar="S",
+    parser.add_argument("--duration", type=positive_seconds, default=None, metavar="S",
                         help="run length [s] (default: the scenario's length)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/run-<scenario>)")
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
-    parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the odometry noise (default 0)")
+    parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
     parser.set_defaults(func=run)
     return parser
@@ -124,8 +113,6 @@ def run(args: argparse.Namespace) -> int:
 
     if args.scenario not in SCENARIOS:
         raise UsageError(f"unknown scenario {args.scenario!r}; choose from {', '.join(SCENARIOS)}")
-    if args.seed < 0:
-        raise UsageError(f"--seed must be >= 0, got {args.seed}")
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)
     duration = args.duration if args.duration is not None else make_reference(args.scenario).duration_s

@@ -7,37 +7,14 @@ writes DIR/metrics.json, DIR/run.npz and the PNGs of `plots.write_plots`.
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from pathlib import Path
 
-from . import VERBS, UsageError
+from . import VERBS, UsageError, positive_seconds, seed_value
 
-__all__ = ["add_parser", "run", "positive_seconds", "seed_value"]
+__all__ = ["add_parser", "run"]
 
 SETTLE_TIME_S = 1.0
-
-
-def positive_seconds(text: str) -> float:
-    """argparse type: a finite duration > 0 in seconds."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
-    if not math.isfinite(value) or value <= 0.0:
-        raise argparse.ArgumentTypeError(f"must be finite and > 0 s, got {text!r}")
-    return value
-
-
-def seed_value(text: str) -> int:
-    """argparse type: a non-negative integer seed."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
-    return value
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

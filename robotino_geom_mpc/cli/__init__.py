@@ -15,7 +15,7 @@ import sys
 
 from robotino_geom_mpc.core.params import ParamError
 
-__all__ = ["UsageError", "main", "VERBS", "positive_seconds", "seed_value"]
+__all__ = ["UsageError", "main", "VERBS", "positive_float", "seed_value"]
 
 # verb -> one-line summary; the verb's module is robotino_geom_mpc.cli.<verb>, imported only when
 # that verb runs, so a verb does not pay for the others' imports.
@@ -34,14 +34,14 @@ class UsageError(Exception):
     """An error in what the user asked for; reported in one line, exit status 2."""
 
 
-def positive_seconds(text: str) -> float:
-    """argparse type: a finite duration > 0 in seconds."""
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (a duration in seconds, a rate factor)."""
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
     if not math.isfinite(value) or value <= 0.0:
-        raise argparse.ArgumentTypeError(f"must be finite and > 0 s, got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be finite and > 0, got {text!r}")
     return value
 
 

@@ -26,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import VERBS, UsageError, positive_seconds, seed_value
+from . import VERBS, UsageError, positive_float, seed_value
 
 __all__ = ["add_parser", "run", "node_arguments"]
 
@@ -50,7 +50,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                       help="the plant drives /clock, one control period per command (default; deterministic)")
     mode.add_argument("--realtime", dest="lockstep", action="store_false",
                       help="wall-clock timers at the control rate")
-    parser.add_argument("--duration", type=positive_seconds, default=None, metavar="S",
+    parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
                         help="run length [s] (default: the scenario's length)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/run-<scenario>)")
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")

@@ -10,7 +10,7 @@ import argparse
 import time
 from pathlib import Path
 
-from . import VERBS, UsageError, positive_seconds, seed_value
+from . import VERBS, UsageError, positive_float, seed_value
 
 __all__ = ["add_parser", "run"]
 
@@ -32,7 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/<scenario>)")
-    parser.add_argument("--duration", type=positive_seconds, default=None, metavar="S",
+    parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
                         help="simulated time [s] (default: the scenario's length)")
     parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")

@@ -9,7 +9,7 @@ paper places singularities (erratum 2: there are none).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -186,11 +186,6 @@ class DecouplingReport:
             and self.fast_vs_toolbox_rel <= self.tol
             and all(c.passed for c in self.conditions)
         )
-
-    def to_dict(self) -> dict:
-        out = asdict(self)
-        out["passed"] = self.passed
-        return out
 
 
 def theta_grid(n_theta: int = 3600) -> np.ndarray:

@@ -79,12 +79,6 @@ TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
 _DEFAULTS = {"scenario": "paper-circle", "mode": "realtime"}
 
 
-def _twist(values: np.ndarray) -> Twist:
-    msg = Twist()
-    msg.linear.x, msg.linear.y, msg.angular.z = (float(v) for v in values)
-    return msg
-
-
 # the fields of point j a preview sets, in the order of `preview_values`
 _POINT_FIELDS = (
     "transforms[0].translation.x", "transforms[0].translation.y", "transforms[0].rotation.z",

@@ -575,10 +575,6 @@ class BagReader:
             cls = classes.get(msg.type) or classes.setdefault(msg.type, message_class(msg.type))
             yield msg, deserialize_message(msg.data, cls)
 
-    def start_time_ns(self) -> int:
-        """Log time of the first message."""
-        return self._messages[0].log_time_ns if self._messages else 0
-
     def __enter__(self) -> BagReader:
         return self
 

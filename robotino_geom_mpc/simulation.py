@@ -5,7 +5,8 @@ tick k (t_k = k Ts, k = 0 .. n-1) does exactly, in this order:
 
 1. measure: ``pose, twist = plant.odometry(rng, noise)`` (pose plus Gaussian
    noise drawn from the run's seeded generator, noise-free body-frame twist),
-   ``X = state_from_odometry(pose, twist)``;
+   ``X = state_from_odometry(pose, twist)`` (both on Python floats here:
+   `RobotinoPlant.odometry_floats`, `odometry_state_floats`);
 2. ``Y_d`` = the reference positions at t_{k+1} .. t_{k+N} (eq. 54), sampled
    for the whole run at once: rows k+1 .. k+N of ``reference.position(j Ts)``,
    equal to ``preview(reference, t_k, Ts, N)`` to rounding (1e-14);
@@ -14,6 +15,10 @@ tick k (t_k = k Ts, k = 0 .. n-1) does exactly, in this order:
 5. ``plant.step(out.voltages, Ts)`` and record the largest |current| of each
    drive over that period (the plant's substeps), signed like the current
    at the period's end.
+
+The loop keeps numpy out of its per-tick bookkeeping (a call on a 3-vector
+costs about as much as a dozen float operations): it collects the ticks'
+values and turns them into arrays once, at the end.
 
 The robustness scenario runs paper-circle with a controller whose model is
 off: mass +20 %, yaw inertia -20 % (the two errors push the translational and
@@ -30,7 +35,7 @@ from tqdm import tqdm
 
 from robotino_sim_node.plant import RobotinoPlant
 
-from .core.controller import MotionController, state_from_odometry
+from .core.controller import MotionController, odometry_state_floats
 from .core.params import ControlParams, RobotinoParams
 from .core.trajectory import make_reference
 from .results import RunData
@@ -122,20 +127,21 @@ def run_scenario(
 
     t = np.arange(n) * Ts
     targets = reference.position(np.arange(n + N + 1) * Ts)  # row j: the reference at j Ts
-    pose = np.empty((n, 3))
-    currents = np.empty((n, 3))
-    voltages = np.empty((n, 3))
-    saturated = np.zeros(n, dtype=bool)
-    infeasible = np.zeros(n, dtype=bool)
-    compute = np.empty(n)
+    # Only floats and arrays are kept per tick (no tuples): nothing for the garbage collector to scan.
+    poses, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], []
     for k in tqdm(range(n), desc=scenario, unit="tick", disable=not progress, mininterval=0.5):
-        X = state_from_odometry(*plant.odometry(rng, noise))
+        X = odometry_state_floats(*plant.odometry_floats(rng, noise))
         out = controller.step(X, targets[k + 1 : k + N + 1])
-        pose[k] = plant.pose
-        voltages[k] = out.voltages
-        saturated[k], infeasible[k], compute[k] = out.saturated, out.infeasible, out.compute_time_s
+        poses.append(plant.pose)
+        voltages += out.voltages
+        saturated.append(out.saturated)
+        infeasible.append(out.infeasible)
+        compute.append(out.compute_time_s)
         plant.step(out.voltages, Ts)
-        currents[k] = np.copysign(plant.peak_abs_currents, plant.currents)
+        substep_currents.append(plant.substep_currents)
+    pose = np.array(poses)
+    trace = np.array(substep_currents)  # (n, substeps + 1, 3); the last row is the current at the period's end
+    currents = np.copysign(np.abs(trace).max(axis=1), trace[:, -1])
 
     return RunData(
         scenario=scenario,
@@ -143,13 +149,13 @@ def run_scenario(
         pose=pose,
         reference=targets[:n],
         currents=currents,
-        voltages=voltages,
+        voltages=np.array(voltages).reshape(n, 3),
         control_period_s=Ts,
         horizon=N,
         nominal_current_a=robot.nominal_current_a,
         supply_voltage_v=robot.supply_voltage_v,
-        flags={"saturated": saturated, "infeasible": infeasible},
-        compute_time_s=compute,
+        flags={"saturated": np.array(saturated, dtype=bool), "infeasible": np.array(infeasible, dtype=bool)},
+        compute_time_s=np.array(compute),
         meta={
             "seed": int(seed),
             "mode": control.mode,

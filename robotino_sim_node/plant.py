@@ -60,13 +60,19 @@ _THETA = 4
 _COLS = np.array([0, 1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14])
 _ROWS = _COLS[:11]
 _CURRENTS = slice(5, 8)  # of the loop vector
+_N_LOOP = len(_COLS)
+# Rows appended to a substep map so that it also passes the held voltages on: (3, 14) [0 | I].
+_PASS = np.eye(_N_LOOP)[len(_ROWS) :]
 # Generator of a frame rotation acting on (x, y) and (x', y'): d/d(angle) of R(angle) per pair.
 _TURN = np.zeros((_N_AUG, _N_AUG))
 _TURN[[2, 3], [0, 1]] = 1.0
 _TURN[[0, 1], [2, 3]] = -1.0
+_FLOAT64 = np.dtype(np.float64)
 _FIT_RATE_RAD_S = 20.0
 _FIT_DEGREE = 6
-_POWERS = np.arange(_FIT_DEGREE + 1)
+# Exponents of a substep's heading entries (eps / eps_max seven times, beta): its basis row.
+_EXPONENTS = np.append(np.arange(_FIT_DEGREE + 1.0), 1.0)
+_BASIS = _FIT_DEGREE + 2
 
 
 class PlantError(ValueError):
@@ -80,12 +86,16 @@ class _StepCache:
     n: int
     h: float
     eps_max: float  # fit range of the heading change per substep
-    # (3n + 2, 15): w -> eps / eps_max (n), frame hand-over angles beta (n - 1), the frame
-    # angles at the step's start and end (2), theta at the end (1), the mean headings (n).
+    # (9n + 3, 15): w -> per substep, eps / eps_max seven times and the frame hand-over angle beta
+    # (0 on the last) (8n), the frame angles at the step's start and end and theta at the end (3),
+    # the mean headings (n). Raised elementwise to `_EXPONENTS`, the first 8n give the basis.
     heading_rows: np.ndarray
-    coefficients: np.ndarray | None  # (8, 11 * 14): maps in powers of eps / eps_max, then the beta term
+    heading: np.ndarray  # (9n + 3,) its product with w
+    heading_basis: np.ndarray  # (n, 8) view of its first 8n entries
+    coefficients: np.ndarray | None  # (8, 14 * 14): maps in powers of eps / eps_max, then the beta term
     basis: np.ndarray  # (n, 8): powers of eps / eps_max, beta
-    powers: np.ndarray  # view of its powers
+    maps: np.ndarray  # (n, 14 * 14): the substep maps (with the `_PASS` rows), flat
+    substep_maps: list[np.ndarray]  # (14, 14) views of maps
     trace: np.ndarray  # (n + 1, 14): the loop vectors at the substep ends
     before: list[np.ndarray]  # views of trace: substep inputs
     after: list[np.ndarray]  # and outputs
@@ -101,11 +111,26 @@ def _turn(angle: float) -> np.ndarray:
     return out
 
 
-def _rotate(w: np.ndarray, angle: float) -> None:
-    """Rotate the planar pairs (x, y) and (x', y') of w by angle, in place."""
-    c, s = math.cos(angle), math.sin(angle)
-    x, vx, y, vy = w[:4].tolist()
-    w[:4] = (c * x - s * y, c * vx - s * vy, s * x + c * y, s * vx + c * vy)
+def _voltage_values(voltages: object) -> tuple[float, float, float]:
+    """The voltages as three Python floats, or PlantError; plain tuples, lists and float arrays fast."""
+    kind = type(voltages)
+    if (kind is tuple or kind is list) and len(voltages) == 3:
+        U = tuple(voltages)
+        if not (type(U[0]) is float and type(U[1]) is float and type(U[2]) is float):
+            U = None
+    elif kind is np.ndarray and voltages.dtype is _FLOAT64 and voltages.shape == (3,):
+        U = tuple(voltages.tolist())
+    else:
+        U = None
+    if U is None:
+        try:
+            array = np.asarray(voltages, dtype=float)
+        except (TypeError, ValueError):
+            array = np.empty(0)
+        U = tuple(array.tolist()) if array.shape == (3,) else ()
+    if len(U) != 3 or not math.isfinite(U[0] + U[1] + U[2]):
+        raise PlantError(f"voltages must be three finite numbers, got {voltages!r}")
+    return U
 
 
 class RobotinoPlant:
@@ -153,7 +178,6 @@ class RobotinoPlant:
         self.isotropic = p.k_x == p.k_y
         self._rng = np.random.default_rng(seed)
         self._cache: dict[float, _StepCache] = {}
-        self._w = np.zeros(_N_AUG)
         self.reset(state0)
 
     # ------------------------------------------------------------------ model matrices
@@ -210,15 +234,10 @@ class RobotinoPlant:
         # The frame of substep k starts at ends[k] + offset[k] and turns by eps[k].
         eps = ends[1:] - ends[:-1]
         offset = means - 0.5 * (ends[1:] + ends[:-1])
+        beta = np.vstack((offset[1:] - offset[:-1], np.zeros(_N_AUG)))
+        per_substep = np.concatenate((np.repeat(eps[:, None] / eps_max, _FIT_DEGREE + 1, axis=1), beta[:, None]), 1)
         heading_rows = np.vstack(
-            (
-                eps / eps_max,
-                offset[1:] - offset[:-1],
-                ends[0] + offset[0],
-                ends[n] + offset[n - 1],
-                ends[n],
-                means,
-            )
+            (per_substep.reshape(n * _BASIS, _N_AUG), ends[0] + offset[0], ends[n] + offset[n - 1], ends[n], means)
         )
         coefficients = None
         if self.isotropic:
@@ -227,14 +246,20 @@ class RobotinoPlant:
             powers = np.linalg.solve(np.vander(nodes / eps_max, _FIT_DEGREE + 1, increasing=True), samples)
             # Hand-over to the next frame, turned by a small beta: (I + beta TURN) M, first order in beta.
             handover = (_TURN[np.ix_(_ROWS, _ROWS)] @ self._substep_map(0.0, 0.0, h)).ravel()
-            coefficients = np.vstack((powers, handover))
-        trace = np.zeros((n + 1, len(_COLS)))
-        before, after = list(trace[:-1]), [row[: len(_ROWS)] for row in trace[1:]]
-        basis = np.zeros((n, _FIT_DEGREE + 2))
+            # The voltages pass through the constant term (eps^0 = 1) only.
+            coefficients = np.zeros((_BASIS, _N_LOOP, _N_LOOP))
+            coefficients[:, : len(_ROWS)] = np.vstack((powers, handover)).reshape(_BASIS, len(_ROWS), _N_LOOP)
+            coefficients[0, len(_ROWS) :] = _PASS
+            coefficients = coefficients.reshape(_BASIS, _N_LOOP * _N_LOOP)
+        trace = np.zeros((n + 1, _N_LOOP))
+        maps = np.zeros((n, _N_LOOP * _N_LOOP))
+        heading = np.zeros(len(heading_rows))
         if len(self._cache) >= _CACHE_SIZE:
             self._cache.clear()
         cache = _StepCache(
-            n, h, eps_max, heading_rows, coefficients, basis, basis[:, : _FIT_DEGREE + 1], trace, before, after
+            n, h, eps_max, heading_rows, heading, heading[: n * _BASIS].reshape(n, _BASIS), coefficients,
+            np.zeros((n, _BASIS)), maps, list(maps.reshape(n, _N_LOOP, _N_LOOP)), trace, list(trace[:-1]),
+            list(trace[1:]),
         )
         self._cache[dt] = cache
         return cache
@@ -248,43 +273,46 @@ class RobotinoPlant:
         ------
         PlantError
             If `voltages` is not three finite numbers or `dt` is not a positive finite number.
+
+        Notes
+        -----
+        Written for numpy's per-call overhead (it dominates on these sizes):
+        one product gives every heading quantity of the step, one power the
+        polynomial basis, one product the substep maps, then one product per
+        substep; the frame rotations are done on Python floats.
         """
-        try:
-            U = np.asarray(voltages, dtype=float)
-        except (TypeError, ValueError):
-            U = np.empty(0)
-        if U.shape != (3,) or not math.isfinite(U[0] + U[1] + U[2]):
-            raise PlantError(f"voltages must be three finite numbers, got {voltages!r}")
-        number = isinstance(dt, (float, int, np.integer)) and not isinstance(dt, bool)
-        if not number or not math.isfinite(dt) or dt <= 0.0:
-            raise PlantError(f"dt must be a positive finite number of seconds, got {dt!r}")
-        c = self._matrices(float(dt))
-        w, trace, n = self._w, c.trace, c.n
-        w[12:15] = U
-        heading = c.heading_rows @ w
-        scaled_eps, beta = heading[:n], heading[n : 2 * n - 1]
-        start_angle, end_angle, theta_end = heading[2 * n - 1 : 2 * n + 2].tolist()
-        basis = c.basis
-        np.power(scaled_eps[:, None], _POWERS, out=c.powers)
-        basis[:-1, -1] = beta
-        if c.coefficients is not None and max(map(abs, scaled_eps.tolist())) <= 1.0:
-            maps = (basis @ c.coefficients).reshape(n, len(_ROWS), len(_COLS))
+        U = _voltage_values(voltages)
+        c = self._cache.get(dt) if type(dt) is float else None  # only valid step sizes are cached
+        if c is None:
+            number = isinstance(dt, (float, int, np.integer)) and not isinstance(dt, bool)
+            if not number or not math.isfinite(dt) or dt <= 0.0:
+                raise PlantError(f"dt must be a positive finite number of seconds, got {dt!r}")
+            c = self._matrices(float(dt))
+        n = c.n
+        w = self._w + list(U)  # the augmented state w
+        heading = c.heading_rows.dot(w, c.heading)
+        values = heading.tolist()
+        start_angle, end_angle, theta_end = values[n * _BASIS : n * _BASIS + 3]
+        scaled_eps = values[1 : n * _BASIS : _BASIS]
+        if c.coefficients is not None and max(map(abs, scaled_eps)) <= 1.0:
+            np.power(c.heading_basis, _EXPONENTS, out=c.basis)
+            c.basis.dot(c.coefficients, c.maps)
+            maps = c.substep_maps
         else:
-            maps = np.array(
-                [
-                    _turn(b) @ self._substep_map(e * c.eps_max, m, c.h)
-                    for e, m, b in zip(scaled_eps, heading[2 * n + 2 :], basis[:, -1])
-                ]
-            )
-        _rotate(w, start_angle)
-        w.take(_COLS, out=c.before[0])
-        trace[1:, len(_ROWS) :] = U
+            maps = [
+                np.vstack((_turn(b) @ self._substep_map(e * c.eps_max, m, c.h), _PASS))
+                for e, b, m in zip(scaled_eps, values[_BASIS - 1 : n * _BASIS : _BASIS], values[n * _BASIS + 3 :])
+            ]
+        # Into the start frame (loop vector: rotated planar pairs, then w[5:]), through the substeps, back.
+        x, vx, y, vy, _, *rest = w
+        cos, sin = math.cos(start_angle), math.sin(start_angle)
+        c.before[0][:] = (cos * x - sin * y, cos * vx - sin * vy, sin * x + cos * y, sin * vx + cos * vy, *rest)
         for substep_map, before, after in zip(maps, c.before, c.after):
-            np.dot(substep_map, before, out=after)
-        w[_ROWS] = trace[n, : len(_ROWS)]
-        w[_THETA] = theta_end
-        _rotate(w, -end_angle)
-        self._trace = trace
+            substep_map.dot(before, after)
+        x, vx, y, vy, *rest = c.after[-1].tolist()[: len(_ROWS)]
+        cos, sin = math.cos(-end_angle), math.sin(-end_angle)
+        self._w = [cos * x - sin * y, cos * vx - sin * vy, sin * x + cos * y, sin * vx + cos * vy, theta_end, *rest]
+        self._trace = c.trace
         self._time_s += dt
 
     def reset(self, state0: np.ndarray | None = None) -> None:
@@ -292,9 +320,9 @@ class RobotinoPlant:
         state = np.zeros(N_PLANT) if state0 is None else np.array(state0, dtype=float)
         if state.shape != (N_PLANT,) or not np.isfinite(state).all():
             raise PlantError(f"state0 must be {N_PLANT} finite numbers, got {state0!r}")
-        self._w[:] = 0.0
-        self._w[:N_PLANT] = state
-        self._trace = self._w[None, _COLS]  # the peak currents before any step are |i(0)|
+        self._w = state.tolist() + [0.0, 0.0, 0.0]  # w without the voltages, as floats
+        self._trace = np.zeros((1, _N_LOOP))
+        self._trace[0, _CURRENTS] = state[6:9]  # the peak currents before any step are |i(0)|
         self._time_s = 0.0
 
     # ------------------------------------------------------------------ measurements
@@ -302,22 +330,22 @@ class RobotinoPlant:
     @property
     def state(self) -> np.ndarray:
         """(x, x', y, y', theta, theta', i_1, i_2, i_3), a copy."""
-        return self._w[:N_PLANT].copy()
+        return np.array(self._w[:N_PLANT])
 
     @property
     def pose(self) -> np.ndarray:
         """(x, y, theta) [m, m, rad], a copy."""
-        return self._w[0:5:2].copy()
+        return np.array(self._w[0:5:2])
 
     @property
     def body_state(self) -> np.ndarray:
         """X = (x, x', y, y', theta, theta') of eq. (2)."""
-        return self._w[:6].copy()
+        return np.array(self._w[:6])
 
     @property
     def currents(self) -> np.ndarray:
         """Armature currents i_1..3 [A]."""
-        return self._w[6:9].copy()
+        return np.array(self._w[6:9])
 
     @property
     def peak_abs_currents(self) -> np.ndarray:
@@ -325,15 +353,23 @@ class RobotinoPlant:
         return np.abs(self._trace[:, _CURRENTS]).max(axis=0)
 
     @property
+    def substep_currents(self) -> np.ndarray:
+        """(substeps + 1, 3): the currents at the start of the last step and at its substep ends [A], a copy.
+
+        Before any step, the one row i(0). `peak_abs_currents` is the largest |entry| of each column.
+        """
+        return self._trace[:, _CURRENTS].copy()
+
+    @property
     def wheel_angles(self) -> np.ndarray:
         """Integrated wheel angles (rim distance / r) since the last reset [rad]."""
-        return self._w[9:12].copy()
+        return np.array(self._w[9:12])
 
     @property
     def wheel_speeds(self) -> np.ndarray:
         """Wheel angular velocities, rim speed / r [rad/s] (the motors turn gear times faster)."""
         w = self._w
-        return wheel_rim_speeds(w[4], w[[1, 3, 5]], self.params) / self.params.r
+        return wheel_rim_speeds(w[4], np.array(w[1:6:2]), self.params) / self.params.r
 
     @property
     def time_s(self) -> float:
@@ -360,16 +396,24 @@ class RobotinoPlant:
             (v_x, v_y, theta') in the robot frame (as nav_msgs/Odometry's
             twist): the odom-frame velocity rotated by -theta; noise-free.
         """
+        pose, twist = self.odometry_floats(rng, noise_std)
+        return np.array(pose), np.array(twist)
+
+    def odometry_floats(
+        self, rng: np.random.Generator | None = None, noise_std: tuple[float, float] = (0.0, 0.0)
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """`odometry` as tuples of Python floats (same values, same draws from the generator)."""
         try:
-            std_pos, std_angle = (float(v) for v in noise_std)
+            std_pos, std_angle = noise_std
+            std_pos, std_angle = float(std_pos), float(std_angle)
         except (TypeError, ValueError):
             raise PlantError(f"noise_std must be two non-negative numbers (m, rad), got {noise_std!r}") from None
         if not (std_pos >= 0.0 and std_angle >= 0.0 and math.isfinite(std_pos + std_angle)):
             raise PlantError(f"noise_std must be two non-negative numbers (m, rad), got {noise_std!r}")
-        x, vx, y, vy, theta, w = self._w[:6].tolist()
-        pose = np.array((x, y, theta))
-        if std_pos or std_angle:
-            pose += (rng if rng is not None else self._rng).normal(0.0, (std_pos, std_pos, std_angle))
+        x, vx, y, vy, theta, w = self._w[:6]
         c, s = math.cos(theta), math.sin(theta)
-        twist = np.array((c * vx + s * vy, -s * vx + c * vy, w))
-        return pose, twist
+        twist = (c * vx + s * vy, -s * vx + c * vy, w)
+        if std_pos or std_angle:
+            nx, ny, ntheta = (rng if rng is not None else self._rng).normal(0.0, (std_pos, std_pos, std_angle)).tolist()
+            return (x + nx, y + ny, theta + ntheta), twist
+        return (x, y, theta), twist

@@ -236,3 +236,25 @@ def test_reset_and_accessors():
 def test_bad_inputs_raise(call, match):
     with pytest.raises(PlantError, match=match):
         call(RobotinoPlant(ROBOT))
+
+
+def test_substep_currents_and_float_accessors():
+    # The substep currents against the reference's samples at the substep ends; the float
+    # accessors against the arrays, and tuple voltages against array voltages.
+    U = rich_voltages(10, seed=6)
+    _, fine = reference_run(ROBOT, STATE0, U)
+    plant, twin = RobotinoPlant(ROBOT, STATE0), RobotinoPlant(ROBOT, STATE0)
+    np.testing.assert_array_equal(plant.substep_currents, [STATE0[6:9]])
+    for k, u in enumerate(U):
+        plant.step(tuple(u.tolist()), DT)
+        twin.step(u, DT)
+        np.testing.assert_allclose(plant.substep_currents, fine[k][:, 6:9], rtol=0, atol=2e-6)
+        np.testing.assert_array_equal(np.abs(plant.substep_currents).max(axis=0), plant.peak_abs_currents)
+        np.testing.assert_array_equal(plant.substep_currents[-1], plant.currents)
+    np.testing.assert_array_equal(plant.state, twin.state)
+    pose, twist = plant.odometry_floats()
+    assert all(type(v) is float for v in pose + twist)
+    x, vx, y, vy, theta, omega = plant.body_state
+    np.testing.assert_array_equal(pose, [x, y, theta])
+    turn = np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]])  # R(-theta)
+    np.testing.assert_allclose(twist, [*(turn @ [vx, vy]), omega], rtol=0, atol=1e-12)

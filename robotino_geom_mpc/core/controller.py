@@ -21,7 +21,7 @@ from .model import acceleration_block, wheel_forces
 from .mpc import DecoupledMPC, axis_dampings
 from .params import ControlParams, RobotinoParams
 
-__all__ = ["ControllerInputError", "ControlOutput", "MotionController", "state_from_odometry"]
+__all__ = ["ControllerInputError", "ControlOutput", "MotionController", "odometry_state_floats", "state_from_odometry"]
 
 
 class ControllerInputError(ValueError):
@@ -240,6 +240,14 @@ def state_from_odometry(pose: object, twist_body: object) -> np.ndarray:
         raise ControllerInputError(f"pose must have shape (3,), got {pose.shape}")
     if twist.shape != (3,):
         raise ControllerInputError(f"twist_body must have shape (3,), got {twist.shape}")
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    vx, vy = float(twist[0]), float(twist[1])
-    return np.array([pose[0], c * vx - s * vy, pose[1], s * vx + c * vy, pose[2], twist[2]])
+    return np.array(odometry_state_floats(pose.tolist(), twist.tolist()))
+
+
+def odometry_state_floats(
+    pose: tuple[float, float, float], twist_body: tuple[float, float, float]
+) -> tuple[float, float, float, float, float, float]:
+    """`state_from_odometry` on three plus three Python floats, unchecked (for the offline loop's own values)."""
+    x, y, theta = pose
+    vx, vy, w = twist_body
+    c, s = math.cos(theta), math.sin(theta)
+    return (x, c * vx - s * vy, y, s * vx + c * vy, theta, w)

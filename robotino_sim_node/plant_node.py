@@ -20,11 +20,16 @@ All publishers use `PUBLISH_QOS`, the subscription `CONTROL_QOS` (see `nodes.com
 
 Modes
 -----
-``realtime``: a steady-clock physics timer integrates at ``physics_rate_hz``
-with the last command (zero volts when it is older than
-``command_timeout_s``, as a real drive's watchdog does) and a publish timer
-sends the measurements every control period, stamped with the node clock;
-after ``duration_s`` (if > 0) the node exits.
+``realtime``: the plant runs on the steady clock, on a grid of
+1 / ``physics_rate_hz``: each command and each publish first integrates it
+up to the last grid point before now with the command held so far (zero
+volts from the grid point at which that command is older than
+``command_timeout_s``, as a real drive's watchdog does), then applies the
+new command or sends the measurements. So there is no physics timer
+(nothing wakes the process between events) and a command takes effect at
+most one grid step late. A publish timer sends the measurements every
+control period, stamped with the node-clock time of the grid point they
+belong to; after ``duration_s`` (if > 0) the node exits.
 
 ``lockstep``: the plant owns time and repeats `simulation.run_scenario`'s
 tick: tick k is the state at t_k = k Ts; it publishes the odometry (noise
@@ -88,7 +93,8 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("mode", str, "realtime: wall timers; lockstep: advance one control period per command, publish /clock",
               choices=("realtime", "lockstep")),
     ParamSpec("duration_s", float, "Length of the run; 0 runs until stopped", "s", 0.0, 1e6, False),
-    ParamSpec("physics_rate_hz", float, "Integration rate in realtime mode", "Hz", 0.0, 1e5, True),
+    ParamSpec("physics_rate_hz", float, "Realtime: rate of the integration grid (commands apply on it)", "Hz", 1.0,
+              1e5, False),
     ParamSpec("command_timeout_s", float, "Realtime: a command older than this means zero volts", "s", 0.0, 60.0, True),
     ParamSpec("lockstep_resend_s", float, "Lockstep: publish the current tick again after this long without a command",
               "s", 0.0, 60.0, True),
@@ -100,7 +106,7 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
 _PLANT_DEFAULTS = {
     "mode": "realtime",
     "duration_s": 0.0,
-    "physics_rate_hz": 500.0,
+    "physics_rate_hz": 1000.0,
     "command_timeout_s": 0.1,
     "lockstep_resend_s": 0.5,
     "odometry_noise.position_m": 0.0,
@@ -108,6 +114,10 @@ _PLANT_DEFAULTS = {
     "seed": 0,
 }
 
+
+_MAX_CHUNK = 10  # realtime: grid steps per plant step
+_MAX_BEHIND_S = 1.0  # realtime: a longer stall is skipped, not integrated
+_ZERO_VOLTS = np.zeros(3)
 
 DEFAULT_WAIT_FOR = ("odom:1", "/clock:2")  # the controller; the controller's and trajectory's clocks
 
@@ -155,8 +165,8 @@ class PlantNode(Node):
             self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params, fixed=("mode",)
         )
         self.robot, self.control = self.params.robot_control()
-        self.plant = RobotinoPlant(self.robot)
         self.lockstep = self.params["mode"] == "lockstep"
+        self.plant = self._new_plant(self.robot)
         self.period_ns = int(round(self.control.period_s * 1e9))
         self.rng = np.random.default_rng(self.params["seed"])  # the noise stream of `simulation.run_scenario`
         self.done = Future()
@@ -204,8 +214,7 @@ class PlantNode(Node):
             self.resend_timer = self.create_timer(self.params["lockstep_resend_s"] / 2, self._resend, clock=steady)
         else:
             self.started_at = monotonic()
-            self.physics_time: float | None = None  # steady time the plant has been integrated up to
-            self.physics_timer = self.create_timer(1.0 / self.params["physics_rate_hz"], self._physics, clock=steady)
+            self.grid = 0  # grid points integrated since started_at
             self.publish_timer = self.create_timer(self.control.period_s, self._publish_realtime, clock=steady)
         self.get_logger().info(f"plant simulator ready ({self.params['mode']}, Ts = {self.control.period_s:g} s)")
 
@@ -214,10 +223,19 @@ class PlantNode(Node):
         robot, self.control = self.params.robot_control()
         if robot != self.robot:
             self.robot = robot
-            self.plant = RobotinoPlant(robot, state0=self.plant.state)
+            self.plant = self._new_plant(robot, self.plant.state)
         self._build_messages()
         if "seed" in changed:
             self.rng = np.random.default_rng(self.params["seed"])
+
+    def _new_plant(self, robot, state=None) -> RobotinoPlant:
+        """A plant at `state`; in realtime with the matrices of every step size `_advance` uses computed now."""
+        plant = RobotinoPlant(robot, state0=state)
+        if not self.lockstep:
+            for k in range(1, _MAX_CHUNK + 1):  # an uncached step size costs milliseconds of expm
+                plant.step(_ZERO_VOLTS, k / self.params["physics_rate_hz"])
+            plant.reset(state)
+        return plant
 
     # lockstep -----------------------------------------------------------------------------------
     def _subscribers_of(self, topic: str) -> int:
@@ -259,8 +277,10 @@ class PlantNode(Node):
             )
         if not self.lockstep:
             if valid:
+                now = monotonic()
+                self._advance(now, ceil=True)  # the old command up to now; the new one from the next grid point
                 self.voltages = np.array(msg.data, dtype=float)
-                self.command_time = monotonic()
+                self.command_time = now
             return
         if not self.started or self.done.done():
             return
@@ -274,7 +294,7 @@ class PlantNode(Node):
             wall = monotonic() - self.started_at
             simulated = (self.tick + 1) * self.control.period_s
             self.get_logger().info(
-                f"run over: {self.tick + 1} ticks, {simulated:g} s simulated in {wall:.2f} s (real-time factor "
+                f"run over: {self.tick + 1} ticks, {simulated:g} s simulated in {wall:.3f} s (real-time factor "
                 f"{simulated / wall:.1f}; per tick {1e3 * self.busy_s / (self.tick + 1):.2f} ms in the plant, "
                 f"{1e3 * self.wait_s / (self.tick + 1):.2f} ms waiting for the command)"
             )
@@ -285,26 +305,38 @@ class PlantNode(Node):
         self.busy_s += monotonic() - begin
 
     # realtime -----------------------------------------------------------------------------------
-    def _physics(self) -> None:
-        """Integrate up to now in fixed steps (catching up on late timer calls, so plant time is wall time)."""
+    def _advance(self, now: float, ceil: bool = False) -> float:
+        """Integrate up to the grid point before (`ceil`: after) steady time `now`; returns the plant's time.
+
+        One `RobotinoPlant.step` per stretch of constant voltage (at most `_MAX_CHUNK` grid steps, so few
+        step sizes are ever used and their matrices stay cached).
+        """
         dt = 1.0 / self.params["physics_rate_hz"]
-        now = monotonic()
-        if self.physics_time is None:
-            self.physics_time = now
-        steps = min(int((now - self.physics_time) / dt), 1000)
-        for _ in range(steps):
-            fresh = self.physics_time - self.command_time <= self.params["command_timeout_s"]
-            self.plant.step(self.voltages if fresh else np.zeros(3), dt)
+        position = (now - self.started_at) / dt
+        target = math.ceil(position) if ceil else math.floor(position)
+        if target - self.grid > _MAX_BEHIND_S / dt:  # the process stalled: skip rather than catch up
+            self.get_logger().warn(f"plant {((target - self.grid) * dt):.2f} s behind: skipping ahead",
+                                   throttle_duration_sec=1.0)
+            self.grid = target
+        # the first grid point at which the held command is stale
+        timeout = self.params["command_timeout_s"]
+        stale = math.floor((self.command_time + timeout - self.started_at) / dt) + 1 \
+            if math.isfinite(self.command_time) else self.grid
+        while self.grid < target:
+            fresh = self.grid < stale
+            end = min(min(target, stale) if fresh else target, self.grid + _MAX_CHUNK)
+            self.plant.step(self.voltages if fresh else _ZERO_VOLTS, (end - self.grid) * dt)
             self.peak_currents = np.maximum(self.peak_currents, self.plant.peak_abs_currents)
-            self.physics_time += dt
-        if now - self.physics_time > 1.0:  # more than a second behind: drop it rather than run away
-            self.physics_time = now
+            self.grid = end
+        return self.started_at + self.grid * dt
 
     def _publish_realtime(self) -> None:
-        if self.last_tick is not None and monotonic() - self.started_at >= self.params["duration_s"]:
+        clock_ns, now = self.get_clock().now().nanoseconds, monotonic()
+        if self.last_tick is not None and now - self.started_at >= self.params["duration_s"]:
             self.done.set_result(True)
             return
-        self._publish_measurements(divmod(self.get_clock().now().nanoseconds, 1_000_000_000), fresh=True)
+        stamp_ns = clock_ns - int((now - self._advance(now)) * 1e9)
+        self._publish_measurements(divmod(stamp_ns, 1_000_000_000), fresh=True)
         self.have_period = True
 
     # measurements -------------------------------------------------------------------------------

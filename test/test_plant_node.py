@@ -139,3 +139,65 @@ def test_refuses_to_start_with_a_bad_parameter(override, name):
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert name in proc.stderr and "Traceback" not in proc.stderr
+
+
+def _full_state(truth: Odometry, joints: JointState, effort_per_a: float) -> np.ndarray:
+    """(x, x', y, y', theta, theta', i_1..3) from a ground-truth odometry and the joint efforts of the same stamp."""
+    x, y, theta = _pose(truth)
+    tw = truth.twist.twist
+    c, s = math.cos(theta), math.sin(theta)
+    vx, vy = c * tw.linear.x - s * tw.linear.y, s * tw.linear.x + c * tw.linear.y
+    return np.array([x, vx, y, vy, theta, tw.angular.z, *(np.array(joints.effort) / effort_per_a)])
+
+
+@pytest.fixture(scope="module")
+def realtime_run(tmp_path_factory):
+    """A realtime plant: the harness sends a constant command at 100 Hz for 0.4 s, then stops."""
+    robot, control = load_params()
+    command = [6.0, -2.0, 1.0]
+    timeout = 0.1
+    with NodeGroup(log_dir=tmp_path_factory.mktemp("plant_rt")) as group, Harness("plant_rt_test") as h:
+        truth = h.collect("ground_truth/odom", Odometry)
+        joints = h.collect("joint_states", JointState)
+        pub = h.node.create_publisher(Float64MultiArray, "wheel_voltages", PUBLISH_QOS)
+        plant = group.start("plant_node", ros_args(None, {
+            "mode": "realtime", "command_timeout_s": timeout, "physics_rate_hz": 1000.0}))
+        assert h.spin_until(lambda: len(truth) >= 3 and pub.get_subscription_count() >= 1, 30.0), plant.stderr_tail()
+        sent = []
+        for _ in range(40):
+            pub.publish(Float64MultiArray(data=command))
+            sent.append(h.node.get_clock().now().nanoseconds)
+            h.spin_for(0.01)
+        h.spin_for(0.6)
+        group.stop_node(plant)
+    effort = robot.gear_ratio * robot.torque_constant_n_m_per_a
+    joint_by_stamp = {stamp_to_ns(m.header.stamp): m for m in joints}
+    samples = [(stamp_to_ns(m.header.stamp), _full_state(m, joint_by_stamp[stamp_to_ns(m.header.stamp)], effort))
+               for m in truth if stamp_to_ns(m.header.stamp) in joint_by_stamp]
+    return dict(robot=robot, command=command, timeout=timeout, sent=sent, samples=samples)
+
+
+def _offline(robot, state, voltages, seconds, grid=1e-3):
+    plant = RobotinoPlant(robot, state0=state[:9])
+    steps = round(seconds / grid)
+    for _ in range(steps):
+        plant.step(np.array(voltages, dtype=float), grid)
+    return plant.state
+
+
+def test_realtime_holds_the_command_and_zero_volts_after_the_timeout(realtime_run):
+    run = realtime_run
+    first, last = run["sent"][0], run["sent"][-1]
+    samples = run["samples"]
+    # while commands arrive (from a grid step after the first to the last): the offline plant under the command
+    during = [(t, s) for t, s in samples if first + 5e6 < t < last]
+    assert len(during) >= 20
+    (t_a, s_a), (t_b, s_b) = during[0], during[-1]
+    np.testing.assert_allclose(_offline(run["robot"], s_a, run["command"], (t_b - t_a) * 1e-9), s_b, atol=2e-9)
+    assert math.hypot(s_b[1], s_b[3]) > 0.1  # the command really drives the robot
+    # from a grid step after the timeout on: the offline plant under zero volts (the currents decay)
+    after = [(t, s) for t, s in samples if t > last + (run["timeout"] + 0.005) * 1e9]
+    assert len(after) >= 20
+    (t_a, s_a), (t_b, s_b) = after[0], after[-1]
+    np.testing.assert_allclose(_offline(run["robot"], s_a, [0.0, 0.0, 0.0], (t_b - t_a) * 1e-9), s_b, atol=2e-9)
+    assert np.abs(s_b[6:9]).max() < 0.5 * np.abs(s_a[6:9]).max()

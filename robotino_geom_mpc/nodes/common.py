@@ -26,6 +26,7 @@ QoS, chosen on purpose:
 
 from __future__ import annotations
 
+import gc
 import math
 import random
 import re
@@ -73,6 +74,7 @@ __all__ = [
     "CLOCK_SUB_QOS",
     "NodeStartError",
     "CdrTemplate",
+    "CdrLayout",
     "CdrTemplateError",
     "SpecParameters",
     "preset_defaults",
@@ -81,6 +83,7 @@ __all__ = [
     "ns_to_stamp",
     "yaw_to_quaternion",
     "quaternion_to_yaw",
+    "yaw_of",
     "unwrap_near",
     "all_finite",
     "run_node",
@@ -284,7 +287,12 @@ def yaw_to_quaternion(theta: float) -> Quaternion:
 
 def quaternion_to_yaw(q: Quaternion) -> float:
     """Yaw (rad, in (-pi, pi]) of a quaternion (ZYX convention)."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return yaw_of(q.x, q.y, q.z, q.w)
+
+
+def yaw_of(x: float, y: float, z: float, w: float) -> float:
+    """Yaw (rad, in (-pi, pi]) of the quaternion (x, y, z, w) (ZYX convention)."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def unwrap_near(angle: float, reference: float) -> float:
@@ -362,6 +370,42 @@ def _sentinel(code: str, rng: random.Random) -> Any:
             return value
 
 
+def _locate(msg: Any, paths: tuple[str, ...]) -> tuple[bytes, str, list, list[int]]:
+    """Serialize `msg` and find the byte offset of each of `paths` (see `CdrTemplate`'s notes).
+
+    Returns the serialization, the struct endian prefix, the resolved fields and their offsets.
+    """
+    template = serialize_message(msg)
+    probe = deserialize_message(template, type(msg))  # a copy; `msg` stays as it is
+    fields = [_resolve(probe, path) for path in paths]
+    endian = "<" if template[1] & 1 else ">"  # CDR encapsulation: odd representation id = little endian
+    sizes = [struct.calcsize(endian + field[3]) for field in fields]
+    rng = random.Random(0x5EED)
+    results: list[tuple[bytes, list[bytes]]] = []  # (serialization, packed sentinel of each field)
+    for _ in range(_ROUNDS if min(sizes) > 1 else 16):
+        packed = []
+        for holder, name, index, code in fields:
+            value = _sentinel(code, rng)
+            _assign(holder, name, index, value)
+            packed.append(struct.pack(endian + code, value))
+        data = serialize_message(probe)
+        if len(data) != len(template):
+            raise CdrTemplateError(f"field paths {paths}: their values change the serialized length")
+        results.append((data, packed))
+    base = results[0][0]
+    offsets = []
+    for i, (path, size) in enumerate(zip(paths, sizes)):
+        candidates, off = [], base.find(results[0][1][i])
+        while off >= 0:
+            if all(data[off:off + size] == packed[i] for data, packed in results):
+                candidates.append(off)
+            off = base.find(results[0][1][i], off + 1)
+        if len(candidates) != 1:
+            raise CdrTemplateError(f"field path {path!r}: no unambiguous byte offset ({len(candidates)} candidates)")
+        offsets.append(candidates[0])
+    return template, endian, fields, offsets
+
+
 class CdrTemplate:
     """Serialized bytes of a fixed-layout message, rebuilt per sample by patching a few fields in place.
 
@@ -411,36 +455,7 @@ class CdrTemplate:
             raise CdrTemplateError(f"field paths repeat: {self.paths}")
         if not self.paths:
             raise CdrTemplateError("no field paths to patch")
-        template = serialize_message(msg)
-        probe = deserialize_message(template, self.msg_type)  # a copy; `msg` stays as it is
-        fields = [_resolve(probe, path) for path in self.paths]
-        endian = "<" if template[1] & 1 else ">"  # CDR encapsulation: odd representation id = little endian
-        codes = [field[3] for field in fields]
-        sizes = [struct.calcsize(endian + code) for code in codes]
-        rng = random.Random(0x5EED)
-        rounds: list[tuple[bytes, list[bytes]]] = []  # (serialization, packed sentinel of each field)
-        for _ in range(_ROUNDS if min(sizes) > 1 else 16):
-            packed = []
-            for holder, name, index, code in fields:
-                value = _sentinel(code, rng)
-                _assign(holder, name, index, value)
-                packed.append(struct.pack(endian + code, value))
-            data = serialize_message(probe)
-            if len(data) != len(template):
-                raise CdrTemplateError(f"field paths {self.paths}: their values change the serialized length")
-            rounds.append((data, packed))
-        base = rounds[0][0]
-        offsets = []
-        for i, (path, size) in enumerate(zip(self.paths, sizes)):
-            candidates, off = [], base.find(rounds[0][1][i])
-            while off >= 0:
-                if all(data[off:off + size] == packed[i] for data, packed in rounds):
-                    candidates.append(off)
-                off = base.find(rounds[0][1][i], off + 1)
-            if len(candidates) != 1:
-                raise CdrTemplateError(f"field path {path!r}: no unambiguous byte offset "
-                                       f"({len(candidates)} candidates)")
-            offsets.append(candidates[0])
+        template, endian, fields, offsets = _locate(msg, self.paths)
         order = sorted(range(len(offsets)), key=offsets.__getitem__)
         fmt, picks, gaps, end = endian, [], [], offsets[order[0]]
         for i in order:
@@ -475,12 +490,147 @@ class CdrTemplate:
         return b"".join((self._head, self._struct.pack(*self._pick(values + self._gaps)), self._tail))
 
 
+def _structure(msg: Any) -> tuple[int, list[tuple[int, int]]]:
+    """Serialized size and the byte ranges of the length prefixes and strings of `msg` (plain CDR, XCDR1).
+
+    Walks the fields as the serializer lays them out: after the 4-byte
+    encapsulation header, each primitive aligned to its size, a string as a
+    4-aligned uint32 length plus its bytes and a NUL, a sequence as a
+    4-aligned uint32 count plus its elements, an array as its elements.
+    Raises `CdrTemplateError` for field types it does not know (wstring).
+    """
+    ranges: list[tuple[int, int]] = []
+    position = 4
+
+    def align(size: int) -> None:
+        nonlocal position
+        position += -(position - 4) % size
+
+    def item(kind: str, value: Any) -> None:
+        nonlocal position
+        if kind in _PRIMITIVES:
+            size = struct.calcsize("<" + _PRIMITIVES[kind])
+            align(size)
+            position += size
+        elif kind == "string" or kind.startswith("string<"):
+            align(4)
+            end = position + 4 + len(value.encode()) + 1
+            ranges.append((position, end))
+            position = end
+        elif hasattr(value, "get_fields_and_field_types"):
+            walk(value)
+        else:
+            raise CdrTemplateError(f"field type {kind!r} is not supported")
+
+    def walk(obj: Any) -> None:
+        nonlocal position
+        for name, kind in obj.get_fields_and_field_types().items():
+            value = getattr(obj, name)
+            container = _CONTAINER.match(kind)
+            if container is None:
+                item(kind, value)
+                continue
+            if container["seq"]:
+                align(4)
+                ranges.append((position, position + 4))
+                position += 4
+            for element in value:
+                item(container["seq"] or container["arr"], element)
+
+    walk(msg)
+    return position, ranges
+
+
+class CdrLayout:
+    """Reads fields straight from serialized messages laid out like a template: the reverse of `CdrTemplate`.
+
+    Decoding a whole message into Python objects costs far more than the
+    few fields a node needs. `read` takes them with one precompiled
+    `struct.Struct` when the bytes have the template's layout, and returns
+    None otherwise, so that the caller falls back to a general decoder.
+
+    Parameters
+    ----------
+    msg
+        A message with the layout to recognise: its strings (frame ids,
+        names) and sequence lengths are what incoming bytes must repeat.
+    paths
+        The fields `read` returns, as in `CdrTemplate`.
+
+    Raises
+    ------
+    CdrTemplateError
+        As `CdrTemplate` does for bad paths, and when the layout computed from
+        the field types disagrees with rclpy's serialization.
+
+    Notes
+    -----
+    The layout is the template's structure: its encapsulation header, every
+    string (length and bytes) and every sequence count (`_structure`).
+    Bytes of the same length that repeat it have every field at the
+    template's offset, whatever their numbers and alignment padding; any
+    other bytes are refused (None), never misread.
+    """
+
+    def __init__(self, msg: Any, paths: Iterable[str]) -> None:
+        self.paths = tuple(paths)
+        if not self.paths or len(set(self.paths)) != len(self.paths):
+            raise CdrTemplateError(f"field paths must be distinct and at least one, got {self.paths}")
+        template, endian, fields, offsets = _locate(msg, self.paths)
+        size, ranges = _structure(msg)
+        if size != len(template):
+            raise CdrTemplateError(f"computed layout of {type(msg).__name__} ({size} bytes) disagrees with its "
+                                   f"serialization ({len(template)} bytes)")
+        items = [(0, 4, "s")] + [(a, b, "s") for a, b in ranges]
+        items += [(off, off + struct.calcsize(endian + field[3]), i) for i, (off, field) in enumerate(zip(offsets, fields))]
+        items.sort()
+        fmt, position, structure, picks = endian, 0, [], [0] * len(fields)
+        for index, (start, end, what) in enumerate(items):
+            if start < position:
+                raise CdrTemplateError(f"field paths {self.paths}: a field overlaps a string or sequence count")
+            if start > position:
+                fmt += f"{start - position}x"
+            if what == "s":
+                fmt += f"{end - start}s"
+                structure.append(index)
+            else:
+                fmt += fields[what][3]
+                picks[what] = index
+            position = end
+        self._struct = struct.Struct(fmt + (f"{size - position}x" if size > position else ""))
+        self._structure = _getter(structure)
+        self._expected = tuple(template[start:end] for start, end, what in items if what == "s")
+        self._pick = _getter(picks)
+        self.size = size
+
+    def read(self, data: bytes) -> tuple | None:
+        """The values of the `paths` fields (in that order), or None when `data` is not laid out like the template."""
+        if len(data) != self.size:
+            return None
+        values = self._struct.unpack(data)
+        if self._structure(values) != self._expected:
+            return None
+        return self._pick(values)
+
+
+def _getter(indices: list[int]) -> Callable[[tuple], tuple]:
+    """`itemgetter` that returns a tuple also for one index."""
+    if len(indices) == 1:
+        index = indices[0]
+        return lambda values: (values[index],)
+    return itemgetter(*indices)
+
+
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """Init rclpy, build the node, spin it with the events executor, exit quietly on SIGINT/SIGTERM.
 
     SIGINT and SIGTERM only set a flag the spin loop checks (at least every
     0.1 s), so no callback is interrupted half-way and no traceback is
-    printed. A node that ends its own run sets a `Future` attribute ``done``
+    printed. Once the node is built, every object there is is moved out of
+    the garbage collector's reach (`gc.freeze`): a full collection of the
+    ~70 000 objects rclpy, numpy and scipy leave takes ~45 ms, long enough
+    to miss several control periods; what the loop allocates later is
+    still collected. A node that ends its own run sets a `Future` attribute ``done``
     and may set ``exit_status``. A `NodeStartError` (bad parameter) is
     reported in one line on stderr with exit status 2. Returns the exit status.
     """
@@ -495,6 +645,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     status = 0
     try:
         node = factory()
+        gc.collect()
+        gc.freeze()
         executor = EventsExecutor()
         executor.add_node(node)
         done = getattr(node, "done", None)

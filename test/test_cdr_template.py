@@ -165,3 +165,68 @@ def test_cdr_reader_decodes_odometry_with_either_decoder(monkeypatch, with_rosba
     assert (got.pose.pose.position.x, got.pose.pose.orientation.w, got.twist.twist.angular.z) == (0.25, 1.0, -0.5)
     with pytest.raises(MalformedMessage):
         read(b"\x00\x01\x00\x00\x07")
+
+
+def _random_odometry(frame: str = "odom", child: str = "base_link") -> Odometry:
+    msg = Odometry()
+    msg.header.frame_id, msg.child_frame_id = frame, child
+    msg.header.stamp.sec, msg.header.stamp.nanosec = _stamp()
+    p, q, tw = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
+    p.x, p.y, p.z, q.x, q.y, q.z, q.w = _floats(7)
+    tw.linear.x, tw.linear.y, tw.angular.z = _floats(3)
+    msg.pose.covariance = _floats(36)
+    return msg
+
+
+def test_layout_reads_the_fields_of_any_message_with_the_template_layout():
+    """Read in place == rclpy's decoder, for random values, from rclpy's serializer and from the plant's template."""
+    layout = controller_node._odom_layout()
+    for _ in range(20):
+        msg = _random_odometry()
+        assert layout.read(serialize_message(msg)) == controller_node.odometry_values(msg)
+    plant = CdrTemplate(plant_node._odometry_template(0.001, 0.002), plant_node._ODOM_FIELDS)
+    values = (*_stamp(), *_floats(len(plant_node._ODOM_FIELDS) - 2))
+    data = plant.pack(*values)
+    assert layout.read(data) == controller_node.odometry_values(deserialize_message(data, Odometry))
+
+
+def test_layout_reads_the_preview_of_the_trajectory_node():
+    _, control = load_params()
+    layout = controller_node._preview_layout(control.horizon)
+    reference = make_reference("lemniscate")
+    template = preview_template(control.period_s, control.horizon)
+    for t_ns in rng.integers(0, 30 * 10**9, 5).tolist():
+        data = template.pack(*divmod(t_ns, 10**9), *preview_values(reference, t_ns, control.period_s, control.horizon))
+        msg = TYPESTORE.deserialize_cdr(data, "trajectory_msgs/msg/MultiDOFJointTrajectory")  # a second reader
+        assert layout.read(data) == (msg.header.stamp.sec, msg.header.stamp.nanosec,
+                                     *controller_node.preview_values(msg, control.horizon))
+
+
+@pytest.mark.parametrize("change", ["frame", "child", "short", "long", "big_endian"])
+def test_layout_refuses_other_layouts(change):
+    """Other frame names, truncated or padded bytes, big-endian CDR: None (the caller decodes the general way)."""
+    layout = controller_node._odom_layout()
+    msg = _random_odometry()
+    data = serialize_message(msg)
+    if change == "frame":
+        data = serialize_message(_random_odometry(frame="odox"))  # same length, other bytes
+    elif change == "child":
+        data = serialize_message(_random_odometry(child="base_footprint"))
+    elif change == "short":
+        data = data[:-8]
+    elif change == "long":
+        data = data + bytes(8)
+    else:
+        data = TYPESTORE.serialize_cdr(TYPESTORE.deserialize_cdr(data, "nav_msgs/msg/Odometry"),
+                                       "nav_msgs/msg/Odometry", little_endian=False)
+        assert len(data) == layout.size
+    assert layout.read(data) is None
+
+
+def test_layout_of_a_sequence_length_is_checked():
+    """A preview with another number of points is refused even where the byte count happens to match."""
+    short, long = controller_node._preview_layout(3), controller_node._preview_layout(4)
+    template = preview_template(0.01, 4)
+    data = template.pack(*range(len(template.paths)))
+    assert long.read(data) is not None and short.read(data) is None
+    assert short.read(data[: short.size]) is None  # right length, wrong point count

@@ -12,9 +12,12 @@ publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layo
                                   ``watchdog`` (waiting, ok, stale_odom, stale_reference), ``rejected``
                                   (inputs refused so far)
 
-Both inputs are taken serialized and decoded by `common.cdr_reader` (rosbags'
-CDR reader when installed: less than half the cost of rclpy's conversion to
-Python messages); the wheel_voltages go out as `CdrTemplate` bytes.
+Both inputs are taken serialized. Bytes laid out as the plant and the
+trajectory node send them (frames ``odom``/``base_link``, N + 1 preview
+points of one transform each) are read in place by a `common.CdrLayout`
+(a few microseconds); any other layout is decoded by `common.cdr_reader`
+(rosbags' CDR reader when installed, else rclpy). The wheel_voltages go out
+as `CdrTemplate` bytes.
 
 Each odometry message is one control tick: the node computes on its arrival,
 which keeps the odometry-to-voltage latency to one step. The preview used is
@@ -47,30 +50,32 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
-from trajectory_msgs.msg import MultiDOFJointTrajectory
+from geometry_msgs.msg import Transform, Twist
+from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 
 from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, state_from_odometry
 from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.nodes.common import (
     CONTROL_QOS,
     PUBLISH_QOS,
+    CdrLayout,
     CdrTemplate,
     MalformedMessage,
     SpecParameters,
     cdr_reader,
     monotonic,
     ns_to_stamp,
-    quaternion_to_yaw,
     run_node,
     spec_defaults,
-    stamp_to_ns,
     unwrap_near,
+    yaw_of,
 )
 
-__all__ = ["CONTROLLER_SPECS", "ControllerNode", "odometry_state", "preview_positions", "main"]
+__all__ = ["CONTROLLER_SPECS", "ControllerNode", "odometry_values", "state_of_odometry", "odometry_state",
+           "preview_values", "positions_of_preview", "preview_positions", "main"]
 
 STATUS_NAME = "robotino_geom_mpc: controller"
-# field names are all `odometry_state` and `preview_positions` use, so either decoder of `cdr_reader` fits
+# the general decoders (field names are all `odometry_values` and `preview_values` use, so either one fits)
 _read_odom = cdr_reader(Odometry, "nav_msgs/msg/Odometry")
 _read_preview = cdr_reader(MultiDOFJointTrajectory, "trajectory_msgs/msg/MultiDOFJointTrajectory")
 
@@ -88,8 +93,39 @@ class InputRejected(ValueError):
     """An odometry or preview message with non-finite values or the wrong size."""
 
 
-def odometry_state(msg: Odometry, previous_theta: float) -> np.ndarray:
-    """Body state X = (x, x', y, y', theta, theta') (eq. 2) of an odometry message.
+_STAMP = ("header.stamp.sec", "header.stamp.nanosec")
+_ODOM_PATHS = _STAMP + tuple("pose.pose." + f for f in (
+    "position.x", "position.y", "orientation.x", "orientation.y", "orientation.z", "orientation.w")) + (
+    "twist.twist.linear.x", "twist.twist.linear.y", "twist.twist.angular.z")
+_POSE_FIELDS = ("translation.x", "translation.y", "rotation.x", "rotation.y", "rotation.z", "rotation.w")
+
+
+def _odom_layout() -> CdrLayout:
+    """The odometry the plant sends (REP-105 frames), read in place."""
+    msg = Odometry()
+    msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+    return CdrLayout(msg, _ODOM_PATHS)
+
+
+def _preview_layout(horizon: int) -> CdrLayout:
+    """The preview the trajectory node sends (N + 1 points, one transform, velocity, acceleration each)."""
+    msg = MultiDOFJointTrajectory(joint_names=["base_link"])
+    msg.header.frame_id = "odom"
+    msg.points = [MultiDOFJointTrajectoryPoint(transforms=[Transform()], velocities=[Twist()],
+                                               accelerations=[Twist()]) for _ in range(horizon + 1)]
+    return CdrLayout(msg, _STAMP + tuple(f"points[{j}].transforms[0].{f}" for j in range(horizon + 1)
+                                         for f in _POSE_FIELDS))
+
+
+def odometry_values(msg: Odometry) -> tuple:
+    """(stamp sec, stamp nanosec, x, y, q_x, q_y, q_z, q_w, v_x, v_y, omega) of a decoded odometry message."""
+    p, q, tw = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
+    return (msg.header.stamp.sec, msg.header.stamp.nanosec, p.x, p.y, q.x, q.y, q.z, q.w,
+            tw.linear.x, tw.linear.y, tw.angular.z)
+
+
+def state_of_odometry(values: tuple, previous_theta: float) -> np.ndarray:
+    """Body state X = (x, x', y, y', theta, theta') (eq. 2) of `odometry_values` (without the stamp).
 
     theta is unwrapped next to `previous_theta`; the base_link twist is
     rotated into ``odom`` by the measured heading (`core.controller.state_from_odometry`).
@@ -97,38 +133,67 @@ def odometry_state(msg: Odometry, previous_theta: float) -> np.ndarray:
     Raises
     ------
     InputRejected
-        If any value used is not finite.
+        If any value is not finite.
     """
-    p, q, tw = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
-    raw = (p.x, p.y, q.x, q.y, q.z, q.w, tw.linear.x, tw.linear.y, tw.angular.z)
-    if not all(math.isfinite(v) for v in raw):
+    x, y, qx, qy, qz, qw, vx, vy, omega = values
+    if not math.isfinite(sum(values)):
         raise InputRejected("odom contains non-finite values")
-    theta = unwrap_near(quaternion_to_yaw(q), previous_theta)
-    return state_from_odometry((p.x, p.y, theta), (tw.linear.x, tw.linear.y, tw.angular.z))
+    theta = unwrap_near(yaw_of(qx, qy, qz, qw), previous_theta)
+    return state_from_odometry((x, y, theta), (vx, vy, omega))
+
+
+def odometry_state(msg: Odometry, previous_theta: float) -> np.ndarray:
+    """`state_of_odometry` of a decoded odometry message."""
+    return state_of_odometry(odometry_values(msg)[2:], previous_theta)
+
+
+def preview_values(msg: MultiDOFJointTrajectory, horizon: int) -> tuple:
+    """(x, y, q_x, q_y, q_z, q_w) of points 0..N of a decoded preview, flat.
+
+    Raises
+    ------
+    InputRejected
+        If the message does not have N + 1 points with one transform each.
+    """
+    if len(msg.points) != horizon + 1:
+        raise InputRejected(f"reference_preview has {len(msg.points)} points, need N + 1 = {horizon + 1}")
+    out = []
+    for j, point in enumerate(msg.points):
+        if len(point.transforms) != 1:
+            raise InputRejected(f"reference_preview point {j} has {len(point.transforms)} transforms, need 1")
+        tr, q = point.transforms[0].translation, point.transforms[0].rotation
+        out += (tr.x, tr.y, q.x, q.y, q.z, q.w)
+    return tuple(out)
+
+
+def positions_of_preview(values: tuple, theta_near: float) -> np.ndarray:
+    """Reference positions (x, y, theta) of `preview_values`, shape (N + 1, 3); theta unwrapped from `theta_near`.
+
+    Raises
+    ------
+    InputRejected
+        If a value is not finite.
+    """
+    if not math.isfinite(sum(values)):
+        raise InputRejected("reference_preview contains non-finite values")
+    out = np.empty((len(values) // 6, 3))
+    theta = theta_near
+    for j in range(len(out)):
+        x, y, qx, qy, qz, qw = values[6 * j : 6 * j + 6]
+        theta = unwrap_near(yaw_of(qx, qy, qz, qw), theta)
+        out[j] = (x, y, theta)
+    return out
 
 
 def preview_positions(msg: MultiDOFJointTrajectory, horizon: int, theta_near: float) -> np.ndarray:
-    """Reference positions (x, y, theta) of points 0..N, shape (N + 1, 3); theta unwrapped from `theta_near`.
+    """`positions_of_preview` of a decoded preview (N + 1 points), shape (N + 1, 3).
 
     Raises
     ------
     InputRejected
         If the message does not have N + 1 points with one transform each, or holds non-finite values.
     """
-    if len(msg.points) != horizon + 1:
-        raise InputRejected(f"reference_preview has {len(msg.points)} points, need N + 1 = {horizon + 1}")
-    out = np.empty((horizon + 1, 3))
-    theta = theta_near
-    for j, point in enumerate(msg.points):
-        if len(point.transforms) != 1:
-            raise InputRejected(f"reference_preview point {j} has {len(point.transforms)} transforms, need 1")
-        tf = point.transforms[0]
-        tr, q = tf.translation, tf.rotation
-        if not all(math.isfinite(v) for v in (tr.x, tr.y, q.x, q.y, q.z, q.w)):
-            raise InputRejected(f"reference_preview point {j} contains non-finite values")
-        theta = unwrap_near(quaternion_to_yaw(q), theta)
-        out[j] = (tr.x, tr.y, theta)
-    return out
+    return positions_of_preview(preview_values(msg, horizon), theta_near)
 
 
 def _voltage_template() -> CdrTemplate:
@@ -152,6 +217,8 @@ class ControllerNode(Node):
         self.voltage_pub = self.create_publisher(Float64MultiArray, "wheel_voltages", PUBLISH_QOS)
         self.voltage_cdr = _voltage_template()
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", PUBLISH_QOS)
+        self.odom_layout = _odom_layout()
+        self.preview_layout = _preview_layout(self.control.horizon)
         self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, CONTROL_QOS, raw=True)
         self.preview_sub = self.create_subscription(
             MultiDOFJointTrajectory, "reference_preview", self._on_preview, CONTROL_QOS, raw=True
@@ -174,6 +241,7 @@ class ControllerNode(Node):
     def _on_params(self, changed: dict) -> None:
         self.robot, self.control = self.params.robot_control()
         self.controller = MotionController(self.robot, self.control)
+        self.preview_layout = _preview_layout(self.control.horizon)
         self.previews.clear()
         self.latest_preview = None
 
@@ -186,8 +254,11 @@ class ControllerNode(Node):
 
     def _on_preview(self, data: bytes) -> None:
         try:
-            msg = _read_preview(data)
-            positions = preview_positions(msg, self.control.horizon, self.theta)
+            values = self.preview_layout.read(data)
+            if values is None:
+                msg = _read_preview(data)
+                values = (msg.header.stamp.sec, msg.header.stamp.nanosec, *preview_values(msg, self.control.horizon))
+            positions = positions_of_preview(values[2:], self.theta)
         except (MalformedMessage, InputRejected) as exc:
             self.rejected += 1
             self.get_logger().warn(f"rejected reference_preview: {exc}", throttle_duration_sec=1.0)
@@ -196,7 +267,7 @@ class ControllerNode(Node):
         self.latest_preview = positions
         if not self.lockstep:
             return
-        stamp = stamp_to_ns(msg.header.stamp)
+        stamp = values[0] * 1_000_000_000 + values[1]
         self.previews[stamp] = positions
         if self.pending is not None and self.pending[0] == stamp:
             odom_stamp, X = self.pending
@@ -205,14 +276,16 @@ class ControllerNode(Node):
 
     def _on_odom(self, data: bytes) -> None:
         try:
-            msg = _read_odom(data)
+            values = self.odom_layout.read(data)
+            if values is None:
+                values = odometry_values(_read_odom(data))
         except MalformedMessage as exc:
             self.rejected += 1
             self.get_logger().warn(f"rejected malformed odom: {exc!r}", throttle_duration_sec=1.0)
             return
-        stamp = stamp_to_ns(msg.header.stamp)
+        stamp = values[0] * 1_000_000_000 + values[1]
         try:
-            X = odometry_state(msg, self.theta)
+            X = state_of_odometry(values[2:], self.theta)
         except InputRejected as exc:
             self._reject(stamp, str(exc))
             return

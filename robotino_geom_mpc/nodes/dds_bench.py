@@ -1,13 +1,13 @@
 """The control loop over DDS, measured: lockstep real-time factor, realtime missed ticks and latency.
 
 Both functions start the three nodes as processes (`processes.NodeGroup`)
-on the current ROS_DOMAIN_ID and watch the loop from an in-process probe
-node that subscribes what goes over DDS:
+on the current ROS_DOMAIN_ID:
 
 * `bench_lockstep`: the plant in lockstep on a scenario; the real-time
-  factor is simulated time over the wall time between the first and the
-  last /clock the probe receives (startup and discovery excluded);
-* `bench_realtime`: the plant in realtime at the control rate; per odometry
+  factor is the plant's own report, simulated time over the wall time from
+  tick 0 to the command of the last tick (startup and discovery excluded);
+* `bench_realtime`: the plant in realtime at the control rate, watched by
+  an in-process probe node; per odometry
   message the controller's answer is the first wheel_voltages published
   after it: a tick is missed when none is published before the next
   odometry; the latency is the DDS reception time of the answer at the
@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import threading
-import time
 from typing import Any
 
 import numpy as np
@@ -34,7 +34,6 @@ from nav_msgs.msg import Odometry
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
@@ -50,29 +49,37 @@ __all__ = ["LOCKSTEP_WAIT_FOR", "PROBE_WAIT_FOR", "LoopProbe", "ProbeSpinner", "
 
 
 # with the probe too
-PROBE_WAIT_FOR = ("odom:2", "/clock:4", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
+PROBE_WAIT_FOR = ("odom:2", "/clock:3", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
                   "wheel_currents:1")
 
+
+# the plant's report at the end of a lockstep run
+_RUN_OVER = re.compile(r"run over: (\d+) ticks, ([0-9.e+-]+) s simulated in ([0-9.e+-]+) s")
 
 # a deep reader queue: the probe may lag behind the loop but must not lose samples
 PROBE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class LoopProbe(Node):
-    """Subscribes the loop's topics and keeps what arrives, with steady receive times."""
+    """Subscribes the loop's topics and keeps what arrives, with DDS timestamps.
 
-    def __init__(self, context: Context, clock_only: bool = False) -> None:
+    `watch` selects the subscriptions: ``"all"`` (what `run_data` needs) or
+    ``"latency"`` (odom and wheel_voltages taken serialized, only their DDS
+    timestamps kept), so that the benchmark's probe loads the machine as
+    little as possible.
+    """
+
+    def __init__(self, context: Context, watch: str = "all") -> None:
         super().__init__("robotino_loop_probe", context=context)
-        self.lock = threading.Lock()
-        self.clock_times: list[float] = []
         self.truth: dict[int, tuple[float, float, float]] = {}
         self.reference: dict[int, tuple[float, float, float]] = {}
         self.currents: list[list[float]] = []
         self.voltages: list[list[float]] = []
         self.odom_times: list[float] = []
         self.voltage_times: list[float] = []
-        self.create_subscription(ClockMsg, "/clock", self._on_clock, PROBE_QOS)
-        if clock_only:
+        if watch == "latency":
+            self.create_subscription(Odometry, "odom", self._on_odom, PROBE_QOS, raw=True)
+            self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_voltage_time, PROBE_QOS, raw=True)
             return
         self.create_subscription(Odometry, "ground_truth/odom", self._on_truth, PROBE_QOS)
         self.create_subscription(Odometry, "odom", self._on_odom, PROBE_QOS)
@@ -81,8 +88,8 @@ class LoopProbe(Node):
         self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_voltages, PROBE_QOS)
         self._theta = 0.0
 
-    def _on_clock(self, msg: ClockMsg) -> None:
-        self.clock_times.append(time.monotonic())
+    def _on_voltage_time(self, msg: bytes, info: dict) -> None:
+        self.voltage_times.append((info["source_timestamp"] * 1e-9, info["received_timestamp"] * 1e-9))
 
     def _on_odom(self, msg: Odometry, info: dict) -> None:
         self.odom_times.append(info["source_timestamp"] * 1e-9)
@@ -103,7 +110,7 @@ class LoopProbe(Node):
         self.currents.append(list(msg.data))
 
     def _on_voltages(self, msg: Float64MultiArray, info: dict) -> None:
-        self.voltage_times.append((info["source_timestamp"] * 1e-9, info["received_timestamp"] * 1e-9))
+        self._on_voltage_time(msg, info)
         self.voltages.append(list(msg.data))
 
     def run_data(self, scenario: str, params_file: str | os.PathLike | None = None):
@@ -134,12 +141,12 @@ class LoopProbe(Node):
 class ProbeSpinner:
     """An rclpy context with the probe, spun in a background thread."""
 
-    def __init__(self, clock_only: bool = False) -> None:
+    def __init__(self, watch: str = "all") -> None:
         from rclpy.executors import SingleThreadedExecutor
 
         self.context = Context()
         rclpy.init(context=self.context)
-        self.probe = LoopProbe(self.context, clock_only)
+        self.probe = LoopProbe(self.context, watch)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.probe)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -191,26 +198,28 @@ def lockstep_nodes(
 
 
 def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, timeout_s: float = 300.0) -> dict:
-    """Run the lockstep loop; returns ``{"lockstep_dds_realtime_factor": ..., "ticks": ...}``."""
-    spinner = ProbeSpinner(clock_only=True)
-    try:
-        with NodeGroup() as group:
-            clock_wait = [w if not w.startswith("/clock:") else "/clock:4" for w in LOCKSTEP_WAIT_FOR]
-            plant = lockstep_nodes(group, scenario, duration_s, wait_for=clock_wait)
-            if not group.wait(plant, timeout_s):
-                raise TimeoutError(f"lockstep run of {duration_s} s did not end within {timeout_s} s")
-        times = spinner.probe.clock_times
-        ticks = len(times)
-        wall = times[-1] - times[0]
-        _, control = load_params()
-        return {"lockstep_dds_realtime_factor": (ticks - 1) * control.period_s / wall, "ticks": ticks}
-    finally:
-        spinner.close()
+    """Run the lockstep loop; returns ``{"lockstep_dds_realtime_factor": ..., "ticks": ...}``.
+
+    The figure is the plant's own: simulated time over the wall time from
+    publishing tick 0 to receiving the command of the last tick (its "run
+    over" log line), so startup and discovery do not count and no probe
+    subscribes the loop (each extra reader of /clock costs the plant a wake-up
+    of one more process per tick).
+    """
+    with NodeGroup() as group:
+        plant = lockstep_nodes(group, scenario, duration_s)
+        if not group.wait(plant, timeout_s):
+            raise TimeoutError(f"lockstep run of {duration_s} s did not end within {timeout_s} s")
+        match = _RUN_OVER.search(plant.stderr_tail(lines=50))
+    if match is None:
+        raise RuntimeError("the plant did not report the end of the lockstep run")
+    ticks, simulated, wall = int(match[1]), float(match[2]), float(match[3])
+    return {"lockstep_dds_realtime_factor": simulated / wall, "ticks": ticks}
 
 
 def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", timeout_s: float | None = None) -> dict:
     """Run the realtime loop for `duration_s`; missed ticks and odom-to-voltage latency (median, p99) in ms."""
-    spinner = ProbeSpinner()
+    spinner = ProbeSpinner("latency")
     try:
         with NodeGroup() as group:
             plant = lockstep_nodes(group, scenario, duration_s, realtime=True)

@@ -65,19 +65,23 @@ from rclpy.parameter import Parameter
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from rclpy.serialization import deserialize_message
+from std_msgs.msg import Float64MultiArray
 
 from robotino_geom_mpc.core.params import ParamSpec
 from robotino_geom_mpc.nodes.common import (
     CONTROL_QOS,
+    CURRENT_LABEL,
     PUBLISH_QOS,
+    VOLTAGE_LABEL,
     CdrTemplate,
     NodeStartError,
     SpecParameters,
-    all_finite,
     monotonic,
     run_node,
     spec_defaults,
+    three_values_layout,
+    three_values_template,
 )
 from robotino_sim_node.plant import RobotinoPlant
 
@@ -149,13 +153,6 @@ _ODOM_FIELDS = _STAMP + (
 )
 
 
-def _array_template(label: str) -> CdrTemplate:
-    """Float64MultiArray of 3 values, layout label `label` (forward_command_controller convention)."""
-    msg = Float64MultiArray(data=[0.0] * 3)
-    msg.layout.dim = [MultiArrayDimension(label=label, size=3, stride=3)]
-    return CdrTemplate(msg, ("data[0]", "data[1]", "data[2]"))
-
-
 class PlantNode(Node):
     """The plant simulator node (see the module docstring for its interface)."""
 
@@ -177,7 +174,9 @@ class PlantNode(Node):
         self.current_pub = self.create_publisher(Float64MultiArray, "wheel_currents", PUBLISH_QOS)
         self.joint_pub = self.create_publisher(JointState, "joint_states", PUBLISH_QOS)
         self.clock_pub = self.create_publisher(ClockMsg, "/clock", PUBLISH_QOS) if self.lockstep else None
-        self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command, CONTROL_QOS)
+        self.command_layout = three_values_layout(VOLTAGE_LABEL)
+        self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command, CONTROL_QOS,
+                                                    raw=True)
         self.declare_parameter(
             "lockstep_wait_for",
             list(DEFAULT_WAIT_FOR),
@@ -268,25 +267,31 @@ class PlantNode(Node):
         self._publish_measurements(divmod(self._time_ns(), 1_000_000_000), fresh, clock=True)
         self.published_at = monotonic()
 
-    def _on_command(self, msg: Float64MultiArray) -> None:
-        valid = len(msg.data) == 3 and all_finite(msg.data)
+    def _on_command(self, data: bytes) -> None:
+        values = self.command_layout.read(data)  # the controller's layout, read in place; else decoded
+        if values is None:
+            try:
+                values = tuple(deserialize_message(data, Float64MultiArray).data)
+            except Exception:  # rclpy raises various errors for garbage
+                values = ()
+        valid = len(values) == 3 and math.isfinite(sum(values))
         if not valid:
             self.get_logger().warn(
-                f"rejected wheel_voltages with {len(msg.data)} values (need 3 finite values): zero volts",
+                f"rejected wheel_voltages with {len(values)} values (need 3 finite values): zero volts",
                 throttle_duration_sec=1.0,
             )
         if not self.lockstep:
             if valid:
                 now = monotonic()
                 self._advance(now, ceil=True)  # the old command up to now; the new one from the next grid point
-                self.voltages = np.array(msg.data, dtype=float)
+                self.voltages = np.array(values)
                 self.command_time = now
             return
         if not self.started or self.done.done():
             return
         begin = monotonic()
         self.wait_s += begin - self.published_at
-        self.plant.step(np.array(msg.data, dtype=float) if valid else np.zeros(3), self.control.period_s)
+        self.plant.step(values if valid else _ZERO_VOLTS, self.control.period_s)
         self.peak_currents = self.plant.peak_abs_currents
         self.have_period = True
         if self.last_tick is not None and self.tick >= self.last_tick:
@@ -347,7 +352,7 @@ class PlantNode(Node):
         self.truth_cdr = (
             self.odom_cdr if sp == sy == 0.0 else CdrTemplate(_odometry_template(0.0, 0.0), _ODOM_FIELDS)
         )
-        self.current_cdr = _array_template("wheel_current_a")
+        self.current_cdr = three_values_template(CURRENT_LABEL)
         self.joint_cdr = _joint_template()
         self.clock_cdr = CdrTemplate(ClockMsg(), ("clock.sec", "clock.nanosec"))
         self.effort_per_a = self.robot.gear_ratio * self.robot.torque_constant_n_m_per_a

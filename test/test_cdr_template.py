@@ -17,13 +17,18 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.typesys import Stores, get_typestore
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, RegionOfInterest
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.core.trajectory import make_reference
 from robotino_geom_mpc.nodes import controller_node
-from robotino_geom_mpc.nodes.common import CdrTemplate, CdrTemplateError
+from robotino_geom_mpc.nodes.common import (
+    CdrTemplate,
+    CdrTemplateError,
+    three_values_layout,
+    three_values_template,
+)
 from robotino_geom_mpc.nodes.trajectory_node import preview_message, preview_template, preview_values
 from robotino_sim_node import plant_node
 
@@ -67,16 +72,16 @@ def test_odometry_of_the_plant(noise):
         assert msg.header.frame_id == "odom" and msg.child_frame_id == "base_link"
 
 
-@pytest.mark.parametrize("template, label", [
-    (plant_node._array_template("wheel_current_a"), "wheel_current_a"),
-    (controller_node._voltage_template(), "wheel_voltage_v"),
-])
-def test_three_value_arrays(template, label):
+@pytest.mark.parametrize("label", ["wheel_current_a", "wheel_voltage_v"])
+def test_three_value_arrays(label):
+    template, layout = three_values_template(label), three_values_layout(label)
     for _ in range(20):
         values = _floats(3)
-        msg = Float64MultiArray(data=values)
-        msg.layout.dim = [plant_node.MultiArrayDimension(label=label, size=3, stride=3)]
+        msg = Float64MultiArray(data=values, layout=MultiArrayLayout(dim=[MultiArrayDimension(label=label, size=3,
+                                                                                              stride=3)]))
         _same_wire(template.pack(*values), msg, "std_msgs/msg/Float64MultiArray")
+        assert layout.read(serialize_message(msg)) == tuple(values)
+    assert layout.read(serialize_message(Float64MultiArray(data=values))) is None  # no layout: decoded elsewhere
 
 
 def test_joint_states_and_clock():

@@ -40,7 +40,6 @@ from pathlib import Path
 from collections.abc import Callable, Iterable
 from typing import Any
 
-import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import Quaternion
@@ -56,6 +55,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 
 from robotino_geom_mpc.core.params import (
     ALL_SPECS,
@@ -75,6 +75,11 @@ __all__ = [
     "NodeStartError",
     "CdrTemplate",
     "CdrLayout",
+    "VOLTAGE_LABEL",
+    "CURRENT_LABEL",
+    "three_values",
+    "three_values_template",
+    "three_values_layout",
     "CdrTemplateError",
     "SpecParameters",
     "preset_defaults",
@@ -85,7 +90,6 @@ __all__ = [
     "quaternion_to_yaw",
     "yaw_of",
     "unwrap_near",
-    "all_finite",
     "run_node",
     "monotonic",
 ]
@@ -298,11 +302,6 @@ def yaw_of(x: float, y: float, z: float, w: float) -> float:
 def unwrap_near(angle: float, reference: float) -> float:
     """`angle + 2 pi k` closest to `reference` (continuous yaw from a wrapped one)."""
     return angle + 2.0 * math.pi * round((reference - angle) / (2.0 * math.pi))
-
-
-def all_finite(values: Iterable[float]) -> bool:
-    """True when every value is a finite float."""
-    return bool(np.all(np.isfinite(np.fromiter(values, dtype=float))))
 
 
 class CdrTemplateError(ValueError):
@@ -619,6 +618,28 @@ def _getter(indices: list[int]) -> Callable[[tuple], tuple]:
         index = indices[0]
         return lambda values: (values[index],)
     return itemgetter(*indices)
+
+
+VOLTAGE_LABEL = "wheel_voltage_v"  # layout label of wheel_voltages
+CURRENT_LABEL = "wheel_current_a"  # and of wheel_currents
+
+_THREE = ("data[0]", "data[1]", "data[2]")
+
+
+def three_values(label: str) -> Float64MultiArray:
+    """Float64MultiArray of 3 zeros, one layout dimension `label` (forward_command_controller convention)."""
+    return Float64MultiArray(data=[0.0] * 3, layout=MultiArrayLayout(dim=[MultiArrayDimension(label=label, size=3,
+                                                                                              stride=3)]))
+
+
+def three_values_template(label: str) -> CdrTemplate:
+    """`CdrTemplate` of `three_values`: `pack(a, b, c)`."""
+    return CdrTemplate(three_values(label), _THREE)
+
+
+def three_values_layout(label: str) -> CdrLayout:
+    """`CdrLayout` of `three_values`: `read(data)` -> (a, b, c) or None."""
+    return CdrLayout(three_values(label), _THREE)
 
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:

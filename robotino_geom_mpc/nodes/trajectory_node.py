@@ -66,7 +66,8 @@ from robotino_geom_mpc.nodes.common import (
     yaw_to_quaternion,
 )
 
-__all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "preview_message", "preview_values", "preview_template", "main"]
+__all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "point_values", "preview_message", "preview_values", "preview_template",
+           "main"]
 
 FRAME = "odom"
 JOINT = "base_link"
@@ -87,27 +88,21 @@ _POINT_FIELDS = (
 )
 
 
-def preview_values(
-    reference,
-    t_ns: int,
-    period_s: float,
-    horizon: int,
-    rates: tuple[np.ndarray, np.ndarray] | None = None,
-) -> list[float]:
+def point_values(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """Rows of point values in `_POINT_FIELDS` order (x, y, yaw quaternion z and w, velocity, acceleration)."""
+    half = 0.5 * pos[:, 2]
+    return np.column_stack((pos[:, :2], np.sin(half), np.cos(half), vel, acc))
+
+
+def preview_values(reference, t_ns: int, period_s: float, horizon: int) -> list[float]:
     """The values of the N + 1 preview points of tick time `t_ns`, flat, point after point in `_POINT_FIELDS` order.
 
     Point 0 is the reference at t itself, points 1..N `core.trajectory.preview` (eq. 54).
-    `rates`, the velocities and accelerations at the N + 1 times if already known, spares sampling them.
     """
     t = t_ns * 1e-9
-    if rates is None:
-        pos, vel, acc, _ = reference.sample(t + period_s * np.arange(horizon + 1))
-    else:
-        (vel, acc), pos = rates, np.empty((horizon + 1, 3))
-        pos[0] = reference.position(t)
+    pos, vel, acc, _ = reference.sample(t + period_s * np.arange(horizon + 1))
     pos[1:] = preview(reference, t, period_s, horizon)
-    half = 0.5 * pos[:, 2]
-    return np.column_stack((pos[:, :2], np.sin(half), np.cos(half), vel, acc)).ravel().tolist()
+    return point_values(pos, vel, acc).ravel().tolist()
 
 
 def _preview_skeleton(period_s: float, horizon: int) -> MultiDOFJointTrajectory:
@@ -127,13 +122,11 @@ def _preview_skeleton(period_s: float, horizon: int) -> MultiDOFJointTrajectory:
     return msg
 
 
-def preview_message(
-    reference, t_ns: int, period_s: float, horizon: int, rates: tuple[np.ndarray, np.ndarray] | None = None
-) -> MultiDOFJointTrajectory:
+def preview_message(reference, t_ns: int, period_s: float, horizon: int) -> MultiDOFJointTrajectory:
     """The preview of tick time `t_ns` as a MultiDOFJointTrajectory (N + 1 points, see the module docstring)."""
     msg = _preview_skeleton(period_s, horizon)
     msg.header.stamp = ns_to_stamp(t_ns)
-    values = iter(preview_values(reference, t_ns, period_s, horizon, rates))
+    values = iter(preview_values(reference, t_ns, period_s, horizon))
     for point in msg.points:
         tf, v, a = point.transforms[0], point.velocities[0], point.accelerations[0]
         tf.translation.x, tf.translation.y, tf.rotation.z, tf.rotation.w = (next(values) for _ in range(4))
@@ -183,7 +176,7 @@ class TrajectoryNode(Node):
         self.last_published_ns: int | None = None
         self.start_ns: int | None = 0 if self.lockstep else None  # node-clock time of the reference's t = 0
         self.preview_cdr: CdrTemplate | None = None  # built on first use (horizon and period fixed)
-        self.grid: tuple[np.ndarray, np.ndarray] | None = None  # lockstep: velocities, accelerations at k Ts
+        self.grid: np.ndarray | None = None  # lockstep: point values at k Ts (`_grid_values`)
         if self.lockstep:
             self.clock_sub = self.create_subscription(ClockMsg, "/clock", self._on_clock, CLOCK_SUB_QOS)
         else:
@@ -232,24 +225,28 @@ class TrajectoryNode(Node):
             self._publish_path()
 
     # publishing ---------------------------------------------------------------------------------
-    def _rates(self, t_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """Velocities and accelerations of a lockstep tick from the grid sampled once (None off the grid)."""
-        period_ns = int(round(self.params["control.period_s"] * 1e9))
-        horizon = self.params["control.horizon"]
-        k, off = divmod(t_ns, period_ns)
-        if self.grid is None:  # sampled once per reference: one vectorised call instead of one per tick
-            times = np.arange(int(self.reference.duration_s / self.params["control.period_s"]) + horizon + 2)
-            self.grid = self.reference.sample(times * self.params["control.period_s"])[1:3]
-        if off or k < 0 or k + horizon >= len(self.grid[0]):
+    def _grid_values(self, t_ns: int) -> list[float] | None:
+        """Lockstep: the preview values of a tick on the grid k Ts, sliced from a table sampled once (None off it).
+
+        The table is the reference sampled at every tick in one vectorised call, as
+        `simulation.run_scenario` samples its targets, so the positions are those of the offline loop.
+        """
+        period_s, horizon = self.params["control.period_s"], self.params["control.horizon"]
+        k, off = divmod(t_ns, int(round(period_s * 1e9)))
+        if self.grid is None:
+            times = np.arange(int(self.reference.duration_s / period_s) + horizon + 2) * period_s
+            self.grid = point_values(*self.reference.sample(times)[:3])
+        if off or k < 0 or k + horizon >= len(self.grid):
             return None
-        return self.grid[0][k : k + horizon + 1], self.grid[1][k : k + horizon + 1]
+        return self.grid[k : k + horizon + 1].ravel().tolist()
 
     def _publish_preview(self, t_ns: int, reference_t_ns: int) -> None:
         period_s, horizon = self.params["control.period_s"], self.params["control.horizon"]
         if self.preview_cdr is None:
             self.preview_cdr = preview_template(period_s, horizon)
-        values = preview_values(self.reference, reference_t_ns, period_s, horizon,
-                                self._rates(reference_t_ns) if self.lockstep else None)
+        values = self._grid_values(reference_t_ns) if self.lockstep else None
+        if values is None:
+            values = preview_values(self.reference, reference_t_ns, period_s, horizon)
         self.preview_pub.publish(self.preview_cdr.pack(*divmod(t_ns, 1_000_000_000), *values))
         self.last_published_ns = t_ns
 

@@ -54,7 +54,8 @@ def generate_launch_description() -> LaunchDescription:
         ),
         Node(
             package=PACKAGE, executable="controller_node", name="robotino_controller", output="screen",
-            parameters=[params_file, {"mode": mode, "use_sim_time": use_sim_time}],
+            # no use_sim_time: its time is the odometry stamps (see the controller node's docstring)
+            parameters=[params_file, {"mode": mode}],
         ),
         Node(
             package=PACKAGE, executable="plant_node", name="robotino_plant", output="screen",

@@ -69,7 +69,7 @@ class LoopProbe(Node):
     little as possible.
     """
 
-    def __init__(self, context: Context, watch: str = "all") -> None:
+    def __init__(self, context: Context, watch: str = "all", depth: int = PROBE_QOS.depth) -> None:
         super().__init__("robotino_loop_probe", context=context)
         self.truth: dict[int, tuple[float, float, float]] = {}
         self.reference: dict[int, tuple[float, float, float]] = {}
@@ -77,9 +77,10 @@ class LoopProbe(Node):
         self.voltages: list[list[float]] = []
         self.odom_times: list[float] = []
         self.voltage_times: list[float] = []
-        if watch == "latency":
-            self.create_subscription(Odometry, "odom", self._on_odom, PROBE_QOS, raw=True)
-            self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_voltage_time, PROBE_QOS, raw=True)
+        if watch == "latency":  # `depth`: enough to hold a whole run until `ProbeSpinner.drain`
+            qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+            self.create_subscription(Odometry, "odom", self._on_odom, qos, raw=True)
+            self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_voltage_time, qos, raw=True)
             return
         self.create_subscription(Odometry, "ground_truth/odom", self._on_truth, PROBE_QOS)
         self.create_subscription(Odometry, "odom", self._on_odom, PROBE_QOS)
@@ -139,18 +140,27 @@ class LoopProbe(Node):
 
 
 class ProbeSpinner:
-    """An rclpy context with the probe, spun in a background thread."""
+    """An rclpy context with the probe, spun in a background thread (or, with `defer`, only by `drain`)."""
 
-    def __init__(self, watch: str = "all") -> None:
+    def __init__(self, watch: str = "all", defer: bool = False, depth: int = PROBE_QOS.depth) -> None:
         from rclpy.executors import SingleThreadedExecutor
 
         self.context = Context()
         rclpy.init(context=self.context)
-        self.probe = LoopProbe(self.context, watch)
+        self.probe = LoopProbe(self.context, watch, depth)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.probe)
         self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
+        if not defer:
+            self.thread.start()
+
+    def drain(self, idle_s: float = 0.5) -> None:
+        """Take what the readers hold (a deferred probe), until nothing arrives for `idle_s`."""
+        while self.context.ok():
+            before = len(self.probe.odom_times) + len(self.probe.voltage_times)
+            self.executor.spin_once(timeout_sec=idle_s)
+            if len(self.probe.odom_times) + len(self.probe.voltage_times) == before:
+                return
 
     def _spin(self) -> None:
         try:
@@ -161,7 +171,8 @@ class ProbeSpinner:
 
     def close(self) -> None:
         self.context.try_shutdown()
-        self.thread.join(timeout=5.0)
+        if self.thread.is_alive():
+            self.thread.join(timeout=5.0)
         self.executor.shutdown()
         self.probe.destroy_node()
 
@@ -219,11 +230,14 @@ def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, tim
 
 def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", timeout_s: float | None = None) -> dict:
     """Run the realtime loop for `duration_s`; missed ticks and odom-to-voltage latency (median, p99) in ms."""
-    spinner = ProbeSpinner("latency")
+    expected = int(round(duration_s / load_params()[1].period_s))
+    # nothing of the probe runs during the loop but DDS itself: its readers keep every sample until the end
+    spinner = ProbeSpinner("latency", defer=True, depth=expected + expected // 2 + 1000)
     try:
         with NodeGroup() as group:
             plant = lockstep_nodes(group, scenario, duration_s, realtime=True)
             group.wait(plant, timeout_s or duration_s + 60.0)
+        spinner.drain()
         probe = spinner.probe
         odom = np.sort(probe.odom_times)
         sent = np.array([v[0] for v in probe.voltage_times])
@@ -242,7 +256,7 @@ def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", tim
         return {
             "realtime_missed_ticks": int(missed),
             "realtime_ticks": int(len(odom)),
-        "realtime_expected_ticks": int(round(duration_s / load_params()[1].period_s)),
+            "realtime_expected_ticks": expected,
             "realtime_latency_median_ms": float(np.median(lat)) if len(lat) else math.nan,
             "realtime_latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else math.nan,
         }

@@ -62,10 +62,10 @@ from rclpy.clock import Clock, ClockType
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from rclpy.serialization import deserialize_message
 from std_msgs.msg import Float64MultiArray
 
 from robotino_geom_mpc.core.params import ParamSpec
@@ -159,7 +159,8 @@ class PlantNode(Node):
     def __init__(self) -> None:
         super().__init__("robotino_plant")
         self.params = SpecParameters(
-            self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params, fixed=("mode",)
+            self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params,
+            fixed=("mode", "physics_rate_hz"),  # the realtime grid is counted in steps of 1 / physics_rate_hz
         )
         self.robot, self.control = self.params.robot_control()
         self.lockstep = self.params["mode"] == "lockstep"

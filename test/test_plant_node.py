@@ -169,12 +169,13 @@ def realtime_run(tmp_path_factory):
             sent.append(h.node.get_clock().now().nanoseconds)
             h.spin_for(0.01)
         h.spin_for(0.6)
+        (rate_set,) = h.set_parameters("robotino_plant", {"physics_rate_hz": 500.0})
         group.stop_node(plant)
     effort = robot.gear_ratio * robot.torque_constant_n_m_per_a
     joint_by_stamp = {stamp_to_ns(m.header.stamp): m for m in joints}
     samples = [(stamp_to_ns(m.header.stamp), _full_state(m, joint_by_stamp[stamp_to_ns(m.header.stamp)], effort))
                for m in truth if stamp_to_ns(m.header.stamp) in joint_by_stamp]
-    return dict(robot=robot, command=command, timeout=timeout, sent=sent, samples=samples)
+    return dict(robot=robot, command=command, timeout=timeout, sent=sent, samples=samples, rate_set=rate_set)
 
 
 def _offline(robot, state, voltages, seconds, grid=1e-3):
@@ -201,3 +202,7 @@ def test_realtime_holds_the_command_and_zero_volts_after_the_timeout(realtime_ru
     (t_a, s_a), (t_b, s_b) = after[0], after[-1]
     np.testing.assert_allclose(_offline(run["robot"], s_a, [0.0, 0.0, 0.0], (t_b - t_a) * 1e-9), s_b, atol=2e-9)
     assert np.abs(s_b[6:9]).max() < 0.5 * np.abs(s_a[6:9]).max()
+
+
+def test_realtime_grid_rate_cannot_change_while_running(realtime_run):
+    assert not realtime_run["rate_set"].successful and "physics_rate_hz" in realtime_run["rate_set"].reason

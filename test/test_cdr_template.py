@@ -197,14 +197,14 @@ def test_layout_reads_the_fields_of_any_message_with_the_template_layout():
 
 def test_layout_reads_the_preview_of_the_trajectory_node():
     _, control = load_params()
-    layout = controller_node._preview_layout(control.horizon)
+    layout = controller_node._preview_layout(control.period_s, control.horizon)
     reference = make_reference("lemniscate")
     template = preview_template(control.period_s, control.horizon)
     for t_ns in rng.integers(0, 30 * 10**9, 5).tolist():
         data = template.pack(*divmod(t_ns, 10**9), *preview_values(reference, t_ns, control.period_s, control.horizon))
         msg = TYPESTORE.deserialize_cdr(data, "trajectory_msgs/msg/MultiDOFJointTrajectory")  # a second reader
         assert layout.read(data) == (msg.header.stamp.sec, msg.header.stamp.nanosec,
-                                     *controller_node.preview_values(msg, control.horizon))
+                                     *controller_node.preview_pose_values(msg, control.horizon))
 
 
 @pytest.mark.parametrize("change", ["frame", "child", "short", "long", "big_endian"])
@@ -230,7 +230,7 @@ def test_layout_refuses_other_layouts(change):
 
 def test_layout_of_a_sequence_length_is_checked():
     """A preview with another number of points is refused even where the byte count happens to match."""
-    short, long = controller_node._preview_layout(3), controller_node._preview_layout(4)
+    short, long = controller_node._preview_layout(0.01, 3), controller_node._preview_layout(0.01, 4)
     template = preview_template(0.01, 4)
     data = template.pack(*range(len(template.paths)))
     assert long.read(data) is not None and short.read(data) is None

@@ -53,14 +53,13 @@ import math
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Transform, Twist
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
-from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, state_from_odometry
+from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, odometry_state_floats
 from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.nodes.common import (
     CONTROL_QOS,
@@ -77,12 +76,13 @@ from robotino_geom_mpc.nodes.common import (
     unwrap_near,
     yaw_of,
 )
+from robotino_geom_mpc.nodes.trajectory_node import preview_skeleton
 
 __all__ = ["CONTROLLER_SPECS", "ControllerNode", "odometry_values", "state_of_odometry", "odometry_state",
-           "preview_values", "positions_of_preview", "preview_positions", "main"]
+           "preview_pose_values", "positions_of_preview", "preview_positions", "main"]
 
 STATUS_NAME = "robotino_geom_mpc: controller"
-# the general decoders (field names are all `odometry_values` and `preview_values` use, so either one fits)
+# the general decoders (field names are all `odometry_values` and `preview_pose_values` use, so either one fits)
 _read_odom = cdr_reader(Odometry, "nav_msgs/msg/Odometry")
 _read_preview = cdr_reader(MultiDOFJointTrajectory, "trajectory_msgs/msg/MultiDOFJointTrajectory")
 
@@ -114,14 +114,10 @@ def _odom_layout() -> CdrLayout:
     return CdrLayout(msg, _ODOM_PATHS)
 
 
-def _preview_layout(horizon: int) -> CdrLayout:
-    """The preview the trajectory node sends (N + 1 points, one transform, velocity, acceleration each)."""
-    msg = MultiDOFJointTrajectory(joint_names=["base_link"])
-    msg.header.frame_id = "odom"
-    msg.points = [MultiDOFJointTrajectoryPoint(transforms=[Transform()], velocities=[Twist()],
-                                               accelerations=[Twist()]) for _ in range(horizon + 1)]
-    return CdrLayout(msg, _STAMP + tuple(f"points[{j}].transforms[0].{f}" for j in range(horizon + 1)
-                                         for f in _POSE_FIELDS))
+def _preview_layout(period_s: float, horizon: int) -> CdrLayout:
+    """The preview the trajectory node sends (`trajectory_node.preview_skeleton`), read in place."""
+    return CdrLayout(preview_skeleton(period_s, horizon), _STAMP + tuple(
+        f"points[{j}].transforms[0].{f}" for j in range(horizon + 1) for f in _POSE_FIELDS))
 
 
 def odometry_values(msg: Odometry) -> tuple:
@@ -135,7 +131,7 @@ def state_of_odometry(values: tuple, previous_theta: float) -> np.ndarray:
     """Body state X = (x, x', y, y', theta, theta') (eq. 2) of `odometry_values` (without the stamp).
 
     theta is unwrapped next to `previous_theta`; the base_link twist is
-    rotated into ``odom`` by the measured heading (`core.controller.state_from_odometry`).
+    rotated into ``odom`` by the measured heading (`core.controller.odometry_state_floats`).
 
     Raises
     ------
@@ -146,7 +142,7 @@ def state_of_odometry(values: tuple, previous_theta: float) -> np.ndarray:
     if not math.isfinite(sum(values)):
         raise InputRejected("odom contains non-finite values")
     theta = unwrap_near(yaw_of(qx, qy, qz, qw), previous_theta)
-    return state_from_odometry((x, y, theta), (vx, vy, omega))
+    return np.array(odometry_state_floats((x, y, theta), (vx, vy, omega)))
 
 
 def odometry_state(msg: Odometry, previous_theta: float) -> np.ndarray:
@@ -154,7 +150,7 @@ def odometry_state(msg: Odometry, previous_theta: float) -> np.ndarray:
     return state_of_odometry(odometry_values(msg)[2:], previous_theta)
 
 
-def preview_values(msg: MultiDOFJointTrajectory, horizon: int) -> tuple:
+def preview_pose_values(msg: MultiDOFJointTrajectory, horizon: int) -> tuple:
     """(x, y, q_x, q_y, q_z, q_w) of points 0..N of a decoded preview, flat.
 
     Raises
@@ -174,7 +170,7 @@ def preview_values(msg: MultiDOFJointTrajectory, horizon: int) -> tuple:
 
 
 def positions_of_preview(values: tuple, theta_near: float) -> np.ndarray:
-    """Reference positions (x, y, theta) of `preview_values`, shape (N + 1, 3); theta unwrapped from `theta_near`.
+    """Reference positions (x, y, theta) of `preview_pose_values`, shape (N + 1, 3), theta unwrapped from `theta_near`.
 
     Raises
     ------
@@ -200,7 +196,7 @@ def preview_positions(msg: MultiDOFJointTrajectory, horizon: int, theta_near: fl
     InputRejected
         If the message does not have N + 1 points with one transform each, or holds non-finite values.
     """
-    return positions_of_preview(preview_values(msg, horizon), theta_near)
+    return positions_of_preview(preview_pose_values(msg, horizon), theta_near)
 
 
 _TRACKING_KEYS = ("error_x_m", "error_y_m", "error_theta_rad", "compute_time_ms", "saturated", "infeasible")
@@ -231,7 +227,7 @@ class ControllerNode(Node):
         self.diag_tracking = _diagnostics_message(_TRACKING_KEYS + _EVENT_KEYS)
         self.diag_event = _diagnostics_message(_EVENT_KEYS)
         self.odom_layout = _odom_layout()
-        self.preview_layout = _preview_layout(self.control.horizon)
+        self.preview_layout = _preview_layout(self.control.period_s, self.control.horizon)
         self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, CONTROL_QOS, raw=True)
         self.preview_sub = self.create_subscription(
             MultiDOFJointTrajectory, "reference_preview", self._on_preview, CONTROL_QOS, raw=True
@@ -254,7 +250,7 @@ class ControllerNode(Node):
     def _on_params(self, changed: dict) -> None:
         self.robot, self.control = self.params.robot_control()
         self.controller = MotionController(self.robot, self.control)
-        self.preview_layout = _preview_layout(self.control.horizon)
+        self.preview_layout = _preview_layout(self.control.period_s, self.control.horizon)
         self.previews.clear()
         self.latest_preview = None
 
@@ -270,7 +266,8 @@ class ControllerNode(Node):
             values = self.preview_layout.read(data)
             if values is None:
                 msg = _read_preview(data)
-                values = (msg.header.stamp.sec, msg.header.stamp.nanosec, *preview_values(msg, self.control.horizon))
+                header = msg.header
+                values = (header.stamp.sec, header.stamp.nanosec, *preview_pose_values(msg, self.control.horizon))
             positions = positions_of_preview(values[2:], self.theta)
         except (MalformedMessage, InputRejected) as exc:
             self.rejected += 1

@@ -66,8 +66,8 @@ from robotino_geom_mpc.nodes.common import (
     yaw_to_quaternion,
 )
 
-__all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "point_values", "preview_message", "preview_values", "preview_template",
-           "main"]
+__all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "point_values", "preview_message", "preview_skeleton",
+           "preview_values", "preview_template", "main"]
 
 FRAME = "odom"
 JOINT = "base_link"
@@ -105,7 +105,7 @@ def preview_values(reference, t_ns: int, period_s: float, horizon: int) -> list[
     return point_values(pos, vel, acc).ravel().tolist()
 
 
-def _preview_skeleton(period_s: float, horizon: int) -> MultiDOFJointTrajectory:
+def preview_skeleton(period_s: float, horizon: int) -> MultiDOFJointTrajectory:
     """The constant part of a preview: frame, joint, N + 1 points with one transform each and their times."""
     msg = MultiDOFJointTrajectory()
     msg.header.frame_id = FRAME
@@ -124,7 +124,7 @@ def _preview_skeleton(period_s: float, horizon: int) -> MultiDOFJointTrajectory:
 
 def preview_message(reference, t_ns: int, period_s: float, horizon: int) -> MultiDOFJointTrajectory:
     """The preview of tick time `t_ns` as a MultiDOFJointTrajectory (N + 1 points, see the module docstring)."""
-    msg = _preview_skeleton(period_s, horizon)
+    msg = preview_skeleton(period_s, horizon)
     msg.header.stamp = ns_to_stamp(t_ns)
     values = iter(preview_values(reference, t_ns, period_s, horizon))
     for point in msg.points:
@@ -140,7 +140,7 @@ def preview_template(period_s: float, horizon: int) -> CdrTemplate:
     paths = ("header.stamp.sec", "header.stamp.nanosec") + tuple(
         f"points[{j}].{field}" for j in range(horizon + 1) for field in _POINT_FIELDS
     )
-    return CdrTemplate(_preview_skeleton(period_s, horizon), paths)
+    return CdrTemplate(preview_skeleton(period_s, horizon), paths)
 
 
 class TrajectoryNode(Node):

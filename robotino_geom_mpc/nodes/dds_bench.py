@@ -26,6 +26,7 @@ import math
 import os
 import re
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -155,12 +156,16 @@ class ProbeSpinner:
             self.thread.start()
 
     def drain(self, idle_s: float = 0.5) -> None:
-        """Take what the readers hold (a deferred probe), until nothing arrives for `idle_s`."""
-        while self.context.ok():
+        """Take what the readers hold (a deferred probe), until nothing arrives for `idle_s`.
+
+        A wake-up without a sample (a graph event) does not end the drain; only `idle_s` without one does.
+        """
+        quiet_since = time.monotonic()
+        while self.context.ok() and time.monotonic() - quiet_since < idle_s:
             before = len(self.probe.odom_times) + len(self.probe.voltage_times)
-            self.executor.spin_once(timeout_sec=idle_s)
-            if len(self.probe.odom_times) + len(self.probe.voltage_times) == before:
-                return
+            self.executor.spin_once(timeout_sec=0.05)
+            if len(self.probe.odom_times) + len(self.probe.voltage_times) != before:
+                quiet_since = time.monotonic()
 
     def _spin(self) -> None:
         try:

@@ -5,7 +5,8 @@ on the current ROS_DOMAIN_ID:
 
 * `bench_lockstep`: the plant in lockstep on a scenario; the real-time
   factor is the plant's own report, simulated time over the wall time from
-  tick 0 to the command of the last tick (startup and discovery excluded);
+  the command of tick 0 to that of the last tick (startup and discovery
+  excluded);
 * `bench_realtime`: the plant in realtime at the control rate, watched by
   an in-process probe node; per odometry
   message the controller's answer is the first wheel_voltages published
@@ -216,11 +217,13 @@ def lockstep_nodes(
 def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, timeout_s: float = 300.0) -> dict:
     """Run the lockstep loop; returns ``{"lockstep_dds_realtime_factor": ..., "ticks": ...}``.
 
-    The figure is the plant's own: simulated time over the wall time from
-    publishing tick 0 to receiving the command of the last tick (its "run
-    over" log line), so startup and discovery do not count and no probe
-    subscribes the loop (each extra reader of /clock costs the plant a wake-up
-    of one more process per tick).
+    The figure is the plant's own (its "run over" log line): the simulated
+    time of ticks 1 .. n - 1 over the wall time from receiving the command of
+    tick 0 to receiving that of the last tick. So startup and discovery do
+    not count (tick 0 is answered once the last endpoints have matched, which
+    can take a Fast DDS announcement period), and no probe subscribes the
+    loop (each extra reader of /clock costs the plant a wake-up of one more
+    process per tick).
     """
     with NodeGroup() as group:
         plant = lockstep_nodes(group, scenario, duration_s)

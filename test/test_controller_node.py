@@ -104,6 +104,31 @@ def test_lockstep_voltages_equal_the_core_controller(harness, lockstep_controlle
     assert len(h.voltages) == start_v + len(states)
 
 
+def test_an_answer_sent_before_the_plant_matched_goes_out_when_it_matches(tmp_path_factory):
+    """Lockstep: the answer to a tick published while no plant listened is delivered once one subscribes."""
+    robot, control = load_params()
+    stamp = 40 * round(control.period_s * 1e9)
+    reference = make_reference("paper-circle")
+    with NodeGroup(log_dir=tmp_path_factory.mktemp("late")) as group, Harness("late_plant") as h:
+        node = group.start("controller_node", ros_args(None, {"mode": "lockstep"}) + ["-r", "__ns:=/late"])
+        odom_pub = h.node.create_publisher(Odometry, "/late/odom", PUBLISH_QOS)
+        preview_pub = h.node.create_publisher(MultiDOFJointTrajectory, "/late/reference_preview", PUBLISH_QOS)
+        assert h.spin_until(lambda: odom_pub.get_subscription_count() >= 1
+                            and preview_pub.get_subscription_count() >= 1, 30.0), node.stderr_tail()
+        x, y, th = reference.position(stamp * 1e-9)
+        preview_pub.publish(preview_message(reference, stamp, control.period_s, control.horizon))
+        h.spin_for(0.1)
+        odom_pub.publish(odometry(stamp, x + 0.001, y, th))
+        h.spin_for(0.5)  # answered with nobody listening
+        voltages = h.collect("/late/wheel_voltages", Float64MultiArray)
+        assert h.spin_until(lambda: len(voltages) >= 1, 10.0), "the undelivered answer did not go out on match"
+        h.spin_for(0.3)
+    assert len(voltages) == 1  # once
+    out = MotionController(robot, control).step(
+        np.array([x + 0.001, 0.0, y, 0.0, th, 0.0]), preview(reference, stamp * 1e-9, control.period_s, control.horizon))
+    assert np.allclose(voltages[0].data, out.voltages, rtol=1e-12, atol=1e-12)
+
+
 def test_topics_and_qos(harness, lockstep_controller):
     graph = dict(harness.node.get_topic_names_and_types())
     assert graph["/wheel_voltages"] == ["std_msgs/msg/Float64MultiArray"]

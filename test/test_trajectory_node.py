@@ -79,6 +79,20 @@ def test_a_repeated_clock_repeats_both_previews(trajectory):
     assert [stamp_to_ns(m.header.stamp) for m in h.previews[before:]] == [152 * Ts_ns, 153 * Ts_ns]
 
 
+def test_a_late_subscription_gets_the_current_previews_at_once(trajectory):
+    """A controller whose endpoints match after the clock of a tick gets that tick's previews, no clock needed."""
+    h = trajectory
+    Ts_ns = round(load_params()[1].period_s * 1e9)
+    h.clock_pub.publish(Clock(clock=ns_to_stamp(160 * Ts_ns)))
+    before = len(h.previews)
+    assert h.spin_until(lambda: len(h.previews) >= before + 1)  # the clock has been handled
+    h.spin_for(0.2)
+    late = h.collect("reference_preview", MultiDOFJointTrajectory)
+    assert h.spin_until(lambda: len(late) >= 2), "no preview for a subscription that matched after the clock"
+    h.spin_for(0.2)
+    assert [stamp_to_ns(m.header.stamp) for m in late] == [160 * Ts_ns, 161 * Ts_ns]
+
+
 def test_reference_path_is_latched_for_a_late_subscriber(trajectory):
     h = trajectory
     _, control = load_params()

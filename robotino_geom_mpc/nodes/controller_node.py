@@ -25,7 +25,8 @@ the one whose stamp equals the odometry stamp in ``lockstep`` (the odometry
 waits for it if it comes first), the freshest in ``realtime``. In lockstep a
 repeated odometry stamp (the plant resends a tick) is answered again only if
 the first answer could not be delivered (no matched subscriber then), so no
-tick is answered twice.
+tick is answered twice; such an answer also goes out as soon as a
+subscription matches the wheel_voltages publisher.
 
 Time: the controller's time is the stamps of its inputs (the odometry
 stamp is the tick); only the watchdog's own zero-volt diagnostics in
@@ -55,6 +56,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import MultiDOFJointTrajectory
@@ -220,7 +222,10 @@ class ControllerNode(Node):
         self.controller = MotionController(self.robot, self.control)
         self.lockstep = self.params["mode"] == "lockstep"
 
-        self.voltage_pub = self.create_publisher(Float64MultiArray, "wheel_voltages", PUBLISH_QOS)
+        self.voltage_pub = self.create_publisher(
+            Float64MultiArray, "wheel_voltages", PUBLISH_QOS,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_voltage_matched),
+        )
         self.voltage_cdr = three_values_template(VOLTAGE_LABEL)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", PUBLISH_QOS)
         # built once, values rewritten per tick (a third of the cost of building the message anew)
@@ -301,9 +306,7 @@ class ControllerNode(Node):
             return
         self.odom_time = monotonic()
         if self.answered is not None and self.answered[0] == stamp and self.lockstep:
-            if not self.answered[1] and self.voltage_pub.get_subscription_count() > 0:
-                self.voltage_pub.publish(self.voltage_cdr.pack(*self.answered[2]))
-                self.answered = (stamp, True, self.answered[2])
+            self._deliver_answer()
             return
         self.theta = X[4]
         if self.lockstep:
@@ -318,6 +321,16 @@ class ControllerNode(Node):
             if positions is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
                 return  # stale reference: the watchdog outputs zero volts
         self._control(stamp, X, positions)
+
+    def _deliver_answer(self) -> None:
+        """Lockstep: publish the last answer again if it went out before any subscription matched."""
+        if self.answered is not None and not self.answered[1] and self.voltage_pub.get_subscription_count() > 0:
+            self.voltage_pub.publish(self.voltage_cdr.pack(*self.answered[2]))
+            self.answered = (self.answered[0], True, self.answered[2])
+
+    def _on_voltage_matched(self, info: QoSPublisherMatchedInfo) -> None:
+        if self.lockstep and info.current_count_change > 0:
+            self._deliver_answer()
 
     # control ------------------------------------------------------------------------------------
     def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray) -> None:

@@ -23,14 +23,19 @@ Each pose of ``reference_path`` is stamped with the time the reference
 passes there (start time + t), so a recording can be matched with the
 odometry stamps in both modes.
 
-``lockstep``: driven by the plant's /clock. On the clock of tick k the node
+``lockstep``: driven by the plant's /clock messages (the node clock is not
+read, so `run` and the launch file leave ``use_sim_time`` false: a time
+source would add a second /clock reader). On the clock of tick k the node
 publishes the preview of tick k + 1 (and, on the first clock, the one of
 tick k first). The preview of the next tick is thus computed while the
 controller and the plant work on the current one, and is waiting at the
 controller when the next odometry arrives: the critical path of a tick is
 plant -> controller -> plant only. A repeated clock (the plant resends a
-tick nobody answered) publishes both previews again; the controller keys
-previews by stamp, so repeats are harmless.
+tick nobody answered) publishes both previews again, and so does a newly
+matched preview subscription (a controller whose endpoints matched after
+the plant started: it gets the current tick's preview at once, not at the
+plant's next resend); the controller keys previews by stamp, so repeats
+are harmless.
 
 Parameters: ``control.period_s`` and ``control.horizon`` of config/*.yaml
 (``/**`` section) plus `TRAJECTORY_SPECS` and ``waypoints`` (a flat list
@@ -39,12 +44,12 @@ x1, y1, theta1, x2, ... for point-to-point; empty: the scenario's default).
 
 from __future__ import annotations
 
-
 import numpy as np
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import PoseStamped, Transform, Twist
 from nav_msgs.msg import Path
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -170,7 +175,10 @@ class TrajectoryNode(Node):
         except TrajectoryError as exc:
             raise NodeStartError(str(exc)) from None
         self.lockstep = self.params["mode"] == "lockstep"
-        self.preview_pub = self.create_publisher(MultiDOFJointTrajectory, "reference_preview", PUBLISH_QOS)
+        self.preview_pub = self.create_publisher(
+            MultiDOFJointTrajectory, "reference_preview", PUBLISH_QOS,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_preview_matched),
+        )
         self.path_pub = self.create_publisher(Path, "reference_path", LATCHED_QOS)
         self.last_clock_ns: int | None = None
         self.last_published_ns: int | None = None
@@ -252,11 +260,21 @@ class TrajectoryNode(Node):
 
     def _on_clock(self, msg: ClockMsg) -> None:
         now = stamp_to_ns(msg.clock)
-        period_ns = int(round(self.params["control.period_s"] * 1e9))
+        period_ns = self._period_ns()
         if now == self.last_clock_ns or self.last_published_ns != now:
             self._publish_preview(now, now)  # first tick, a jump, or a resent tick
         self._publish_preview(now + period_ns, now + period_ns)
         self.last_clock_ns = now
+
+    def _on_preview_matched(self, info: QoSPublisherMatchedInfo) -> None:
+        """Lockstep: a new subscription gets the previews of the current tick (those sent before missed it)."""
+        if self.lockstep and info.current_count_change > 0 and self.last_clock_ns is not None:
+            now = self.last_clock_ns
+            self._publish_preview(now, now)
+            self._publish_preview(now + self._period_ns(), now + self._period_ns())
+
+    def _period_ns(self) -> int:
+        return int(round(self.params["control.period_s"] * 1e9))
 
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds

@@ -376,7 +376,9 @@ class PlantNode(Node):
 
     def _publish_currents(self) -> None:
         """Signed peak current of each drive over the period just integrated (as `simulation` records it)."""
-        self.current_pub.publish(self.current_cdr.pack(*np.copysign(self.peak_currents, self.plant.currents).tolist()))
+        if self.current_pub.get_subscription_count():
+            self.current_pub.publish(
+                self.current_cdr.pack(*np.copysign(self.peak_currents, self.plant.currents).tolist()))
         self.peak_currents = np.zeros(3)
 
     def _publish_measurements(self, stamp: tuple[int, int], fresh: bool, clock: bool = False) -> None:
@@ -384,6 +386,8 @@ class PlantNode(Node):
 
         `stamp` is (sec, nanosec). The currents of the period just integrated go out after this tick's
         odometry and before its ground truth, so in publish order they follow the previous tick's ground truth.
+        The currents, the ground truth and the joints are built only while a subscription is matched (the
+        odometry and /clock always go out: they drive the loop).
         """
         if fresh or self.measurement is None:
             noise = (self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"])
@@ -395,7 +399,10 @@ class PlantNode(Node):
             self.clock_pub.publish(self.clock_cdr.pack(*stamp))
         if fresh and self.have_period:
             self._publish_currents()
-        self.truth_pub.publish(self.truth_cdr.pack(*stamp, *_odometry_values(self.plant.pose.tolist(), twist)))
+        if self.truth_pub.get_subscription_count():
+            self.truth_pub.publish(self.truth_cdr.pack(*stamp, *_odometry_values(self.plant.pose.tolist(), twist)))
+        if not self.joint_pub.get_subscription_count():
+            return
         plant = self.plant
         self.joint_pub.publish(self.joint_cdr.pack(
             *stamp, *plant.wheel_angles.tolist(), *plant.wheel_speeds.tolist(),

@@ -10,7 +10,8 @@ publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layo
                                   ``error_y_m``, ``error_theta_rad`` (measured - reference at t_k),
                                   ``compute_time_ms`` (the step), ``saturated``, ``infeasible``,
                                   ``watchdog`` (waiting, ok, stale_odom, stale_reference), ``rejected``
-                                  (inputs refused so far)
+                                  (inputs refused so far); built and sent only while a subscription
+                                  is matched
 
 Both inputs are taken serialized. Bytes laid out as the plant and the
 trajectory node send them (frames ``odom``/``base_link``, N + 1 preview
@@ -350,7 +351,9 @@ class ControllerNode(Node):
         self._diagnose(stamp, level, "tracking", error, compute_s, flags)
 
     def _diagnose(self, stamp: int, level, message: str, error, compute_s, flags) -> None:
-        """Publish the status; `error` None: only the watchdog state and the rejection count."""
+        """Publish the status (if a subscription is matched); `error` None: only the watchdog state and rejections."""
+        if not self.diag_pub.get_subscription_count():
+            return  # building and serializing the array costs ~70 us a tick
         msg = self.diag_tracking if error is not None else self.diag_event
         status = msg.status[0]
         status.level, status.message = level, message

@@ -37,7 +37,6 @@ def generate_launch_description() -> LaunchDescription:
     lockstep = LaunchConfiguration("lockstep")
     duration = LaunchConfiguration("duration")
     mode = PythonExpression(["'lockstep' if '", lockstep, "'.lower() == 'true' else 'realtime'"])
-    use_sim_time = ParameterValue(lockstep, value_type=bool)
     default_params = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "robotino3.yaml"])
 
     return LaunchDescription([
@@ -48,13 +47,14 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("duration", default_value="0.0", description="run length [s], 0: until stopped"),
         DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),
         DeclareLaunchArgument("bag", default_value="", description="recording directory"),
+        # no use_sim_time: in lockstep the trajectory's time is the /clock messages and the controller's the
+        # odometry stamps (see the nodes' docstrings); a time source would cost each a /clock wake-up a tick
         Node(
             package=PACKAGE, executable="trajectory_node", name="robotino_trajectory", output="screen",
-            parameters=[params_file, {"scenario": scenario, "mode": mode, "use_sim_time": use_sim_time}],
+            parameters=[params_file, {"scenario": scenario, "mode": mode}],
         ),
         Node(
             package=PACKAGE, executable="controller_node", name="robotino_controller", output="screen",
-            # no use_sim_time: its time is the odometry stamps (see the controller node's docstring)
             parameters=[params_file, {"mode": mode}],
         ),
         Node(

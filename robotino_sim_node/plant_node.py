@@ -126,7 +126,7 @@ _MAX_CHUNK = 10  # realtime: grid steps per plant step
 _MAX_BEHIND_S = 1.0  # realtime: a longer stall is skipped, not integrated
 _ZERO_VOLTS = np.zeros(3)
 
-DEFAULT_WAIT_FOR = ("odom:1", "/clock:2")  # the controller; the trajectory's time source and its own /clock
+DEFAULT_WAIT_FOR = ("odom:1", "/clock:1")  # the controller; the trajectory
 
 
 def _parse_wait_for(entries) -> list[tuple[str, int]]:

@@ -76,19 +76,19 @@ def node_arguments(
 
     robot, _ = load_params(params_file)
     mode = "lockstep" if lockstep else "realtime"
-    sim = {"use_sim_time": lockstep}
     model = controller_model(scenario, robot)
     mismatch = {s.name: getattr(model, s.attr) for s in ROBOT_SPECS if getattr(model, s.attr) != getattr(robot, s.attr)}
     noise = ROBUSTNESS_NOISE if scenario == "robustness" else (0.0, 0.0)
     wait_for = list(LOCKSTEP_WAIT_FOR)
     if bag is not None:  # the recorder subscribes every topic (its /clock subscription is a recording one)
-        wait_for = ["odom:2", "/clock:3", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
+        wait_for = ["odom:2", "/clock:2", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
                     "wheel_currents:1", "joint_states:1", "diagnostics:1"]
     args = {}
     if bag is not None:
         args["recorder_node"] = ros_args(params_file, {"output": str(bag), "scenario": scenario})
-    args["trajectory_node"] = ros_args(params_file, {"scenario": scenario, "mode": mode, **sim})
-    # no use_sim_time: the controller's time is the odometry stamps; a /clock reader would cost it a wake-up a tick
+    # no use_sim_time: in lockstep the trajectory's time is the /clock messages and the controller's the
+    # odometry stamps; the time source's /clock reader would cost each a wake-up a tick
+    args["trajectory_node"] = ros_args(params_file, {"scenario": scenario, "mode": mode})
     args["controller_node"] = ros_args(params_file, {"mode": mode, **mismatch})
     args["plant_node"] = ros_args(params_file, {
         "mode": mode,

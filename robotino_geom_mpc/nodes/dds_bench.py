@@ -43,20 +43,19 @@ from robotino_geom_mpc.core.params import default_params_file, load_params
 from robotino_geom_mpc.nodes.common import quaternion_to_yaw, stamp_to_ns, unwrap_near
 from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
 
-# subscriptions of the controller and the trajectory (its time source's /clock subscription and its own)
-# the plant waits for before tick 0
-LOCKSTEP_WAIT_FOR = ("odom:1", "/clock:2", "reference_preview:1")
+# subscriptions of the controller and the trajectory the plant waits for before tick 0
+LOCKSTEP_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:1")
 
 __all__ = ["LOCKSTEP_RUNS", "LOCKSTEP_WAIT_FOR", "PROBE_WAIT_FOR", "LoopProbe", "ProbeSpinner", "lockstep_nodes", "bench_lockstep", "bench_realtime", "dds_benchmarks"]
 
 
 # with the probe too
-PROBE_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
+PROBE_WAIT_FOR = ("odom:2", "/clock:1", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
                   "wheel_currents:1")
 
 
 # the plant's report at the end of a lockstep run
-_RUN_OVER = re.compile(r"run over: (\d+) ticks, ([0-9.e+-]+) s simulated in ([0-9.e+-]+) s")
+_RUN_OVER = re.compile(r"run over: (\d+) ticks; ticks 1-\d+ \(([0-9.e+-]+) s simulated\) in ([0-9.e+-]+) s")
 
 # a deep reader queue: the probe may lag behind the loop but must not lose samples
 PROBE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -200,9 +199,10 @@ def lockstep_nodes(
     """
     params_file = params_file or default_params_file()
     mode = "realtime" if realtime else "lockstep"
-    sim = {"use_sim_time": not realtime}
-    group.start("trajectory_node", ros_args(params_file, {"scenario": scenario, "mode": mode, **sim}))
-    group.start("controller_node", ros_args(params_file, {"mode": mode}))  # its time: the odometry stamps
+    # neither reads its node clock in the loop: the trajectory's time is the /clock messages, the controller's
+    # the odometry stamps
+    group.start("trajectory_node", ros_args(params_file, {"scenario": scenario, "mode": mode}))
+    group.start("controller_node", ros_args(params_file, {"mode": mode}))
     return group.start(
         "plant_node",
         ros_args(params_file, {

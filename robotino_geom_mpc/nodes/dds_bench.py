@@ -264,6 +264,7 @@ def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", tim
         return {
             "realtime_missed_ticks": int(missed),
             "realtime_ticks": int(len(odom)),
+            "realtime_probe_span_s": float(odom[-1] - odom[0]) if len(odom) else 0.0,
             "realtime_expected_ticks": expected,
             "realtime_latency_median_ms": float(np.median(lat)) if len(lat) else math.nan,
             "realtime_latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else math.nan,

@@ -29,7 +29,9 @@ new command or sends the measurements. So there is no physics timer
 (nothing wakes the process between events) and a command takes effect at
 most one grid step late. A publish timer sends the measurements every
 control period, stamped with the node-clock time of the grid point they
-belong to; after ``duration_s`` (if > 0) the node exits.
+belong to; after ``duration_s`` (if > 0) the node logs the loop's timing as
+it saw it (`loop_timing.LoopTiming`: ticks answered and missed, the
+odometry-to-command latency on its steady clock) and exits.
 
 ``lockstep``: the plant owns time and repeats `simulation.run_scenario`'s
 tick: tick k is the state at t_k = k Ts; it publishes the odometry (noise
@@ -86,6 +88,7 @@ from robotino_geom_mpc.nodes.common import (
     three_values_layout,
     three_values_template,
 )
+from robotino_sim_node.loop_timing import LoopTiming
 from robotino_sim_node.plant import RobotinoPlant
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
@@ -218,6 +221,7 @@ class PlantNode(Node):
         else:
             self.started_at = monotonic()
             self.grid = 0  # grid points integrated since started_at
+            self.timing = LoopTiming()
             self.publish_timer = self.create_timer(self.control.period_s, self._publish_realtime, clock=steady)
         self.get_logger().info(f"plant simulator ready ({self.params['mode']}, Ts = {self.control.period_s:g} s)")
 
@@ -287,6 +291,7 @@ class PlantNode(Node):
         if not self.lockstep:
             if valid:
                 now = monotonic()
+                self.timing.command(now)
                 self._advance(now, ceil=True)  # the old command up to now; the new one from the next grid point
                 self.voltages = np.array(values)
                 self.command_time = now
@@ -355,9 +360,11 @@ class PlantNode(Node):
     def _publish_realtime(self) -> None:
         clock_ns, now = self.get_clock().now().nanoseconds, monotonic()
         if self.last_tick is not None and now - self.started_at >= self.params["duration_s"]:
+            self.get_logger().info(f"realtime run over: {self.timing.summary()}")
             self.done.set_result(True)
             return
         stamp_ns = clock_ns - int((now - self._advance(now)) * 1e9)
+        self.timing.published(monotonic())
         self._publish_measurements(divmod(stamp_ns, 1_000_000_000), fresh=True)
         self.have_period = True
 

@@ -1,4 +1,4 @@
-"""The DDS benchmark's measurements are well-formed: the plant's tick count, and realtime ticks and latencies."""
+"""The DDS benchmark's measurements are well-formed: the plant's reports of its lockstep and realtime runs."""
 
 import math
 
@@ -13,16 +13,14 @@ def test_lockstep_figure_is_the_plants_report_of_every_tick():
     assert math.isfinite(out["lockstep_dds_realtime_factor"]) and out["lockstep_dds_realtime_factor"] > 0.0
 
 
-def test_realtime_probe_sees_the_ticks_and_their_answers():
+def test_realtime_figures_are_the_plants_count_of_answered_ticks():
     _, control = load_params()
-    out = bench_realtime(duration_s=4.0)
-    assert out["realtime_expected_ticks"] == round(4.0 / control.period_s)
+    out = bench_realtime(duration_s=6.0)
+    assert out["realtime_expected_ticks"] == round(6.0 / control.period_s)
     # the plant's clock starts before discovery completes (which can take a Fast DDS announcement period of
-    # 3 s): from then on the probe sees every tick, one per period of the odometry's DDS source times (a
-    # publish timer delayed past a whole period skips it, as rcl timers do)
-    assert out["realtime_probe_span_s"] >= 0.5
-    span_ticks = out["realtime_probe_span_s"] / control.period_s + 1
-    assert 0.95 * span_ticks - 2 <= out["realtime_ticks"] <= span_ticks + 2
-    assert out["realtime_ticks"] <= out["realtime_expected_ticks"] + 1
+    # 3 s); the count starts at the first answered tick and never exceeds the run
+    assert 100 <= out["realtime_ticks"] <= out["realtime_expected_ticks"]
     assert 0 <= out["realtime_missed_ticks"] < out["realtime_ticks"]  # ticks are answered
-    assert 0.0 < out["realtime_latency_median_ms"] <= out["realtime_latency_p99_ms"]  # answers follow their odometry
+    # answers follow their odometry, within a control period at the median
+    assert 0.0 < out["realtime_latency_median_ms"] <= out["realtime_latency_p99_ms"] <= out["realtime_latency_max_ms"]
+    assert out["realtime_latency_median_ms"] < 1e3 * control.period_s

@@ -1,33 +1,30 @@
 """The control loop over DDS, measured: lockstep real-time factor, realtime missed ticks and latency.
 
 Both functions start the three nodes as processes (`processes.NodeGroup`)
-on the current ROS_DOMAIN_ID:
+on the current ROS_DOMAIN_ID and take the figures from the plant's own
+report, so no probe subscribes the loop (an extra reader of /clock or the
+odometry costs the plant a wake-up of one more process per tick):
 
 * `bench_lockstep`: the plant in lockstep on a scenario; the real-time
-  factor is the plant's own report, simulated time over the wall time from
-  the command of tick 0 to that of the last tick (startup and discovery
-  excluded);
-* `bench_realtime`: the plant in realtime at the control rate, watched by
-  an in-process probe node; per odometry
-  message the controller's answer is the first wheel_voltages published
-  after it: a tick is missed when none is published before the next
-  odometry; the latency is the DDS reception time of the answer at the
-  probe minus the DDS source time of the odometry (both system-clock
-  timestamps of the middleware, so the probe's own executor does not count;
-  transport on both legs and the control step do).
+  factor is simulated time over the wall time from the command of tick 0
+  to that of the last tick (startup and discovery excluded);
+* `bench_realtime`: the plant in realtime at the control rate; per tick the
+  controller's answer is the first command after the odometry: a tick is
+  missed when none arrives before the next odometry; the latency runs from
+  publishing the odometry to receiving the command, on the plant's steady
+  clock (`robotino_sim_node.loop_timing`): transport on both legs, the
+  controller's step and both executors' wake-ups count.
 
-`LoopProbe` also keeps the samples a run is judged by (ground truth, point
-0 of the preview, currents, voltages) so tests can compare the loop with
-`simulation.run_scenario` without the recorder.
+`LoopProbe` keeps the samples a lockstep run is judged by (ground truth,
+point 0 of the preview, currents, voltages) so tests can compare the loop
+with `simulation.run_scenario` without the recorder.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import re
 import threading
-import time
 from typing import Any
 
 import numpy as np
@@ -43,58 +40,38 @@ from robotino_geom_mpc.core.params import default_params_file, load_params
 from robotino_geom_mpc.nodes.common import quaternion_to_yaw, stamp_to_ns, unwrap_near
 from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
 
+__all__ = ["LOCKSTEP_RUNS", "LOCKSTEP_WAIT_FOR", "PROBE_WAIT_FOR", "LoopProbe", "ProbeSpinner", "lockstep_nodes",
+           "bench_lockstep", "bench_realtime", "dds_benchmarks"]
+
 # subscriptions of the controller and the trajectory the plant waits for before tick 0
 LOCKSTEP_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:1")
-
-__all__ = ["LOCKSTEP_RUNS", "LOCKSTEP_WAIT_FOR", "PROBE_WAIT_FOR", "LoopProbe", "ProbeSpinner", "lockstep_nodes", "bench_lockstep", "bench_realtime", "dds_benchmarks"]
-
-
 # with the probe too
-PROBE_WAIT_FOR = ("odom:2", "/clock:1", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
+PROBE_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
                   "wheel_currents:1")
 
-
-# the plant's report at the end of a lockstep run
+# the plant's reports at the end of a run (`PlantNode._report_run`, `LoopTiming.summary`)
 _RUN_OVER = re.compile(r"run over: (\d+) ticks; ticks 1-\d+ \(([0-9.e+-]+) s simulated\) in ([0-9.e+-]+) s")
+_REALTIME_OVER = re.compile(r"realtime run over: (\d+) ticks answered, (\d+) missed; odometry-to-command latency "
+                            r"median ([0-9.]+) ms, p99 ([0-9.]+) ms, max ([0-9.]+) ms")
 
 # a deep reader queue: the probe may lag behind the loop but must not lose samples
 PROBE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class LoopProbe(Node):
-    """Subscribes the loop's topics and keeps what arrives, with DDS timestamps.
+    """Subscribes the loop's topics and keeps what arrives (ground truth, preview point 0, currents, voltages)."""
 
-    `watch` selects the subscriptions: ``"all"`` (what `run_data` needs) or
-    ``"latency"`` (odom and wheel_voltages taken serialized, only their DDS
-    timestamps kept), so that the benchmark's probe loads the machine as
-    little as possible.
-    """
-
-    def __init__(self, context: Context, watch: str = "all", depth: int = PROBE_QOS.depth) -> None:
+    def __init__(self, context: Context) -> None:
         super().__init__("robotino_loop_probe", context=context)
         self.truth: dict[int, tuple[float, float, float]] = {}
         self.reference: dict[int, tuple[float, float, float]] = {}
         self.currents: list[list[float]] = []
         self.voltages: list[list[float]] = []
-        self.odom_times: list[float] = []
-        self.voltage_times: list[float] = []
-        if watch == "latency":  # `depth`: enough to hold a whole run until `ProbeSpinner.drain`
-            qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
-            self.create_subscription(Odometry, "odom", self._on_odom, qos, raw=True)
-            self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_voltage_time, qos, raw=True)
-            return
         self.create_subscription(Odometry, "ground_truth/odom", self._on_truth, PROBE_QOS)
-        self.create_subscription(Odometry, "odom", self._on_odom, PROBE_QOS)
         self.create_subscription(MultiDOFJointTrajectory, "reference_preview", self._on_preview, PROBE_QOS)
         self.create_subscription(Float64MultiArray, "wheel_currents", self._on_currents, PROBE_QOS)
         self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_voltages, PROBE_QOS)
         self._theta = 0.0
-
-    def _on_voltage_time(self, msg: bytes, info: dict) -> None:
-        self.voltage_times.append((info["source_timestamp"] * 1e-9, info["received_timestamp"] * 1e-9))
-
-    def _on_odom(self, msg: Odometry, info: dict) -> None:
-        self.odom_times.append(info["source_timestamp"] * 1e-9)
 
     def _on_truth(self, msg: Odometry) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
@@ -111,8 +88,7 @@ class LoopProbe(Node):
     def _on_currents(self, msg: Float64MultiArray) -> None:
         self.currents.append(list(msg.data))
 
-    def _on_voltages(self, msg: Float64MultiArray, info: dict) -> None:
-        self._on_voltage_time(msg, info)
+    def _on_voltages(self, msg: Float64MultiArray) -> None:
         self.voltages.append(list(msg.data))
 
     def run_data(self, scenario: str, params_file: str | os.PathLike | None = None):
@@ -141,31 +117,18 @@ class LoopProbe(Node):
 
 
 class ProbeSpinner:
-    """An rclpy context with the probe, spun in a background thread (or, with `defer`, only by `drain`)."""
+    """An rclpy context with the probe, spun in a background thread."""
 
-    def __init__(self, watch: str = "all", defer: bool = False, depth: int = PROBE_QOS.depth) -> None:
+    def __init__(self) -> None:
         from rclpy.executors import SingleThreadedExecutor
 
         self.context = Context()
         rclpy.init(context=self.context)
-        self.probe = LoopProbe(self.context, watch, depth)
+        self.probe = LoopProbe(self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.probe)
         self.thread = threading.Thread(target=self._spin, daemon=True)
-        if not defer:
-            self.thread.start()
-
-    def drain(self, idle_s: float = 0.5) -> None:
-        """Take what the readers hold (a deferred probe), until nothing arrives for `idle_s`.
-
-        A wake-up without a sample (a graph event) does not end the drain; only `idle_s` without one does.
-        """
-        quiet_since = time.monotonic()
-        while self.context.ok() and time.monotonic() - quiet_since < idle_s:
-            before = len(self.probe.odom_times) + len(self.probe.voltage_times)
-            self.executor.spin_once(timeout_sec=0.05)
-            if len(self.probe.odom_times) + len(self.probe.voltage_times) != before:
-                quiet_since = time.monotonic()
+        self.thread.start()
 
     def _spin(self) -> None:
         try:
@@ -221,9 +184,7 @@ def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, tim
     time of ticks 1 .. n - 1 over the wall time from receiving the command of
     tick 0 to receiving that of the last tick. So startup and discovery do
     not count (tick 0 is answered once the last endpoints have matched, which
-    can take a Fast DDS announcement period), and no probe subscribes the
-    loop (each extra reader of /clock costs the plant a wake-up of one more
-    process per tick).
+    can take a Fast DDS announcement period).
     """
     with NodeGroup() as group:
         plant = lockstep_nodes(group, scenario, duration_s)
@@ -237,40 +198,28 @@ def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, tim
 
 
 def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", timeout_s: float | None = None) -> dict:
-    """Run the realtime loop for `duration_s`; missed ticks and odom-to-voltage latency (median, p99) in ms."""
-    expected = int(round(duration_s / load_params()[1].period_s))
-    # nothing of the probe runs during the loop but DDS itself: its readers keep every sample until the end
-    spinner = ProbeSpinner("latency", defer=True, depth=expected + expected // 2 + 1000)
-    try:
-        with NodeGroup() as group:
-            plant = lockstep_nodes(group, scenario, duration_s, realtime=True)
-            group.wait(plant, timeout_s or duration_s + 60.0)
-        spinner.drain()
-        probe = spinner.probe
-        odom = np.sort(probe.odom_times)
-        sent = np.array([v[0] for v in probe.voltage_times])
-        order = np.argsort(sent)
-        sent, received = sent[order], np.array([v[1] for v in probe.voltage_times])[order]
-        latencies, missed = [], 0
-        # from the first answered tick on (the controller answers once a preview has arrived)
-        first = max(int(np.searchsorted(odom, sent[0])) - 1, 0) if len(sent) else len(odom)
-        for k in range(first, len(odom) - 1):
-            j = np.searchsorted(sent, odom[k])
-            if j < len(sent) and sent[j] < odom[k + 1]:
-                latencies.append(received[j] - odom[k])
-            else:
-                missed += 1
-        lat = np.array(latencies) * 1e3
-        return {
-            "realtime_missed_ticks": int(missed),
-            "realtime_ticks": int(len(odom)),
-            "realtime_probe_span_s": float(odom[-1] - odom[0]) if len(odom) else 0.0,
-            "realtime_expected_ticks": expected,
-            "realtime_latency_median_ms": float(np.median(lat)) if len(lat) else math.nan,
-            "realtime_latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else math.nan,
-        }
-    finally:
-        spinner.close()
+    """Run the realtime loop for `duration_s`; missed ticks and odometry-to-command latency (median, p99) in ms.
+
+    The figures are the plant's own ("realtime run over" log line, `robotino_sim_node.loop_timing`): from
+    the first answered tick on, the time from publishing a tick's odometry to receiving its command, on
+    the plant's steady clock; no probe subscribes the loop.
+    """
+    with NodeGroup() as group:
+        plant = lockstep_nodes(group, scenario, duration_s, realtime=True)
+        if not group.wait(plant, timeout_s or duration_s + 60.0):
+            raise TimeoutError(f"realtime run of {duration_s} s did not end")
+        match = _REALTIME_OVER.search(plant.stderr_tail(lines=50))
+    if match is None:
+        raise RuntimeError("the plant did not report the end of the realtime run")
+    answered, missed, median, p99, worst = int(match[1]), int(match[2]), *map(float, match.group(3, 4, 5))
+    return {
+        "realtime_missed_ticks": missed,
+        "realtime_ticks": answered + missed,
+        "realtime_expected_ticks": int(round(duration_s / load_params()[1].period_s)),
+        "realtime_latency_median_ms": median,
+        "realtime_latency_p99_ms": p99,
+        "realtime_latency_max_ms": worst,
+    }
 
 
 LOCKSTEP_RUNS = 3  # the lockstep figure is the median of these runs (one with quick)
@@ -292,5 +241,5 @@ def dds_benchmarks(quick: bool = False) -> dict[str, float]:
     }
     realtime = bench_realtime(duration_s=10.0 if quick else 60.0)
     out.update({k: realtime[k] for k in ("realtime_missed_ticks", "realtime_latency_p99_ms",
-                                         "realtime_latency_median_ms")})
+                                         "realtime_latency_median_ms", "realtime_latency_max_ms")})
     return out

@@ -1,0 +1,49 @@
+"""`LoopTiming` against the definition worked out by hand on event sequences: answers, misses, percentiles."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from robotino_sim_node.loop_timing import LoopTiming
+
+
+def test_counts_from_the_first_answered_tick():
+    timing = LoopTiming()
+    timing.published(0.00)  # unanswered before the loop runs: not a miss
+    timing.published(0.01)
+    timing.command(0.0112)  # answers tick 1 after 1.2 ms
+    timing.command(0.0115)  # a second command in the same tick is not an answer
+    timing.published(0.02)  # unanswered: a miss once the next tick goes out
+    timing.published(0.03)
+    timing.command(0.0305)
+    timing.published(0.04)  # the run ends before its answer: neither answered nor missed
+    assert (timing.answered, timing.missed) == (2, 1)
+    assert timing.max_latency_s == pytest.approx(1.2e-3)
+    assert timing.percentile_s(100) == pytest.approx(1.2e-3)  # the upper edge of the 1 us bin of 1.2 ms
+    assert "2 ticks answered, 1 missed" in timing.summary()
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(min_value=0.0, max_value=0.05), min_size=1, max_size=300), st.sampled_from([50, 90, 99]))
+def test_percentiles_are_the_nearest_rank_to_one_bin(latencies, q):
+    timing = LoopTiming(bin_s=1e-6, max_s=0.1)
+    for k, latency in enumerate(latencies):
+        timing.published(float(k))
+        timing.command(k + latency)
+    expected = np.percentile(np.array([(k + lat) - k for k, lat in enumerate(latencies)]), q,
+                             method="inverted_cdf")
+    assert expected <= timing.percentile_s(q) + 1e-9 and timing.percentile_s(q) <= expected + 1e-6 + 1e-9
+
+
+def test_latencies_beyond_the_histogram_go_to_the_last_bin():
+    timing = LoopTiming(bin_s=1e-3, max_s=0.01)
+    timing.published(0.0)
+    timing.command(0.5)
+    assert timing.max_latency_s == 0.5 and timing.percentile_s(50) == pytest.approx(0.011)
+
+
+def test_empty_and_bad_settings():
+    assert np.isnan(LoopTiming().percentile_s(99))
+    with pytest.raises(ValueError):
+        LoopTiming(bin_s=0.2, max_s=0.1)

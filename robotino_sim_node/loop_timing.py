@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LoopTiming"]
+__all__ = ["MISSES_KEPT", "LoopTiming"]
+
+MISSES_KEPT = 10  # missed ticks whose times the summary names
 
 
 class LoopTiming:
@@ -35,6 +37,8 @@ class LoopTiming:
         self.max_latency_s = 0.0
         self.answered = 0  # ticks with an answer (the first answered one included)
         self.missed = 0  # ticks after the first answered one without an answer
+        self.first_answer_at: float | None = None
+        self.missed_at: list[float] = []  # publish times of the first `MISSES_KEPT` missed ticks, from the first answer
         self._sent_at: float | None = None  # steady time of the last odometry
         self._waiting = False  # the last odometry has no answer yet
 
@@ -42,6 +46,8 @@ class LoopTiming:
         """The odometry of a new tick went out at steady time `t` [s]."""
         if self._waiting and self.answered:
             self.missed += 1
+            if len(self.missed_at) < MISSES_KEPT:
+                self.missed_at.append(self._sent_at - self.first_answer_at)
         self._sent_at, self._waiting = t, True
 
     def command(self, t: float) -> None:
@@ -49,6 +55,8 @@ class LoopTiming:
         if not self._waiting:
             return
         self._waiting = False
+        if not self.answered:
+            self.first_answer_at = t
         self.answered += 1
         latency = t - self._sent_at
         self.max_latency_s = max(self.max_latency_s, latency)
@@ -64,7 +72,10 @@ class LoopTiming:
         return (index + 1) * self.bin_s
 
     def summary(self) -> str:
-        """One line: ticks answered and missed, latency median, p99 and max in ms."""
-        return (f"{self.answered} ticks answered, {self.missed} missed; odometry-to-command latency "
+        """One line: ticks answered and missed, latency median, p99 and max in ms, when the first misses were."""
+        line = (f"{self.answered} ticks answered, {self.missed} missed; odometry-to-command latency "
                 f"median {1e3 * self.percentile_s(50):.3f} ms, p99 {1e3 * self.percentile_s(99):.3f} ms, "
                 f"max {1e3 * self.max_latency_s:.3f} ms")
+        if self.missed_at:
+            line += "; missed ticks at " + ", ".join(f"{t:.3f}" for t in self.missed_at) + " s after the first answer"
+        return line

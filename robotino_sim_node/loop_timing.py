@@ -38,7 +38,8 @@ class LoopTiming:
         self.answered = 0  # ticks with an answer (the first answered one included)
         self.missed = 0  # ticks after the first answered one without an answer
         self.first_answer_at: float | None = None
-        self.missed_at: list[float] = []  # publish times of the first `MISSES_KEPT` missed ticks, from the first answer
+        # the first `MISSES_KEPT` missed ticks: (publish time from the first answer, time until the next odometry)
+        self.missed_at: list[tuple[float, float]] = []
         self._sent_at: float | None = None  # steady time of the last odometry
         self._waiting = False  # the last odometry has no answer yet
 
@@ -47,7 +48,7 @@ class LoopTiming:
         if self._waiting and self.answered:
             self.missed += 1
             if len(self.missed_at) < MISSES_KEPT:
-                self.missed_at.append(self._sent_at - self.first_answer_at)
+                self.missed_at.append((self._sent_at - self.first_answer_at, t - self._sent_at))
         self._sent_at, self._waiting = t, True
 
     def command(self, t: float) -> None:
@@ -77,5 +78,6 @@ class LoopTiming:
                 f"median {1e3 * self.percentile_s(50):.3f} ms, p99 {1e3 * self.percentile_s(99):.3f} ms, "
                 f"max {1e3 * self.max_latency_s:.3f} ms")
         if self.missed_at:
-            line += "; missed ticks at " + ", ".join(f"{t:.3f}" for t in self.missed_at) + " s after the first answer"
+            line += "; missed ticks (s after the first answer: ms to the next odometry) " + ", ".join(
+                f"{t:.3f}: {1e3 * gap:.3f}" for t, gap in self.missed_at)
         return line

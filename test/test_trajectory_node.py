@@ -51,11 +51,16 @@ def test_previews_follow_the_clock_one_tick_ahead(trajectory):
     for k in ticks:
         h.clock_pub.publish(Clock(clock=ns_to_stamp(k * Ts_ns)))
         h.spin_for(0.05)
-    assert h.spin_until(lambda: len(h.previews) >= 4)
+    assert h.spin_until(lambda: len({stamp_to_ns(m.header.stamp) for m in h.previews}) >= 4)
     h.spin_for(0.2)
-    stamps = [stamp_to_ns(m.header.stamp) for m in h.previews]
+    # a subscription whose writer-side match comes after a clock gets that tick's previews again (the same ones)
+    first = {}
+    for msg in h.previews:
+        first.setdefault(stamp_to_ns(msg.header.stamp), msg)
+        assert msg == first[stamp_to_ns(msg.header.stamp)]
+    stamps = list(first)
     assert stamps == [k * Ts_ns for k in (150, 151, 152, 153)]  # the first clock also gives its own tick
-    for msg, stamp in zip(h.previews, stamps):
+    for msg, stamp in zip(first.values(), stamps):
         assert msg.header.frame_id == "odom" and list(msg.joint_names) == ["base_link"]
         assert len(msg.points) == N + 1
         assert [stamp_to_ns(p.time_from_start) for p in msg.points] == [j * Ts_ns for j in range(N + 1)]

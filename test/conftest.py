@@ -1,7 +1,9 @@
 """Test session setup: an isolated DDS domain and the ament index of the venv.
 
 Set before anything imports rclpy: each session gets its own random
-ROS_DOMAIN_ID and discovery stays on localhost.
+ROS_DOMAIN_ID, discovery stays on localhost, and every participant (the
+tests' own and the nodes') gets the Fast DDS profile `run` gives its nodes
+(`processes.dds_environment`).
 """
 
 import os
@@ -12,3 +14,7 @@ os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 101))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+
+from robotino_geom_mpc.nodes.processes import dds_environment  # noqa: E402  (after the variables it reads)
+
+os.environ.update(dds_environment(os.environ))

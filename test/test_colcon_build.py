@@ -42,8 +42,8 @@ def test_ament_layout(install):
     share = install / "share" / PACKAGE
     assert (share / "package.xml").is_file()
     assert (share / "launch" / "robotino_geom_mpc.launch.py").is_file()
-    assert sorted(p.name for p in (share / "config").glob("*.yaml")) == sorted(
-        p.name for p in (REPO / "config").glob("*.yaml"))
+    assert sorted(p.name for p in (share / "config").iterdir()) == sorted(
+        p.name for p in (REPO / "config").iterdir())  # the presets and the Fast DDS profile
 
 
 def test_installed_executable_answers_on_dds(install):

@@ -23,6 +23,7 @@ __all__ = [
     "ALL_SPECS",
     "RobotinoParams",
     "ControlParams",
+    "config_file",
     "default_params_file",
     "preset_file",
     "read_parameter_file",
@@ -251,7 +252,12 @@ class ControlParams:
 
 
 def preset_file(name: str) -> Path:
-    """Path of a shipped preset (`robotino3`, `robotino2`).
+    """Path of a shipped preset (`robotino3`, `robotino2`)."""
+    return config_file(f"{name}.yaml")
+
+
+def config_file(filename: str) -> Path:
+    """Path of a file shipped in config/.
 
     Looks in the installed share directory (ament index) first, then in the
     source tree's config/ folder.
@@ -265,10 +271,10 @@ def preset_file(name: str) -> Path:
         pass
     candidates.append(Path(__file__).resolve().parents[2] / "config")
     for folder in candidates:
-        path = folder / f"{name}.yaml"
+        path = folder / filename
         if path.is_file():
             return path
-    raise ParamError(f"preset '{name}' not found in {', '.join(map(str, candidates))}")
+    raise ParamError(f"'{filename}' not found in {', '.join(map(str, candidates))}")
 
 
 def default_params_file() -> Path:

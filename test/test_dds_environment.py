@@ -1,0 +1,35 @@
+"""The Fast DDS profile the nodes get with LOCALHOST discovery: when it is added, what it says, that Fast DDS takes it."""
+
+import os
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+import pytest
+
+from robotino_geom_mpc.nodes.processes import dds_environment
+
+NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
+
+
+def test_added_only_for_localhost_discovery_without_a_profile_of_the_users():
+    assert dds_environment({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}) == {}
+    assert dds_environment({}) == {}
+    assert dds_environment({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+                            "FASTRTPS_DEFAULT_PROFILES_FILE": "/mine.xml"}) == {}
+    (path,) = dds_environment({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}).values()
+    # read by an XML parser of its own: the default participant profile announces every 0.5 s
+    (profile,) = ET.parse(path).getroot().findall("f:participant", NS)
+    assert profile.get("is_default_profile") == "true"
+    period = profile.find("f:rtps/f:builtin/f:discovery_config/f:leaseAnnouncement", NS)
+    assert int(period.find("f:sec", NS).text) + 1e-9 * int(period.find("f:nanosec", NS).text) == pytest.approx(0.5)
+
+
+def test_fast_dds_loads_the_profile_without_complaint():
+    env = dds_environment({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
+    code = "import rclpy; rclpy.init(); n = rclpy.create_node('profile_check'); n.destroy_node(); rclpy.shutdown()"
+    out = subprocess.run([sys.executable, "-c", code], env={**os.environ, **env}, capture_output=True, text=True,
+                         timeout=60)
+    log = out.stdout + out.stderr  # Fast DDS logs to stdout
+    assert out.returncode == 0, log
+    assert "XMLPARSER" not in log and "Error" not in log, log

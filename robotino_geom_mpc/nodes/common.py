@@ -373,7 +373,12 @@ def _locate(msg: Any, paths: tuple[str, ...]) -> tuple[bytes, str, list, list[in
     """Serialize `msg` and find the byte offset of each of `paths` (see `CdrTemplate`'s notes).
 
     Returns the serialization, the struct endian prefix, the resolved fields and their offsets.
+    Raises `CdrTemplateError` when `paths` repeat or are empty.
     """
+    if len(set(paths)) != len(paths):
+        raise CdrTemplateError(f"field paths repeat: {paths}")
+    if not paths:
+        raise CdrTemplateError("no field paths to patch")
     template = serialize_message(msg)
     probe = deserialize_message(template, type(msg))  # a copy; `msg` stays as it is
     fields = [_resolve(probe, path) for path in paths]
@@ -450,10 +455,6 @@ class CdrTemplate:
     def __init__(self, msg: Any, paths: Iterable[str]) -> None:
         self.paths = tuple(paths)
         self.msg_type = type(msg)
-        if len(set(self.paths)) != len(self.paths):
-            raise CdrTemplateError(f"field paths repeat: {self.paths}")
-        if not self.paths:
-            raise CdrTemplateError("no field paths to patch")
         template, endian, fields, offsets = _locate(msg, self.paths)
         order = sorted(range(len(offsets)), key=offsets.__getitem__)
         fmt, picks, gaps, end = endian, [], [], offsets[order[0]]
@@ -573,8 +574,6 @@ class CdrLayout:
 
     def __init__(self, msg: Any, paths: Iterable[str]) -> None:
         self.paths = tuple(paths)
-        if not self.paths or len(set(self.paths)) != len(self.paths):
-            raise CdrTemplateError(f"field paths must be distinct and at least one, got {self.paths}")
         template, endian, fields, offsets = _locate(msg, self.paths)
         size, ranges = _structure(msg)
         if size != len(template):

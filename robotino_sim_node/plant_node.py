@@ -67,7 +67,6 @@ from rclpy.clock import Clock, ClockType
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
@@ -80,8 +79,10 @@ from robotino_geom_mpc.nodes.common import (
     PUBLISH_QOS,
     VOLTAGE_LABEL,
     CdrTemplate,
+    MalformedMessage,
     NodeStartError,
     SpecParameters,
+    cdr_reader,
     monotonic,
     run_node,
     spec_defaults,
@@ -125,6 +126,7 @@ _PLANT_DEFAULTS = {
 }
 
 
+_read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray")  # other layouts than the controller's
 _MAX_CHUNK = 10  # realtime: grid steps per plant step
 _MAX_BEHIND_S = 1.0  # realtime: a longer stall is skipped, not integrated
 _ZERO_VOLTS = np.zeros(3)
@@ -279,8 +281,8 @@ class PlantNode(Node):
         values = self.command_layout.read(data)  # the controller's layout, read in place; else decoded
         if values is None:
             try:
-                values = tuple(deserialize_message(data, Float64MultiArray).data)
-            except Exception:  # rclpy raises various errors for garbage
+                values = tuple(_read_command(data).data)
+            except MalformedMessage:
                 values = ()
         valid = len(values) == 3 and math.isfinite(sum(values))
         if not valid:

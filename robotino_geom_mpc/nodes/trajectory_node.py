@@ -240,7 +240,7 @@ class TrajectoryNode(Node):
         `simulation.run_scenario` samples its targets, so the positions are those of the offline loop.
         """
         period_s, horizon = self.params["control.period_s"], self.params["control.horizon"]
-        k, off = divmod(t_ns, int(round(period_s * 1e9)))
+        k, off = divmod(t_ns, self._period_ns())
         if self.grid is None:
             times = np.arange(int(self.reference.duration_s / period_s) + horizon + 2) * period_s
             self.grid = point_values(*self.reference.sample(times)[:3])
@@ -260,18 +260,20 @@ class TrajectoryNode(Node):
 
     def _on_clock(self, msg: ClockMsg) -> None:
         now = stamp_to_ns(msg.clock)
-        period_ns = self._period_ns()
-        if now == self.last_clock_ns or self.last_published_ns != now:
-            self._publish_preview(now, now)  # first tick, a jump, or a resent tick
-        self._publish_preview(now + period_ns, now + period_ns)
+        # the preview of the tick itself only on the first tick, a jump, or a resent tick
+        self._publish_ahead(now, current=now == self.last_clock_ns or self.last_published_ns != now)
         self.last_clock_ns = now
 
     def _on_preview_matched(self, info: QoSPublisherMatchedInfo) -> None:
         """Lockstep: a new subscription gets the previews of the current tick (those sent before missed it)."""
         if self.lockstep and info.current_count_change > 0 and self.last_clock_ns is not None:
-            now = self.last_clock_ns
+            self._publish_ahead(self.last_clock_ns, current=True)
+
+    def _publish_ahead(self, now: int, current: bool) -> None:
+        """Lockstep: the preview of the tick after `now`, after that of `now` itself if `current`."""
+        if current:
             self._publish_preview(now, now)
-            self._publish_preview(now + self._period_ns(), now + self._period_ns())
+        self._publish_preview(now + self._period_ns(), now + self._period_ns())
 
     def _period_ns(self) -> int:
         return int(round(self.params["control.period_s"] * 1e9))

@@ -41,11 +41,15 @@ one control period with it, and publishes tick k + 1. Startup handshake:
 tick 0 goes out only when the ``wheel_voltages`` publisher is matched and
 every ``lockstep_wait_for`` entry ``topic:count`` has that many
 subscriptions (matched readers of the plant's own publishers, the graph
-for other topics: the controller, the trajectory, a recorder); the current
-tick is published again when no command arrives within
-``lockstep_resend_s``, so no discovery race can deadlock the loop (the
-controller answers a repeated tick only if its first answer could not be
-delivered, so no tick is answered twice). With ``duration_s`` > 0 the run
+for other topics: the controller, the trajectory, a recorder) and has
+been for ``lockstep_settle_s``: the graph shows another node's endpoint
+before the nodes that talk to it have matched it (a controller's
+wheel_voltages writer and a recorder's reader can match up to a discovery
+announcement period later), and what is published before a match is lost
+to that reader. The current tick is published again when no command
+arrives within ``lockstep_resend_s``, so no discovery race can deadlock the
+loop (the controller answers a repeated tick only if its first answer could
+not be delivered, so no tick is answered twice). With ``duration_s`` > 0 the run
 has n = round(duration_s / Ts) ticks; when tick n - 1 is answered the node
 logs its real-time factor and exits (status 0). The factor is that of the
 running loop: ticks 1 .. n - 1, from the answer of tick 0 to the answer of
@@ -109,6 +113,8 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("command_timeout_s", float, "Realtime: a command older than this means zero volts", "s", 0.0, 60.0, True),
     ParamSpec("lockstep_resend_s", float, "Lockstep: publish the current tick again after this long without a command",
               "s", 0.0, 60.0, True),
+    ParamSpec("lockstep_settle_s", float, "Lockstep: send tick 0 this long after the start handshake is met, so "
+              "that the other nodes' endpoints, shown by the graph, have matched each other too", "s", 0.0, 60.0, True),
     ParamSpec("odometry_noise.position_m", float, "Standard deviation of the odometry x, y noise", "m", 0.0, 1.0, False),
     ParamSpec("odometry_noise.yaw_rad", float, "Standard deviation of the odometry yaw noise", "rad", 0.0, 1.0, False),
     ParamSpec("seed", int, "Seed of the odometry noise", "", 0, 2**31 - 1, False),
@@ -120,6 +126,7 @@ _PLANT_DEFAULTS = {
     "physics_rate_hz": 1000.0,
     "command_timeout_s": 0.1,
     "lockstep_resend_s": 0.5,
+    "lockstep_settle_s": 1.0,
     "odometry_noise.position_m": 0.0,
     "odometry_noise.yaw_rad": 0.0,
     "seed": 0,
@@ -216,6 +223,7 @@ class PlantNode(Node):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.lockstep:
             self.started = False
+            self.ready_since: float | None = None  # steady time since which the start handshake is met
             self.busy_s = self.wait_s = 0.0  # time spent stepping / waiting for commands
             self.published_at = monotonic()
             self.start_timer = self.create_timer(0.01, self._try_start, clock=steady)
@@ -258,10 +266,15 @@ class PlantNode(Node):
             self._subscribers_of(topic) >= count
             for topic, count in _parse_wait_for(self.get_parameter("lockstep_wait_for").value)
         )
-        if ready:
+        now = monotonic()
+        if not ready:
+            self.ready_since = None
+        elif self.ready_since is None:
+            self.ready_since = now
+        elif now - self.ready_since >= self.params["lockstep_settle_s"]:
             self.start_timer.cancel()
             self.started = True
-            self.started_at = monotonic()
+            self.started_at = now
             self._publish_tick(fresh=True)
 
     def _resend(self) -> None:

@@ -1,0 +1,77 @@
+"""`host_steal` against /proc/stat lines written by hand and a file whose steal changes while it is sampled."""
+
+import os
+import time
+
+import pytest
+
+from robotino_geom_mpc.nodes.host_steal import PROC_STAT, StealSampler, read_steal_s
+
+HZ = os.sysconf("SC_CLK_TCK")
+
+
+def stat_file(path, steal_jiffies: int) -> None:
+    """Write a /proc/stat look-alike atomically (the sampler may be reading it)."""
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(f"cpu  1880659 1621 196854 2752319 6896 0 13518 {steal_jiffies} 0 0\n"
+                   f"cpu0 940000 800 98000 1376000 3400 0 6700 {steal_jiffies // 2} 0 0\nintr 1 2 3\n")
+    os.replace(tmp, path)
+
+
+def test_steal_is_the_eighth_value_of_the_cpu_line_in_clock_ticks(tmp_path):
+    path = tmp_path / "stat"
+    stat_file(path, 105505)
+    assert read_steal_s(path) == pytest.approx(105505 / HZ)
+
+
+@pytest.mark.parametrize("first_line, reason", [
+    ("intr 1 2 3 4 5 6 7 8 9\n", "aggregate cpu line"),
+    ("cpu  1 2 3 4 5 6 7\n", "aggregate cpu line"),  # a kernel without the steal column
+    ("cpu  1 2 3 4 5 6 7 x 0 0\n", "not an integer"),
+    ("", "aggregate cpu line"),
+])
+def test_a_malformed_stat_file_is_named(tmp_path, first_line, reason):
+    path = tmp_path / "stat"
+    path.write_text(first_line)
+    with pytest.raises(ValueError, match=reason):
+        read_steal_s(path)
+
+
+def test_without_the_file_there_is_nothing_to_sample(tmp_path):
+    assert read_steal_s(tmp_path / "missing") is None
+    with StealSampler(path=tmp_path / "missing") as sampler:
+        time.sleep(0.02)
+    assert not sampler.available and sampler.samples == [] and sampler.total_s() == 0.0
+    assert sampler.during(0.0, 1e9) == 0.0
+
+
+def test_steal_is_placed_in_the_window_where_it_happened(tmp_path):
+    path = tmp_path / "stat"
+    stat_file(path, 1000)
+    with StealSampler(interval_s=0.005, path=path) as sampler:
+        time.sleep(0.1)
+        before = time.monotonic()
+        stat_file(path, 1000 + 3 * HZ // 100)  # the host takes 30 ms
+        after = time.monotonic()
+        time.sleep(0.1)
+    assert sampler.total_s() == pytest.approx(0.03)
+    assert sampler.during(before, after) == pytest.approx(0.03)
+    assert sampler.during(sampler.samples[0][0], before - 0.03) == 0.0  # brackets reach one sample beyond
+    assert sampler.during(after + 0.03, sampler.samples[-1][0]) == 0.0
+    assert sampler.during(after, before) == 0.0  # an empty window
+    times = [t for t, _ in sampler.samples]
+    assert times == sorted(times) and len(times) >= 20  # about 40 samples of 5 ms in 0.2 s
+    assert not sampler._thread.is_alive()
+
+
+@pytest.mark.skipif(not PROC_STAT.exists(), reason="no /proc/stat (not Linux)")
+def test_this_machines_steal_never_decreases():
+    with StealSampler(interval_s=0.005) as sampler:
+        time.sleep(0.05)
+    values = [s for _, s in sampler.samples]
+    assert sampler.available and values == sorted(values) and sampler.total_s() >= 0.0
+
+
+def test_bad_interval():
+    with pytest.raises(ValueError, match="interval_s"):
+        StealSampler(interval_s=0.0)

@@ -14,7 +14,7 @@ import numpy as np
 
 __all__ = ["MISSES_KEPT", "LoopTiming"]
 
-MISSES_KEPT = 10  # missed ticks whose times the summary names
+MISSES_KEPT = 100  # missed ticks whose times the summary names
 
 
 class LoopTiming:
@@ -38,7 +38,7 @@ class LoopTiming:
         self.answered = 0  # ticks with an answer (the first answered one included)
         self.missed = 0  # ticks after the first answered one without an answer
         self.first_answer_at: float | None = None
-        # the first `MISSES_KEPT` missed ticks: (publish time from the first answer, time until the next odometry)
+        # the first `MISSES_KEPT` missed ticks: (steady time of their odometry, time until the next odometry)
         self.missed_at: list[tuple[float, float]] = []
         self._sent_at: float | None = None  # steady time of the last odometry
         self._waiting = False  # the last odometry has no answer yet
@@ -48,7 +48,7 @@ class LoopTiming:
         if self._waiting and self.answered:
             self.missed += 1
             if len(self.missed_at) < MISSES_KEPT:
-                self.missed_at.append((self._sent_at - self.first_answer_at, t - self._sent_at))
+                self.missed_at.append((self._sent_at, t - self._sent_at))
         self._sent_at, self._waiting = t, True
 
     def command(self, t: float) -> None:
@@ -73,11 +73,17 @@ class LoopTiming:
         return (index + 1) * self.bin_s
 
     def summary(self) -> str:
-        """One line: ticks answered and missed, latency median, p99 and max in ms, when the first misses were."""
+        """One line: ticks answered and missed, latency median, p99 and max in ms, when the first misses were.
+
+        The misses are timed from the first answer, whose steady time the line gives too (so other
+        measurements on the machine's steady clock can be set beside them).
+        """
         line = (f"{self.answered} ticks answered, {self.missed} missed; odometry-to-command latency "
                 f"median {1e3 * self.percentile_s(50):.3f} ms, p99 {1e3 * self.percentile_s(99):.3f} ms, "
                 f"max {1e3 * self.max_latency_s:.3f} ms")
+        if self.first_answer_at is not None:
+            line += f"; first answer at steady time {self.first_answer_at:.6f} s"
         if self.missed_at:
             line += "; missed ticks (s after the first answer: ms to the next odometry) " + ", ".join(
-                f"{t:.3f}: {1e3 * gap:.3f}" for t, gap in self.missed_at)
+                f"{t - self.first_answer_at:.6f}: {1e3 * gap:.3f}" for t, gap in self.missed_at)
         return line

@@ -2,8 +2,14 @@
 
 import math
 
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.nodes.dds_bench import bench_lockstep, bench_realtime
+from robotino_geom_mpc.nodes.dds_bench import bench_lockstep, bench_realtime, missed_ticks
+from robotino_geom_mpc.nodes.host_steal import PROC_STAT
+from robotino_sim_node.loop_timing import MISSES_KEPT, LoopTiming
 
 
 def test_lockstep_figure_is_the_plants_report_of_every_tick():
@@ -24,3 +30,27 @@ def test_realtime_figures_are_the_plants_count_of_answered_ticks():
     # answers follow their odometry, within a control period at the median
     assert 0.0 < out["realtime_latency_median_ms"] <= out["realtime_latency_p99_ms"] <= out["realtime_latency_max_ms"]
     assert out["realtime_latency_median_ms"] < 1e3 * control.period_s
+    if PROC_STAT.exists():  # the host's steal over the run, and the misses during it
+        assert out["realtime_host_steal_ms"] >= 0.0
+        assert 0 <= out["realtime_missed_ticks_in_host_steal"] <= out["realtime_missed_ticks"]
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.booleans(), min_size=2, max_size=150), st.floats(min_value=0.0, max_value=3e4))
+def test_the_missed_ticks_read_back_from_the_plants_report(answers, start):
+    """`missed_ticks` reads the times `LoopTiming` kept back out of its summary line (to the line's 1 us)."""
+    timing = LoopTiming()
+    for k, answered in enumerate(answers):
+        timing.published(start + 0.01 * k)
+        if answered:
+            timing.command(start + 0.01 * k + 0.002)
+    report = f"[INFO] [1795354378.6] [robotino_plant]: realtime run over: {timing.summary()}\n[INFO] other line"
+    read = missed_ticks(report)
+    assert len(read) == min(timing.missed, MISSES_KEPT) == len(timing.missed_at)
+    for (t, gap), (t_kept, gap_kept) in zip(read, timing.missed_at):
+        assert t == pytest.approx(t_kept, abs=2e-6) and gap == pytest.approx(gap_kept, abs=1e-6)
+
+
+def test_a_report_without_misses_lists_none():
+    assert missed_ticks("realtime run over: 5 ticks answered, 0 missed; ... first answer at steady time 3.0 s") == []
+    assert missed_ticks("no report") == []

@@ -13,7 +13,9 @@ odometry costs the plant a wake-up of one more process per tick):
   missed when none arrives before the next odometry; the latency runs from
   publishing the odometry to receiving the command, on the plant's steady
   clock (`robotino_sim_node.loop_timing`): transport on both legs, the
-  controller's step and both executors' wake-ups count.
+  controller's step and both executors' wake-ups count. On Linux the run's
+  host steal (`host_steal`) is sampled beside it, and the missed ticks
+  during which the hypervisor took CPU time are counted.
 
 `LoopProbe` keeps the samples a lockstep run is judged by (ground truth,
 point 0 of the preview, currents, voltages) so tests can compare the loop
@@ -38,10 +40,11 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.core.params import default_params_file, load_params
 from robotino_geom_mpc.nodes.common import quaternion_to_yaw, stamp_to_ns, unwrap_near
+from robotino_geom_mpc.nodes.host_steal import StealSampler
 from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
 
 __all__ = ["LOCKSTEP_RUNS", "LOCKSTEP_WAIT_FOR", "PROBE_WAIT_FOR", "LoopProbe", "ProbeSpinner", "lockstep_nodes",
-           "bench_lockstep", "bench_realtime", "dds_benchmarks"]
+           "bench_lockstep", "bench_realtime", "dds_benchmarks", "missed_ticks"]
 
 # subscriptions of the controller and the trajectory the plant waits for before tick 0
 LOCKSTEP_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:1")
@@ -53,6 +56,8 @@ PROBE_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:2", "wheel_voltages:2
 _RUN_OVER = re.compile(r"run over: (\d+) ticks; ticks 1-\d+ \(([0-9.e+-]+) s simulated\) in ([0-9.e+-]+) s")
 _REALTIME_OVER = re.compile(r"realtime run over: (\d+) ticks answered, (\d+) missed; odometry-to-command latency "
                             r"median ([0-9.]+) ms, p99 ([0-9.]+) ms, max ([0-9.]+) ms")
+_FIRST_ANSWER = re.compile(r"first answer at steady time ([0-9.]+) s")
+_MISSED_TICK = re.compile(r"([0-9.]+): ([0-9.]+)")  # in the list after "to the next odometry)"
 
 # a deep reader queue: the probe may lag behind the loop but must not lose samples
 PROBE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -202,24 +207,45 @@ def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", tim
 
     The figures are the plant's own ("realtime run over" log line, `robotino_sim_node.loop_timing`): from
     the first answered tick on, the time from publishing a tick's odometry to receiving its command, on
-    the plant's steady clock; no probe subscribes the loop.
+    the plant's steady clock; no probe subscribes the loop. Where the machine reports steal time
+    (`host_steal`), the run's steal and the missed ticks during which the host took CPU time are added.
     """
-    with NodeGroup() as group:
+    period_s = load_params()[1].period_s
+    with StealSampler() as steal, NodeGroup() as group:
         plant = lockstep_nodes(group, scenario, duration_s, realtime=True)
         if not group.wait(plant, timeout_s or duration_s + 60.0):
             raise TimeoutError(f"realtime run of {duration_s} s did not end")
-        match = _REALTIME_OVER.search(plant.stderr_tail(lines=50))
+        report = plant.stderr_tail(lines=50)
+    match = _REALTIME_OVER.search(report)
     if match is None:
         raise RuntimeError("the plant did not report the end of the realtime run")
     answered, missed, median, p99, worst = int(match[1]), int(match[2]), *map(float, match.group(3, 4, 5))
-    return {
+    out = {
         "realtime_missed_ticks": missed,
         "realtime_ticks": answered + missed,
-        "realtime_expected_ticks": int(round(duration_s / load_params()[1].period_s)),
+        "realtime_expected_ticks": int(round(duration_s / period_s)),
         "realtime_latency_median_ms": median,
         "realtime_latency_p99_ms": p99,
         "realtime_latency_max_ms": worst,
     }
+    if steal.available:
+        out["realtime_host_steal_ms"] = 1e3 * steal.total_s()
+        out["realtime_missed_ticks_in_host_steal"] = sum(
+            steal.during(t - period_s, t + gap) > 0.0 for t, gap in missed_ticks(report))
+    return out
+
+
+def missed_ticks(report: str) -> list[tuple[float, float]]:
+    """The missed ticks the plant's realtime report lists: (steady time of their odometry [s], time to the next [s]).
+
+    The report lists at most `loop_timing.MISSES_KEPT` of them, timed from the first answer.
+    """
+    line = next((ln for ln in report.splitlines() if "realtime run over:" in ln), "")
+    first = _FIRST_ANSWER.search(line)
+    if first is None or "to the next odometry)" not in line:
+        return []
+    listed = line.split("to the next odometry)", 1)[1]
+    return [(float(first[1]) + float(t), 1e-3 * float(gap)) for t, gap in _MISSED_TICK.findall(listed)]
 
 
 LOCKSTEP_RUNS = 3  # the lockstep figure is the median of these runs (one with quick)
@@ -240,6 +266,5 @@ def dds_benchmarks(quick: bool = False) -> dict[str, float]:
         "lockstep_dds_realtime_factor_max": max(factors),
     }
     realtime = bench_realtime(duration_s=10.0 if quick else 60.0)
-    out.update({k: realtime[k] for k in ("realtime_missed_ticks", "realtime_latency_p99_ms",
-                                         "realtime_latency_median_ms", "realtime_latency_max_ms")})
+    out.update({k: v for k, v in realtime.items() if k not in ("realtime_ticks", "realtime_expected_ticks")})
     return out

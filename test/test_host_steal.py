@@ -64,6 +64,20 @@ def test_steal_is_placed_in_the_window_where_it_happened(tmp_path):
     assert not sampler._thread.is_alive()
 
 
+def test_a_file_that_turns_bad_while_sampled_ends_sampling_with_the_reason(tmp_path):
+    path = tmp_path / "stat"
+    stat_file(path, 1000)
+    with StealSampler(interval_s=0.005, path=path) as sampler:
+        time.sleep(0.05)
+        path.write_text("garbage\n")
+        time.sleep(0.05)
+        kept = len(sampler.samples)
+        time.sleep(0.05)
+    assert not sampler.available and "aggregate cpu line" in str(sampler.error)
+    assert len(sampler.samples) == kept >= 2 and sampler.total_s() == 0.0  # what came before is kept
+    assert not sampler._thread.is_alive()
+
+
 @pytest.mark.skipif(not PROC_STAT.exists(), reason="no /proc/stat (not Linux)")
 def test_this_machines_steal_never_decreases():
     with StealSampler(interval_s=0.005) as sampler:

@@ -47,7 +47,8 @@ class StealSampler:
     """Samples the machine's steal time every `interval_s` in a thread while used as a context manager.
 
     `samples` holds ``(steady time [s], steal so far [s])``; without /proc/stat it stays empty and
-    `available` is False.
+    `available` is False. If the file turns unreadable while sampled, sampling stops, `error` holds
+    the reason and `available` turns False on exit (the samples so far are kept).
     """
 
     def __init__(self, interval_s: float = 0.01, path: str | os.PathLike = PROC_STAT) -> None:
@@ -57,6 +58,7 @@ class StealSampler:
         self.path = path
         self.samples: list[tuple[float, float]] = []
         self.available = read_steal_s(path) is not None
+        self.error: ValueError | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="steal-sampler", daemon=True)
 
@@ -70,13 +72,23 @@ class StealSampler:
         if self._thread.is_alive():
             self._stop.set()
             self._thread.join()
+        if self.error is None and self.available:
             self._sample()
+        self.available = self.available and self.error is None
 
     def _sample(self) -> None:
-        self.samples.append((time.monotonic(), read_steal_s(self.path)))
+        try:
+            steal = read_steal_s(self.path)
+        except ValueError as exc:
+            self.error = exc
+            return
+        if steal is None:
+            self.error = ValueError(f"{self.path} disappeared while sampled")
+            return
+        self.samples.append((time.monotonic(), steal))
 
     def _run(self) -> None:
-        while not self._stop.wait(self.interval_s):
+        while self.error is None and not self._stop.wait(self.interval_s):
             self._sample()
 
     def total_s(self) -> float:

@@ -183,15 +183,17 @@ def lockstep_nodes(
 
 
 def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, timeout_s: float = 300.0) -> dict:
-    """Run the lockstep loop; returns ``{"lockstep_dds_realtime_factor": ..., "ticks": ...}``.
+    """Run the lockstep loop; returns ``{"lockstep_dds_realtime_factor": ..., "ticks": ..., "host_steal_ms": ...}``.
 
     The figure is the plant's own (its "run over" log line): the simulated
     time of ticks 1 .. n - 1 over the wall time from receiving the command of
     tick 0 to receiving that of the last tick. So startup and discovery do
     not count (tick 0 is answered once the last endpoints have matched, which
-    can take a Fast DDS announcement period).
+    can take a Fast DDS announcement period). ``host_steal_ms`` (where the
+    machine reports it, `host_steal`) is the CPU time the hypervisor took
+    during the whole run, startup included.
     """
-    with NodeGroup() as group:
+    with StealSampler(interval_s=0.1) as steal, NodeGroup() as group:
         plant = lockstep_nodes(group, scenario, duration_s)
         if not group.wait(plant, timeout_s):
             raise TimeoutError(f"lockstep run of {duration_s} s did not end within {timeout_s} s")
@@ -199,7 +201,10 @@ def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, tim
     if match is None:
         raise RuntimeError("the plant did not report the end of the lockstep run")
     ticks, simulated, wall = int(match[1]), float(match[2]), float(match[3])
-    return {"lockstep_dds_realtime_factor": simulated / wall, "ticks": ticks}
+    out = {"lockstep_dds_realtime_factor": simulated / wall, "ticks": ticks}
+    if steal.available:
+        out["host_steal_ms"] = 1e3 * steal.total_s()
+    return out
 
 
 def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", timeout_s: float | None = None) -> dict:
@@ -258,13 +263,15 @@ def dds_benchmarks(quick: bool = False) -> dict[str, float]:
     slowest and fastest are reported too: on a shared 2-core machine single
     runs differ by up to 2x); the realtime figures come from one 60 s run.
     """
-    factors = [bench_lockstep(duration_s=5.0 if quick else 22.0)["lockstep_dds_realtime_factor"]
-               for _ in range(1 if quick else LOCKSTEP_RUNS)]
+    runs = [bench_lockstep(duration_s=5.0 if quick else 22.0) for _ in range(1 if quick else LOCKSTEP_RUNS)]
+    factors = [run["lockstep_dds_realtime_factor"] for run in runs]
     out = {
         "lockstep_dds_realtime_factor": float(np.median(factors)),
         "lockstep_dds_realtime_factor_min": min(factors),
         "lockstep_dds_realtime_factor_max": max(factors),
     }
+    if all("host_steal_ms" in run for run in runs):
+        out["lockstep_host_steal_ms"] = sum(run["host_steal_ms"] for run in runs)
     realtime = bench_realtime(duration_s=10.0 if quick else 60.0)
     out.update({k: v for k, v in realtime.items() if k not in ("realtime_ticks", "realtime_expected_ticks")})
     return out

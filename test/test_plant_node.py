@@ -190,14 +190,16 @@ def test_realtime_holds_the_command_and_zero_volts_after_the_timeout(realtime_ru
     run = realtime_run
     first, last = run["sent"][0], run["sent"][-1]
     samples = run["samples"]
-    # while commands arrive (from a grid step after the first to the last): the offline plant under the command
-    during = [(t, s) for t, s in samples if first + 5e6 < t < last]
+    # the plant times commands from their receipt, which a loaded host can delay by tens of ms after the send
+    margin = 0.05
+    # while commands arrive (from `margin` after the first to the last): the offline plant under the command
+    during = [(t, s) for t, s in samples if first + margin * 1e9 < t < last]
     assert len(during) >= 20
     (t_a, s_a), (t_b, s_b) = during[0], during[-1]
     np.testing.assert_allclose(_offline(run["robot"], s_a, run["command"], (t_b - t_a) * 1e-9), s_b, atol=2e-9)
     assert math.hypot(s_b[1], s_b[3]) > 0.1  # the command really drives the robot
-    # from a grid step after the timeout on: the offline plant under zero volts (the currents decay)
-    after = [(t, s) for t, s in samples if t > last + (run["timeout"] + 0.005) * 1e9]
+    # from `margin` after the timeout on: the offline plant under zero volts (the currents decay)
+    after = [(t, s) for t, s in samples if t > last + (run["timeout"] + margin) * 1e9]
     assert len(after) >= 20
     (t_a, s_a), (t_b, s_b) = after[0], after[-1]
     np.testing.assert_allclose(_offline(run["robot"], s_a, [0.0, 0.0, 0.0], (t_b - t_a) * 1e-9), s_b, atol=2e-9)

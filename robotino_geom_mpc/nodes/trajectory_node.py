@@ -273,7 +273,8 @@ class TrajectoryNode(Node):
         """Lockstep: the preview of the tick after `now`, after that of `now` itself if `current`."""
         if current:
             self._publish_preview(now, now)
-        self._publish_preview(now + self._period_ns(), now + self._period_ns())
+        after = now + self._period_ns()
+        self._publish_preview(after, after)
 
     def _period_ns(self) -> int:
         return int(round(self.params["control.period_s"] * 1e9))

@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.nodes import dds_bench
 from robotino_geom_mpc.nodes.dds_bench import bench_lockstep, bench_realtime, missed_ticks
 from robotino_geom_mpc.nodes.host_steal import PROC_STAT
 from robotino_sim_node.loop_timing import MISSES_KEPT, LoopTiming
@@ -55,3 +56,37 @@ def test_the_missed_ticks_read_back_from_the_plants_report(answers, start):
 def test_a_report_without_misses_lists_none():
     assert missed_ticks("realtime run over: 5 ticks answered, 0 missed; ... first answer at steady time 3.0 s") == []
     assert missed_ticks("no report") == []
+
+
+def test_dds_benchmarks_takes_the_median_of_the_lockstep_runs_and_passes_the_realtime_figures(monkeypatch):
+    """The aggregation alone, with stand-in runs: median, min, max, summed steal, the realtime keys `bench` shows."""
+    factors = iter([14.0, 22.0, 9.0])
+    steals = iter([10.0, 30.0, 5.0])
+    calls = []
+
+    def lockstep(duration_s):
+        calls.append(("lockstep", duration_s))
+        return {"lockstep_dds_realtime_factor": next(factors), "ticks": 2200, "host_steal_ms": next(steals)}
+
+    def realtime(duration_s):
+        calls.append(("realtime", duration_s))
+        return {"realtime_missed_ticks": 2, "realtime_ticks": 6000, "realtime_expected_ticks": 6000,
+                "realtime_latency_p99_ms": 1.5, "realtime_missed_ticks_in_host_steal": 2}
+
+    monkeypatch.setattr(dds_bench, "bench_lockstep", lockstep)
+    monkeypatch.setattr(dds_bench, "bench_realtime", realtime)
+    out = dds_bench.dds_benchmarks()
+    assert calls == [("lockstep", 22.0)] * dds_bench.LOCKSTEP_RUNS + [("realtime", 60.0)]
+    assert out == {"lockstep_dds_realtime_factor": 14.0, "lockstep_dds_realtime_factor_min": 9.0,
+                   "lockstep_dds_realtime_factor_max": 22.0, "lockstep_host_steal_ms": 45.0,
+                   "realtime_missed_ticks": 2, "realtime_latency_p99_ms": 1.5,
+                   "realtime_missed_ticks_in_host_steal": 2}
+
+
+def test_dds_benchmarks_leaves_out_the_lockstep_steal_when_a_run_could_not_sample_it(monkeypatch):
+    runs = iter([{"lockstep_dds_realtime_factor": 12.0, "host_steal_ms": 3.0}, {"lockstep_dds_realtime_factor": 11.0},
+                 {"lockstep_dds_realtime_factor": 13.0, "host_steal_ms": 1.0}])
+    monkeypatch.setattr(dds_bench, "bench_lockstep", lambda duration_s: next(runs))
+    monkeypatch.setattr(dds_bench, "bench_realtime", lambda duration_s: {"realtime_missed_ticks": 0})
+    out = dds_bench.dds_benchmarks()
+    assert out["lockstep_dds_realtime_factor"] == 12.0 and "lockstep_host_steal_ms" not in out

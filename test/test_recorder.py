@@ -16,7 +16,8 @@ from mcap_ros2.reader import read_ros2_messages
 from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
-from recording_helpers import TYPES, Processes, expected_values, values_of, wait_for
+from recording_helpers import (TYPES, Processes, expected_values, remove_dead_segments, shm_segments, values_of,
+                               wait_for)
 from robotino_geom_mpc.recording.bag import BagReader
 
 
@@ -143,10 +144,12 @@ def test_sigint_mid_run_leaves_a_complete_bag(procs, tmp_path):
 
 def test_sigkill_leaves_the_written_chunks_readable(procs, tmp_path):
     out = tmp_path / "bag"
+    segments_before = shm_segments()
     rec = procs.recorder(out, "topics:=[stream]", "flush_period_s:=0.2")
     pub = procs.publisher([{"topic": "stream", "kind": "float64_array", "rate_hz": 500.0, "count": 600}])
     procs.published(pub)  # all sent (and the publisher waited 1 s: more than a flush period)
     assert procs.stop(rec, signal.SIGKILL) == -signal.SIGKILL
+    remove_dead_segments(shm_segments() - segments_before)  # the killed recorder's Fast DDS segment, left behind
     assert not (out / "metadata.yaml").exists()
     bag = BagReader(out)
     assert any("truncated" in p and "not finalised" in p for p in bag.problems)

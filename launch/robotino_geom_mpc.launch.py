@@ -14,18 +14,21 @@ duration       run length [s]; 0 runs until stopped
 record         true: also start the MCAP recorder (bag in ``bag``)
 bag            recording directory (default: rosbag2_<date> in the working directory)
 
-Without ``ros2 launch``, ``robotino-geom-mpc run`` starts the same processes; it also makes the
-lockstep plant wait for the recorder's subscriptions (``lockstep_wait_for``), so its recordings hold
-tick 0, and writes metrics.json and the figures from the recording.
+With ``record:=true`` the lockstep plant also waits for the recorder's subscriptions
+(``lockstep_wait_for``), so the recording holds tick 0. Without ``ros2 launch``,
+``robotino-geom-mpc run`` starts the same processes and also writes metrics.json and the figures
+from the recording.
 """
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
-from launch.conditions import IfCondition
+from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, PythonExpression
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
+
+from robotino_geom_mpc.nodes.processes import RECORDER_WAIT_FOR
 
 PACKAGE = "robotino_geom_mpc"
 
@@ -36,6 +39,7 @@ def generate_launch_description() -> LaunchDescription:
     plant_params = LaunchConfiguration("plant_params")
     lockstep = LaunchConfiguration("lockstep")
     duration = LaunchConfiguration("duration")
+    record = LaunchConfiguration("record")
     mode = PythonExpression(["'lockstep' if '", lockstep, "'.lower() == 'true' else 'realtime'"])
     default_params = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "robotino3.yaml"])
 
@@ -59,11 +63,18 @@ def generate_launch_description() -> LaunchDescription:
         ),
         Node(
             package=PACKAGE, executable="plant_node", name="robotino_plant", output="screen",
+            condition=UnlessCondition(record),
             parameters=[plant_params, {"mode": mode, "duration_s": ParameterValue(duration, value_type=float)}],
+        ),
+        Node(  # the same, waiting in lockstep for the recorder's subscriptions too
+            package=PACKAGE, executable="plant_node", name="robotino_plant", output="screen",
+            condition=IfCondition(record),
+            parameters=[plant_params, {"mode": mode, "duration_s": ParameterValue(duration, value_type=float),
+                                       "lockstep_wait_for": list(RECORDER_WAIT_FOR)}],
         ),
         Node(
             package=PACKAGE, executable="recorder_node", name="recorder", output="screen",
-            condition=IfCondition(LaunchConfiguration("record")),
+            condition=IfCondition(record),
             parameters=[params_file, {"output": LaunchConfiguration("bag"), "scenario": scenario}],
         ),
     ])

@@ -70,8 +70,7 @@ def node_arguments(
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`."""
     from ..core.params import ROBOT_SPECS, load_params
-    from ..nodes.dds_bench import LOCKSTEP_WAIT_FOR
-    from ..nodes.processes import ros_args
+    from ..nodes.processes import LOCKSTEP_WAIT_FOR, RECORDER_WAIT_FOR, ros_args
     from ..simulation import ROBUSTNESS_NOISE, controller_model
 
     robot, _ = load_params(params_file)
@@ -79,10 +78,7 @@ def node_arguments(
     model = controller_model(scenario, robot)
     mismatch = {s.name: getattr(model, s.attr) for s in ROBOT_SPECS if getattr(model, s.attr) != getattr(robot, s.attr)}
     noise = ROBUSTNESS_NOISE if scenario == "robustness" else (0.0, 0.0)
-    wait_for = list(LOCKSTEP_WAIT_FOR)
-    if bag is not None:  # the recorder subscribes every topic (its /clock subscription is a recording one)
-        wait_for = ["odom:2", "/clock:2", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
-                    "wheel_currents:1", "joint_states:1", "diagnostics:1"]
+    wait_for = list(LOCKSTEP_WAIT_FOR if bag is None else RECORDER_WAIT_FOR)
     args = {}
     if bag is not None:
         args["recorder_node"] = ros_args(params_file, {"output": str(bag), "scenario": scenario})

@@ -41,14 +41,12 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from robotino_geom_mpc.core.params import default_params_file, load_params
 from robotino_geom_mpc.nodes.common import quaternion_to_yaw, stamp_to_ns, unwrap_near
 from robotino_geom_mpc.nodes.host_steal import StealSampler
-from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
+from robotino_geom_mpc.nodes.processes import LOCKSTEP_WAIT_FOR, NodeGroup, ros_args
 
-__all__ = ["LOCKSTEP_RUNS", "LOCKSTEP_WAIT_FOR", "PROBE_WAIT_FOR", "LoopProbe", "ProbeSpinner", "lockstep_nodes",
+__all__ = ["LOCKSTEP_RUNS", "PROBE_WAIT_FOR", "LoopProbe", "ProbeSpinner", "lockstep_nodes",
            "bench_lockstep", "bench_realtime", "dds_benchmarks", "missed_ticks"]
 
-# subscriptions of the controller and the trajectory the plant waits for before tick 0
-LOCKSTEP_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:1")
-# with the probe too
+# the plant's `processes.LOCKSTEP_WAIT_FOR` with the probe
 PROBE_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
                   "wheel_currents:1")
 

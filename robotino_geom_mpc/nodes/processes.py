@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NODE_MODULES", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment", "ros_args"]
+__all__ = ["NODE_MODULES", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment", "ros_args"]
 
 # executable name (setup.py console_scripts) -> module run with `python -m`
 NODE_MODULES: dict[str, str] = {
@@ -30,6 +30,12 @@ NODE_MODULES: dict[str, str] = {
     "recorder_node": "robotino_geom_mpc.recording.recorder_node",
 }
 
+# the lockstep plant's ``lockstep_wait_for`` (subscriptions ``topic:count`` it waits for before tick 0):
+# the controller's and the trajectory's
+LOCKSTEP_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:1")
+# with the recorder too, which subscribes every topic (its /clock subscription is a recording one)
+RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
+                     "wheel_currents:1", "joint_states:1", "diagnostics:1")
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/
 

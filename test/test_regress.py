@@ -1,18 +1,21 @@
 """Replay regression on a recording of the real nodes (plant, controller, trajectory in lockstep, recorder).
 
 The recorded odometry and previews through a fresh controller give the recorded voltages to 1e-12;
-one voltage perturbed by 1e-9 V in a copy of the bag makes it fail, naming that deviation.
+one voltage perturbed by 1e-9 V in a copy of the bag makes it fail, naming that deviation; a copy
+without one tick's odometry or preview is replayed up to that tick, which is named.
 """
 
 from __future__ import annotations
 
 import pytest
+from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Float64MultiArray
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from recording_helpers import PYTHON, Processes, wait_for
 from robotino_geom_mpc.cli import main
-from robotino_geom_mpc.core.params import default_params_file
+from robotino_geom_mpc.core.params import default_params_file, load_params
 from robotino_geom_mpc.recording.bag import RUN_METADATA, BagReader, BagWriter
 from robotino_geom_mpc.recording.regress import regress_bag
 
@@ -77,3 +80,35 @@ def test_regression_fails_on_a_perturbed_voltage(recording, tmp_path, capsys):
     assert main(["regress", str(copy)]) == 1
     out = capsys.readouterr().out
     assert "FAIL" in out and "1.000e-09 V" in out
+
+
+def _copy_without(source: BagReader, copy, topic: str, msg_type, stamp_ns: int) -> None:
+    """Copy the bag, leaving out the messages of `topic` stamped `stamp_ns` (a recorder that lost them)."""
+    with BagWriter(copy) as out:
+        out.add_metadata(RUN_METADATA, source.metadata[RUN_METADATA])
+        channels = {name: out.add_topic(name, info.type, info.offered_qos_profiles, info.type_description_hash)
+                    for name, info in source.topics.items()}
+        for m in source.messages():
+            if m.topic == topic:
+                stamp = deserialize_message(m.data, msg_type).header.stamp
+                if stamp.sec * 1_000_000_000 + stamp.nanosec == stamp_ns:
+                    continue
+            out.write(channels[m.topic], m.log_time_ns, m.data, m.publish_time_ns, m.sequence)
+
+
+@pytest.mark.parametrize(("topic", "msg_type", "tick"), [("/odom", Odometry, 40),
+                                                         ("/reference_preview", MultiDOFJointTrajectory, 60)])
+def test_regression_stops_at_a_tick_whose_input_the_recording_lost(recording, tmp_path, capsys, topic, msg_type,
+                                                                   tick):
+    source = BagReader(recording)
+    first = next(deserialize_message(m.data, Odometry).header.stamp for m in source.messages() if m.topic == "/odom")
+    period_s = load_params(PARAMS)[1].period_s
+    period_ns = round(period_s * 1e9)
+    _copy_without(source, tmp_path / "lossy", topic, msg_type, first.sec * 1_000_000_000 + first.nanosec
+                  + tick * period_ns)
+    result = regress_bag(tmp_path / "lossy")
+    # ticks 0 .. tick - 1 replayed and matching; without the stop, the controller's state would diverge there
+    assert (result.ticks, result.compared) == (tick, tick) and result.passed
+    assert result.gap == topic.lstrip("/") and result.gap_at_s == pytest.approx(tick * period_s, abs=1e-9)
+    assert main(["regress", str(tmp_path / "lossy")]) == 0
+    assert f"lacks the {topic.lstrip('/')} of the tick at t = {tick * period_s:.3f} s" in capsys.readouterr().out

@@ -56,4 +56,7 @@ def run(args: argparse.Namespace) -> int:
     verdict = "PASS" if result.passed else "FAIL"
     print(f"{verdict}: {result.compared} of {result.ticks} ticks compared, max deviation "
           f"{result.max_deviation_v:.3e} V{where} (tolerance {result.tolerance_v:g} V)")
+    if result.gap_at_s is not None:
+        print(f"the recording lacks the {result.gap} of the tick at t = {result.gap_at_s:.3f} s: "
+              "the replay stopped there (the controller's state needs every tick)")
     return 0 if result.passed else 1

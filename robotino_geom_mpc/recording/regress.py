@@ -12,6 +12,15 @@ the tick (paired through the controller's ``diagnostics``, stamped with
 the tick, see `report`). Deterministic code on identical inputs gives
 identical floats, so the tolerance is 1e-12 V.
 
+The controller carries state from tick to tick (u(k-1) of the Delta-u form,
+the pose estimate), so the replay needs every tick's inputs. In a lockstep
+recording (its first tick has a preview of the same stamp; the ticks are
+one control period apart) it stops at the first tick whose odometry (the
+next stamp is more than 1.5 periods on) or preview is missing from the
+recording, and says so (`RegressionResult.gap_at_s`). A recorder that fell
+behind a fast lockstep loop can have lost samples; the ticks before the gap
+are still compared.
+
 Limits: a parameter change during the run (the node rebuilds its
 controller) or a watchdog reset in realtime mode is not replayed; those
 recordings show a deviation from that tick on.
@@ -56,6 +65,11 @@ class RegressionResult:
         Tick time (relative to the first tick) of that deviation, or None.
     tolerance_v
         The tolerance of the verdict.
+    gap_at_s
+        Lockstep recordings: tick time (relative to the first tick) of the first tick whose odometry or
+        preview the recording lacks, where the replay stopped; None if every tick's inputs are there.
+    gap
+        What is missing there (``"odom"`` or ``"reference_preview"``), or None.
     """
 
     ticks: int
@@ -63,6 +77,8 @@ class RegressionResult:
     max_deviation_v: float
     worst_time_s: float | None
     tolerance_v: float
+    gap_at_s: float | None = None
+    gap: str | None = None
 
     @property
     def passed(self) -> bool:
@@ -109,13 +125,24 @@ def regress_bag(
     seen: set[int] = set()
     ticks = compared = 0
     worst, worst_stamp = 0.0, None
-    first_stamp = None
+    first_stamp = previous = None
+    lockstep = False  # the first tick has a preview of its own stamp
+    gap = None
+    max_step = int(1.5 * control.period_s * 1e9)
     for index, (publish, msg) in enumerate(odom):
         stamp = stamp_ns(msg.header.stamp)
         if stamp in seen:
             continue  # a lockstep tick the plant resent: the node answers it once
         seen.add(stamp)
-        first_stamp = stamp if first_stamp is None else first_stamp
+        if first_stamp is None:
+            first_stamp, lockstep = stamp, stamp in by_stamp
+        elif lockstep and stamp - previous > max_step:  # realtime stamps follow the plant's timer, late or not
+            gap = (previous + int(round(control.period_s * 1e9)), "odom")
+            break
+        elif lockstep and stamp not in by_stamp:
+            gap = (stamp, "reference_preview")
+            break
+        previous = stamp
         try:
             X = odometry_state(msg, theta)
         except InputRejected:
@@ -145,4 +172,6 @@ def regress_bag(
     if ticks == 0:
         raise BagError(f"{bag.path}: no odometry tick in the recording")
     worst_time = None if worst_stamp is None else (worst_stamp - first_stamp) * 1e-9
-    return RegressionResult(ticks, compared, worst, worst_time, float(tolerance_v))
+    gap_at = None if gap is None else (gap[0] - first_stamp) * 1e-9
+    return RegressionResult(ticks, compared, worst, worst_time, float(tolerance_v), gap_at,
+                            None if gap is None else gap[1])

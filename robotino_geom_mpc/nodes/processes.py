@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NODE_MODULES", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment", "ros_args"]
+__all__ = ["NODE_MODULES", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR", "NodeFailed", "NodeProcess", "NodeGroup",
+           "dds_environment", "ros_args"]
 
 # executable name (setup.py console_scripts) -> module run with `python -m`
 NODE_MODULES: dict[str, str] = {

@@ -7,6 +7,8 @@ without one tick's odometry or preview is replayed up to that tick, which is nam
 
 from __future__ import annotations
 
+import json
+
 import pytest
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
@@ -16,13 +18,13 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from recording_helpers import PYTHON, Processes, wait_for
 from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.core.params import default_params_file, load_params
+from robotino_geom_mpc.nodes.processes import RECORDER_WAIT_FOR
 from robotino_geom_mpc.recording.bag import RUN_METADATA, BagReader, BagWriter
 from robotino_geom_mpc.recording.regress import regress_bag
 
 PARAMS = str(default_params_file())
 # what the plant waits for before tick 0: the controller's and the recorder's subscriptions
-WAIT_FOR = ('lockstep_wait_for:=["odom:2", "/clock:2", "ground_truth/odom:1", "wheel_currents:1", '
-            '"reference_preview:2", "wheel_voltages:2", "diagnostics:1"]')
+WAIT_FOR = f"lockstep_wait_for:={json.dumps(list(RECORDER_WAIT_FOR))}"
 
 
 @pytest.fixture(scope="module")

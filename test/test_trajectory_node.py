@@ -2,10 +2,11 @@
 
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
-from nav_msgs.msg import Path
+from nav_msgs.msg import Odometry, Path
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from trajectory_msgs.msg import MultiDOFJointTrajectory
@@ -13,7 +14,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.core.trajectory import make_reference
 from robotino_geom_mpc.nodes.common import LATCHED_QOS, PUBLISH_QOS, ns_to_stamp, quaternion_to_yaw, stamp_to_ns
-from robotino_geom_mpc.nodes.harness import Harness
+from robotino_geom_mpc.nodes.harness import DEEP_QOS, Harness
 from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
 
 NODE = "robotino_trajectory"
@@ -118,6 +119,35 @@ def test_reference_path_is_latched_for_a_late_subscriber(trajectory):
     assert volatile == []  # published once, not streamed
 
 
+def test_realtime_reference_starts_the_settle_time_after_a_controller_and_odometry_are_there(tmp_path):
+    """No preview without an odom publisher, none for ``start_settle_s`` after; then point 0 follows the reference."""
+    settle_s = 1.0
+    _, control = load_params()
+    reference = make_reference("paper-circle")
+    arrivals = []
+    with NodeGroup(log_dir=tmp_path) as group, Harness("trajectory_realtime_test") as h:
+        # a namespace of its own: the module's lockstep node publishes reference_preview too
+        sub = h.node.create_subscription(MultiDOFJointTrajectory, "/realtime/reference_preview",
+                                         lambda msg: arrivals.append((time.monotonic(), msg)), DEEP_QOS)
+        node = group.start("trajectory_node", ros_args(None, {
+            "mode": "realtime", "scenario": "paper-circle", "start_settle_s": settle_s}) + ["-r", "__ns:=/realtime"])
+        assert h.spin_until(lambda: sub.get_publisher_count() >= 1, 30.0), node.stderr_tail()
+        h.spin_for(settle_s + 0.5)
+        assert arrivals == []  # a controller listens, but no robot sends odometry
+        h.node.create_publisher(Odometry, "/realtime/odom", PUBLISH_QOS)
+        odometry_at = time.monotonic()
+        assert h.spin_until(lambda: len(arrivals) >= 50, 10.0), node.stderr_tail()
+    # the node sees the odom publisher a little after it exists; without the settle the first preview
+    # would follow within a control period or two
+    assert arrivals[0][0] - odometry_at > settle_s - 0.2
+    stamps = np.array([stamp_to_ns(msg.header.stamp) for _, msg in arrivals])
+    assert np.all(np.diff(stamps) > 0)
+    assert np.median(np.diff(stamps)) == pytest.approx(control.period_s * 1e9, rel=0.2)  # one per period
+    t = (stamps - stamps[0]) * 1e-9  # the reference's time: t = 0 at the first preview
+    np.testing.assert_allclose([positions(msg)[0] for _, msg in arrivals], reference.position(t), atol=1e-12)
+    assert np.all(positions(arrivals[0][1])[0] == 0.0)  # paper-circle starts at rest at the origin
+
+
 def test_parameter_set_is_validated(trajectory):
     h = trajectory
     (bad,) = h.set_parameters(NODE, {"scenario": "spiral"})
@@ -126,6 +156,8 @@ def test_parameter_set_is_validated(trajectory):
     assert not bad_wp.successful and "waypoints" in bad_wp.reason
     (bad_period,) = h.set_parameters(NODE, {"control.period_s": -0.01})
     assert not bad_period.successful and "control.period_s" in bad_period.reason
+    (bad_settle,) = h.set_parameters(NODE, {"start_settle_s": -1.0})
+    assert not bad_settle.successful and "start_settle_s" in bad_settle.reason
     assert h.get_parameters(NODE, ["scenario", "waypoints", "control.period_s"]) == [
         "point-to-point", WAYPOINTS, load_params()[1].period_s]
 
@@ -134,6 +166,7 @@ def test_parameter_set_is_validated(trajectory):
     ({"scenario": "point-to-point", "waypoints": [1.0, 2.0, 3.0, 4.0]}, "waypoints"),
     ({"scenario": "paper-circle", "waypoints": [1.0, 2.0, 3.0]}, "waypoints"),
     ({"scenario": "spiral"}, "scenario"),
+    ({"start_settle_s": 120.0}, "start_settle_s"),
 ])
 def test_refuses_to_start_with_a_bad_parameter(override, name):
     proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc.nodes.trajectory_node",

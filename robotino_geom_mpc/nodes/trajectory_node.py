@@ -17,7 +17,16 @@ Timing
 ------
 ``realtime``: a timer on the node clock (sim time when ``use_sim_time``)
 publishes the preview every control period; the reference starts (t = 0)
-at the first tick at which a controller subscribes the preview.
+at the first tick at which, for ``start_settle_s``, a controller has
+subscribed the preview and the graph has shown a publisher of ``odom``
+(the robot or the plant; a plant process starting last can come up a
+second after the others). Until then nothing is published, so the
+controller does not answer and the robot stays at rest: the settle lets
+discovery end first. Fast DDS's first message from one participant to
+another's shared-memory port (here the controller's first ACKNACK to this
+node) can sleep 333 ms in a port health check while it holds the
+participant's send lock, and a controller publishing its voltages then
+waits as long (bench/README.md); during the settle nothing waits for it.
 
 Each pose of ``reference_path`` is stamped with the time the reference
 passes there (start time + t), so a recording can be matched with the
@@ -81,8 +90,10 @@ TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("scenario", str, "Reference scenario", choices=SCENARIOS + ("robustness",)),
     ParamSpec("mode", str, "realtime: timer on the node clock; lockstep: driven by /clock",
               choices=("realtime", "lockstep")),
+    ParamSpec("start_settle_s", float, "Realtime: start the reference this long after a controller subscribes the "
+              "preview and odom has a publisher (discovery between the nodes ends first)", "s", 0.0, 60.0, False),
 )
-_DEFAULTS = {"scenario": "paper-circle", "mode": "realtime"}
+_DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1.0}
 
 
 # the fields of point j a preview sets, in the order of `preview_values`
@@ -183,6 +194,8 @@ class TrajectoryNode(Node):
         self.last_clock_ns: int | None = None
         self.last_published_ns: int | None = None
         self.start_ns: int | None = 0 if self.lockstep else None  # node-clock time of the reference's t = 0
+        self.subscribed_since: int | None = None  # realtime: node-clock time since which the start condition holds
+        self.odom_topic = self.resolve_topic_name("odom")  # realtime: its publisher is part of the start condition
         self.preview_cdr: CdrTemplate | None = None  # built on first use (horizon and period fixed)
         self.grid: np.ndarray | None = None  # lockstep: point values at k Ts (`_grid_values`)
         if self.lockstep:
@@ -282,8 +295,13 @@ class TrajectoryNode(Node):
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
         if self.start_ns is None:
-            if self.preview_pub.get_subscription_count() == 0:
-                return  # the reference starts when a controller listens
+            if self.preview_pub.get_subscription_count() == 0 or self.count_publishers(self.odom_topic) == 0:
+                self.subscribed_since = None
+                return  # the reference starts when a controller listens and the robot sends odometry ...
+            if self.subscribed_since is None:
+                self.subscribed_since = now
+            if now - self.subscribed_since < int(self.params["start_settle_s"] * 1e9):
+                return  # ... and has for the settle time
             self.start_ns = now
             self._publish_path()
         self._publish_preview(now, now - self.start_ns)

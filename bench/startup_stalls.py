@@ -1,0 +1,131 @@
+"""Fast DDS shared-memory health-check sleeps around the start of the realtime loop, with and without the settle.
+
+Linux only. Runs the three nodes in realtime on paper-circle, `--runs` times
+per arm, the arms interleaved: the trajectory's ``start_settle_s`` at 0 (the
+loop starts as soon as the controller has an odometry and a preview) and at
+`--settle`. Beside each run a sampler reads every thread of the three
+processes every 5 ms (``/proc/PID/task/*/syscall``); a thread seen in
+nanosleep or clock_nanosleep for 200 ms or more is counted as a sleep (the
+health check of bench/README.md sleeps 333 ms), timed from the plant's first
+answered tick. Prints one line per run and a summary per arm.
+
+    python bench/startup_stalls.py [--runs 20] [--duration 6] [--settle 1.0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import re
+import sys
+import threading
+import time
+
+from robotino_geom_mpc.core.params import default_params_file
+from robotino_geom_mpc.nodes.dds_bench import missed_ticks
+from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
+
+SLEEP_SYSCALLS = {"x86_64": {"35", "230"}, "aarch64": {"101", "115"}}  # nanosleep, clock_nanosleep
+MIN_SLEEP_S = 0.2
+SAMPLE_S = 0.005
+_MISSED = re.compile(r"realtime run over: \d+ ticks answered, (\d+) missed")
+_FIRST = re.compile(r"first answer at steady time ([0-9.]+) s")
+
+
+def _read(path: str) -> str:
+    try:
+        with open(path) as f:
+            return f.read()
+    except OSError:
+        return ""
+
+
+class SleepSampler:
+    """Threads of the given processes seen in a sleep syscall for `MIN_SLEEP_S` or more: (node, thread, start, s)."""
+
+    def __init__(self, pids: dict[str, int], syscalls: set[str]) -> None:
+        self.pids, self.syscalls = pids, syscalls
+        self.sleeps: list[tuple[str, str, float, float]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        since: dict[tuple[str, str], float] = {}
+        while not self._stop.wait(SAMPLE_S):
+            now = time.monotonic()
+            for name, pid in self.pids.items():
+                try:
+                    tids = os.listdir(f"/proc/{pid}/task")
+                except OSError:
+                    continue
+                for tid in tids:
+                    key = (name, tid)
+                    if _read(f"/proc/{pid}/task/{tid}/syscall").split(" ", 1)[0] in self.syscalls:
+                        since.setdefault(key, now)
+                    elif key in since:
+                        start = since.pop(key)
+                        if now - start >= MIN_SLEEP_S:
+                            comm = _read(f"/proc/{pid}/task/{tid}/comm").strip()
+                            self.sleeps.append((name, comm, start, now - start))
+
+    def stop(self) -> list[tuple[str, str, float, float]]:
+        self._stop.set()
+        self._thread.join()
+        return self.sleeps
+
+
+def run_once(settle_s: float, duration_s: float, syscalls: set[str]) -> dict:
+    """One realtime run; its missed ticks and sleeps (start relative to the first answer [s], length [s])."""
+    params = default_params_file()
+    with NodeGroup() as group:
+        group.start("trajectory_node", ros_args(params, {"scenario": "paper-circle", "mode": "realtime",
+                                                         "start_settle_s": settle_s}))
+        group.start("controller_node", ros_args(params, {"mode": "realtime"}))
+        plant = group.start("plant_node", ros_args(params, {"mode": "realtime", "duration_s": duration_s}))
+        sampler = SleepSampler({node.name: node.popen.pid for node in group.nodes}, syscalls)
+        ended = group.wait(plant, duration_s + 60.0)
+        sleeps = sampler.stop()
+        report = plant.stderr_tail(lines=50)
+    missed, first = _MISSED.search(report), _FIRST.search(report)
+    if not ended or missed is None or first is None:
+        raise RuntimeError(f"the realtime run did not report its end:\n{report}")
+    t0 = float(first[1])
+    return {"missed": int(missed[1]), "gaps": [(t - t0, gap) for t, gap in missed_ticks(report)],
+            "sleeps": [(f"{node}/{comm}", start - t0, length) for node, comm, start, length in sleeps]}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=20, help="runs per arm")
+    parser.add_argument("--duration", type=float, default=6.0, help="plant duration_s of each run [s]")
+    parser.add_argument("--settle", type=float, default=1.0, help="start_settle_s of the second arm [s]")
+    args = parser.parse_args()
+    syscalls = SLEEP_SYSCALLS.get(platform.machine())
+    if not sys.platform.startswith("linux") or syscalls is None:
+        print(f"needs Linux on {' or '.join(SLEEP_SYSCALLS)} (/proc syscall numbers)", file=sys.stderr)
+        return 2
+    arms = (0.0, args.settle)
+    totals = {arm: {"runs": 0, "runs_with_misses": 0, "sleeps_before": 0, "sleeps_after": 0} for arm in arms}
+    for i in range(args.runs):
+        for arm in arms:
+            run = run_once(arm, args.duration, syscalls)
+            total = totals[arm]
+            total["runs"] += 1
+            total["runs_with_misses"] += run["missed"] > 0
+            for _, start, _ in run["sleeps"]:
+                total["sleeps_after" if start > 0 else "sleeps_before"] += 1
+            line = f"run {i} start_settle_s {arm:g}: {run['missed']} missed"
+            line += "".join(f"; {who} slept {1e3 * length:.0f} ms at {start:+.3f} s"
+                            for who, start, length in run["sleeps"])
+            line += "".join(f"; miss at {t:+.3f} s, {1e3 * gap:.1f} ms to the next odometry"
+                            for t, gap in run["gaps"][:5])
+            print(line, flush=True)
+    for arm, total in totals.items():
+        print(f"start_settle_s {arm:g}: {total}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -7,11 +7,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.nodes.common import LATCHED_QOS
+from robotino_geom_mpc.nodes.common import LATCHED_QOS, PUBLISH_QOS
 from robotino_geom_mpc.nodes.harness import Harness
 from robotino_geom_mpc.nodes.processes import ros_args
 
@@ -54,6 +55,7 @@ def test_installed_executable_answers_on_dds(install):
     with Harness("colcon_test") as h:
         paths = h.collect("/colcon_probe/reference_path", PathMsg, LATCHED_QOS)
         previews = h.collect("/colcon_probe/reference_preview", MultiDOFJointTrajectory)  # as a controller would
+        h.node.create_publisher(Odometry, "/colcon_probe/odom", PUBLISH_QOS)  # as a robot would: the reference starts
         proc = subprocess.Popen(
             [str(install / "lib" / PACKAGE / "trajectory_node"),
              *ros_args(share_config, {"scenario": "lemniscate"}), "-r", "__ns:=/colcon_probe"],

@@ -14,6 +14,7 @@ from robotino_geom_mpc.core.trajectory import (
     make_reference,
     preview,
     septic,
+    shift_preview,
 )
 
 H = 1e-5  # finite-difference step [s]
@@ -172,6 +173,21 @@ def test_preview_positions_and_hold():
             assert got.shape == (4, 3)
             np.testing.assert_allclose(got, ref.position(t + 0.01 * np.arange(1, 5)), atol=1e-13)
         np.testing.assert_allclose(preview(ref, ref.duration_s + 5.0, 0.01, 3), 0.0, atol=1e-12)
+
+
+def test_shift_preview_moves_points_in_time_to_the_taylor_bound():
+    """Against the reference sampled at the shifted times: error <= max|jerk| |dt|^3 / 6 (+ rounding)."""
+    Ts, N = 0.01, 4
+    for ref in references():
+        for t in np.linspace(0.0, ref.duration_s, 37):
+            pos, vel, acc, _ = ref.sample(t + Ts * np.arange(N + 1))
+            for dt in (-0.01, -0.004, 0.003, 0.0099):
+                exact = ref.position(t + dt + Ts * np.arange(N + 1))
+                window = t + Ts * np.arange(N + 1)[:, None] + np.linspace(min(dt, 0.0), max(dt, 0.0), 21)
+                jerk = np.abs(ref.sample(window.ravel())[3]).reshape(N + 1, 21, 3).max(axis=1)
+                bound = jerk * abs(dt) ** 3 / 6.0 + 1e-12
+                assert np.all(np.abs(shift_preview(pos, vel, acc, dt) - exact) <= bound)
+            np.testing.assert_array_equal(shift_preview(pos, vel, acc, 0.0), pos)
 
 
 @pytest.mark.parametrize(

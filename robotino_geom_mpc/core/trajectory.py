@@ -39,6 +39,7 @@ __all__ = [
     "septic",
     "make_reference",
     "preview",
+    "shift_preview",
 ]
 
 SCENARIOS: tuple[str, ...] = ("paper-circle", "lemniscate", "point-to-point")
@@ -514,3 +515,16 @@ def preview(reference: Reference, t: float, period_s: float, horizon: int) -> np
     t, period_s = float(t), float(period_s)
     # The scalar kernel per point beats numpy's per-call overhead for a short horizon.
     return np.array([reference._kernel(t + j * period_s, _Scalar, False)[0] for j in range(1, horizon + 1)])
+
+
+def shift_preview(positions: np.ndarray, velocities: np.ndarray, accelerations: np.ndarray, dt_s: float) -> np.ndarray:
+    """Preview points moved by `dt_s` in time: x_d(t_j + dt) ~ x_d(t_j) + v_d(t_j) dt + a_d(t_j) dt^2 / 2.
+
+    In realtime the freshest preview is stamped t_p on the trajectory node's
+    timer and the odometry t_k on the plant's; the MPC needs x_d(k + j) =
+    x_d(t_k + j Ts) (eq. 54), so every point moves by dt = t_k - t_p. The
+    second-order Taylor step errs by at most max|jerk| |dt|^3 / 6 per point
+    (about 2e-7 m for 1 m/s^3 and dt = 10 ms). Arrays are (points, 3) of
+    (x, y, theta) and their first and second derivatives.
+    """
+    return positions + dt_s * velocities + (0.5 * dt_s * dt_s) * accelerations

@@ -204,7 +204,7 @@ def test_layout_reads_the_preview_of_the_trajectory_node():
         data = template.pack(*divmod(t_ns, 10**9), *preview_values(reference, t_ns, control.period_s, control.horizon))
         msg = TYPESTORE.deserialize_cdr(data, "trajectory_msgs/msg/MultiDOFJointTrajectory")  # a second reader
         assert layout.read(data) == (msg.header.stamp.sec, msg.header.stamp.nanosec,
-                                     *controller_node.preview_pose_values(msg, control.horizon))
+                                     *controller_node.preview_point_values(msg, control.horizon))
 
 
 @pytest.mark.parametrize("change", ["frame", "child", "short", "long", "big_endian"])

@@ -214,6 +214,41 @@ def test_realtime_watchdog_outputs_zero_volts_on_stale_odometry(harness, tmp_pat
         assert "stale_odom" in states
 
 
+def test_realtime_moves_the_freshest_preview_to_the_odometry_stamp(harness, tmp_path_factory):
+    """The trajectory's and the plant's timers are out of phase: a preview 7 ms older than the odometry is moved."""
+    h = harness
+    robot, control = load_params()
+    reference = make_reference("lemniscate")
+    preview_stamp = 500 * round(control.period_s * 1e9)
+    stamp = preview_stamp + 7_000_000
+    x, y, th = reference.position(stamp * 1e-9)
+    voltages = h.collect("/shift/wheel_voltages", Float64MultiArray)
+    diagnostics = h.collect("/shift/diagnostics", DiagnosticArray)
+    odom_pub = h.node.create_publisher(Odometry, "/shift/odom", PUBLISH_QOS)
+    preview_pub = h.node.create_publisher(MultiDOFJointTrajectory, "/shift/reference_preview", PUBLISH_QOS)
+    with NodeGroup(log_dir=tmp_path_factory.mktemp("controller_shift")) as group:
+        node = group.start("controller_node", [*ros_args(None, {"mode": "realtime"}), "-r", "__ns:=/shift"])
+        assert h.spin_until(lambda: odom_pub.get_subscription_count() >= 1
+                            and preview_pub.get_subscription_count() >= 1
+                            and h.node.count_publishers("/shift/wheel_voltages") >= 1, 30.0), node.stderr_tail()
+        h.spin_for(0.2)
+        preview_pub.publish(preview_message(reference, preview_stamp, control.period_s, control.horizon))
+        h.spin_for(0.05)
+        odom_pub.publish(odometry(stamp, x + 0.001, y, th))
+        assert h.spin_until(lambda: voltages and diagnostics), node.stderr_tail()
+    X = np.array([x + 0.001, 0.0, y, 0.0, th, 0.0])
+    exact = MotionController(robot, control).step(X, preview(reference, stamp * 1e-9, control.period_s,
+                                                              control.horizon)).voltages
+    unmoved = MotionController(robot, control).step(X, preview(reference, preview_stamp * 1e-9, control.period_s,
+                                                                control.horizon)).voltages
+    got = np.array(voltages[0].data)
+    assert np.max(np.abs(got - exact)) < 1e-3
+    assert np.max(np.abs(got - unmoved)) > 100 * np.max(np.abs(got - exact))
+    _, kv = values(diagnostics[0])
+    assert float(kv["error_x_m"]) == pytest.approx(0.001, abs=1e-7)  # against x_d at the odometry stamp
+    assert abs(float(kv["error_y_m"])) < 1e-7
+
+
 def test_refuses_to_start_with_an_out_of_range_horizon():
     proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc.nodes.controller_node",
                            *ros_args(None, {"control.horizon": 0})], capture_output=True, text=True, timeout=60)

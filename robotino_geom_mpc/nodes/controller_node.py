@@ -9,6 +9,7 @@ publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layo
                                   per tick, header.stamp = the odometry stamp, values: ``error_x_m``,
                                   ``error_y_m``, ``error_theta_rad`` (measured - reference at t_k),
                                   ``compute_time_ms`` (the step), ``saturated``, ``infeasible``,
+                                  ``preview_stamp_ns`` (the stamp of the preview used, see below),
                                   ``watchdog`` (waiting, ok, stale_odom, stale_reference), ``rejected``
                                   (inputs refused so far); built and sent only while a subscription
                                   is matched
@@ -23,7 +24,11 @@ as `CdrTemplate` bytes.
 Each odometry message is one control tick: the node computes on its arrival,
 which keeps the odometry-to-voltage latency to one step. The preview used is
 the one whose stamp equals the odometry stamp in ``lockstep`` (the odometry
-waits for it if it comes first), the freshest in ``realtime``. In lockstep a
+waits for it if it comes first), the freshest in ``realtime``, moved in time
+from its stamp to the odometry's with its velocities and accelerations
+(`core.trajectory.shift_preview`: the trajectory node's timer and the
+plant's do not tick in phase, and up to a period apart the reference has
+moved v Ts, 3 mm on paper-circle). In lockstep a
 repeated odometry stamp (the plant resends a tick) is answered again only if
 the first answer could not be delivered (no matched subscriber then), so no
 tick is answered twice; such an answer also goes out as soon as a
@@ -64,6 +69,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, odometry_state_floats
 from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
+from robotino_geom_mpc.core.trajectory import shift_preview
 from robotino_geom_mpc.nodes.common import (
     CONTROL_QOS,
     PUBLISH_QOS,
@@ -82,10 +88,10 @@ from robotino_geom_mpc.nodes.common import (
 from robotino_geom_mpc.nodes.trajectory_node import preview_skeleton
 
 __all__ = ["CONTROLLER_SPECS", "ControllerNode", "odometry_values", "state_of_odometry", "odometry_state",
-           "preview_pose_values", "positions_of_preview", "preview_positions", "main"]
+           "preview_point_values", "preview_of_values", "preview_arrays", "main"]
 
 STATUS_NAME = "robotino_geom_mpc: controller"
-# the general decoders (field names are all `odometry_values` and `preview_pose_values` use, so either one fits)
+# the general decoders (field names are all `odometry_values` and `preview_point_values` use, so either one fits)
 _read_odom = cdr_reader(Odometry, "nav_msgs/msg/Odometry")
 _read_preview = cdr_reader(MultiDOFJointTrajectory, "trajectory_msgs/msg/MultiDOFJointTrajectory")
 
@@ -107,7 +113,11 @@ _STAMP = ("header.stamp.sec", "header.stamp.nanosec")
 _ODOM_PATHS = _STAMP + tuple("pose.pose." + f for f in (
     "position.x", "position.y", "orientation.x", "orientation.y", "orientation.z", "orientation.w")) + (
     "twist.twist.linear.x", "twist.twist.linear.y", "twist.twist.angular.z")
-_POSE_FIELDS = ("translation.x", "translation.y", "rotation.x", "rotation.y", "rotation.z", "rotation.w")
+# per preview point: pose (x, y, yaw quaternion), then velocity and acceleration (x, y, theta)
+_POINT_FIELDS = tuple(f"transforms[0].{f}" for f in (
+    "translation.x", "translation.y", "rotation.x", "rotation.y", "rotation.z", "rotation.w")) + tuple(
+    f"{kind}[0].{f}" for kind in ("velocities", "accelerations") for f in ("linear.x", "linear.y", "angular.z"))
+_POINT_SIZE = len(_POINT_FIELDS)
 
 
 def _odom_layout() -> CdrLayout:
@@ -120,7 +130,7 @@ def _odom_layout() -> CdrLayout:
 def _preview_layout(period_s: float, horizon: int) -> CdrLayout:
     """The preview the trajectory node sends (`trajectory_node.preview_skeleton`), read in place."""
     return CdrLayout(preview_skeleton(period_s, horizon), _STAMP + tuple(
-        f"points[{j}].transforms[0].{f}" for j in range(horizon + 1) for f in _POSE_FIELDS))
+        f"points[{j}].{f}" for j in range(horizon + 1) for f in _POINT_FIELDS))
 
 
 def odometry_values(msg: Odometry) -> tuple:
@@ -153,27 +163,36 @@ def odometry_state(msg: Odometry, previous_theta: float) -> np.ndarray:
     return state_of_odometry(odometry_values(msg)[2:], previous_theta)
 
 
-def preview_pose_values(msg: MultiDOFJointTrajectory, horizon: int) -> tuple:
-    """(x, y, q_x, q_y, q_z, q_w) of points 0..N of a decoded preview, flat.
+def preview_point_values(msg: MultiDOFJointTrajectory, horizon: int) -> tuple:
+    """Per point 0..N of a decoded preview: x, y, q_x, q_y, q_z, q_w, velocity and acceleration (x, y, theta), flat.
+
+    A point without velocities or accelerations gets zeros there (its pose is then used as it is).
 
     Raises
     ------
     InputRejected
-        If the message does not have N + 1 points with one transform each.
+        If the message does not have N + 1 points with one transform (and at most one velocity and
+        acceleration) each.
     """
     if len(msg.points) != horizon + 1:
         raise InputRejected(f"reference_preview has {len(msg.points)} points, need N + 1 = {horizon + 1}")
     out = []
     for j, point in enumerate(msg.points):
-        if len(point.transforms) != 1:
-            raise InputRejected(f"reference_preview point {j} has {len(point.transforms)} transforms, need 1")
+        if len(point.transforms) != 1 or len(point.velocities) > 1 or len(point.accelerations) > 1:
+            raise InputRejected(f"reference_preview point {j} has {len(point.transforms)} transforms, "
+                                f"{len(point.velocities)} velocities, {len(point.accelerations)} accelerations; "
+                                "need 1, at most 1, at most 1")
         tr, q = point.transforms[0].translation, point.transforms[0].rotation
         out += (tr.x, tr.y, q.x, q.y, q.z, q.w)
+        for twists in (point.velocities, point.accelerations):
+            out += (twists[0].linear.x, twists[0].linear.y, twists[0].angular.z) if twists else (0.0, 0.0, 0.0)
     return tuple(out)
 
 
-def positions_of_preview(values: tuple, theta_near: float) -> np.ndarray:
-    """Reference positions (x, y, theta) of `preview_pose_values`, shape (N + 1, 3), theta unwrapped from `theta_near`.
+def preview_of_values(values: tuple, theta_near: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Positions (x, y, theta), velocities and accelerations of `preview_point_values`, each (N + 1, 3).
+
+    Theta is unwrapped from `theta_near`.
 
     Raises
     ------
@@ -182,27 +201,29 @@ def positions_of_preview(values: tuple, theta_near: float) -> np.ndarray:
     """
     if not math.isfinite(sum(values)):
         raise InputRejected("reference_preview contains non-finite values")
-    out = np.empty((len(values) // 6, 3))
+    points = np.array(values, dtype=float).reshape(-1, _POINT_SIZE)
+    positions = np.empty((len(points), 3))
     theta = theta_near
-    for j in range(len(out)):
-        x, y, qx, qy, qz, qw = values[6 * j : 6 * j + 6]
+    for j, (x, y, qx, qy, qz, qw) in enumerate(points[:, :6].tolist()):
         theta = unwrap_near(yaw_of(qx, qy, qz, qw), theta)
-        out[j] = (x, y, theta)
-    return out
+        positions[j] = (x, y, theta)
+    return positions, points[:, 6:9], points[:, 9:12]
 
 
-def preview_positions(msg: MultiDOFJointTrajectory, horizon: int, theta_near: float) -> np.ndarray:
-    """`positions_of_preview` of a decoded preview (N + 1 points), shape (N + 1, 3).
+def preview_arrays(msg: MultiDOFJointTrajectory, horizon: int,
+                   theta_near: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`preview_of_values` of a decoded preview (N + 1 points).
 
     Raises
     ------
     InputRejected
-        If the message does not have N + 1 points with one transform each, or holds non-finite values.
+        If the message does not have the points `preview_point_values` needs, or holds non-finite values.
     """
-    return positions_of_preview(preview_pose_values(msg, horizon), theta_near)
+    return preview_of_values(preview_point_values(msg, horizon), theta_near)
 
 
-_TRACKING_KEYS = ("error_x_m", "error_y_m", "error_theta_rad", "compute_time_ms", "saturated", "infeasible")
+_TRACKING_KEYS = ("error_x_m", "error_y_m", "error_theta_rad", "compute_time_ms", "saturated", "infeasible",
+                  "preview_stamp_ns")
 _EVENT_KEYS = ("watchdog", "rejected")
 
 
@@ -241,7 +262,8 @@ class ControllerNode(Node):
 
         self.theta = 0.0  # last measured (continuous) yaw
         self.previews: dict[int, np.ndarray] = {}  # stamp [ns] -> (N + 1, 3)
-        self.latest_preview: np.ndarray | None = None
+        # realtime: stamp [ns], positions, velocities, accelerations of the freshest preview
+        self.latest_preview: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.pending: tuple[int, np.ndarray] | None = None  # lockstep: odometry waiting for its preview
         self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, voltages
         self.odom_time = self.preview_time = None  # steady arrival times
@@ -273,22 +295,22 @@ class ControllerNode(Node):
             if values is None:
                 msg = _read_preview(data)
                 header = msg.header
-                values = (header.stamp.sec, header.stamp.nanosec, *preview_pose_values(msg, self.control.horizon))
-            positions = positions_of_preview(values[2:], self.theta)
+                values = (header.stamp.sec, header.stamp.nanosec, *preview_point_values(msg, self.control.horizon))
+            positions, velocities, accelerations = preview_of_values(values[2:], self.theta)
         except (MalformedMessage, InputRejected) as exc:
             self.rejected += 1
             self.get_logger().warn(f"rejected reference_preview: {exc}", throttle_duration_sec=1.0)
             return
         self.preview_time = monotonic()
-        self.latest_preview = positions
-        if not self.lockstep:
-            return
         stamp = values[0] * 1_000_000_000 + values[1]
+        if not self.lockstep:
+            self.latest_preview = (stamp, positions, velocities, accelerations)
+            return
         self.previews[stamp] = positions
         if self.pending is not None and self.pending[0] == stamp:
             odom_stamp, X = self.pending
             self.pending = None
-            self._control(odom_stamp, X, positions)
+            self._control(odom_stamp, X, positions, stamp)
 
     def _on_odom(self, data: bytes) -> None:
         try:
@@ -313,15 +335,16 @@ class ControllerNode(Node):
         if self.lockstep:
             for old in [s for s in self.previews if s < stamp]:
                 del self.previews[old]
-            positions = self.previews.get(stamp)
+            positions, preview_stamp = self.previews.get(stamp), stamp
             if positions is None:
                 self.pending = (stamp, X)
                 return
         else:
-            positions = self.latest_preview
-            if positions is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
+            if self.latest_preview is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
                 return  # stale reference: the watchdog outputs zero volts
-        self._control(stamp, X, positions)
+            preview_stamp, positions, velocities, accelerations = self.latest_preview
+            positions = shift_preview(positions, velocities, accelerations, (stamp - preview_stamp) * 1e-9)
+        self._control(stamp, X, positions, preview_stamp)
 
     def _deliver_answer(self) -> None:
         """Lockstep: publish the last answer again if it went out before any subscription matched."""
@@ -334,7 +357,8 @@ class ControllerNode(Node):
             self._deliver_answer()
 
     # control ------------------------------------------------------------------------------------
-    def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray) -> None:
+    def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray, preview_stamp: int) -> None:
+        """One step on the odometry of `stamp` and the preview of `preview_stamp` (its `positions`, moved to `stamp`)."""
         try:
             out = self.controller.step(X, positions[1:])
         except ControllerInputError as exc:
@@ -348,9 +372,9 @@ class ControllerNode(Node):
         error = X[[0, 2, 4]] - positions[0]
         flags = (bool(out.saturated), bool(out.infeasible))
         level = DiagnosticStatus.WARN if any(flags) else DiagnosticStatus.OK
-        self._diagnose(stamp, level, "tracking", error, compute_s, flags)
+        self._diagnose(stamp, level, "tracking", error, compute_s, flags, preview_stamp)
 
-    def _diagnose(self, stamp: int, level, message: str, error, compute_s, flags) -> None:
+    def _diagnose(self, stamp: int, level, message: str, error, compute_s, flags, preview_stamp=None) -> None:
         """Publish the status (if a subscription is matched); `error` None: only the watchdog state and rejections."""
         if not self.diag_pub.get_subscription_count():
             return  # building and serializing the array costs ~70 us a tick
@@ -360,7 +384,7 @@ class ControllerNode(Node):
         text = []
         if error is not None:
             text += [f"{e:.9g}" for e in error]
-            text += [f"{compute_s * 1e3:.4f}", str(flags[0]).lower(), str(flags[1]).lower()]
+            text += [f"{compute_s * 1e3:.4f}", str(flags[0]).lower(), str(flags[1]).lower(), str(preview_stamp)]
         text += [self.watchdog_state, str(self.rejected)]
         for pair, value in zip(status.values, text):
             pair.value = value

@@ -5,8 +5,11 @@ the recording stores (or a parameter file), is stepped once per recorded
 control tick with exactly what the controller node got: the ``odom``
 message of the tick converted by the node's own `odometry_state` and the
 ``reference_preview`` of the same stamp converted by its
-`preview_positions` (lockstep; without a preview of the same stamp, as in
-realtime mode, the latest preview published before the recorded answer).
+`preview_arrays` (lockstep; in realtime mode the preview whose stamp the
+node's diagnostics name, else the latest one published before the next
+odometry, moved to the tick's stamp by `core.trajectory.shift_preview` as
+the node does; the ticks before the first preview, or before the first
+one the diagnostics name, are not stepped: the node had no preview yet).
 Its voltages are compared with the recorded ``wheel_voltages`` answer of
 the tick (paired through the controller's ``diagnostics``, stamped with
 the tick, see `report`). Deterministic code on identical inputs gives
@@ -36,7 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from robotino_geom_mpc.core.controller import ControllerInputError, MotionController
-from robotino_geom_mpc.nodes.controller_node import InputRejected, odometry_state, preview_positions
+from robotino_geom_mpc.core.trajectory import shift_preview
+from robotino_geom_mpc.nodes.controller_node import InputRejected, odometry_state, preview_arrays
 from robotino_geom_mpc.recording.bag import BagError, BagReader
 from robotino_geom_mpc.recording.report import (
     by_publish_time,
@@ -96,7 +100,7 @@ def regress_bag(
     ------
     BagError
         If the recording lacks ``odom``, ``reference_preview`` or
-        ``wheel_voltages``, or a tick has no preview to feed the controller.
+        ``wheel_voltages``.
     """
     if not math.isfinite(tolerance_v) or tolerance_v < 0.0:
         raise BagError(f"tolerance must be finite and >= 0, got {tolerance_v!r}")
@@ -109,9 +113,13 @@ def regress_bag(
     diags = by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False))
     volt_t = [p for p, _ in voltages]
     answers: dict[int, np.ndarray] = {}  # tick stamp -> recorded voltages
+    used: dict[int, int] = {}  # tick stamp -> stamp of the preview the node used (its diagnostics say)
     for publish, msg in diags:
-        if controller_diagnostics(msg) is None:
+        values = controller_diagnostics(msg)
+        if values is None:
             continue
+        if values.get("preview_stamp_ns", "").isdigit():
+            used.setdefault(stamp_ns(msg.header.stamp), int(values["preview_stamp_ns"]))
         i = bisect_left(volt_t, publish) - 1
         if i >= 0:
             answers.setdefault(stamp_ns(msg.header.stamp), np.array(voltages[i][1].data))
@@ -150,14 +158,17 @@ def regress_bag(
         except InputRejected:
             expected = np.zeros(3)
         else:
-            preview = by_stamp.get(stamp)
+            preview = by_stamp.get(used.get(stamp, stamp))
             if preview is None:
                 answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
                 i = bisect_left(prev_t, answer_publish) - 1
-                if i < 0:
-                    raise BagError(f"{bag.path}: no reference_preview before the tick at stamp {stamp} ns")
+                if i < 0 or (ticks == 0 and used):  # realtime: the node had no preview yet, it did not step
+                    theta = X[4]
+                    continue
                 preview = previews[i][1]
-            positions = preview_positions(preview, control.horizon, theta)
+            positions, velocities, accelerations = preview_arrays(preview, control.horizon, theta)
+            positions = shift_preview(positions, velocities, accelerations,
+                                      (stamp - stamp_ns(preview.header.stamp)) * 1e-9)  # lockstep: by 0
             theta = X[4]
             try:
                 expected = controller.step(X, positions[1:]).voltages

@@ -17,20 +17,16 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import re
 import sys
 import threading
 import time
 
-from robotino_geom_mpc.core.params import default_params_file
-from robotino_geom_mpc.nodes.dds_bench import missed_ticks
-from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
+from robotino_geom_mpc.nodes.dds_bench import lockstep_nodes, missed_ticks, realtime_report
+from robotino_geom_mpc.nodes.processes import NodeGroup
 
 SLEEP_SYSCALLS = {"x86_64": {"35", "230"}, "aarch64": {"101", "115"}}  # nanosleep, clock_nanosleep
 MIN_SLEEP_S = 0.2
 SAMPLE_S = 0.005
-_MISSED = re.compile(r"realtime run over: \d+ ticks answered, (\d+) missed")
-_FIRST = re.compile(r"first answer at steady time ([0-9.]+) s")
 
 
 def _read(path: str) -> str:
@@ -78,21 +74,18 @@ class SleepSampler:
 
 def run_once(settle_s: float, duration_s: float, syscalls: set[str]) -> dict:
     """One realtime run; its missed ticks and sleeps (start relative to the first answer [s], length [s])."""
-    params = default_params_file()
     with NodeGroup() as group:
-        group.start("trajectory_node", ros_args(params, {"scenario": "paper-circle", "mode": "realtime",
-                                                         "start_settle_s": settle_s}))
-        group.start("controller_node", ros_args(params, {"mode": "realtime"}))
-        plant = group.start("plant_node", ros_args(params, {"mode": "realtime", "duration_s": duration_s}))
+        plant = lockstep_nodes(group, "paper-circle", duration_s, realtime=True,
+                               trajectory_overrides={"start_settle_s": settle_s})
         sampler = SleepSampler({node.name: node.popen.pid for node in group.nodes}, syscalls)
         ended = group.wait(plant, duration_s + 60.0)
         sleeps = sampler.stop()
         report = plant.stderr_tail(lines=50)
-    missed, first = _MISSED.search(report), _FIRST.search(report)
-    if not ended or missed is None or first is None:
+    summary = realtime_report(report)
+    if not ended or summary is None or summary["first_answer_s"] is None:
         raise RuntimeError(f"the realtime run did not report its end:\n{report}")
-    t0 = float(first[1])
-    return {"missed": int(missed[1]), "gaps": [(t - t0, gap) for t, gap in missed_ticks(report)],
+    t0 = summary["first_answer_s"]
+    return {"missed": summary["missed"], "gaps": [(t - t0, gap) for t, gap in missed_ticks(report)],
             "sleeps": [(f"{node}/{comm}", start - t0, length) for node, comm, start, length in sleeps]}
 
 

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.nodes import dds_bench
-from robotino_geom_mpc.nodes.dds_bench import bench_lockstep, bench_realtime, missed_ticks
+from robotino_geom_mpc.nodes.dds_bench import bench_lockstep, bench_realtime, missed_ticks, realtime_report
 from robotino_geom_mpc.nodes.host_steal import PROC_STAT
 from robotino_sim_node.loop_timing import MISSES_KEPT, LoopTiming
 
@@ -40,7 +40,7 @@ def test_realtime_figures_are_the_plants_count_of_answered_ticks():
 @settings(max_examples=50, deadline=None)
 @given(st.lists(st.booleans(), min_size=2, max_size=150), st.floats(min_value=0.0, max_value=3e4))
 def test_the_missed_ticks_read_back_from_the_plants_report(answers, start):
-    """`missed_ticks` reads the times `LoopTiming` kept back out of its summary line (to the line's 1 us)."""
+    """`missed_ticks` and `realtime_report` read what `LoopTiming` kept back out of its summary line."""
     timing = LoopTiming()
     for k, answered in enumerate(answers):
         timing.published(start + 0.01 * k)
@@ -51,11 +51,19 @@ def test_the_missed_ticks_read_back_from_the_plants_report(answers, start):
     assert len(read) == min(timing.missed, MISSES_KEPT) == len(timing.missed_at)
     for (t, gap), (t_kept, gap_kept) in zip(read, timing.missed_at):
         assert t == pytest.approx(t_kept, abs=2e-6) and gap == pytest.approx(gap_kept, abs=1e-6)
+    summary = realtime_report(report)
+    if not timing.answered:
+        assert summary is None  # no latency to report (nan): not a finished run
+        return
+    assert (summary["answered"], summary["missed"]) == (timing.answered, timing.missed)
+    assert summary["first_answer_s"] == pytest.approx(timing.first_answer_at, abs=1e-6)
+    assert summary["p99_ms"] == pytest.approx(1e3 * timing.percentile_s(99), abs=1e-3)
+    assert summary["max_ms"] == pytest.approx(1e3 * timing.max_latency_s, abs=1e-3)
 
 
 def test_a_report_without_misses_lists_none():
     assert missed_ticks("realtime run over: 5 ticks answered, 0 missed; ... first answer at steady time 3.0 s") == []
-    assert missed_ticks("no report") == []
+    assert missed_ticks("no report") == [] and realtime_report("no report") is None
 
 
 def test_dds_benchmarks_takes_the_median_of_the_lockstep_runs_and_passes_the_realtime_figures(monkeypatch):

@@ -44,7 +44,7 @@ from robotino_geom_mpc.nodes.host_steal import StealSampler
 from robotino_geom_mpc.nodes.processes import LOCKSTEP_WAIT_FOR, NodeGroup, ros_args
 
 __all__ = ["LOCKSTEP_RUNS", "PROBE_WAIT_FOR", "LoopProbe", "ProbeSpinner", "lockstep_nodes",
-           "bench_lockstep", "bench_realtime", "dds_benchmarks", "missed_ticks"]
+           "bench_lockstep", "bench_realtime", "dds_benchmarks", "missed_ticks", "realtime_report"]
 
 # the plant's `processes.LOCKSTEP_WAIT_FOR` with the probe
 PROBE_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
@@ -156,6 +156,7 @@ def lockstep_nodes(
     wait_for: list[str] | None = None,
     realtime: bool = False,
     plant_overrides: dict[str, Any] | None = None,
+    trajectory_overrides: dict[str, Any] | None = None,
 ):
     """Start trajectory, controller and plant (lockstep unless `realtime`); returns the plant's process.
 
@@ -167,7 +168,8 @@ def lockstep_nodes(
     mode = "realtime" if realtime else "lockstep"
     # neither reads its node clock in the loop: the trajectory's time is the /clock messages, the controller's
     # the odometry stamps
-    group.start("trajectory_node", ros_args(params_file, {"scenario": scenario, "mode": mode}))
+    group.start("trajectory_node", ros_args(params_file, {"scenario": scenario, "mode": mode,
+                                                         **(trajectory_overrides or {})}))
     group.start("controller_node", ros_args(params_file, {"mode": mode}))
     return group.start(
         "plant_node",
@@ -219,23 +221,37 @@ def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", tim
         if not group.wait(plant, timeout_s or duration_s + 60.0):
             raise TimeoutError(f"realtime run of {duration_s} s did not end")
         report = plant.stderr_tail(lines=50)
-    match = _REALTIME_OVER.search(report)
-    if match is None:
+    summary = realtime_report(report)
+    if summary is None:
         raise RuntimeError("the plant did not report the end of the realtime run")
-    answered, missed, median, p99, worst = int(match[1]), int(match[2]), *map(float, match.group(3, 4, 5))
     out = {
-        "realtime_missed_ticks": missed,
-        "realtime_ticks": answered + missed,
+        "realtime_missed_ticks": summary["missed"],
+        "realtime_ticks": summary["answered"] + summary["missed"],
         "realtime_expected_ticks": int(round(duration_s / period_s)),
-        "realtime_latency_median_ms": median,
-        "realtime_latency_p99_ms": p99,
-        "realtime_latency_max_ms": worst,
+        "realtime_latency_median_ms": summary["median_ms"],
+        "realtime_latency_p99_ms": summary["p99_ms"],
+        "realtime_latency_max_ms": summary["max_ms"],
     }
     if steal.available:
         out["realtime_host_steal_ms"] = 1e3 * steal.total_s()
         out["realtime_missed_ticks_in_host_steal"] = sum(
             steal.during(t - period_s, t + gap) > 0.0 for t, gap in missed_ticks(report))
     return out
+
+
+def realtime_report(report: str) -> dict[str, Any] | None:
+    """The plant's realtime summary line (`LoopTiming.summary`) read back, or None.
+
+    None if the report lacks the line or no tick was answered (the latencies read nan). Keys:
+    ``answered``, ``missed`` (ticks), ``median_ms``, ``p99_ms``, ``max_ms`` (latency) and
+    ``first_answer_s`` (steady time of the first answer; None if the line does not give it).
+    """
+    match = _REALTIME_OVER.search(report)
+    if match is None:
+        return None
+    first = _FIRST_ANSWER.search(report)
+    return {"answered": int(match[1]), "missed": int(match[2]), "median_ms": float(match[3]),
+            "p99_ms": float(match[4]), "max_ms": float(match[5]), "first_answer_s": float(first[1]) if first else None}
 
 
 def missed_ticks(report: str) -> list[tuple[float, float]]:

@@ -15,6 +15,8 @@ setup(
         f"{PACKAGE}.cli",
         f"{PACKAGE}.nodes",
         f"{PACKAGE}.recording",
+        f"{PACKAGE}.ros",
+        f"{PACKAGE}.bench",
         "robotino_sim_node",
     ],
     data_files=[

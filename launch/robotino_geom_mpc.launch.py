@@ -28,7 +28,7 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
-from robotino_geom_mpc.nodes.processes import RECORDER_WAIT_FOR
+from robotino_geom_mpc.ros.processes import RECORDER_WAIT_FOR
 
 PACKAGE = "robotino_geom_mpc"
 

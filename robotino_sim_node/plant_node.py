@@ -16,7 +16,7 @@ publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``
                                    angular velocity [rad/s], effort = wheel torque gear Km i [N m]
            ``/clock``              rosgraph_msgs/Clock (lockstep only)
 
-All publishers use `PUBLISH_QOS`, the subscription `CONTROL_QOS` (see `nodes.common`).
+All publishers use `PUBLISH_QOS`, the subscription `CONTROL_QOS` (see `robotino_geom_mpc.ros.qos`).
 
 Modes
 -----
@@ -77,30 +77,19 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from robotino_geom_mpc.core.params import ParamSpec
-from robotino_geom_mpc.nodes.common import (
-    CONTROL_QOS,
-    CURRENT_LABEL,
-    PUBLISH_QOS,
-    VOLTAGE_LABEL,
-    CdrTemplate,
-    MalformedMessage,
-    NodeStartError,
-    SpecParameters,
-    cdr_reader,
-    monotonic,
-    run_node,
-    spec_defaults,
-    three_values_layout,
-    three_values_template,
-)
+from robotino_geom_mpc.ros.cdr import CdrTemplate, MalformedMessage, cdr_reader
+from robotino_geom_mpc.ros.decode import STAMP_FIELDS
+from robotino_geom_mpc.ros.messages import BASE_FRAME, CURRENT_LABEL, ODOM_FRAME, VOLTAGE_LABEL, \
+    three_values_layout, three_values_template
+from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
+from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_sim_node.loop_timing import LoopTiming
 from robotino_sim_node.plant import RobotinoPlant
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
 
 JOINT_NAMES = ("wheel0_joint", "wheel1_joint", "wheel2_joint")
-ODOM_FRAME = "odom"
-BASE_FRAME = "base_link"
 # variance for the planar-motion axes (z, roll, pitch known to be 0) and for noise-free quantities
 _CERTAIN = 1e-12
 
@@ -161,8 +150,7 @@ def _check_wait_for(params: list[Parameter]) -> SetParametersResult:
     return SetParametersResult(successful=True)
 
 
-_STAMP = ("header.stamp.sec", "header.stamp.nanosec")
-_ODOM_FIELDS = _STAMP + (
+_ODOM_FIELDS = STAMP_FIELDS + (
     "pose.pose.position.x", "pose.pose.position.y", "pose.pose.orientation.z", "pose.pose.orientation.w",
     "twist.twist.linear.x", "twist.twist.linear.y", "twist.twist.angular.z",
 )
@@ -446,7 +434,7 @@ def _odometry_template(sigma_position: float, sigma_yaw: float) -> Odometry:
 def _joint_template() -> CdrTemplate:
     """JointState of the three wheels: stamp, then position, velocity and effort of wheels 0..2."""
     joints = JointState(name=list(JOINT_NAMES), position=[0.0] * 3, velocity=[0.0] * 3, effort=[0.0] * 3)
-    return CdrTemplate(joints, _STAMP + tuple(
+    return CdrTemplate(joints, STAMP_FIELDS + tuple(
         f"{field}[{j}]" for field in ("position", "velocity", "effort") for j in range(3)
     ))
 

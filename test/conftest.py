@@ -15,6 +15,6 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 
-from robotino_geom_mpc.nodes.processes import dds_environment  # noqa: E402  (after the variables it reads)
+from robotino_geom_mpc.ros.processes import dds_environment  # noqa: E402  (after the variables it reads)
 
 os.environ.update(dds_environment(os.environ))

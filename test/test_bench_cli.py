@@ -15,8 +15,9 @@ import sys
 import numpy as np
 import pytest
 
-from robotino_geom_mpc import benchmarks
-from robotino_geom_mpc.benchmarks import BenchmarkError, BenchmarkSkipped, _OsqpMPC, benchmark, run_benchmarks
+from robotino_geom_mpc.bench import registry as benchmarks
+from robotino_geom_mpc.bench import BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
+from robotino_geom_mpc.bench.controller_step import OsqpMPC
 from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.core.mpc import DecoupledMPC
 from robotino_geom_mpc.core.params import load_params
@@ -25,7 +26,7 @@ REQUIRED_KEYS = ("controller_step_speedup_vs_osqp", "offline_sim_realtime_factor
 
 
 def test_bench_json_quick_last_line():
-    # the DDS benchmark (nodes.dds_bench) starts ROS processes and is tested with it
+    # the DDS benchmark (bench.dds) starts ROS processes and is tested with it
     proc = subprocess.run(
         [sys.executable, "-m", "robotino_geom_mpc", "bench", "--json", "--quick", "--only", "controller_step", "offline_sim"],
         capture_output=True, text=True, timeout=300, env=dict(os.environ),
@@ -49,7 +50,7 @@ def test_osqp_qp_is_the_closed_form_mpc_problem(stacked):
     """The QPs OSQP solves have the closed form (eq. 56) as their minimiser, whole horizon."""
     robot, control = load_params()
     mpc = DecoupledMPC(robot, control)
-    qp = _OsqpMPC(mpc, stacked=stacked)
+    qp = OsqpMPC(mpc, stacked=stacked)
     N = mpc.horizon
     rng = np.random.default_rng(3)
     for _ in range(5):
@@ -118,7 +119,7 @@ def test_failed_benchmark_exits_1_with_one_line(registry, capsys):
 
 
 def test_dds_benchmark_skipped_without_ros(monkeypatch):
-    monkeypatch.setitem(sys.modules, "robotino_geom_mpc.nodes.dds_bench", None)  # import fails
+    monkeypatch.setitem(sys.modules, "robotino_geom_mpc.bench.dds", None)  # import fails
     lines = []
     assert run_benchmarks(quick=True, names=["dds"], log=lines.append) == {}
     assert "skipped" in lines[-1]

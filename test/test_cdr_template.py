@@ -22,14 +22,10 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.core.trajectory import make_reference
-from robotino_geom_mpc.nodes import controller_node
-from robotino_geom_mpc.nodes.common import (
-    CdrTemplate,
-    CdrTemplateError,
-    three_values_layout,
-    three_values_template,
-)
-from robotino_geom_mpc.nodes.trajectory_node import preview_message, preview_template, preview_values
+from robotino_geom_mpc.ros import decode, messages
+from robotino_geom_mpc.ros.cdr import CdrTemplate, CdrTemplateError
+from robotino_geom_mpc.ros.messages import preview_message, preview_template, preview_values, three_values_layout, \
+    three_values_template
 from robotino_sim_node import plant_node
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -155,7 +151,7 @@ def test_template_does_not_change_the_message():
 @pytest.mark.parametrize("with_rosbags", [True, False])
 def test_cdr_reader_decodes_odometry_with_either_decoder(monkeypatch, with_rosbags):
     """rosbags' reader and rclpy's fallback decode to the same field values; garbage is MalformedMessage."""
-    from robotino_geom_mpc.nodes.common import MalformedMessage, cdr_reader
+    from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 
     if not with_rosbags:
         monkeypatch.setitem(sys.modules, "rosbags.typesys", None)  # import fails as if not installed
@@ -185,32 +181,32 @@ def _random_odometry(frame: str = "odom", child: str = "base_link") -> Odometry:
 
 def test_layout_reads_the_fields_of_any_message_with_the_template_layout():
     """Read in place == rclpy's decoder, for random values, from rclpy's serializer and from the plant's template."""
-    layout = controller_node._odom_layout()
+    layout = messages.odometry_layout()
     for _ in range(20):
         msg = _random_odometry()
-        assert layout.read(serialize_message(msg)) == controller_node.odometry_values(msg)
+        assert layout.read(serialize_message(msg)) == decode.odometry_values(msg)
     plant = CdrTemplate(plant_node._odometry_template(0.001, 0.002), plant_node._ODOM_FIELDS)
     values = (*_stamp(), *_floats(len(plant_node._ODOM_FIELDS) - 2))
     data = plant.pack(*values)
-    assert layout.read(data) == controller_node.odometry_values(deserialize_message(data, Odometry))
+    assert layout.read(data) == decode.odometry_values(deserialize_message(data, Odometry))
 
 
 def test_layout_reads_the_preview_of_the_trajectory_node():
     _, control = load_params()
-    layout = controller_node._preview_layout(control.period_s, control.horizon)
+    layout = messages.preview_layout(control.period_s, control.horizon)
     reference = make_reference("lemniscate")
     template = preview_template(control.period_s, control.horizon)
     for t_ns in rng.integers(0, 30 * 10**9, 5).tolist():
         data = template.pack(*divmod(t_ns, 10**9), *preview_values(reference, t_ns, control.period_s, control.horizon))
         msg = TYPESTORE.deserialize_cdr(data, "trajectory_msgs/msg/MultiDOFJointTrajectory")  # a second reader
         assert layout.read(data) == (msg.header.stamp.sec, msg.header.stamp.nanosec,
-                                     *controller_node.preview_point_values(msg, control.horizon))
+                                     *decode.preview_point_values(msg, control.horizon))
 
 
 @pytest.mark.parametrize("change", ["frame", "child", "short", "long", "big_endian"])
 def test_layout_refuses_other_layouts(change):
     """Other frame names, truncated or padded bytes, big-endian CDR: None (the caller decodes the general way)."""
-    layout = controller_node._odom_layout()
+    layout = messages.odometry_layout()
     msg = _random_odometry()
     data = serialize_message(msg)
     if change == "frame":
@@ -230,7 +226,7 @@ def test_layout_refuses_other_layouts(change):
 
 def test_layout_of_a_sequence_length_is_checked():
     """A preview with another number of points is refused even where the byte count happens to match."""
-    short, long = controller_node._preview_layout(0.01, 3), controller_node._preview_layout(0.01, 4)
+    short, long = messages.preview_layout(0.01, 3), messages.preview_layout(0.01, 4)
     template = preview_template(0.01, 4)
     data = template.pack(*range(len(template.paths)))
     assert long.read(data) is not None and short.read(data) is None

@@ -15,10 +15,11 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from robotino_geom_mpc.core.controller import MotionController
 from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.core.trajectory import make_reference, preview
-from robotino_geom_mpc.nodes.common import PUBLISH_QOS, ns_to_stamp, stamp_to_ns, yaw_to_quaternion
-from robotino_geom_mpc.nodes.harness import Harness
-from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
-from robotino_geom_mpc.nodes.trajectory_node import preview_message
+from robotino_geom_mpc.ros.messages import ns_to_stamp, stamp_to_ns, yaw_to_quaternion
+from robotino_geom_mpc.ros.qos import PUBLISH_QOS
+from harness import Harness
+from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
+from robotino_geom_mpc.ros.messages import preview_message
 
 NODE = "robotino_controller"
 

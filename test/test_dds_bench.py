@@ -7,9 +7,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.nodes import dds_bench
-from robotino_geom_mpc.nodes.dds_bench import bench_lockstep, bench_realtime, missed_ticks, realtime_report
-from robotino_geom_mpc.nodes.host_steal import PROC_STAT
+from robotino_geom_mpc.bench import dds as dds_bench
+from robotino_geom_mpc.bench.dds import bench_lockstep, bench_realtime, missed_ticks, realtime_report
+from robotino_geom_mpc.bench.host_steal import PROC_STAT
 from robotino_sim_node.loop_timing import MISSES_KEPT, LoopTiming
 
 

@@ -7,7 +7,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from robotino_geom_mpc.nodes.processes import dds_environment
+from robotino_geom_mpc.ros.processes import dds_environment
 
 NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 

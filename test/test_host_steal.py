@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from robotino_geom_mpc.nodes.host_steal import PROC_STAT, StealSampler, read_steal_s
+from robotino_geom_mpc.bench.host_steal import PROC_STAT, StealSampler, read_steal_s
 
 HZ = os.sysconf("SC_CLK_TCK")
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from robotino_geom_mpc.nodes.processes import RECORDER_WAIT_FOR
+from robotino_geom_mpc.ros.processes import RECORDER_WAIT_FOR
 
 LAUNCH_FILE = Path(__file__).resolve().parents[1] / "launch" / "robotino_geom_mpc.launch.py"
 

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.nodes.dds_bench import PROBE_WAIT_FOR, ProbeSpinner, lockstep_nodes
-from robotino_geom_mpc.nodes.processes import NodeGroup
+from probe import PROBE_WAIT_FOR, ProbeSpinner
+from robotino_geom_mpc.bench.dds import lockstep_nodes
+from robotino_geom_mpc.ros.processes import NodeGroup
 from robotino_geom_mpc.results import compute_metrics
 from robotino_geom_mpc.simulation import run_scenario
 

@@ -13,9 +13,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.nodes.common import PUBLISH_QOS, quaternion_to_yaw, stamp_to_ns
-from robotino_geom_mpc.nodes.harness import Harness
-from robotino_geom_mpc.nodes.processes import NodeGroup, ros_args
+from robotino_geom_mpc.ros.messages import quaternion_to_yaw, stamp_to_ns
+from robotino_geom_mpc.ros.qos import PUBLISH_QOS
+from harness import Harness
+from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
 from robotino_sim_node.plant import RobotinoPlant
 
 NOISE = (0.002, 0.003)

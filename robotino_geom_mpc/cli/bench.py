@@ -1,4 +1,4 @@
-"""`robotino-geom-mpc bench`: run the registered benchmarks (robotino_geom_mpc.benchmarks).
+"""`robotino-geom-mpc bench`: run the registered benchmarks (robotino_geom_mpc.bench).
 
 Progress goes to stderr; a table of the figures goes to stdout, and with
 --json the last line of stdout is one JSON object of all figures.
@@ -32,7 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmarks and print their figures; returns the exit status."""
-    from ..benchmarks import REGISTRY, BenchmarkError, run_benchmarks
+    from ..bench import REGISTRY, BenchmarkError, run_benchmarks
 
     if args.only is not None:
         unknown = [name for name in args.only if name not in REGISTRY]

@@ -70,7 +70,7 @@ def node_arguments(
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`."""
     from ..core.params import ROBOT_SPECS, load_params
-    from ..nodes.processes import LOCKSTEP_WAIT_FOR, RECORDER_WAIT_FOR, ros_args
+    from ..ros.processes import LOCKSTEP_WAIT_FOR, RECORDER_WAIT_FOR, ros_args
     from ..simulation import ROBUSTNESS_NOISE, controller_model
 
     robot, _ = load_params(params_file)
@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
     from ..core.params import default_params_file, load_params
     from ..core.trajectory import make_reference
-    from ..nodes.processes import NodeFailed, NodeGroup
+    from ..ros.processes import NodeFailed, NodeGroup
     from ..simulation import SCENARIOS
 
     if args.scenario not in SCENARIOS:

@@ -16,8 +16,8 @@ publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layo
 
 Both inputs are taken serialized. Bytes laid out as the plant and the
 trajectory node send them (frames ``odom``/``base_link``, N + 1 preview
-points of one transform each) are read in place by a `common.CdrLayout`
-(a few microseconds); any other layout is decoded by `common.cdr_reader`
+points of one transform each) are read in place by a `ros.cdr.CdrLayout`
+(a few microseconds); any other layout is decoded by `ros.cdr.cdr_reader`
 (rosbags' CDR reader when installed, else rclpy). The wheel_voltages go out
 as `CdrTemplate` bytes.
 
@@ -70,25 +70,15 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, odometry_state_floats
 from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.core.trajectory import shift_preview
-from robotino_geom_mpc.nodes.common import (
-    CONTROL_QOS,
-    PUBLISH_QOS,
-    VOLTAGE_LABEL,
-    CdrLayout,
-    MalformedMessage,
-    SpecParameters,
-    cdr_reader,
-    monotonic,
-    run_node,
-    spec_defaults,
-    three_values_template,
-    unwrap_near,
-    yaw_of,
-)
-from robotino_geom_mpc.nodes.trajectory_node import preview_skeleton
+from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
+from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
+    state_of_odometry
+from robotino_geom_mpc.ros.messages import VOLTAGE_LABEL, odometry_layout, preview_layout, three_values_template
+from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
+from robotino_geom_mpc.ros.spin import monotonic, run_node
 
-__all__ = ["CONTROLLER_SPECS", "ControllerNode", "odometry_values", "state_of_odometry", "odometry_state",
-           "preview_point_values", "preview_of_values", "preview_arrays", "main"]
+__all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
 
 STATUS_NAME = "robotino_geom_mpc: controller"
 # the general decoders (field names are all `odometry_values` and `preview_point_values` use, so either one fits)
@@ -103,123 +93,6 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
               True),
 )
 _DEFAULTS = {"mode": "realtime", "odom_timeout_s": 0.1, "reference_timeout_s": 0.1}
-
-
-class InputRejected(ValueError):
-    """An odometry or preview message with non-finite values or the wrong size."""
-
-
-_STAMP = ("header.stamp.sec", "header.stamp.nanosec")
-_ODOM_PATHS = _STAMP + tuple("pose.pose." + f for f in (
-    "position.x", "position.y", "orientation.x", "orientation.y", "orientation.z", "orientation.w")) + (
-    "twist.twist.linear.x", "twist.twist.linear.y", "twist.twist.angular.z")
-# per preview point: pose (x, y, yaw quaternion), then velocity and acceleration (x, y, theta)
-_POINT_FIELDS = tuple(f"transforms[0].{f}" for f in (
-    "translation.x", "translation.y", "rotation.x", "rotation.y", "rotation.z", "rotation.w")) + tuple(
-    f"{kind}[0].{f}" for kind in ("velocities", "accelerations") for f in ("linear.x", "linear.y", "angular.z"))
-_POINT_SIZE = len(_POINT_FIELDS)
-
-
-def _odom_layout() -> CdrLayout:
-    """The odometry the plant sends (REP-105 frames), read in place."""
-    msg = Odometry()
-    msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
-    return CdrLayout(msg, _ODOM_PATHS)
-
-
-def _preview_layout(period_s: float, horizon: int) -> CdrLayout:
-    """The preview the trajectory node sends (`trajectory_node.preview_skeleton`), read in place."""
-    return CdrLayout(preview_skeleton(period_s, horizon), _STAMP + tuple(
-        f"points[{j}].{f}" for j in range(horizon + 1) for f in _POINT_FIELDS))
-
-
-def odometry_values(msg: Odometry) -> tuple:
-    """(stamp sec, stamp nanosec, x, y, q_x, q_y, q_z, q_w, v_x, v_y, omega) of a decoded odometry message."""
-    p, q, tw = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
-    return (msg.header.stamp.sec, msg.header.stamp.nanosec, p.x, p.y, q.x, q.y, q.z, q.w,
-            tw.linear.x, tw.linear.y, tw.angular.z)
-
-
-def state_of_odometry(values: tuple, previous_theta: float) -> np.ndarray:
-    """Body state X = (x, x', y, y', theta, theta') (eq. 2) of `odometry_values` (without the stamp).
-
-    theta is unwrapped next to `previous_theta`; the base_link twist is
-    rotated into ``odom`` by the measured heading (`core.controller.odometry_state_floats`).
-
-    Raises
-    ------
-    InputRejected
-        If any value is not finite.
-    """
-    x, y, qx, qy, qz, qw, vx, vy, omega = values
-    if not math.isfinite(sum(values)):
-        raise InputRejected("odom contains non-finite values")
-    theta = unwrap_near(yaw_of(qx, qy, qz, qw), previous_theta)
-    return np.array(odometry_state_floats((x, y, theta), (vx, vy, omega)))
-
-
-def odometry_state(msg: Odometry, previous_theta: float) -> np.ndarray:
-    """`state_of_odometry` of a decoded odometry message."""
-    return state_of_odometry(odometry_values(msg)[2:], previous_theta)
-
-
-def preview_point_values(msg: MultiDOFJointTrajectory, horizon: int) -> tuple:
-    """Per point 0..N of a decoded preview: x, y, q_x, q_y, q_z, q_w, velocity and acceleration (x, y, theta), flat.
-
-    A point without velocities or accelerations gets zeros there (its pose is then used as it is).
-
-    Raises
-    ------
-    InputRejected
-        If the message does not have N + 1 points with one transform (and at most one velocity and
-        acceleration) each.
-    """
-    if len(msg.points) != horizon + 1:
-        raise InputRejected(f"reference_preview has {len(msg.points)} points, need N + 1 = {horizon + 1}")
-    out = []
-    for j, point in enumerate(msg.points):
-        if len(point.transforms) != 1 or len(point.velocities) > 1 or len(point.accelerations) > 1:
-            raise InputRejected(f"reference_preview point {j} has {len(point.transforms)} transforms, "
-                                f"{len(point.velocities)} velocities, {len(point.accelerations)} accelerations; "
-                                "need 1, at most 1, at most 1")
-        tr, q = point.transforms[0].translation, point.transforms[0].rotation
-        out += (tr.x, tr.y, q.x, q.y, q.z, q.w)
-        for twists in (point.velocities, point.accelerations):
-            out += (twists[0].linear.x, twists[0].linear.y, twists[0].angular.z) if twists else (0.0, 0.0, 0.0)
-    return tuple(out)
-
-
-def preview_of_values(values: tuple, theta_near: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Positions (x, y, theta), velocities and accelerations of `preview_point_values`, each (N + 1, 3).
-
-    Theta is unwrapped from `theta_near`.
-
-    Raises
-    ------
-    InputRejected
-        If a value is not finite.
-    """
-    if not math.isfinite(sum(values)):
-        raise InputRejected("reference_preview contains non-finite values")
-    points = np.array(values, dtype=float).reshape(-1, _POINT_SIZE)
-    positions = np.empty((len(points), 3))
-    theta = theta_near
-    for j, (x, y, qx, qy, qz, qw) in enumerate(points[:, :6].tolist()):
-        theta = unwrap_near(yaw_of(qx, qy, qz, qw), theta)
-        positions[j] = (x, y, theta)
-    return positions, points[:, 6:9], points[:, 9:12]
-
-
-def preview_arrays(msg: MultiDOFJointTrajectory, horizon: int,
-                   theta_near: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`preview_of_values` of a decoded preview (N + 1 points).
-
-    Raises
-    ------
-    InputRejected
-        If the message does not have the points `preview_point_values` needs, or holds non-finite values.
-    """
-    return preview_of_values(preview_point_values(msg, horizon), theta_near)
 
 
 _TRACKING_KEYS = ("error_x_m", "error_y_m", "error_theta_rad", "compute_time_ms", "saturated", "infeasible",
@@ -253,8 +126,8 @@ class ControllerNode(Node):
         # built once, values rewritten per tick (a third of the cost of building the message anew)
         self.diag_tracking = _diagnostics_message(_TRACKING_KEYS + _EVENT_KEYS)
         self.diag_event = _diagnostics_message(_EVENT_KEYS)
-        self.odom_layout = _odom_layout()
-        self.preview_layout = _preview_layout(self.control.period_s, self.control.horizon)
+        self.odom_layout = odometry_layout()
+        self.preview_layout = preview_layout(self.control.period_s, self.control.horizon)
         self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, CONTROL_QOS, raw=True)
         self.preview_sub = self.create_subscription(
             MultiDOFJointTrajectory, "reference_preview", self._on_preview, CONTROL_QOS, raw=True
@@ -278,7 +151,7 @@ class ControllerNode(Node):
     def _on_params(self, changed: dict) -> None:
         self.robot, self.control = self.params.robot_control()
         self.controller = MotionController(self.robot, self.control)
-        self.preview_layout = _preview_layout(self.control.period_s, self.control.horizon)
+        self.preview_layout = preview_layout(self.control.period_s, self.control.horizon)
         self.previews.clear()
         self.latest_preview = None
 

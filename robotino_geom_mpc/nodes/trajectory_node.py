@@ -54,37 +54,26 @@ x1, y1, theta1, x2, ... for point-to-point; empty: the scenario's default).
 from __future__ import annotations
 
 import numpy as np
-from builtin_interfaces.msg import Duration
-from geometry_msgs.msg import PoseStamped, Transform, Twist
+from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
-from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.core.params import CONTROL_SPECS, ParamSpec
-from robotino_geom_mpc.core.trajectory import SCENARIOS, TrajectoryError, make_reference, preview
-from robotino_geom_mpc.nodes.common import (
-    CLOCK_SUB_QOS,
-    CdrTemplate,
-    PUBLISH_QOS,
-    LATCHED_QOS,
-    NodeStartError,
-    SpecParameters,
-    ns_to_stamp,
-    run_node,
-    spec_defaults,
-    stamp_to_ns,
-    yaw_to_quaternion,
-)
+from robotino_geom_mpc.core.trajectory import SCENARIOS, TrajectoryError, make_reference
+from robotino_geom_mpc.ros.cdr import CdrTemplate
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, ns_to_stamp, point_values, preview_template, preview_values, \
+    stamp_to_ns, yaw_to_quaternion
+from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
+from robotino_geom_mpc.ros.qos import CLOCK_SUB_QOS, LATCHED_QOS, PUBLISH_QOS
+from robotino_geom_mpc.ros.spin import run_node
 
-__all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "point_values", "preview_message", "preview_skeleton",
-           "preview_values", "preview_template", "main"]
+__all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "main"]
 
-FRAME = "odom"
-JOINT = "base_link"
 
 TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("scenario", str, "Reference scenario", choices=SCENARIOS + ("robustness",)),
@@ -94,69 +83,6 @@ TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
               "preview and odom has a publisher (discovery between the nodes ends first)", "s", 0.0, 60.0, False),
 )
 _DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1.0}
-
-
-# the fields of point j a preview sets, in the order of `preview_values`
-_POINT_FIELDS = (
-    "transforms[0].translation.x", "transforms[0].translation.y", "transforms[0].rotation.z",
-    "transforms[0].rotation.w", "velocities[0].linear.x", "velocities[0].linear.y", "velocities[0].angular.z",
-    "accelerations[0].linear.x", "accelerations[0].linear.y", "accelerations[0].angular.z",
-)
-
-
-def point_values(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> np.ndarray:
-    """Rows of point values in `_POINT_FIELDS` order (x, y, yaw quaternion z and w, velocity, acceleration)."""
-    half = 0.5 * pos[:, 2]
-    return np.column_stack((pos[:, :2], np.sin(half), np.cos(half), vel, acc))
-
-
-def preview_values(reference, t_ns: int, period_s: float, horizon: int) -> list[float]:
-    """The values of the N + 1 preview points of tick time `t_ns`, flat, point after point in `_POINT_FIELDS` order.
-
-    Point 0 is the reference at t itself, points 1..N `core.trajectory.preview` (eq. 54).
-    """
-    t = t_ns * 1e-9
-    pos, vel, acc, _ = reference.sample(t + period_s * np.arange(horizon + 1))
-    pos[1:] = preview(reference, t, period_s, horizon)
-    return point_values(pos, vel, acc).ravel().tolist()
-
-
-def preview_skeleton(period_s: float, horizon: int) -> MultiDOFJointTrajectory:
-    """The constant part of a preview: frame, joint, N + 1 points with one transform each and their times."""
-    msg = MultiDOFJointTrajectory()
-    msg.header.frame_id = FRAME
-    msg.joint_names = [JOINT]
-    period_ns = int(round(period_s * 1e9))
-    for j in range(horizon + 1):
-        sec, nanosec = divmod(j * period_ns, 1_000_000_000)
-        msg.points.append(
-            MultiDOFJointTrajectoryPoint(
-                transforms=[Transform()], velocities=[Twist()], accelerations=[Twist()],
-                time_from_start=Duration(sec=sec, nanosec=nanosec),
-            )
-        )
-    return msg
-
-
-def preview_message(reference, t_ns: int, period_s: float, horizon: int) -> MultiDOFJointTrajectory:
-    """The preview of tick time `t_ns` as a MultiDOFJointTrajectory (N + 1 points, see the module docstring)."""
-    msg = preview_skeleton(period_s, horizon)
-    msg.header.stamp = ns_to_stamp(t_ns)
-    values = iter(preview_values(reference, t_ns, period_s, horizon))
-    for point in msg.points:
-        tf, v, a = point.transforms[0], point.velocities[0], point.accelerations[0]
-        tf.translation.x, tf.translation.y, tf.rotation.z, tf.rotation.w = (next(values) for _ in range(4))
-        v.linear.x, v.linear.y, v.angular.z = (next(values) for _ in range(3))
-        a.linear.x, a.linear.y, a.angular.z = (next(values) for _ in range(3))
-    return msg
-
-
-def preview_template(period_s: float, horizon: int) -> CdrTemplate:
-    """`CdrTemplate` of the preview: `pack(sec, nanosec, *preview_values(...))` are the bytes of `preview_message`."""
-    paths = ("header.stamp.sec", "header.stamp.nanosec") + tuple(
-        f"points[{j}].{field}" for j in range(horizon + 1) for field in _POINT_FIELDS
-    )
-    return CdrTemplate(preview_skeleton(period_s, horizon), paths)
 
 
 class TrajectoryNode(Node):
@@ -311,11 +237,11 @@ class TrajectoryNode(Node):
         times = np.arange(0.0, self.reference.duration_s + 0.5 * period, period)
         pos = self.reference.position(times)
         path = Path()
-        path.header.frame_id = FRAME
+        path.header.frame_id = ODOM_FRAME
         path.header.stamp = ns_to_stamp(self.start_ns)
         for t, (x, y, theta) in zip(times, pos):
             pose = PoseStamped()
-            pose.header.frame_id = FRAME
+            pose.header.frame_id = ODOM_FRAME
             pose.header.stamp = ns_to_stamp(self.start_ns + int(round(t * 1e9)))
             pose.pose.position.x, pose.pose.position.y = float(x), float(y)
             pose.pose.orientation = yaw_to_quaternion(float(theta))

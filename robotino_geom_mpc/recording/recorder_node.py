@@ -56,7 +56,7 @@ from robotino_geom_mpc.recording.bag import (
     default_compression,
     message_class,
 )
-from robotino_geom_mpc.recording.qos import adapt_request_to_offers, profile_to_dict
+from robotino_geom_mpc.ros.bag_qos import adapt_request_to_offers, profile_to_dict
 
 __all__ = ["RecorderNode", "main"]
 

@@ -40,7 +40,7 @@ import numpy as np
 
 from robotino_geom_mpc.core.controller import ControllerInputError, MotionController
 from robotino_geom_mpc.core.trajectory import shift_preview
-from robotino_geom_mpc.nodes.controller_node import InputRejected, odometry_state, preview_arrays
+from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
 from robotino_geom_mpc.recording.bag import BagError, BagReader
 from robotino_geom_mpc.recording.report import (
     by_publish_time,

@@ -30,7 +30,7 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
 from robotino_geom_mpc.recording.bag import BagError, BagReader, message_class
-from robotino_geom_mpc.recording.qos import adapt_offer_to_recorded
+from robotino_geom_mpc.ros.bag_qos import adapt_offer_to_recorded
 
 __all__ = ["ReplayResult", "replay_bag"]
 

@@ -1,99 +1,23 @@
-"""Benchmarks behind `robotino-geom-mpc bench`: a registry of functions, each returning named figures.
-
-A benchmark is one function ``fn(quick: bool) -> dict[str, float]`` decorated
-with ``@benchmark("name", "what it measures")``; adding a benchmark is adding
-one such function here. A benchmark that cannot run on this machine (e.g. no
-ROS) raises `BenchmarkSkipped`. Timings use `time.perf_counter` and report
-medians over repeats.
-
-Registered here:
-
-* ``controller_step``: one full control step of `MotionController.step`
-  (three MPCs, eq. 56, then T(theta), eqs. 33-37, then the inverse drive)
-  against OSQP solving the same three per-axis MPC problems (eqs. 50-54,
-  warm-started, tight tolerances) on the same inputs in the same run, as
-  three problems (the paper's three MPCs; the headline ratio) and stacked
-  into one block-diagonal QP (``..._stacked``); all must give the same
-  commanded accelerations u. The closed-form MPC alone (eq. 56,
-  `DecoupledMPC.delta_u`) is timed as well.
-* ``offline_sim``: real-time factor of the offline closed loop on paper-circle.
-* ``dds``: the nodes over DDS (`nodes.dds_bench`), skipped when ROS 2 is missing.
-"""
+"""Benchmark ``controller_step``: `MotionController.step` against OSQP solving the same MPC problems side by side."""
 
 from __future__ import annotations
 
-import math
-import statistics
-import sys
-import time
-from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from .core.controller import MotionController
-from .core.mpc import DecoupledMPC
-from .core.params import ControlParams, RobotinoParams, load_params
-from .core.trajectory import make_reference, preview
+from robotino_geom_mpc.bench.registry import BenchmarkError, benchmark, median_per_call
+from robotino_geom_mpc.core.controller import MotionController
+from robotino_geom_mpc.core.mpc import DecoupledMPC
+from robotino_geom_mpc.core.params import ControlParams, RobotinoParams, load_params
+from robotino_geom_mpc.core.trajectory import make_reference, preview
 
-__all__ = [
-    "Benchmark",
-    "BenchmarkError",
-    "BenchmarkSkipped",
-    "REGISTRY",
-    "benchmark",
-    "run_benchmarks",
-    "bench_controller_step",
-    "bench_offline_sim",
-]
+__all__ = ["OsqpMPC", "bench_controller_step", "step_inputs"]
 
 
-class BenchmarkError(RuntimeError):
-    """A benchmark whose two sides disagree or whose result is not a positive finite number."""
-
-
-class BenchmarkSkipped(Exception):
-    """Raised by a benchmark that cannot run here; the message says why."""
-
-
-@dataclass(frozen=True)
-class Benchmark:
-    """A registered benchmark: its name, a one-line description and the function."""
-
-    name: str
-    description: str
-    func: Callable[[bool], dict[str, float]]
-
-
-REGISTRY: dict[str, Benchmark] = {}
-
-
-def benchmark(name: str, description: str) -> Callable[[Callable[[bool], dict[str, float]]], Callable]:
-    """Decorator registering ``fn(quick) -> {key: value}`` under `name` (run in registration order)."""
-
-    def register(func: Callable[[bool], dict[str, float]]) -> Callable[[bool], dict[str, float]]:
-        if name in REGISTRY:
-            raise ValueError(f"benchmark {name!r} registered twice")
-        REGISTRY[name] = Benchmark(name, description, func)
-        return func
-
-    return register
-
-
-def _median_per_call(passes: list[Callable[[], None]], calls: int, repeats: int) -> list[float]:
-    """Median wall time per call [s] of each pass (`calls` calls each), repeats interleaved."""
-    samples: list[list[float]] = [[] for _ in passes]
-    for _ in range(repeats):
-        for run_once, store in zip(passes, samples):
-            start = time.perf_counter()
-            run_once()
-            store.append((time.perf_counter() - start) / calls)
-    return [statistics.median(store) for store in samples]
-
-
-def _step_inputs(steps: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, RobotinoParams, ControlParams]:
+def step_inputs(steps: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, RobotinoParams, ControlParams]:
     """Measured states and previews of `steps` ticks along paper-circle from rest.
 
     The states are the reference's plus 10 um / 0.1 mm/s noise, what a
@@ -112,7 +36,7 @@ def _step_inputs(steps: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, Rob
     return X, previews, robot, control
 
 
-class _OsqpMPC:
+class OsqpMPC:
     """The three per-axis MPC problems of one step for OSQP (warm-started, tight tolerances).
 
     Per axis a, variables Delta U_a = Delta u_a(k..k+N-1); cost
@@ -178,7 +102,7 @@ def bench_controller_step(quick: bool) -> dict[str, float]:
         If OSQP's u(k) = u(k-1) + Delta u(k) differs from the controller's u.
     """
     steps, repeats = (200, 3) if quick else (1000, 7)
-    X, previews, robot, control = _step_inputs(steps)
+    X, previews, robot, control = step_inputs(steps)
     controller = MotionController(robot, control)
 
     # the controller's own u(k-1) (after its anti-windup) and pose estimate are the inputs both sides see
@@ -198,7 +122,7 @@ def bench_controller_step(quick: bool) -> dict[str, float]:
             controller.step(X[k], previews[k])
 
     mpc = DecoupledMPC(robot, control)
-    solvers = {"per_axis": _OsqpMPC(mpc, stacked=False), "stacked": _OsqpMPC(mpc, stacked=True)}
+    solvers = {"per_axis": OsqpMPC(mpc, stacked=False), "stacked": OsqpMPC(mpc, stacked=True)}
     q_terms = {
         name: [qp.linear_terms(X_used[k].reshape(3, 2), u_prev[k], previews[k]) for k in range(steps)]
         for name, qp in solvers.items()
@@ -226,7 +150,7 @@ def bench_controller_step(quick: bool) -> dict[str, float]:
         for k in range(steps):
             mpc.delta_u(states[k], u_prev[k], previews[k])
 
-    ctrl_s, per_axis_s, stacked_s, closed_s = _median_per_call(
+    ctrl_s, per_axis_s, stacked_s, closed_s = median_per_call(
         [controller_pass, osqp_pass("per_axis"), osqp_pass("stacked"), closed_form_pass], steps, repeats
     )
     return {
@@ -240,73 +164,3 @@ def bench_controller_step(quick: bool) -> dict[str, float]:
         "osqp_max_u_difference": diff,
         "controller_steps_timed": float(steps),
     }
-
-
-@benchmark("offline_sim", "offline closed loop (plant + controller + reference) on paper-circle, real-time factor")
-def bench_offline_sim(quick: bool) -> dict[str, float]:
-    """Simulated seconds per wall-clock second of `simulation.run_scenario` on paper-circle."""
-    from .simulation import run_scenario
-
-    duration_s, repeats = (5.0, 1) if quick else (60.0, 3)
-    robot, control = load_params()
-    (wall_s,) = _median_per_call(
-        [lambda: run_scenario("paper-circle", robot, control, duration_s=duration_s, seed=0, progress=False)],
-        1,
-        repeats,
-    )
-    return {
-        "offline_sim_realtime_factor": duration_s / wall_s,
-        "offline_sim_wall_s": wall_s,
-        "offline_sim_duration_s": duration_s,
-    }
-
-
-@benchmark("dds", "the nodes over DDS: lockstep real-time factor, realtime missed ticks and latency")
-def bench_dds(quick: bool) -> dict[str, float]:
-    """The figures of `robotino_geom_mpc.nodes.dds_bench.dds_benchmarks`, skipped without ROS 2."""
-    try:
-        from .nodes.dds_bench import dds_benchmarks
-    except ImportError as exc:
-        raise BenchmarkSkipped(f"ROS 2 not available: {exc}") from None
-    return dds_benchmarks(quick)
-
-
-def run_benchmarks(
-    quick: bool = False, names: list[str] | None = None, log: Callable[[str], None] | None = None
-) -> dict[str, float]:
-    """Run the registered benchmarks (all, or `names`) and merge their figures into one dict.
-
-    Parameters
-    ----------
-    quick
-        Fewer steps and repeats (a smoke run; figures are noisier).
-    names
-        Benchmarks to run, in registry order when None.
-    log
-        Receives one progress line per benchmark (default: stderr).
-
-    Raises
-    ------
-    BenchmarkError
-        If a name is unknown, a benchmark's sides disagree, or a figure is
-        not a positive finite number.
-    """
-    log = log or (lambda line: print(line, file=sys.stderr, flush=True))
-    selected = list(REGISTRY) if names is None else list(names)
-    unknown = [n for n in selected if n not in REGISTRY]
-    if unknown:
-        raise BenchmarkError(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(REGISTRY)}")
-    results: dict[str, float] = {}
-    for name in selected:
-        entry = REGISTRY[name]
-        log(f"bench {name}: {entry.description} ...")
-        try:
-            figures = entry.func(quick)
-        except BenchmarkSkipped as exc:
-            log(f"bench {name}: skipped ({exc})")
-            continue
-        for key, value in figures.items():
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise BenchmarkError(f"benchmark {name} returned {key} = {value!r}, not a finite number >= 0")
-            results[key] = float(value)
-    return results

@@ -21,8 +21,8 @@ import sys
 import threading
 import time
 
-from robotino_geom_mpc.nodes.dds_bench import lockstep_nodes, missed_ticks, realtime_report
-from robotino_geom_mpc.nodes.processes import NodeGroup
+from robotino_geom_mpc.bench.dds import lockstep_nodes, missed_ticks, realtime_report
+from robotino_geom_mpc.ros.processes import NodeGroup
 
 SLEEP_SYSCALLS = {"x86_64": {"35", "230"}, "aarch64": {"101", "115"}}  # nanosleep, clock_nanosleep
 MIN_SLEEP_S = 0.2

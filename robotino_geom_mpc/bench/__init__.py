@@ -1,0 +1,21 @@
+"""Every benchmark of `robotino-geom-mpc bench`, each measured side by side with a peer in the same run.
+
+Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order):
+
+* `controller_step`: one full control step of `MotionController.step`
+  (three MPCs, eq. 56, then T(theta), eqs. 33-37, then the inverse drive)
+  against OSQP solving the same three per-axis MPC problems (eqs. 50-54,
+  warm-started, tight tolerances) on the same inputs, as three problems
+  (the paper's three MPCs; the headline ratio) and stacked into one
+  block-diagonal QP; all must give the same commanded accelerations u.
+* `offline`: the offline closed loop's real-time factor on paper-circle, and
+  the nodes over DDS (`dds`: lockstep real-time factor, realtime missed
+  ticks and latency, skipped when ROS 2 is missing).
+* `host_steal` samples the hypervisor's steal beside the realtime run;
+  `startup_stalls` is a script (``python -m robotino_geom_mpc.bench.startup_stalls``).
+"""
+
+from robotino_geom_mpc.bench import controller_step, offline  # noqa: F401  (registration)
+from robotino_geom_mpc.bench.registry import REGISTRY, BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
+
+__all__ = ["REGISTRY", "BenchmarkError", "BenchmarkSkipped", "benchmark", "run_benchmarks"]

@@ -1,0 +1,104 @@
+"""The benchmark registry: each benchmark is one function ``fn(quick) -> {figure: value}`` registered by name.
+
+A benchmark that cannot run on this machine (e.g. no ROS) raises
+`BenchmarkSkipped`. Timings use `time.perf_counter` and report medians over
+interleaved repeats, so a benchmark and its peer see the same machine.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+from robotino_geom_mpc.core.errors import RobotinoError
+
+__all__ = ["Benchmark", "BenchmarkError", "BenchmarkSkipped", "REGISTRY", "benchmark", "median_per_call",
+           "run_benchmarks"]
+
+
+class BenchmarkError(RobotinoError, RuntimeError):
+    """A benchmark whose two sides disagree or whose result is not a positive finite number."""
+
+
+class BenchmarkSkipped(RobotinoError):
+    """Raised by a benchmark that cannot run here; the message says why."""
+
+
+@dataclass(frozen=True)
+class Benchmark:
+    """A registered benchmark: its name, a one-line description and the function."""
+
+    name: str
+    description: str
+    func: Callable[[bool], dict[str, float]]
+
+
+REGISTRY: dict[str, Benchmark] = {}
+
+
+def benchmark(name: str, description: str) -> Callable[[Callable[[bool], dict[str, float]]], Callable]:
+    """Decorator registering ``fn(quick) -> {key: value}`` under `name` (run in registration order)."""
+
+    def register(func: Callable[[bool], dict[str, float]]) -> Callable[[bool], dict[str, float]]:
+        if name in REGISTRY:
+            raise ValueError(f"benchmark {name!r} registered twice")
+        REGISTRY[name] = Benchmark(name, description, func)
+        return func
+
+    return register
+
+
+def median_per_call(passes: list[Callable[[], None]], calls: int, repeats: int) -> list[float]:
+    """Median wall time per call [s] of each pass (`calls` calls each), repeats interleaved."""
+    samples: list[list[float]] = [[] for _ in passes]
+    for _ in range(repeats):
+        for run_once, store in zip(passes, samples):
+            start = time.perf_counter()
+            run_once()
+            store.append((time.perf_counter() - start) / calls)
+    return [statistics.median(store) for store in samples]
+
+
+def run_benchmarks(
+    quick: bool = False, names: list[str] | None = None, log: Callable[[str], None] | None = None
+) -> dict[str, float]:
+    """Run the registered benchmarks (all, or `names`) and merge their figures into one dict.
+
+    Parameters
+    ----------
+    quick
+        Fewer steps and repeats (a smoke run; figures are noisier).
+    names
+        Benchmarks to run, in registry order when None.
+    log
+        Receives one progress line per benchmark (default: stderr).
+
+    Raises
+    ------
+    BenchmarkError
+        If a name is unknown, a benchmark's sides disagree, or a figure is
+        not a positive finite number.
+    """
+    log = log or (lambda line: print(line, file=sys.stderr, flush=True))
+    selected = list(REGISTRY) if names is None else list(names)
+    unknown = [n for n in selected if n not in REGISTRY]
+    if unknown:
+        raise BenchmarkError(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(REGISTRY)}")
+    results: dict[str, float] = {}
+    for name in selected:
+        entry = REGISTRY[name]
+        log(f"bench {name}: {entry.description} ...")
+        try:
+            figures = entry.func(quick)
+        except BenchmarkSkipped as exc:
+            log(f"bench {name}: skipped ({exc})")
+            continue
+        for key, value in figures.items():
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise BenchmarkError(f"benchmark {name} returned {key} = {value!r}, not a finite number >= 0")
+            results[key] = float(value)
+    return results

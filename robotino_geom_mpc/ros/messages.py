@@ -1,0 +1,153 @@
+"""The messages the nodes exchange, built and read: stamps, yaw quaternions, three-value arrays, odometry, previews.
+
+The preview (trajectory -> controller) is a trajectory_msgs/MultiDOFJointTrajectory
+in frame ``odom`` with one joint ``base_link`` and N + 1 points j = 0..N,
+``time_from_start`` = j Ts, each with one transform (x_d, y_d, yaw quaternion
+of theta_d), one velocity and one acceleration (linear x, y, angular z). The
+odometry (plant or robot -> controller) is nav_msgs/Odometry ``odom`` ->
+``base_link`` (REP-105). The fixed layouts here are what the nodes publish as
+`cdr.CdrTemplate` bytes and read in place with `cdr.CdrLayout`; the decoders
+of any other layout are in `decode` (plain Python, also used by `regress`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from builtin_interfaces.msg import Duration
+from builtin_interfaces.msg import Time as TimeMsg
+from geometry_msgs.msg import Quaternion, Transform, Twist
+from nav_msgs.msg import Odometry
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
+from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+
+from robotino_geom_mpc.core.trajectory import preview
+from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate
+from robotino_geom_mpc.ros.decode import ODOM_FIELDS, POINT_FIELDS, STAMP_FIELDS, yaw_of
+
+__all__ = [
+    "BASE_FRAME", "CURRENT_LABEL", "ODOM_FRAME", "VOLTAGE_LABEL", "ns_to_stamp", "odometry_layout", "point_values",
+    "preview_layout", "preview_message", "preview_skeleton", "preview_template", "preview_values",
+    "quaternion_to_yaw", "stamp_to_ns", "three_values", "three_values_layout", "three_values_template",
+    "yaw_to_quaternion",
+]
+
+ODOM_FRAME = "odom"
+BASE_FRAME = "base_link"
+VOLTAGE_LABEL = "wheel_voltage_v"  # layout label of wheel_voltages
+CURRENT_LABEL = "wheel_current_a"  # and of wheel_currents
+
+_THREE = ("data[0]", "data[1]", "data[2]")
+# the fields of point j the trajectory node sets, in the order of `preview_values`
+_WRITTEN_POINT_FIELDS = (
+    "transforms[0].translation.x", "transforms[0].translation.y", "transforms[0].rotation.z",
+    "transforms[0].rotation.w", "velocities[0].linear.x", "velocities[0].linear.y", "velocities[0].angular.z",
+    "accelerations[0].linear.x", "accelerations[0].linear.y", "accelerations[0].angular.z",
+)
+
+
+def stamp_to_ns(stamp: TimeMsg) -> int:
+    """builtin_interfaces/Time as integer nanoseconds."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def ns_to_stamp(ns: int) -> TimeMsg:
+    """Integer nanoseconds as builtin_interfaces/Time."""
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return TimeMsg(sec=sec, nanosec=nanosec)
+
+
+def yaw_to_quaternion(theta: float) -> Quaternion:
+    """Rotation about z by `theta` (rad)."""
+    half = 0.5 * theta
+    return Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))
+
+
+def quaternion_to_yaw(q: Quaternion) -> float:
+    """Yaw (rad, in (-pi, pi]) of a quaternion (ZYX convention)."""
+    return yaw_of(q.x, q.y, q.z, q.w)
+
+
+def three_values(label: str) -> Float64MultiArray:
+    """Float64MultiArray of 3 zeros, one layout dimension `label` (forward_command_controller convention)."""
+    layout = MultiArrayLayout(dim=[MultiArrayDimension(label=label, size=3, stride=3)])
+    return Float64MultiArray(data=[0.0] * 3, layout=layout)
+
+
+def three_values_template(label: str) -> CdrTemplate:
+    """`CdrTemplate` of `three_values`: `pack(a, b, c)`."""
+    return CdrTemplate(three_values(label), _THREE)
+
+
+def three_values_layout(label: str) -> CdrLayout:
+    """`CdrLayout` of `three_values`: `read(data)` -> (a, b, c) or None."""
+    return CdrLayout(three_values(label), _THREE)
+
+
+def odometry_layout() -> CdrLayout:
+    """The odometry the plant sends (REP-105 frames), read in place: the values of `decode.ODOM_FIELDS`."""
+    msg = Odometry()
+    msg.header.frame_id, msg.child_frame_id = ODOM_FRAME, BASE_FRAME
+    return CdrLayout(msg, ODOM_FIELDS)
+
+
+def point_values(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """Rows of point values in the order the trajectory writes them (x, y, yaw quaternion z and w, velocity, acc.)."""
+    half = 0.5 * pos[:, 2]
+    return np.column_stack((pos[:, :2], np.sin(half), np.cos(half), vel, acc))
+
+
+def preview_values(reference, t_ns: int, period_s: float, horizon: int) -> list[float]:
+    """The values of the N + 1 preview points of tick time `t_ns`, flat, point after point.
+
+    Point 0 is the reference at t itself, points 1..N `core.trajectory.preview` (eq. 54).
+    """
+    t = t_ns * 1e-9
+    pos, vel, acc, _ = reference.sample(t + period_s * np.arange(horizon + 1))
+    pos[1:] = preview(reference, t, period_s, horizon)
+    return point_values(pos, vel, acc).ravel().tolist()
+
+
+def preview_skeleton(period_s: float, horizon: int) -> MultiDOFJointTrajectory:
+    """The constant part of a preview: frame, joint, N + 1 points with one transform each and their times."""
+    msg = MultiDOFJointTrajectory()
+    msg.header.frame_id = ODOM_FRAME
+    msg.joint_names = [BASE_FRAME]
+    period_ns = int(round(period_s * 1e9))
+    for j in range(horizon + 1):
+        sec, nanosec = divmod(j * period_ns, 1_000_000_000)
+        msg.points.append(
+            MultiDOFJointTrajectoryPoint(
+                transforms=[Transform()], velocities=[Twist()], accelerations=[Twist()],
+                time_from_start=Duration(sec=sec, nanosec=nanosec),
+            )
+        )
+    return msg
+
+
+def preview_message(reference, t_ns: int, period_s: float, horizon: int) -> MultiDOFJointTrajectory:
+    """The preview of tick time `t_ns` as a MultiDOFJointTrajectory (N + 1 points, see the module docstring)."""
+    msg = preview_skeleton(period_s, horizon)
+    msg.header.stamp = ns_to_stamp(t_ns)
+    values = iter(preview_values(reference, t_ns, period_s, horizon))
+    for point in msg.points:
+        tf, v, a = point.transforms[0], point.velocities[0], point.accelerations[0]
+        tf.translation.x, tf.translation.y, tf.rotation.z, tf.rotation.w = (next(values) for _ in range(4))
+        v.linear.x, v.linear.y, v.angular.z = (next(values) for _ in range(3))
+        a.linear.x, a.linear.y, a.angular.z = (next(values) for _ in range(3))
+    return msg
+
+
+def preview_template(period_s: float, horizon: int) -> CdrTemplate:
+    """`CdrTemplate` of the preview: `pack(sec, nanosec, *preview_values(...))` are the bytes of `preview_message`."""
+    paths = ("header.stamp.sec", "header.stamp.nanosec") + tuple(
+        f"points[{j}].{field}" for j in range(horizon + 1) for field in _WRITTEN_POINT_FIELDS
+    )
+    return CdrTemplate(preview_skeleton(period_s, horizon), paths)
+
+
+def preview_layout(period_s: float, horizon: int) -> CdrLayout:
+    """The preview the trajectory node sends, read in place: stamp, then `decode.POINT_FIELDS` of each point."""
+    return CdrLayout(preview_skeleton(period_s, horizon), STAMP_FIELDS + tuple(
+        f"points[{j}].{f}" for j in range(horizon + 1) for f in POINT_FIELDS))

@@ -20,15 +20,15 @@ The loop keeps numpy out of its per-tick bookkeeping (a call on a 3-vector
 costs about as much as a dozen float operations): it collects the ticks'
 values and turns them into arrays once, at the end.
 
-The robustness scenario runs paper-circle with a controller whose model is
-off: mass +20 %, yaw inertia -20 % (the two errors push the translational and
-rotational loops in opposite directions), body friction twice the true one,
-and odometry noise 1 mm / 1 mrad.
+A scenario (`scenarios.SCENARIOS`) names the reference, the controller's
+model (`controller_model`: the robot, or a mismatched one in ``robustness``)
+and the odometry noise.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 
 import numpy as np
 from tqdm import tqdm
@@ -36,31 +36,27 @@ from tqdm import tqdm
 from robotino_sim_node.plant import RobotinoPlant
 
 from .core.controller import MotionController, odometry_state_floats
+from .core.errors import RobotinoError
 from .core.params import ControlParams, RobotinoParams
-from .core.trajectory import make_reference
 from .results import RunData
+from .scenarios import get_scenario
 
-__all__ = [
-    "SCENARIOS",
-    "SimulationError",
-    "ROBUSTNESS_MISMATCH",
-    "ROBUSTNESS_NOISE",
-    "controller_model",
-    "run_scenario",
-]
-
-SCENARIOS: tuple[str, ...] = ("paper-circle", "lemniscate", "point-to-point", "robustness")
-ROBUSTNESS_MISMATCH = {"mass": 1.2, "inertia": 0.8, "friction": 2.0}  # controller's model / truth
-ROBUSTNESS_NOISE = (1e-3, 1e-3)  # odometry noise std: position [m], heading [rad]
+__all__ = ["SimulationError", "controller_model", "run_scenario"]
 
 
-class SimulationError(ValueError):
-    """An unknown scenario or a bad run setting, named in the message."""
+class SimulationError(RobotinoError, ValueError):
+    """A bad run setting, named in the message."""
 
 
 def controller_model(scenario: str, robot: RobotinoParams) -> RobotinoParams:
-    """The robot model the controller uses in a scenario (`robot` itself except for robustness)."""
-    return robot.scaled(**ROBUSTNESS_MISMATCH) if scenario == "robustness" else robot
+    """The robot model `run_scenario` gives the controller in a scenario when `robot` is the truth.
+
+    Raises
+    ------
+    scenarios.ScenarioError
+        For an unknown scenario.
+    """
+    return get_scenario(scenario).controller_model(robot)
 
 
 def run_scenario(
@@ -79,9 +75,9 @@ def run_scenario(
     Parameters
     ----------
     scenario
-        One of `SCENARIOS`.
+        A name of `scenarios.SCENARIOS`.
     robot
-        The true robot (the plant) and, except in ``robustness``, the controller's model.
+        The true robot (the plant), from which the scenario's controller model is made.
     control
         Controller settings (period, horizon, weights, mode).
     duration_s
@@ -93,8 +89,7 @@ def run_scenario(
     plant_robot
         A different true robot for the plant (mismatch studies); `robot` if None.
     odometry_noise
-        (position [m], heading [rad]) noise std; None means the scenario's
-        default, (0, 0), or `ROBUSTNESS_NOISE` for ``robustness``.
+        (position [m], heading [rad]) noise std; None means the scenario's.
 
     Returns
     -------
@@ -104,17 +99,18 @@ def run_scenario(
 
     Raises
     ------
+    scenarios.ScenarioError
+        Unknown scenario.
     SimulationError
-        Unknown scenario, non-positive duration or negative noise.
+        Non-positive duration or negative noise.
     """
-    if scenario not in SCENARIOS:
-        raise SimulationError(f"unknown scenario {scenario!r}; valid: {', '.join(SCENARIOS)}")
+    spec = get_scenario(scenario)
     if odometry_noise is None:
-        odometry_noise = ROBUSTNESS_NOISE if scenario == "robustness" else (0.0, 0.0)
+        odometry_noise = (spec.noise.position_m, spec.noise.yaw_rad)
     noise = tuple(float(v) for v in odometry_noise)
     if len(noise) != 2 or not all(math.isfinite(v) and v >= 0.0 for v in noise):
         raise SimulationError(f"odometry_noise must be two non-negative numbers, got {odometry_noise!r}")
-    reference = make_reference(scenario)
+    reference = spec.make_reference()
     duration = reference.duration_s if duration_s is None else float(duration_s)
     if not (math.isfinite(duration) and duration > 0.0):
         raise SimulationError(f"duration_s must be positive, got {duration_s!r}")
@@ -122,7 +118,7 @@ def run_scenario(
     n = max(1, int(round(duration / Ts)))
 
     plant = RobotinoPlant(plant_robot if plant_robot is not None else robot)
-    controller = MotionController(controller_model(scenario, robot), control)
+    controller = MotionController(spec.controller_model(robot), control)
     rng = np.random.default_rng(seed)
 
     t = np.arange(n) * Ts
@@ -160,7 +156,7 @@ def run_scenario(
             "seed": int(seed),
             "mode": control.mode,
             "odometry_noise": list(noise),
-            "controller_mismatch": dict(ROBUSTNESS_MISMATCH) if scenario == "robustness" else None,
+            "controller_mismatch": None if spec.mismatch is None else asdict(spec.mismatch),
             "plant_params": "plant_robot" if plant_robot is not None else "robot",
         },
     )

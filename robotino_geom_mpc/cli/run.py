@@ -12,9 +12,9 @@ DIR/metrics.json and the figures from the recording (DIR/bag) through
 In ``--lockstep`` (the default) the plant owns /clock and waits, before tick
 0, for every subscription of the loop and of the recorder, so the recording
 holds the whole run; the metrics then equal those of ``simulate`` on the same
-scenario and parameters. ``robustness`` gives the controller the mismatched
-model (`simulation.controller_model`) and the plant the odometry noise of
-`simulation.ROBUSTNESS_NOISE`.
+scenario and parameters. Each node gets its scenario's overrides
+(`scenarios.node_parameters`): e.g. in ``robustness`` the controller a
+mismatched model and the plant odometry noise.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ import sys
 import time
 from pathlib import Path
 
+from ..scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
 
 __all__ = ["add_parser", "run", "node_arguments"]
@@ -43,8 +44,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Run one scenario as ROS 2 nodes over DDS, record it, and write DIR/metrics.json "
         "and the figures from the recording.",
     )
-    parser.add_argument("--scenario", required=True,
-                        help="paper-circle, lemniscate, point-to-point or robustness")
+    parser.add_argument("--scenario", required=True, choices=tuple(SCENARIOS),
+                        help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--lockstep", dest="lockstep", action="store_true", default=True,
                       help="the plant drives /clock, one control period per command (default; deterministic)")
@@ -69,29 +70,26 @@ def node_arguments(
     bag: Path | None = None,
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`."""
-    from ..core.params import ROBOT_SPECS, load_params
+    from ..core.params import load_params
     from ..ros.processes import LOCKSTEP_WAIT_FOR, RECORDER_WAIT_FOR, ros_args
-    from ..simulation import ROBUSTNESS_NOISE, controller_model
+    from ..scenarios import node_parameters
 
     robot, _ = load_params(params_file)
     mode = "lockstep" if lockstep else "realtime"
-    model = controller_model(scenario, robot)
-    mismatch = {s.name: getattr(model, s.attr) for s in ROBOT_SPECS if getattr(model, s.attr) != getattr(robot, s.attr)}
-    noise = ROBUSTNESS_NOISE if scenario == "robustness" else (0.0, 0.0)
+    overrides = node_parameters(scenario, robot)
     wait_for = list(LOCKSTEP_WAIT_FOR if bag is None else RECORDER_WAIT_FOR)
     args = {}
     if bag is not None:
         args["recorder_node"] = ros_args(params_file, {"output": str(bag), "scenario": scenario})
     # no use_sim_time: in lockstep the trajectory's time is the /clock messages and the controller's the
     # odometry stamps; the time source's /clock reader would cost each a wake-up a tick
-    args["trajectory_node"] = ros_args(params_file, {"scenario": scenario, "mode": mode})
-    args["controller_node"] = ros_args(params_file, {"mode": mode, **mismatch})
+    args["trajectory_node"] = ros_args(params_file, {**overrides["trajectory_node"], "mode": mode})
+    args["controller_node"] = ros_args(params_file, {**overrides["controller_node"], "mode": mode})
     args["plant_node"] = ros_args(params_file, {
+        **overrides["plant_node"],
         "mode": mode,
         "duration_s": float(duration_s),
         "seed": int(seed),
-        "odometry_noise.position_m": float(noise[0]),
-        "odometry_noise.yaw_rad": float(noise[1]),
         "lockstep_wait_for": wait_for,
     })
     return args
@@ -104,15 +102,11 @@ def _raise_interrupt(*_: object) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
     from ..core.params import default_params_file, load_params
-    from ..core.trajectory import make_reference
     from ..ros.processes import NodeFailed, NodeGroup
-    from ..simulation import SCENARIOS
 
-    if args.scenario not in SCENARIOS:
-        raise UsageError(f"unknown scenario {args.scenario!r}; choose from {', '.join(SCENARIOS)}")
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)
-    duration = args.duration if args.duration is not None else make_reference(args.scenario).duration_s
+    duration = args.duration if args.duration is not None else SCENARIOS[args.scenario].duration_s
     out = args.out if args.out is not None else Path("out") / f"run-{args.scenario}"
     bag = None if args.no_record else out.resolve() / "bag"
     try:

@@ -10,6 +10,7 @@ import argparse
 import time
 from pathlib import Path
 
+from ..scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
 
 __all__ = ["add_parser", "run"]
@@ -25,11 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Run one scenario in the offline closed loop (plant + controller + reference) "
         "and write DIR/metrics.json, DIR/run.npz and the PNGs (paper Figs. 4-6, voltages, errors).",
     )
-    parser.add_argument(
-        "--scenario",
-        required=True,
-        help="scenario name: paper-circle, lemniscate, point-to-point or robustness",
-    )
+    parser.add_argument("--scenario", required=True, choices=tuple(SCENARIOS),
+                        help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/<scenario>)")
     parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
@@ -49,10 +47,8 @@ def run(args: argparse.Namespace) -> int:
     from ..core.params import load_params
     from ..plots import write_plots
     from ..results import compute_metrics, save_run, write_metrics
-    from ..simulation import SCENARIOS, run_scenario
+    from ..simulation import run_scenario
 
-    if args.scenario not in SCENARIOS:
-        raise UsageError(f"unknown scenario {args.scenario!r}; choose from {', '.join(SCENARIOS)}")
     robot, control = load_params(args.params)
     out = args.out if args.out is not None else Path("out") / args.scenario
     try:

@@ -4,24 +4,24 @@ The functional controllability of Section IV (Theorem 1, Remark 1) asks for
 references whose third derivative is continuous: every reference here is C^3
 in time *including* its start and end, so the robot can start at rest and
 follow it. Positions, velocities, accelerations and jerks are analytic (chain
-rule of Faa di Bruno on a smooth curve and a smooth time law), never
-numerical differences.
+rule of Faa di Bruno on a smooth curve and a smooth time law, `core.time_law`),
+never numerical differences.
 
-Scenarios (../shared/ROBOTINO_NOTES.md, "Reference scenarios"):
+References (`REFERENCES`, ../shared/ROBOTINO_NOTES.md, "Reference scenarios"):
 
 * ``paper-circle``: the circle of Figs. 4-6, radius 0.5 m, period 10 s,
   theta_d = 0, starting and ending at rest at the origin;
 * ``lemniscate``: a figure-eight (lemniscate of Gerono) 1 m wide, period
   20 s, theta_d along the path;
 * ``point-to-point``: rest-to-rest moves through waypoints (x, y, theta) with
-  the septic time law ``septic(tau)``;
-* ``robustness`` is an alias of ``paper-circle`` (the mismatch is the
-  simulation's business).
+  the septic time law ``septic(tau)``.
+
+A scenario (reference, controller model mismatch, odometry noise) is
+`robotino_geom_mpc.scenarios`' business: ``robustness`` tracks ``paper-circle``.
 """
 
 from __future__ import annotations
 
-import bisect
 import inspect
 import math
 from abc import ABC, abstractmethod
@@ -29,8 +29,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .time_law import TrajectoryError, _Backend, _compose, _RampedPhase, _Scalar, _septic, _Vector, septic
+
 __all__ = [
-    "SCENARIOS",
+    "REFERENCES",
     "TrajectoryError",
     "Reference",
     "CircleReference",
@@ -42,9 +44,6 @@ __all__ = [
     "shift_preview",
 ]
 
-SCENARIOS: tuple[str, ...] = ("paper-circle", "lemniscate", "point-to-point")
-_ALIASES = {"robustness": "paper-circle"}
-
 # Default waypoints of point-to-point: along x, a pure rotation in place, a
 # diagonal move, and back to the origin rotating on the way.
 _DEFAULT_WAYPOINTS = (
@@ -54,106 +53,6 @@ _DEFAULT_WAYPOINTS = (
     (0.0, 0.0, 0.0),
 )
 _SEPTIC_PEAK_RATE = 35.0 / 16.0  # max of s'(tau), at tau = 1/2
-
-
-class TrajectoryError(ValueError):
-    """An unknown scenario or an invalid reference option (message names the option)."""
-
-
-# --------------------------------------------------------------------------- helpers
-#
-# Every formula below is written once, with plain arithmetic, and evaluated by
-# one of two backends: `_Scalar` (Python floats and `math`, the cheap path of a
-# scalar `sample` and of `preview`, which run at each control tick) and
-# `_Vector` (numpy, for arrays of times).
-
-
-class _Scalar:
-    """Backend for one time: Python floats and `math`."""
-
-    sin = staticmethod(math.sin)
-    cos = staticmethod(math.cos)
-    atan2 = staticmethod(math.atan2)
-
-    @staticmethod
-    def clip(x: float, lo: float, hi: float) -> float:
-        return lo if x < lo else hi if x > hi else x
-
-    @staticmethod
-    def heading(psi: float) -> float:
-        return psi - 2.0 * math.pi if psi > 0.5 * math.pi else psi
-
-    @staticmethod
-    def segment(t0: list[float], t: float) -> int:
-        return min(max(bisect.bisect_right(t0, t) - 1, 0), len(t0) - 1)
-
-
-class _Vector:
-    """Backend for a 1-D array of times: numpy."""
-
-    sin = staticmethod(np.sin)
-    cos = staticmethod(np.cos)
-    atan2 = staticmethod(np.arctan2)
-
-    @staticmethod
-    def clip(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
-        return np.minimum(np.maximum(x, lo), hi)
-
-    @staticmethod
-    def heading(psi: np.ndarray) -> np.ndarray:
-        return np.where(psi > 0.5 * math.pi, psi - 2.0 * math.pi, psi)
-
-    @staticmethod
-    def segment(t0: np.ndarray, t: np.ndarray) -> np.ndarray:
-        return np.clip(np.searchsorted(t0, t, side="right") - 1, 0, len(t0) - 1)
-
-
-_Backend = type[_Scalar] | type[_Vector]
-
-
-def _septic(tau, xp: _Backend):  # noqa: ANN001, ANN202 - float or array
-    tau = xp.clip(tau, 0.0, 1.0)
-    q = tau * (1.0 - tau)
-    s = tau**4 * (35.0 + tau * (-84.0 + tau * (70.0 - 20.0 * tau)))
-    return s, 140.0 * q**3, 420.0 * q * q * (1.0 - 2.0 * tau), 840.0 * q * (1.0 - 5.0 * q)
-
-
-def septic(tau: float | np.ndarray) -> tuple:
-    """Septic smoothstep s(tau) = 35 tau^4 - 84 tau^5 + 70 tau^6 - 20 tau^7 and its derivatives.
-
-    s(0) = 0, s(1) = 1 and s', s'', s''' vanish at both ends, so a rest-to-rest
-    move p0 + (p1 - p0) s(t / T) is C^3 at its joints (Remark 1).
-    s' = 140 q^3, s'' = 420 q^2 (1 - 2 tau), s''' = 840 q (1 - 5 q) with
-    q = tau (1 - tau). `tau` is clipped to [0, 1] (hold before and after).
-
-    Returns
-    -------
-    (s, ds/dtau, d2s/dtau2, d3s/dtau3), each shaped like `tau`.
-    """
-    return _septic(np.asarray(tau, dtype=float), _Vector)
-
-
-def _ramp_deficit(tau, xp: _Backend):  # noqa: ANN001, ANN202
-    """E(tau) = int_tau^1 (1 - s(u)) du: the phase lost to a ramp, E(0) = 1/2, E(1) = 0."""
-    tau = xp.clip(tau, 0.0, 1.0)
-    return tau**5 * (7.0 + tau * (-14.0 + tau * (10.0 - 2.5 * tau))) - tau + 0.5
-
-
-def _compose(f: list, s: tuple) -> list:
-    """Derivatives of the components of f(s(t)) up to the third (Faa di Bruno).
-
-    `f` = [f, f_s, f_ss, f_sss], each a triple of components; `s` = (s, s', s'', s''').
-    """
-    _, s1, s2, s3 = s
-    f0, f1, f2, f3 = f
-    sq = s1 * s1
-    cube, mixed = sq * s1, 3.0 * s1 * s2
-    return [
-        f0,
-        [a * s1 for a in f1],
-        [b * sq + a * s2 for a, b in zip(f1, f2)],
-        [c * cube + b * mixed + a * s3 for a, b, c in zip(f1, f2, f3)],
-    ]
 
 
 def _array(value: object, name: str) -> np.ndarray:
@@ -171,43 +70,6 @@ def _positive(value: object, name: str) -> float:
     if not math.isfinite(out) or out <= 0.0:
         raise TrajectoryError(f"{name} must be a positive finite number, got {value!r}")
     return out
-
-
-class _RampedPhase:
-    """Phase phi(t) advancing by `total` [rad] with a C^3 ramp-in and ramp-out of its rate.
-
-    phi'(t) = rate h(t / T_r) h((D - t) / T_r) with h the septic smoothstep and
-    T_r the ramp time: phi' rises from 0 to `rate`, stays there, and falls back
-    to 0 at D = total / rate + T_r. Integrated in closed form,
-    phi(t) = rate (t - T_r / 2 + T_r (E(t / T_r) - E((D - t) / T_r))) with E the
-    ramp deficit. phi is C^4, so a smooth curve evaluated at phi(t) is C^3 at
-    the start and end. t is clipped to [0, D] (rest outside).
-    """
-
-    def __init__(self, rate: float, ramp_s: float, total: float, name: str) -> None:
-        if total / rate < ramp_s:
-            raise TrajectoryError(
-                f"{name}: ramp_s = {ramp_s:g} s is too long for the run (at most {total / rate:g} s)"
-            )
-        self.rate, self.ramp_s = rate, ramp_s
-        self.duration_s = total / rate + ramp_s
-
-    def evaluate(self, t, xp: _Backend, derivatives: bool):  # noqa: ANN001, ANN201
-        """(phi,) or (phi, phi', phi'', phi''') at t."""
-        t = xp.clip(t, 0.0, self.duration_s)
-        tr, rate = self.ramp_s, self.rate
-        tau_in, tau_out = t / tr, (self.duration_s - t) / tr
-        phi = rate * (t - 0.5 * tr + tr * (_ramp_deficit(tau_in, xp) - _ramp_deficit(tau_out, xp)))
-        if not derivatives:
-            return (phi,)
-        h_in, h_out = _septic(tau_in, xp), _septic(tau_out, xp)
-        # The ramps never overlap: one factor is 1 wherever the other varies.
-        return (
-            phi,
-            rate * h_in[0] * h_out[0],
-            rate / tr * (h_in[1] * h_out[0] - h_in[0] * h_out[1]),
-            rate / tr**2 * (h_in[2] * h_out[0] + h_in[0] * h_out[2]),
-        )
 
 
 # --------------------------------------------------------------------------- references
@@ -463,34 +325,33 @@ _FACTORIES = {
     "lemniscate": LemniscateReference,
     "point-to-point": PointToPointReference,
 }
+REFERENCES: tuple[str, ...] = tuple(_FACTORIES)
 
 
-def make_reference(scenario: str, **options: object) -> Reference:
-    """The reference of a scenario.
+def make_reference(name: str, **options: object) -> Reference:
+    """A reference by name, with options.
 
     Parameters
     ----------
-    scenario
-        One of `SCENARIOS` (``robustness`` is accepted as ``paper-circle``).
+    name
+        One of `REFERENCES` (a scenario of `robotino_geom_mpc.scenarios` names its reference).
     **options
-        Keyword arguments of the scenario's class (`CircleReference`,
+        Keyword arguments of the reference's class (`CircleReference`,
         `LemniscateReference`, `PointToPointReference`).
 
     Raises
     ------
     TrajectoryError
-        Unknown scenario or option, or an invalid option value.
+        Unknown reference or option, or an invalid option value.
     """
-    key = _ALIASES.get(scenario, scenario)
-    if key not in _FACTORIES:
-        valid = ", ".join(SCENARIOS + tuple(_ALIASES))
-        raise TrajectoryError(f"unknown scenario {scenario!r}; valid: {valid}")
-    cls = _FACTORIES[key]
+    if name not in _FACTORIES:
+        raise TrajectoryError(f"unknown reference {name!r}; valid: {', '.join(REFERENCES)}")
+    cls = _FACTORIES[name]
     allowed = tuple(inspect.signature(cls).parameters)
     unknown = sorted(set(options) - set(allowed))
     if unknown:
         raise TrajectoryError(
-            f"unknown option(s) {', '.join(unknown)} for {key}; valid: {', '.join(allowed)}"
+            f"unknown option(s) {', '.join(unknown)} for {name}; valid: {', '.join(allowed)}"
         )
     return cls(**options)
 

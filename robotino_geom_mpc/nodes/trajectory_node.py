@@ -44,11 +44,16 @@ tick nobody answered) publishes both previews again, and so does a newly
 matched preview subscription (a controller whose endpoints matched after
 the plant started: it gets the current tick's preview at once, not at the
 plant's next resend); the controller keys previews by stamp, so repeats
-are harmless.
+are harmless. Without /clock for ``clock_timeout_s`` (a plant not started,
+stalled or ended) the node logs, throttled, what it waits for.
 
 Parameters: ``control.period_s`` and ``control.horizon`` of config/*.yaml
-(``/**`` section) plus `TRAJECTORY_SPECS` and ``waypoints`` (a flat list
+(``/**`` section; fixed while the node runs, as are ``mode`` and
+``clock_timeout_s``) plus `TRAJECTORY_SPECS` and ``waypoints`` (a flat list
 x1, y1, theta1, x2, ... for point-to-point; empty: the scenario's default).
+``scenario`` is a name of `robotino_geom_mpc.scenarios.SCENARIOS`; the node
+tracks its reference (``robustness``: paper-circle; the mismatch and the
+noise are the controller's and the plant's parameters).
 """
 
 from __future__ import annotations
@@ -57,6 +62,7 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -64,25 +70,31 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.core.params import CONTROL_SPECS, ParamSpec
-from robotino_geom_mpc.core.trajectory import SCENARIOS, TrajectoryError, make_reference
+from robotino_geom_mpc.core.trajectory import Reference, TrajectoryError
 from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, ns_to_stamp, point_values, preview_template, preview_values, \
     stamp_to_ns, yaw_to_quaternion
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CLOCK_SUB_QOS, LATCHED_QOS, PUBLISH_QOS
-from robotino_geom_mpc.ros.spin import run_node
+from robotino_geom_mpc.ros.spin import monotonic, run_node
+from robotino_geom_mpc.scenarios import SCENARIOS, get_scenario
 
 __all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "main"]
 
 
 TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("scenario", str, "Reference scenario", choices=SCENARIOS + ("robustness",)),
+    ParamSpec("scenario", str, "Scenario whose reference the node streams (robustness: paper-circle's)",
+              choices=tuple(SCENARIOS)),
     ParamSpec("mode", str, "realtime: timer on the node clock; lockstep: driven by /clock",
               choices=("realtime", "lockstep")),
     ParamSpec("start_settle_s", float, "Realtime: start the reference this long after a controller subscribes the "
               "preview and odom has a publisher (discovery between the nodes ends first)", "s", 0.0, 60.0, False),
+    ParamSpec("clock_timeout_s", float, "Lockstep: after this long without /clock, log (throttled) what the node "
+              "waits for", "s", 0.0, 3600.0, True),
 )
-_DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1.0}
+_DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1.0, "clock_timeout_s": 5.0}
+_FIXED = ("mode", "control.period_s", "control.horizon", "clock_timeout_s")
+_WAIT_LOG_PERIOD_S = 5.0  # at most one "waiting for /clock" line per this long (or per clock_timeout_s if longer)
 
 
 class TrajectoryNode(Node):
@@ -92,7 +104,7 @@ class TrajectoryNode(Node):
         super().__init__("robotino_trajectory")
         specs = CONTROL_SPECS + TRAJECTORY_SPECS
         self.params = SpecParameters(
-            self, specs, {**spec_defaults(CONTROL_SPECS), **_DEFAULTS}, self._on_params, fixed=("mode",)
+            self, specs, {**spec_defaults(CONTROL_SPECS), **_DEFAULTS}, self._on_params, fixed=_FIXED
         )
         self.declare_parameter(
             "waypoints",
@@ -126,13 +138,16 @@ class TrajectoryNode(Node):
         self.grid: np.ndarray | None = None  # lockstep: point values at k Ts (`_grid_values`)
         if self.lockstep:
             self.clock_sub = self.create_subscription(ClockMsg, "/clock", self._on_clock, CLOCK_SUB_QOS)
+            self.clock_heard_at = monotonic()  # steady time of the last /clock (of the start before the first)
+            self.clock_watch = self.create_timer(self.params["clock_timeout_s"] / 2, self._check_clock,
+                                                 clock=Clock(clock_type=ClockType.STEADY_TIME))
         else:
             self.timer = self.create_timer(self.params["control.period_s"], self._on_timer)
         if self.start_ns is not None:
             self._publish_path()
         self.get_logger().info(
-            f"trajectory '{self.params['scenario']}' ({self.reference.duration_s:g} s, "
-            f"N = {self.params['control.horizon']}, {self.params['mode']})"
+            f"trajectory '{self.params['scenario']}' (reference {self.reference.name}, "
+            f"{self.reference.duration_s:g} s, N = {self.params['control.horizon']}, {self.params['mode']})"
         )
 
     # parameters ---------------------------------------------------------------------------------
@@ -148,10 +163,13 @@ class TrajectoryNode(Node):
         return np.asarray(flat, dtype=float).reshape(-1, 3)
 
     @staticmethod
-    def _make_reference(scenario: str, waypoints: np.ndarray | None):
-        if waypoints is not None and scenario != "point-to-point":
-            raise TrajectoryError(f"parameter 'waypoints' applies to point-to-point only, not to {scenario!r}")
-        return make_reference(scenario) if waypoints is None else make_reference(scenario, waypoints=waypoints)
+    def _make_reference(name: str, waypoints: np.ndarray | None) -> Reference:
+        scenario = get_scenario(name)
+        if waypoints is None:
+            return scenario.make_reference()
+        if scenario.reference != "point-to-point":
+            raise TrajectoryError(f"parameter 'waypoints' applies to point-to-point only, not to {name!r}")
+        return scenario.make_reference(waypoints=waypoints)
 
     def _check_waypoints(self, params: list[Parameter]) -> SetParametersResult:
         names = {p.name: p.value for p in params}
@@ -166,7 +184,7 @@ class TrajectoryNode(Node):
         return SetParametersResult(successful=True)
 
     def _on_params(self, changed: dict) -> None:
-        self.preview_cdr = self.grid = None
+        self.grid = None
         self.reference = self._make_reference(self.params["scenario"], self._waypoints())
         if self.start_ns is not None:
             self._publish_path()
@@ -198,10 +216,25 @@ class TrajectoryNode(Node):
         self.last_published_ns = t_ns
 
     def _on_clock(self, msg: ClockMsg) -> None:
+        self.clock_heard_at = monotonic()
         now = stamp_to_ns(msg.clock)
         # the preview of the tick itself only on the first tick, a jump, or a resent tick
         self._publish_ahead(now, current=now == self.last_clock_ns or self.last_published_ns != now)
         self.last_clock_ns = now
+
+    def _check_clock(self) -> None:
+        """Lockstep: say what the node waits for when /clock has been silent for ``clock_timeout_s``."""
+        waited = monotonic() - self.clock_heard_at
+        timeout = self.params["clock_timeout_s"]
+        if waited < timeout:
+            return
+        self.get_logger().warn(
+            f"lockstep: no /clock for {waited:.1f} s: waiting for the plant's next tick "
+            f"({self.count_publishers('/clock')} publisher(s) of /clock; last tick "
+            f"{'none' if self.last_clock_ns is None else f'{self.last_clock_ns * 1e-9:g} s'}); "
+            "previews follow each /clock",
+            throttle_duration_sec=max(timeout, _WAIT_LOG_PERIOD_S),
+        )
 
     def _on_preview_matched(self, info: QoSPublisherMatchedInfo) -> None:
         """Lockstep: a new subscription gets the previews of the current tick (those sent before missed it)."""

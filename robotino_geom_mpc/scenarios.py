@@ -1,0 +1,176 @@
+"""The scenario registry: what each named run tracks, how the controller's model is off, how noisy odometry is.
+
+A scenario is the one place that says, for a name given to ``simulate``,
+``run``, the trajectory node or the launch file:
+
+* the reference it tracks: a key of `core.trajectory.REFERENCES` plus options
+  of that reference's class;
+* the controller's model mismatch: factors on mass, yaw inertia and body
+  friction of the controller's model over the true robot
+  (`core.params.RobotinoParams.scaled`), or none;
+* the odometry noise: standard deviations of the measured position [m] and
+  yaw [rad] (the plant's Gaussian noise);
+* the default run length: the reference's own duration.
+
+``robustness`` runs paper-circle with a controller whose model is off:
+mass +20 %, yaw inertia -20 % (the two errors push the translational and
+rotational loops in opposite directions), body friction twice the true one,
+and odometry noise 1 mm / 1 mrad.
+
+`node_parameters` turns a scenario into the ROS parameter overrides of each
+node, so the offline loop (`simulation.run_scenario`), ``run`` and the launch
+file agree. Plain Python: no rclpy.
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from .core.errors import RobotinoError
+from .core.params import ROBOT_SPECS, RobotinoParams
+from .core.trajectory import Reference, make_reference
+
+__all__ = [
+    "ScenarioError",
+    "ModelMismatch",
+    "OdometryNoise",
+    "Scenario",
+    "SCENARIOS",
+    "get_scenario",
+    "node_parameters",
+]
+
+
+class ScenarioError(RobotinoError, ValueError):
+    """An unknown scenario name (the message suggests the closest one and lists all)."""
+
+
+@dataclass(frozen=True)
+class ModelMismatch:
+    """Factors of the controller's model over the true robot (`RobotinoParams.scaled`)."""
+
+    mass: float = 1.0
+    inertia: float = 1.0
+    friction: float = 1.0
+
+
+@dataclass(frozen=True)
+class OdometryNoise:
+    """Standard deviations of the odometry noise: position x, y [m] and yaw [rad]."""
+
+    position_m: float = 0.0
+    yaw_rad: float = 0.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One named scenario.
+
+    Attributes
+    ----------
+    name
+        The name the command line, the nodes and the launch file use.
+    description
+        One line for help texts.
+    reference
+        The tracked reference: a key of `core.trajectory.REFERENCES`.
+    reference_options
+        (option, value) pairs for that reference's class; empty: its defaults.
+    mismatch
+        The controller's model over the true robot; None: the controller knows the robot.
+    noise
+        The odometry noise the plant adds.
+    """
+
+    name: str
+    description: str
+    reference: str
+    reference_options: tuple[tuple[str, Any], ...] = ()
+    mismatch: ModelMismatch | None = None
+    noise: OdometryNoise = OdometryNoise()
+
+    def make_reference(self, **options: Any) -> Reference:
+        """The scenario's reference; `options` (e.g. point-to-point ``waypoints``) override its own."""
+        return make_reference(self.reference, **{**dict(self.reference_options), **options})
+
+    @property
+    def duration_s(self) -> float:
+        """The default run length [s]: the reference's duration."""
+        return self.make_reference().duration_s
+
+    def controller_model(self, robot: RobotinoParams) -> RobotinoParams:
+        """The robot model the controller uses when `robot` is the truth."""
+        return robot if self.mismatch is None else robot.scaled(**asdict(self.mismatch))
+
+
+_MISMATCH = ModelMismatch(mass=1.2, inertia=0.8, friction=2.0)
+
+SCENARIOS: dict[str, Scenario] = {
+    s.name: s
+    for s in (
+        Scenario("paper-circle", "the paper's circle (Figs. 4-6): radius 0.5 m, 10 s a lap, theta_d = 0",
+                 "paper-circle"),
+        Scenario("lemniscate", "a figure-eight 1 m wide, 20 s a lap, theta_d along the path", "lemniscate"),
+        Scenario("point-to-point", "rest-to-rest moves through waypoints (x, y, theta)", "point-to-point"),
+        Scenario("robustness", "paper-circle with the controller's model off (mass x1.2, yaw inertia x0.8, "
+                 "body friction x2) and odometry noise 1 mm / 1 mrad", "paper-circle",
+                 mismatch=_MISMATCH, noise=OdometryNoise(position_m=1e-3, yaw_rad=1e-3)),
+    )
+}
+
+
+def get_scenario(name: str) -> Scenario:
+    """The scenario called `name`.
+
+    Raises
+    ------
+    ScenarioError
+        For an unknown name, with the closest valid name when there is one.
+    """
+    try:
+        return SCENARIOS[name]
+    except (KeyError, TypeError):
+        close = difflib.get_close_matches(str(name), SCENARIOS, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise ScenarioError(f"unknown scenario {name!r}{hint} (valid: {', '.join(SCENARIOS)})") from None
+
+
+def node_parameters(scenario: str | Scenario, robot: RobotinoParams) -> dict[str, dict[str, Any]]:
+    """The ROS parameter overrides a scenario gives each node, on top of the run's parameter file.
+
+    Parameters
+    ----------
+    scenario
+        A scenario or its name.
+    robot
+        The robot of the parameter file (the truth the controller's model is scaled from).
+
+    Returns
+    -------
+    dict
+        ``{"plant_node": ..., "controller_node": ..., "trajectory_node": ...}``: the plant's
+        ``odometry_noise.*``; the controller's robot parameters (the config/*.yaml names, e.g.
+        ``robot.mass_kg``) that its mismatched model changes; the trajectory's ``scenario``.
+
+    Raises
+    ------
+    ScenarioError
+        For an unknown name.
+    """
+    if not isinstance(scenario, Scenario):
+        scenario = get_scenario(scenario)
+    model = scenario.controller_model(robot)
+    return {
+        "plant_node": {
+            "odometry_noise.position_m": float(scenario.noise.position_m),
+            "odometry_noise.yaw_rad": float(scenario.noise.yaw_rad),
+        },
+        "controller_node": {
+            spec.name: getattr(model, spec.attr)
+            for spec in ROBOT_SPECS
+            if getattr(model, spec.attr) != getattr(robot, spec.attr)
+        },
+        "trajectory_node": {"scenario": scenario.name},
+    }

@@ -6,13 +6,38 @@ after the odometry of tick k and before that of tick k + 1; a tick without
 one is missed. Counting starts at the first answered tick (before it the
 controller may still be waiting for discovery or a reference). Latencies go
 into a histogram of 1 us bins (bounded memory for runs of any length).
+
+At the end of a run the plant writes its figures as one JSON object, the
+timing report (`write_report`; built by `lockstep_report` or
+`realtime_report`):
+
+``mode`` "lockstep" | "realtime"; ``ticks`` published (fresh) ticks;
+``loop_ticks`` the ticks of the running loop (lockstep: 1 .. n - 1;
+realtime: answered + missed); ``simulated_s`` their simulated time
+(realtime: the plant time integrated); ``wall_s`` the wall time they took
+(lockstep: from tick 0's answer to the last answer); ``realtime_factor``
+simulated_s / wall_s (null without a loop); ``plant_busy_ms_per_tick``
+time in the plant's callbacks; ``wait_ms_per_tick`` lockstep: waiting for
+the command, realtime: idle; ``tick0_answer_s`` lockstep: tick 0's answer
+after it went out (null in realtime); ``answered``, ``missed`` (lockstep:
+every tick is answered, none missed; ``resent`` counts the resends);
+``latency_ms`` realtime odometry-to-command median, p99, max (null in
+lockstep or without an answer); ``first_answer_steady_s`` steady time of
+the first answer; ``missed_ticks`` [[s after the first answer, s to the
+next odometry], ...] (the first `MISSES_KEPT`); ``clamped_commands``,
+``refused_commands`` commands clamped to the supply and refused.
 """
 
 from __future__ import annotations
 
+import json
+import os
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
-__all__ = ["MISSES_KEPT", "LoopTiming"]
+__all__ = ["MISSES_KEPT", "LoopTiming", "lockstep_report", "lockstep_line", "realtime_report", "write_report"]
 
 MISSES_KEPT = 100  # missed ticks whose times the summary names
 
@@ -87,3 +112,71 @@ class LoopTiming:
             line += "; missed ticks (s after the first answer: ms to the next odometry) " + ", ".join(
                 f"{t - self.first_answer_at:.6f}: {1e3 * gap:.3f}" for t, gap in self.missed_at)
         return line
+
+    def figures(self) -> dict[str, Any]:
+        """The realtime part of the timing report: answered, missed, latency_ms, first answer, missed_ticks."""
+        answered = self.answered > 0
+        return {
+            "answered": self.answered,
+            "missed": self.missed,
+            "latency_ms": {"median": 1e3 * self.percentile_s(50), "p99": 1e3 * self.percentile_s(99),
+                           "max": 1e3 * self.max_latency_s} if answered else None,
+            "first_answer_steady_s": self.first_answer_at,
+            "missed_ticks": [[t - self.first_answer_at, gap] for t, gap in self.missed_at],
+        }
+
+
+def _ratio(numerator: float, denominator: float) -> float | None:
+    return numerator / denominator if denominator > 0 else None
+
+
+def lockstep_report(ticks: int, period_s: float, sent_at: float, first_answer_at: float, last_answer_at: float,
+                    busy_s: float, wait_s: float, **counts: int) -> dict[str, Any]:
+    """The timing report of a lockstep run of `ticks` ticks (steady times [s]; busy/wait summed over 1 .. n - 1).
+
+    `counts`: resent, clamped_commands, refused_commands.
+    """
+    loop_ticks = ticks - 1
+    simulated, wall = loop_ticks * period_s, last_answer_at - first_answer_at
+    per_tick = 1e3 / loop_ticks if loop_ticks else 0.0
+    return {
+        "mode": "lockstep", "ticks": ticks, "loop_ticks": loop_ticks, "simulated_s": simulated, "wall_s": wall,
+        "realtime_factor": _ratio(simulated, wall) if loop_ticks else None,
+        "plant_busy_ms_per_tick": busy_s * per_tick, "wait_ms_per_tick": wait_s * per_tick,
+        "tick0_answer_s": first_answer_at - sent_at, "answered": ticks, "missed": 0, "latency_ms": None,
+        "first_answer_steady_s": first_answer_at, "missed_ticks": [], **counts,
+    }
+
+
+def lockstep_line(report: dict[str, Any]) -> str:
+    """The human one-line summary of a lockstep report (the plant's "run over" log line)."""
+    ticks, loop_ticks = report["ticks"], report["loop_ticks"]
+    if not loop_ticks:
+        return f"run over: {ticks} tick (no loop to time)"
+    return (f"run over: {ticks} ticks; ticks 1-{loop_ticks} ({report['simulated_s']:g} s simulated) in "
+            f"{report['wall_s']:.3f} s after tick 0 was answered (real-time factor {report['realtime_factor']:.1f}; "
+            f"per tick {report['plant_busy_ms_per_tick']:.2f} ms in the plant, {report['wait_ms_per_tick']:.2f} ms "
+            f"waiting for the command); tick 0 answered {report['tick0_answer_s']:.3f} s after it went out; "
+            f"{report['resent']} resent, {report['clamped_commands']} commands clamped, "
+            f"{report['refused_commands']} refused")
+
+
+def realtime_report(timing: LoopTiming, ticks: int, simulated_s: float, wall_s: float, busy_s: float,
+                    **counts: int) -> dict[str, Any]:
+    """The timing report of a realtime run: `ticks` published over `wall_s`, `busy_s` in the plant's callbacks."""
+    figures = timing.figures()
+    busy_ms = 1e3 * busy_s / ticks if ticks else 0.0
+    return {
+        "mode": "realtime", "ticks": ticks, "loop_ticks": timing.answered + timing.missed, "simulated_s": simulated_s,
+        "wall_s": wall_s, "realtime_factor": _ratio(simulated_s, wall_s), "plant_busy_ms_per_tick": busy_ms,
+        "wait_ms_per_tick": 1e3 * wall_s / ticks - busy_ms if ticks else 0.0, "tick0_answer_s": None,
+        **figures, **counts,
+    }
+
+
+def write_report(path: str | os.PathLike, report: dict[str, Any]) -> None:
+    """Write `report` as one JSON object to `path`, atomically (a reader never sees half a file); OSError."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(report, allow_nan=False) + "\n")
+    os.replace(tmp, path)

@@ -16,7 +16,12 @@ publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``
                                    angular velocity [rad/s], effort = wheel torque gear Km i [N m]
            ``/clock``              rosgraph_msgs/Clock (lockstep only)
 
-All publishers use `PUBLISH_QOS`, the subscription `CONTROL_QOS` (see `robotino_geom_mpc.ros.qos`).
+The publishers use `publish_qos(lockstep)` (lockstep: keep-all, a slow recorder holds the loop back instead of
+losing samples; realtime: keep-last, the loop never waits for an observer), the subscription `CONTROL_QOS`.
+
+Commands: as an H-bridge, each voltage is clamped to +-``motor.supply_voltage_v`` (a throttled warning names
+the commanded and applied voltages, a count). A refused command (not three finite values, malformed) means
+zero volts from its arrival, in both modes (a throttled warning, a count).
 
 Modes
 -----
@@ -29,24 +34,17 @@ new command or sends the measurements. So there is no physics timer
 (nothing wakes the process between events) and a command takes effect at
 most one grid step late. A publish timer sends the measurements every
 control period, stamped with the node-clock time of the grid point they
-belong to; after ``duration_s`` (if > 0) the node logs the loop's timing as
-it saw it (`loop_timing.LoopTiming`: ticks answered and missed, the
-odometry-to-command latency on its steady clock) and exits.
+belong to; after ``duration_s`` (if > 0) the node reports the loop's timing
+as it saw it (`loop_timing.LoopTiming`) and exits.
 
 ``lockstep``: the plant owns time and repeats `simulation.run_scenario`'s
 tick: tick k is the state at t_k = k Ts; it publishes the odometry (noise
 drawn from ``default_rng(seed)``, as the offline loop does), /clock and the
 other measurements of tick k, waits for the command of tick k, integrates
 one control period with it, and publishes tick k + 1. Startup handshake:
-tick 0 goes out only when the ``wheel_voltages`` publisher is matched and
-every ``lockstep_wait_for`` entry ``topic:count`` has that many
-subscriptions (matched readers of the plant's own publishers, the graph
-for other topics: the controller, the trajectory, a recorder) and has
-been for ``lockstep_settle_s``: the graph shows another node's endpoint
-before the nodes that talk to it have matched it (a controller's
-wheel_voltages writer and a recorder's reader can match up to a discovery
-announcement period later), and what is published before a match is lost
-to that reader. The current tick is published again when no command
+tick 0 goes out once the subscriptions of ``lockstep_wait_for`` are there and
+have settled (`lockstep_start`; what is missing is logged). The current tick
+is published again (logged: which tick, since how long) when no command
 arrives within ``lockstep_resend_s``, so no discovery race can deadlock the
 loop (the controller answers a repeated tick only if its first answer could
 not be delivered, so no tick is answered twice). With ``duration_s`` > 0 the run
@@ -54,7 +52,9 @@ has n = round(duration_s / Ts) ticks; when tick n - 1 is answered the node
 logs its real-time factor and exits (status 0). The factor is that of the
 running loop: ticks 1 .. n - 1, from the answer of tick 0 to the answer of
 the last tick; the wait for tick 0's answer (the end of discovery, which
-can take a Fast DDS announcement period of 3 s) is logged apart.
+can take a Fast DDS announcement period of 3 s) is logged apart. The report
+at the end of a run is one log line and, if ``timing_report`` names a file,
+one JSON object there (`loop_timing` gives the keys and their meaning).
 
 Parameters: the robot/control parameters of config/*.yaml (``/**`` section;
 a plant-robot mismatch is the plant and the controller reading different
@@ -64,13 +64,12 @@ files or overrides) plus those in `PLANT_SPECS`.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
@@ -82,9 +81,10 @@ from robotino_geom_mpc.ros.decode import STAMP_FIELDS
 from robotino_geom_mpc.ros.messages import BASE_FRAME, CURRENT_LABEL, ODOM_FRAME, VOLTAGE_LABEL, \
     three_values_layout, three_values_template
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
-from robotino_sim_node.loop_timing import LoopTiming
+from robotino_sim_node.lockstep_start import StartHandshake
+from robotino_sim_node.loop_timing import LoopTiming, lockstep_line, lockstep_report, realtime_report, write_report
 from robotino_sim_node.plant import RobotinoPlant
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
@@ -107,18 +107,14 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("odometry_noise.position_m", float, "Standard deviation of the odometry x, y noise", "m", 0.0, 1.0, False),
     ParamSpec("odometry_noise.yaw_rad", float, "Standard deviation of the odometry yaw noise", "rad", 0.0, 1.0, False),
     ParamSpec("seed", int, "Seed of the odometry noise", "", 0, 2**31 - 1, False),
+    ParamSpec("timing_report", str, "File the loop's timing figures go to as one JSON object at the end of a run "
+              "(its folder must exist); empty: none"),
 )
 
 _PLANT_DEFAULTS = {
-    "mode": "realtime",
-    "duration_s": 0.0,
-    "physics_rate_hz": 1000.0,
-    "command_timeout_s": 0.1,
-    "lockstep_resend_s": 0.5,
-    "lockstep_settle_s": 1.0,
-    "odometry_noise.position_m": 0.0,
-    "odometry_noise.yaw_rad": 0.0,
-    "seed": 0,
+    "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
+    "lockstep_resend_s": 0.5, "lockstep_settle_s": 1.0, "odometry_noise.position_m": 0.0,
+    "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "",
 }
 
 
@@ -126,29 +122,6 @@ _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray") 
 _MAX_CHUNK = 10  # realtime: grid steps per plant step
 _MAX_BEHIND_S = 1.0  # realtime: a longer stall is skipped, not integrated
 _ZERO_VOLTS = np.zeros(3)
-
-DEFAULT_WAIT_FOR = ("odom:1", "/clock:1")  # the controller; the trajectory
-
-
-def _parse_wait_for(entries) -> list[tuple[str, int]]:
-    out = []
-    for entry in entries or []:
-        topic, _, count = str(entry).rpartition(":")
-        if not topic or not count.isdigit():
-            raise ValueError(f"parameter 'lockstep_wait_for': entry {entry!r} is not 'topic:count'")
-        out.append((topic, int(count)))
-    return out
-
-
-def _check_wait_for(params: list[Parameter]) -> SetParametersResult:
-    for param in params:
-        if param.name == "lockstep_wait_for":
-            try:
-                _parse_wait_for(param.value)
-            except ValueError as exc:
-                return SetParametersResult(successful=False, reason=str(exc))
-    return SetParametersResult(successful=True)
-
 
 _ODOM_FIELDS = STAMP_FIELDS + (
     "pose.pose.position.x", "pose.pose.position.y", "pose.pose.orientation.z", "pose.pose.orientation.w",
@@ -163,8 +136,11 @@ class PlantNode(Node):
         super().__init__("robotino_plant")
         self.params = SpecParameters(
             self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params,
-            fixed=("mode", "physics_rate_hz"),  # the realtime grid is counted in steps of 1 / physics_rate_hz
+            fixed=("mode", "physics_rate_hz", "timing_report"),  # the realtime grid: steps of 1 / physics_rate_hz
         )
+        report = self.params["timing_report"]
+        if report and not Path(report).resolve().parent.is_dir():
+            raise NodeStartError(f"parameter 'timing_report': folder of {report!r} does not exist")
         self.robot, self.control = self.params.robot_control()
         self.lockstep = self.params["mode"] == "lockstep"
         self.plant = self._new_plant(self.robot)
@@ -173,52 +149,42 @@ class PlantNode(Node):
         self.done = Future()
         self.exit_status = 0
 
-        self.odom_pub = self.create_publisher(Odometry, "odom", PUBLISH_QOS)
-        self.truth_pub = self.create_publisher(Odometry, "ground_truth/odom", PUBLISH_QOS)
-        self.current_pub = self.create_publisher(Float64MultiArray, "wheel_currents", PUBLISH_QOS)
-        self.joint_pub = self.create_publisher(JointState, "joint_states", PUBLISH_QOS)
-        self.clock_pub = self.create_publisher(ClockMsg, "/clock", PUBLISH_QOS) if self.lockstep else None
+        qos = publish_qos(self.lockstep)
+        self.odom_pub = self.create_publisher(Odometry, "odom", qos)
+        self.truth_pub = self.create_publisher(Odometry, "ground_truth/odom", qos)
+        self.current_pub = self.create_publisher(Float64MultiArray, "wheel_currents", qos)
+        self.joint_pub = self.create_publisher(JointState, "joint_states", qos)
+        self.clock_pub = self.create_publisher(ClockMsg, "/clock", qos) if self.lockstep else None
         self.command_layout = three_values_layout(VOLTAGE_LABEL)
         self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command, CONTROL_QOS,
                                                     raw=True)
-        self.declare_parameter(
-            "lockstep_wait_for",
-            list(DEFAULT_WAIT_FOR),
-            ParameterDescriptor(
-                description="Lockstep: 'topic:count' entries, at least count subscriptions on each topic before "
-                "tick 0 (the plant's own publishers count matched readers, other topics the graph)",
-                additional_constraints="each entry 'topic:count' with count >= 0",
-            ),
-        )
-        self.add_on_set_parameters_callback(_check_wait_for)
-        try:
-            _parse_wait_for(self.get_parameter("lockstep_wait_for").value)
-        except ValueError as exc:
-            raise NodeStartError(str(exc)) from None
+        self.handshake = StartHandshake(self, self.command_sub, {
+            "odom": self.odom_pub, "ground_truth/odom": self.truth_pub, "wheel_currents": self.current_pub,
+            "joint_states": self.joint_pub, "/clock": self.clock_pub, "clock": self.clock_pub})
 
         self.voltages = np.zeros(3)
         self.peak_currents = np.zeros(3)
         self.measurement: tuple[np.ndarray, np.ndarray] | None = None
         self.have_period = False  # a period has been integrated since the first measurement
         self._build_messages()
-        self.command_time = -math.inf  # steady time of the last valid command
+        self.command_time = -math.inf  # steady time of the last command (a refused one means zero volts)
+        self.counts = {"clamped_commands": 0, "refused_commands": 0}
         self.tick = 0
-        self.last_tick = (
-            max(1, int(round(self.params["duration_s"] / self.control.period_s))) - 1
-            if self.params["duration_s"] > 0
-            else None
-        )
+        duration = self.params["duration_s"]
+        self.last_tick = max(1, int(round(duration / self.control.period_s))) - 1 if duration > 0 else None
+        self.busy_s = 0.0  # in the callbacks (lockstep: ticks 1 ..)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.lockstep:
             self.started = False
-            self.ready_since: float | None = None  # steady time since which the start handshake is met
-            self.busy_s = self.wait_s = 0.0  # time spent stepping / waiting for commands
-            self.published_at = monotonic()
+            self.wait_s = 0.0  # waiting for commands (ticks 1 ..)
+            self.published_at = self.tick_sent_at = monotonic()  # the last (re)send; the tick's first send
+            self.resent = 0
             self.start_timer = self.create_timer(0.01, self._try_start, clock=steady)
             self.resend_timer = self.create_timer(self.params["lockstep_resend_s"] / 2, self._resend, clock=steady)
         else:
             self.started_at = monotonic()
             self.grid = 0  # grid points integrated since started_at
+            self.ticks = 0  # published
             self.timing = LoopTiming()
             self.publish_timer = self.create_timer(self.control.period_s, self._publish_realtime, clock=steady)
         self.get_logger().info(f"plant simulator ready ({self.params['mode']}, Ts = {self.control.period_s:g} s)")
@@ -243,31 +209,22 @@ class PlantNode(Node):
         return plant
 
     # lockstep -----------------------------------------------------------------------------------
-    def _subscribers_of(self, topic: str) -> int:
-        own = {"odom": self.odom_pub, "ground_truth/odom": self.truth_pub, "wheel_currents": self.current_pub,
-               "joint_states": self.joint_pub, "/clock": self.clock_pub, "clock": self.clock_pub}
-        pub = own.get(topic)
-        return pub.get_subscription_count() if pub is not None else self.count_subscribers(topic)
-
     def _try_start(self) -> None:
-        ready = self.command_sub.get_publisher_count() >= 1 and all(
-            self._subscribers_of(topic) >= count
-            for topic, count in _parse_wait_for(self.get_parameter("lockstep_wait_for").value)
-        )
         now = monotonic()
-        if not ready:
-            self.ready_since = None
-        elif self.ready_since is None:
-            self.ready_since = now
-        elif now - self.ready_since >= self.params["lockstep_settle_s"]:
+        if self.handshake.poll(now, self.params["lockstep_settle_s"]):
             self.start_timer.cancel()
             self.started = True
             self.started_at = now
             self._publish_tick(fresh=True)
 
     def _resend(self) -> None:
-        if self.started and monotonic() - self.published_at > self.params["lockstep_resend_s"]:
-            self.get_logger().warn(f"no command for tick {self.tick} (t = {self._time_ns() * 1e-9:.3f} s): resending")
+        now = monotonic()
+        if self.started and not self.done.done() and now - self.published_at > self.params["lockstep_resend_s"]:
+            self.resent += 1
+            self.get_logger().warn(
+                f"no command for tick {self.tick} (t = {self._time_ns() * 1e-9:.3f} s) for "
+                f"{now - self.tick_sent_at:.1f} s: resending ({self.resent} resends so far)",
+                throttle_duration_sec=2.0)
             self._publish_tick(fresh=False)
 
     def _time_ns(self) -> int:
@@ -277,6 +234,8 @@ class PlantNode(Node):
         """Odometry first (the controller's critical path), then /clock, the currents and the rest."""
         self._publish_measurements(divmod(self._time_ns(), 1_000_000_000), fresh, clock=True)
         self.published_at = monotonic()
+        if fresh:
+            self.tick_sent_at = self.published_at
 
     def _on_command(self, data: bytes) -> None:
         values = self.command_layout.read(data)  # the controller's layout, read in place; else decoded
@@ -287,23 +246,27 @@ class PlantNode(Node):
                 values = ()
         valid = len(values) == 3 and math.isfinite(sum(values))
         if not valid:
+            self.counts["refused_commands"] += 1
             self.get_logger().warn(
-                f"rejected wheel_voltages with {len(values)} values (need 3 finite values): zero volts",
-                throttle_duration_sec=1.0,
-            )
+                f"refused wheel_voltages with {len(values)} values (need 3 finite values): zero volts from now "
+                f"({self.counts['refused_commands']} refused so far)", throttle_duration_sec=1.0)
+            values = (0.0, 0.0, 0.0)
+        elif max(values) > self.robot.supply_voltage_v or min(values) < -self.robot.supply_voltage_v:
+            values = self._clamp(values)
         if not self.lockstep:
+            begin = monotonic()
             if valid:
-                now = monotonic()
-                self.timing.command(now)
-                self._advance(now, ceil=True)  # the old command up to now; the new one from the next grid point
-                self.voltages = np.array(values)
-                self.command_time = now
+                self.timing.command(begin)
+            self._advance(begin, ceil=True)  # the old command up to now; the new one from the next grid point
+            self.voltages = np.array(values)
+            self.command_time = begin
+            self.busy_s += monotonic() - begin
             return
         if not self.started or self.done.done():
             return
         begin = monotonic()
         self.wait_s += begin - self.published_at
-        self.plant.step(values if valid else _ZERO_VOLTS, self.control.period_s)
+        self.plant.step(values, self.control.period_s)
         self.peak_currents = self.plant.peak_abs_currents
         self.have_period = True
         if self.tick == 0:
@@ -318,21 +281,32 @@ class PlantNode(Node):
         self._publish_tick(fresh=True)
         self.busy_s += monotonic() - begin
 
+    def _clamp(self, values: tuple[float, ...]) -> tuple[float, ...]:
+        """`values` clamped to the supply, as an H-bridge applies them; a throttled warning and a count."""
+        supply = self.robot.supply_voltage_v
+        applied = tuple(min(max(v, -supply), supply) for v in values)
+        self.counts["clamped_commands"] += 1
+        self.get_logger().warn(
+            f"wheel_voltages {', '.join(f'{v:g}' for v in values)} V beyond the supply +-{supply:g} V: applied "
+            f"{', '.join(f'{v:g}' for v in applied)} V ({self.counts['clamped_commands']} commands clamped so far)",
+            throttle_duration_sec=1.0)
+        return applied
+
     def _report_run(self, last_answer_at: float) -> None:
-        """Log the run's real-time factor: ticks 1 .. n - 1, from the answer of tick 0 to that of the last."""
-        ticks = self.tick + 1
-        if ticks < 2:
-            self.get_logger().info("run over: 1 tick (no loop to time)")
-            return
-        loop_ticks = ticks - 1
-        wall = last_answer_at - self.first_answer_at
-        simulated = loop_ticks * self.control.period_s
-        self.get_logger().info(
-            f"run over: {ticks} ticks; ticks 1-{ticks - 1} ({simulated:g} s simulated) in {wall:.3f} s after tick 0 "
-            f"was answered (real-time factor {simulated / wall:.1f}; per tick "
-            f"{1e3 * self.busy_s / loop_ticks:.2f} ms in the plant, {1e3 * self.wait_s / loop_ticks:.2f} ms waiting "
-            f"for the command); tick 0 answered {self.first_answer_at - self.started_at:.3f} s after it went out"
-        )
+        """Log the run's real-time factor (ticks 1 .. n - 1, from the answer of tick 0 to that of the last)."""
+        report = lockstep_report(self.tick + 1, self.control.period_s, self.started_at, self.first_answer_at,
+                                 last_answer_at, self.busy_s, self.wait_s, resent=self.resent, **self.counts)
+        self.get_logger().info(lockstep_line(report))
+        self._write_report(report)
+
+    def _write_report(self, report: dict) -> None:
+        """Write the timing report to ``timing_report`` (if set); a failure is logged and the exit status 1."""
+        if self.params["timing_report"]:
+            try:
+                write_report(self.params["timing_report"], report)
+            except OSError as exc:
+                self.get_logger().error(f"cannot write the timing report: {exc}")
+                self.exit_status = 1
 
     # realtime -----------------------------------------------------------------------------------
     def _advance(self, now: float, ceil: bool = False) -> float:
@@ -363,13 +337,19 @@ class PlantNode(Node):
     def _publish_realtime(self) -> None:
         clock_ns, now = self.get_clock().now().nanoseconds, monotonic()
         if self.last_tick is not None and now - self.started_at >= self.params["duration_s"]:
-            self.get_logger().info(f"realtime run over: {self.timing.summary()}")
+            self.get_logger().info(f"realtime run over: {self.timing.summary()}; {self.counts['clamped_commands']} "
+                                   f"commands clamped, {self.counts['refused_commands']} refused")
+            simulated = self.grid / self.params["physics_rate_hz"]
+            self._write_report(realtime_report(self.timing, self.ticks, simulated, now - self.started_at,
+                                               self.busy_s, **self.counts))
             self.done.set_result(True)
             return
         stamp_ns = clock_ns - int((now - self._advance(now)) * 1e9)
         self.timing.published(monotonic())
         self._publish_measurements(divmod(stamp_ns, 1_000_000_000), fresh=True)
         self.have_period = True
+        self.ticks += 1
+        self.busy_s += monotonic() - now
 
     # measurements -------------------------------------------------------------------------------
     def _build_messages(self) -> None:
@@ -387,8 +367,8 @@ class PlantNode(Node):
     def _publish_currents(self) -> None:
         """Signed peak current of each drive over the period just integrated (as `simulation` records it)."""
         if self.current_pub.get_subscription_count():
-            self.current_pub.publish(
-                self.current_cdr.pack(*np.copysign(self.peak_currents, self.plant.currents).tolist()))
+            publish_acknowledged(self, self.current_pub,
+                                 self.current_cdr.pack(*np.copysign(self.peak_currents, self.plant.currents).tolist()))
         self.peak_currents = np.zeros(3)
 
     def _publish_measurements(self, stamp: tuple[int, int], fresh: bool, clock: bool = False) -> None:
@@ -404,17 +384,18 @@ class PlantNode(Node):
             self.measurement = self.plant.odometry(self.rng, noise)
         pose, twist = self.measurement
         twist = twist.tolist()
-        self.odom_pub.publish(self.odom_cdr.pack(*stamp, *_odometry_values(pose.tolist(), twist)))
+        publish_acknowledged(self, self.odom_pub, self.odom_cdr.pack(*stamp, *_odometry_values(pose.tolist(), twist)))
         if clock:
-            self.clock_pub.publish(self.clock_cdr.pack(*stamp))
+            publish_acknowledged(self, self.clock_pub, self.clock_cdr.pack(*stamp))
         if fresh and self.have_period:
             self._publish_currents()
         if self.truth_pub.get_subscription_count():
-            self.truth_pub.publish(self.truth_cdr.pack(*stamp, *_odometry_values(self.plant.pose.tolist(), twist)))
+            publish_acknowledged(self, self.truth_pub,
+                                 self.truth_cdr.pack(*stamp, *_odometry_values(self.plant.pose.tolist(), twist)))
         if not self.joint_pub.get_subscription_count():
             return
         plant = self.plant
-        self.joint_pub.publish(self.joint_cdr.pack(
+        publish_acknowledged(self, self.joint_pub, self.joint_cdr.pack(
             *stamp, *plant.wheel_angles.tolist(), *plant.wheel_speeds.tolist(),
             *(self.effort_per_a * plant.currents).tolist(),
         ))

@@ -5,11 +5,21 @@
   be lost), keep-last with a small depth (the newest sample is what matters;
   a short queue bounds latency but holds the previews of two ticks in
   flight), volatile (old control data is useless to a late joiner).
-* `PUBLISH_QOS`, every publisher of the loop (the same plus wheel_currents,
-  joint_states, ground_truth/odom, diagnostics, /clock): the same policies
-  with a deeper writer history, so a slow reader such as the recorder can
-  lag some ticks behind without losing samples (keep-last never blocks the
-  loop).
+* `publish_qos(lockstep)`, every publisher of the loop (the same topics
+  plus wheel_currents, joint_states, ground_truth/odom, diagnostics,
+  /clock), reliable and volatile:
+
+  - realtime: `PUBLISH_QOS`, keep-last 100, so a slow reader such as the
+    recorder can lag some ticks behind; a reader further behind loses
+    samples, but the loop never waits for an observer (the robot does not).
+  - lockstep: `LOCKSTEP_PUBLISH_QOS`, keep-all: a sample leaves the writer's
+    history only when every reader has acknowledged it, so nothing is lost
+    and the loop runs at most a history ahead of its slowest reader (the
+    recorder, whose subscriptions are keep-all too). Fast DDS (2.14, rmw
+    defaults) holds up to 5000 unacknowledged samples (resource_limits
+    max_samples); a write to a full history blocks for max_blocking_time
+    (100 ms) and then fails, which rclpy raises as `RCLError` ("cannot
+    publish data"). `publish_acknowledged` turns that into a logged wait.
 * `LATCHED_QOS` (reference_path): reliable, keep-last 1, transient local, so
   a visualiser or recorder that starts late still gets the whole reference.
 * `CLOCK_SUB_QOS`: the trajectory's own /clock subscription, reliable so no
@@ -19,9 +29,16 @@
 
 from __future__ import annotations
 
+import time
+from typing import Any
+
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ["CONTROL_QOS", "PUBLISH_QOS", "LATCHED_QOS", "CLOCK_SUB_QOS"]
+__all__ = ["CONTROL_QOS", "PUBLISH_QOS", "LOCKSTEP_PUBLISH_QOS", "LATCHED_QOS", "CLOCK_SUB_QOS", "publish_qos",
+           "publish_acknowledged"]
 
 CONTROL_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
@@ -35,6 +52,12 @@ PUBLISH_QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
+LOCKSTEP_PUBLISH_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL,
+    depth=100,  # ignored by keep-all
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
 LATCHED_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=1,
@@ -42,3 +65,36 @@ LATCHED_QOS = QoSProfile(
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
 CLOCK_SUB_QOS = CONTROL_QOS  # /clock drives the lockstep loop like the control topics
+
+
+def publish_qos(lockstep: bool) -> QoSProfile:
+    """The writers' QoS of the loop: keep-all in lockstep (lossless, back-pressure), else keep-last 100."""
+    return LOCKSTEP_PUBLISH_QOS if lockstep else PUBLISH_QOS
+
+
+def publish_acknowledged(node: Node, publisher: Publisher, message: Any) -> None:
+    """Publish `message`; if a keep-all writer's history is full, wait (logged) until readers acknowledge.
+
+    A keep-all write that finds the history full of unacknowledged samples fails after the writer's
+    max_blocking_time; it is retried, with a throttled warning naming the topic and the time waited,
+    until it goes out or the node's context shuts down. Failures of other writers are raised.
+    """
+    try:
+        publisher.publish(message)
+        return
+    except RCLError:
+        if publisher.qos_profile.history != HistoryPolicy.KEEP_ALL:
+            raise
+    since = time.monotonic()
+    while node.context.ok():
+        node.get_logger().warn(
+            f"{publisher.topic_name}: a subscriber has not acknowledged the writer's history for "
+            f"{time.monotonic() - since:.1f} s (a slow reader, e.g. the recorder): waiting",
+            throttle_duration_sec=2.0,
+        )
+        try:
+            publisher.publish(message)
+            return
+        except RCLError:
+            pass
+    raise RCLError(f"{publisher.topic_name}: context shut down while waiting to publish")

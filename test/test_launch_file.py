@@ -1,8 +1,10 @@
 """The launch file's description, built with stand-ins for `launch` and `launch_ros` (neither is on PyPI).
 
-The stand-ins record what the file passes to each action, so the test checks the file's own logic:
-which nodes start under which condition, with which parameters, and that every launch configuration
-it reads is a declared argument. (That it compiles and names installed files: test_colcon_build.)
+The stand-ins record what the file passes to each action, and its `OpaqueFunction` is evaluated with a
+context whose launch configurations the test sets, so the test checks the file's own logic: which nodes
+start, with which parameters for each scenario (against `scenarios.node_parameters` and against the
+models `simulation.run_scenario` uses offline), and that every launch configuration it reads is a
+declared argument. (That it compiles and names installed files: test_colcon_build.)
 """
 
 import importlib.util
@@ -12,9 +14,14 @@ from pathlib import Path
 
 import pytest
 
+from robotino_geom_mpc.core.params import ALL_SPECS, default_params_file, load_params, params_from_values, \
+    read_parameter_file
 from robotino_geom_mpc.ros.processes import RECORDER_WAIT_FOR
+from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, node_parameters
+from robotino_geom_mpc.simulation import controller_model, run_scenario
 
 LAUNCH_FILE = Path(__file__).resolve().parents[1] / "launch" / "robotino_geom_mpc.launch.py"
+PARAMS = str(default_params_file())
 
 
 class Recorded:
@@ -33,14 +40,32 @@ def _kind(name: str) -> type:
 
 STAND_INS = {
     "launch": {"LaunchDescription": _kind("LaunchDescription")},
-    "launch.actions": {"DeclareLaunchArgument": _kind("DeclareLaunchArgument")},
-    "launch.conditions": {"IfCondition": _kind("IfCondition"), "UnlessCondition": _kind("UnlessCondition")},
-    "launch.substitutions": {n: _kind(n) for n in ("LaunchConfiguration", "PathJoinSubstitution", "PythonExpression")},
+    "launch.actions": {"DeclareLaunchArgument": _kind("DeclareLaunchArgument"),
+                       "OpaqueFunction": _kind("OpaqueFunction")},
+    "launch.substitutions": {n: _kind(n) for n in ("LaunchConfiguration", "PathJoinSubstitution")},
     "launch_ros": {},
     "launch_ros.actions": {"Node": _kind("Node")},
-    "launch_ros.parameter_descriptions": {"ParameterValue": _kind("ParameterValue")},
     "launch_ros.substitutions": {"FindPackageShare": _kind("FindPackageShare")},
 }
+
+
+class Configurations(dict):
+    """`LaunchContext.launch_configurations` (name -> string), remembering which names were read."""
+
+    def __init__(self, values: dict[str, str]) -> None:
+        super().__init__(values)
+        self.read: set[str] = set()
+
+    def __getitem__(self, name: str) -> str:
+        self.read.add(name)
+        return super().__getitem__(name)
+
+
+class Context:
+    """The `LaunchContext` an `OpaqueFunction` gets, reduced to what the file may use."""
+
+    def __init__(self, values: dict[str, str]) -> None:
+        self.launch_configurations = Configurations(values)
 
 
 @pytest.fixture
@@ -60,30 +85,92 @@ def _of(kind: str, items) -> list[Recorded]:
     return [a for a in items if type(a).__name__ == kind]
 
 
-def _config_name(condition: Recorded) -> str:
-    (config,) = condition.args
-    assert type(config).__name__ == "LaunchConfiguration"
-    return config.args[0]
+def _defaults(description) -> dict[str, str]:
+    """The declared arguments' defaults, as launch would perform them (the file paths set here)."""
+    values = {a.args[0]: a.kwargs["default_value"] for a in _of("DeclareLaunchArgument", description)}
+    assert all(isinstance(v, str) for k, v in values.items() if k not in ("params_file", "plant_params"))
+    return {**values, "params_file": PARAMS, "plant_params": PARAMS}
+
+
+def _launch(description, **arguments: str) -> tuple[dict[str, Recorded], Context]:
+    """Evaluate the file's OpaqueFunction with `arguments` over the defaults: nodes by executable, context."""
+    (opaque,) = _of("OpaqueFunction", description)
+    context = Context({**_defaults(description), **arguments})
+    nodes = {n.kwargs["executable"]: n for n in opaque.kwargs["function"](context)}
+    assert all(type(n).__name__ == "Node" for n in nodes.values())
+    return nodes, context
+
+
+def _overrides(node: Recorded) -> dict:
+    """A node's parameter overrides: the dict after its parameter file."""
+    files, overrides = node.kwargs["parameters"]
+    assert files == PARAMS
+    return overrides
 
 
 def test_every_launch_configuration_read_is_a_declared_argument(description):
     declared = {a.args[0] for a in _of("DeclareLaunchArgument", description)}
-    read = {c.args[0] for c in _of("LaunchConfiguration", Recorded.made)}
-    assert read <= declared and {"scenario", "lockstep", "record", "bag"} <= declared
+    _, context = _launch(description, record="true")
+    read = {c.args[0] for c in _of("LaunchConfiguration", Recorded.made)} | context.launch_configurations.read
+    assert read <= declared and {"scenario", "lockstep", "record", "bag", "seed", "duration"} <= read
+
+
+@pytest.mark.parametrize("scenario", list(SCENARIOS))
+def test_each_node_gets_its_scenarios_parameters(description, scenario):
+    robot, control = load_params(PARAMS)
+    nodes, _ = _launch(description, scenario=scenario, duration="2.5", seed="7")
+    assert set(nodes) == {"trajectory_node", "controller_node", "plant_node"}
+    by_node = {name: _overrides(node) for name, node in nodes.items()}
+    want = node_parameters(scenario, robot)
+    for name, node_overrides in by_node.items():
+        assert node_overrides["mode"] == "lockstep"
+        assert {k: v for k, v in node_overrides.items() if k in want[name]} == want[name]
+    assert by_node["trajectory_node"] == {"scenario": scenario, "mode": "lockstep"}
+    plant = by_node["plant_node"]
+    assert plant["duration_s"] == 2.5 and plant["seed"] == 7 and "lockstep_wait_for" not in plant
+
+    # independently: the controller's parameters (file plus overrides, read as the node reads them) are the
+    # model the offline loop gives its controller, and the plant's noise is the offline run's
+    values = {**read_parameter_file(PARAMS), **by_node["controller_node"]}
+    launched, _ = params_from_values({s.name: values[s.name] for s in ALL_SPECS}, "launch")
+    assert launched == controller_model(scenario, robot)
+    offline = run_scenario(scenario, robot, control, duration_s=0.05)
+    assert [plant["odometry_noise.position_m"], plant["odometry_noise.yaw_rad"]] == offline.meta["odometry_noise"]
+    assert (launched != robot) == (offline.meta["controller_mismatch"] is not None)
+
+
+def test_robustness_gives_the_controller_a_mismatched_model_and_the_plant_noise(description):
+    """The bug this file had: scenario:=robustness ran the nominal loop. Numbers from the paper's study."""
+    robot, _ = load_params(PARAMS)
+    nodes, _ = _launch(description, scenario="robustness")
+    controller, plant = _overrides(nodes["controller_node"]), _overrides(nodes["plant_node"])
+    assert controller["robot.mass_kg"] == pytest.approx(1.2 * robot.mass_kg)
+    assert controller["robot.yaw_inertia_kg_m2"] == pytest.approx(0.8 * robot.yaw_inertia_kg_m2)
+    assert controller["robot.body_friction_x_n_s_per_m"] == pytest.approx(2.0 * robot.body_friction_x_n_s_per_m)
+    assert plant["odometry_noise.position_m"] == 1e-3 and plant["odometry_noise.yaw_rad"] == 1e-3
+    nominal, _ = _launch(description, scenario="paper-circle")
+    assert _overrides(nominal["controller_node"]) == {"mode": "lockstep"}
+    assert _overrides(nominal["plant_node"])["odometry_noise.position_m"] == 0.0
 
 
 def test_with_record_the_recorder_starts_and_the_plant_waits_for_its_subscriptions(description):
-    nodes = _of("Node", description)
-    plants = [n for n in nodes if n.kwargs["executable"] == "plant_node"]
-    by_condition = {(type(p.kwargs["condition"]).__name__, _config_name(p.kwargs["condition"])): p for p in plants}
-    assert set(by_condition) == {("IfCondition", "record"), ("UnlessCondition", "record")}  # one plant either way
-    waiting = by_condition[("IfCondition", "record")].kwargs["parameters"][1]
-    plain = by_condition[("UnlessCondition", "record")].kwargs["parameters"][1]
+    plain, _ = _launch(description, record="false", lockstep="false")
+    assert "recorder_node" not in plain and _overrides(plain["plant_node"])["mode"] == "realtime"
+    recorded, _ = _launch(description, record="True", bag="/tmp/some_bag", scenario="lemniscate")
+    assert _overrides(recorded["recorder_node"]) == {"output": "/tmp/some_bag", "scenario": "lemniscate"}
+    waiting = _overrides(recorded["plant_node"])
     assert waiting["lockstep_wait_for"] == list(RECORDER_WAIT_FOR)
-    assert "lockstep_wait_for" not in plain  # the plant's default: the controller and the trajectory
-    assert {k: v for k, v in waiting.items() if k != "lockstep_wait_for"}.keys() == plain.keys()
-    (recorder,) = [n for n in nodes if n.kwargs["executable"] == "recorder_node"]
-    assert type(recorder.kwargs["condition"]).__name__ == "IfCondition"
-    assert _config_name(recorder.kwargs["condition"]) == "record"
-    others = [n for n in nodes if n.kwargs["executable"] in ("trajectory_node", "controller_node")]
-    assert len(others) == 2 and all("condition" not in n.kwargs for n in others)
+    assert "lockstep_wait_for" not in _overrides(plain["plant_node"])  # the plant's default: the loop's nodes
+    assert waiting.keys() - {"lockstep_wait_for"} == _overrides(plain["plant_node"]).keys()
+
+
+@pytest.mark.parametrize("arguments, error, match", [
+    ({"scenario": "robustnes"}, ScenarioError, "did you mean 'robustness'"),
+    ({"scenario": "spiral"}, ScenarioError, "unknown scenario 'spiral'"),
+    ({"lockstep": "yes"}, ValueError, "lockstep"),
+    ({"duration": "-1"}, ValueError, "duration"),
+    ({"seed": "1.5"}, ValueError, "seed"),
+])
+def test_bad_arguments_stop_the_launch_with_a_clear_error(description, arguments, error, match):
+    with pytest.raises(error, match=match):
+        _launch(description, **arguments)

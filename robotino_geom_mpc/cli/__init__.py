@@ -26,6 +26,7 @@ VERBS: dict[str, str] = {
     "report": "metrics.json and the figures of a recorded run (bag directory or .mcap)",
     "replay": "republish a recorded bag over DDS (original timing, optional /clock)",
     "regress": "recompute a recording's wheel voltages with a fresh controller and compare",
+    "reindex": "make a bag usable after its recorder was killed (finalised MCAP, metadata.yaml)",
     "bench": "time the control step against OSQP and the offline simulation",
 }
 

@@ -3,6 +3,8 @@
 Prints the largest deviation between the recomputed and the recorded wheel
 voltages; exit status 0 when it is within ``--tol`` (default 1e-12 V), 1 on
 a mismatch, 2 when the recording cannot be used (see `recording.regress`).
+A damaged bag is named in one warning line with what was recovered; the
+verdict covers the ticks that could be read.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import math
 from pathlib import Path
 
 from . import VERBS, UsageError
+from .reindex import warn_damage
 
 __all__ = ["add_parser", "run"]
 
@@ -45,11 +48,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the regression and print its verdict."""
-    from robotino_geom_mpc.recording.bag import BagError
+    from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
     from robotino_geom_mpc.recording.regress import regress_bag
 
     try:
-        result = regress_bag(args.bag, params_file=args.params, tolerance_v=args.tol)
+        bag = BagReader(args.bag)
+        warn_damage("regress", damage_report(bag))
+        result = regress_bag(bag, params_file=args.params, tolerance_v=args.tol)
     except BagError as exc:
         raise UsageError(str(exc)) from None
     where = "" if result.worst_time_s is None else f" at t = {result.worst_time_s:.3f} s"

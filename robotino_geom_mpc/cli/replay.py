@@ -1,7 +1,7 @@
 """`robotino-geom-mpc replay BAG`: republish a recording over DDS with its original timing.
 
-Exit status: 0 after a complete replay; 1 when the bag is damaged (each
-defect is printed as a warning, everything readable is still replayed);
+Exit status: 0 after a complete replay; 1 when the bag is damaged (one
+warning line says so and what was recovered; everything readable is still replayed);
 2 when nothing can be read (not a bag, not MCAP, no readable message) or an
 option is wrong; 130 on Ctrl-C.
 """
@@ -9,10 +9,10 @@ option is wrong; 130 on Ctrl-C.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from . import VERBS, UsageError, positive_float
+from .reindex import warn_damage
 
 __all__ = ["add_parser", "run"]
 
@@ -46,15 +46,14 @@ def run(args: argparse.Namespace) -> int:
     """Open the bag, replay it from a node named ``replay``; see the module docstring for the exit status."""
     import rclpy
 
-    from robotino_geom_mpc.recording.bag import BagError, BagReader
+    from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
     from robotino_geom_mpc.recording.replay import replay_bag
 
     try:
         bag = BagReader(args.bag)
     except BagError as exc:
         raise UsageError(str(exc)) from None
-    for problem in bag.problems:
-        print(f"robotino-geom-mpc replay: warning: {problem}; replaying what can be read", file=sys.stderr)
+    warn_damage("replay", damage_report(bag))
     topics = None
     if args.topics:
         topics = ["/" + t.lstrip("/") for t in args.topics]

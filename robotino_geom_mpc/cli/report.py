@@ -2,7 +2,8 @@
 
 The same keys and figures as ``simulate`` and ``run`` (`recording.report.report_bag`,
 which ``run`` also calls). The run parameters come from the recording, or
-from ``--params``.
+from ``--params``. A damaged bag (e.g. its recorder was killed) is named in
+one warning line with what was recovered; the report covers that (exit 0).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import json
 from pathlib import Path
 
 from . import VERBS, UsageError
+from .reindex import warn_damage
 
 __all__ = ["add_parser", "run"]
 
@@ -34,12 +36,17 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Write the report; a bag that cannot be read or lacks a run's topics is a UsageError."""
-    from robotino_geom_mpc.recording.bag import BagError
+    """Write the report; a bag that cannot be read or lacks a run's topics is a UsageError.
+
+    A damaged bag is reported in one warning line (what was recovered); the report covers what was read.
+    """
+    from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
     from robotino_geom_mpc.recording.report import report_bag
 
     try:
-        metrics = report_bag(args.bag, args.out, params_file=args.params)
+        bag = BagReader(args.bag)
+        warn_damage("report", damage_report(bag))
+        metrics = report_bag(bag, args.out, params_file=args.params)
     except BagError as exc:
         raise UsageError(str(exc)) from None
     if args.json:

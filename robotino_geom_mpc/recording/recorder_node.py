@@ -49,7 +49,6 @@ from rclpy.signals import SignalHandlerOptions
 
 from robotino_geom_mpc.core.params import ALL_SPECS
 from robotino_geom_mpc.recording.bag import (
-    RUN_METADATA,
     BagError,
     BagWriter,
     default_bag_name,
@@ -119,11 +118,8 @@ class RecorderNode(Node):
             value = self.get_parameter(spec.name).value
             if value is not None:
                 values[spec.name] = value
-        record = {"scenario": self.get_parameter("scenario").value, "parameters": json.dumps(values, sort_keys=True)}
-        self.writer.add_metadata(RUN_METADATA, record)
-        self.writer.flush()
-        for key, value in record.items():
-            self.writer.custom_data[f"{RUN_METADATA}.{key}"] = value
+        self.writer.store_run_metadata({"scenario": self.get_parameter("scenario").value,
+                                        "parameters": json.dumps(values, sort_keys=True)})
 
     def _discover(self) -> None:
         """Subscribe every wanted topic that has a publisher and is not recorded yet."""

@@ -24,13 +24,12 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-
-from rclpy.duration import Duration
-from rclpy.node import Node
-from rosgraph_msgs.msg import Clock
+from typing import TYPE_CHECKING
 
 from robotino_geom_mpc.recording.bag import BagError, BagReader, message_class
-from robotino_geom_mpc.ros.bag_qos import adapt_offer_to_recorded
+
+if TYPE_CHECKING:  # rclpy is imported by `replay_bag` only: reading a bag needs no ROS
+    from rclpy.node import Node
 
 __all__ = ["ReplayResult", "replay_bag"]
 
@@ -98,6 +97,11 @@ def replay_bag(
     BagError
         If `rate` is not positive, a topic asked for is not in the bag, or a type is not installed.
     """
+    from rclpy.duration import Duration
+    from rosgraph_msgs.msg import Clock
+
+    from robotino_geom_mpc.ros.bag_qos import adapt_offer_to_recorded
+
     if not rate > 0.0:
         raise BagError(f"rate must be > 0, got {rate!r}")
     if duration_s is not None and not duration_s > 0.0:

@@ -1,4 +1,10 @@
-"""QoS profiles as rosbag2 stores them (metadata version 9) and rosbag2's rule for adapting to publishers."""
+"""QoS profiles as rosbag2 stores them (metadata version 9) and rosbag2's rule for adapting to publishers.
+
+The stored form (dicts of lower-case policy names, or the integers of
+version 8, or their YAML text) is rosbags' (`rosbags.rosbag2.metadata`
+``dump_qos_v9`` / ``parse_qos``); this module only converts between rclpy's
+`QoSProfile` and rosbags' `Qos`.
+"""
 
 from __future__ import annotations
 
@@ -12,13 +18,19 @@ from rclpy.qos import (
     QoSProfile,
     ReliabilityPolicy,
 )
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.rosbag2.errors import ReaderError
+from rosbags.rosbag2.metadata import dump_qos_v9, parse_qos
 
 __all__ = ["profile_to_dict", "dict_to_profile", "adapt_request_to_offers", "adapt_offer_to_recorded"]
 
 
-def _duration(value: Duration) -> dict[str, int]:
-    sec, nsec = divmod(int(value.nanoseconds), 1_000_000_000)
-    return {"sec": sec, "nsec": nsec}
+def _time(value: Duration) -> QosTime:
+    return QosTime(*divmod(int(value.nanoseconds), 1_000_000_000))
+
+
+def _duration(value: QosTime) -> Duration:
+    return Duration(nanoseconds=int(value.sec) * 1_000_000_000 + int(value.nsec))
 
 
 def profile_to_dict(qos: QoSProfile) -> dict[str, Any]:
@@ -27,43 +39,37 @@ def profile_to_dict(qos: QoSProfile) -> dict[str, Any]:
     An infinite duration (RMW_DURATION_INFINITE, 2**63 - 1 ns) becomes
     ``{sec: 9223372036, nsec: 854775807}`` as rosbag2 writes it.
     """
-    return {
-        "history": qos.history.name.lower(),
-        "depth": int(qos.depth),
-        "reliability": qos.reliability.name.lower(),
-        "durability": qos.durability.name.lower(),
-        "deadline": _duration(qos.deadline),
-        "lifespan": _duration(qos.lifespan),
-        "liveliness": qos.liveliness.name.lower(),
-        "liveliness_lease_duration": _duration(qos.liveliness_lease_duration),
-        "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions),
-    }
-
-
-def _policy(enum: type, value: Any) -> Any:
-    if isinstance(value, int):
-        return enum(value)
-    return enum[str(value).upper()]
+    profile = Qos(
+        QosHistory[qos.history.name], int(qos.depth), QosReliability[qos.reliability.name],
+        QosDurability[qos.durability.name], _time(qos.deadline), _time(qos.lifespan),
+        QosLiveliness[qos.liveliness.name], _time(qos.liveliness_lease_duration),
+        bool(qos.avoid_ros_namespace_conventions),
+    )
+    return dict(dump_qos_v9([profile])[0])
 
 
 def dict_to_profile(item: dict[str, Any]) -> QoSProfile:
-    """Inverse of `profile_to_dict` (also accepts the integer policies of metadata version <= 8)."""
+    """Inverse of `profile_to_dict` (also accepts the integer policies of metadata version <= 8).
 
-    def dur(key: str) -> Duration:
-        d = item.get(key) or {"sec": 0, "nsec": 0}
-        return Duration(nanoseconds=int(d["sec"]) * 1_000_000_000 + int(d["nsec"]))
-
-    history = _policy(HistoryPolicy, item.get("history", "keep_last"))
+    Raises
+    ------
+    ValueError
+        If a policy or duration is missing or not a QoS value.
+    """
+    try:
+        (qos,) = parse_qos([item])
+    except (ReaderError, KeyError, TypeError, AttributeError) as exc:
+        raise ValueError(f"not a rosbag2 QoS profile: {item!r} ({exc.__class__.__name__}: {exc})") from None
     return QoSProfile(
-        history=history,
-        depth=max(int(item.get("depth", 10)), 1),
-        reliability=_policy(ReliabilityPolicy, item.get("reliability", "reliable")),
-        durability=_policy(DurabilityPolicy, item.get("durability", "volatile")),
-        deadline=dur("deadline"),
-        lifespan=dur("lifespan"),
-        liveliness=_policy(LivelinessPolicy, item.get("liveliness", "system_default")),
-        liveliness_lease_duration=dur("liveliness_lease_duration"),
-        avoid_ros_namespace_conventions=bool(item.get("avoid_ros_namespace_conventions", False)),
+        history=HistoryPolicy[qos.history.name],
+        depth=max(int(qos.depth), 1),
+        reliability=ReliabilityPolicy[qos.reliability.name],
+        durability=DurabilityPolicy[qos.durability.name],
+        deadline=_duration(qos.deadline),
+        lifespan=_duration(qos.lifespan),
+        liveliness=LivelinessPolicy[qos.liveliness.name],
+        liveliness_lease_duration=_duration(qos.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=bool(qos.avoid_ros_namespace_conventions),
     )
 
 

@@ -1,9 +1,10 @@
-"""The control loop over DDS, measured: lockstep real-time factor, realtime missed ticks and latency.
+"""The control loop over DDS, measured: lockstep real-time factor, realtime missed ticks and latency, bare round trip.
 
-Both functions start the three nodes as processes (`processes.NodeGroup`)
-on the current ROS_DOMAIN_ID and take the figures from the plant's own
-report, so no probe subscribes the loop (an extra reader of /clock or the
-odometry costs the plant a wake-up of one more process per tick):
+Both loop functions start the three nodes as processes (`processes.NodeGroup`)
+on the current ROS_DOMAIN_ID and take the figures from the plant's own timing
+report (the JSON object its ``timing_report`` parameter names, written at the
+end of the run), so no probe subscribes the loop (an extra reader of /clock or
+the odometry costs the plant a wake-up of one more process per tick):
 
 * `bench_lockstep`: the plant in lockstep on a scenario; the real-time
   factor is simulated time over the wall time from the command of tick 0
@@ -17,30 +18,39 @@ odometry costs the plant a wake-up of one more process per tick):
   host steal (`host_steal`) is sampled beside it, and the missed ticks
   during which the hypervisor took CPU time are counted.
 
+`dds_benchmarks` interleaves them with the bare round trip of `roundtrip`
+(the same transport and executors without any control work) and sets the
+loop's figures beside it.
 """
 
 from __future__ import annotations
 
+import json
 import os
-import re
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-
 from robotino_geom_mpc.bench.host_steal import StealSampler
+from robotino_geom_mpc.bench.registry import BenchmarkError
+from robotino_geom_mpc.bench.roundtrip import bench_roundtrip
 from robotino_geom_mpc.core.params import default_params_file, load_params
-from robotino_geom_mpc.ros.processes import LOCKSTEP_WAIT_FOR, NodeGroup, ros_args
+from robotino_geom_mpc.ros.processes import LOCKSTEP_WAIT_FOR, NodeFailed, NodeGroup, ros_args
 
-__all__ = ["LOCKSTEP_RUNS", "lockstep_nodes", "bench_lockstep", "bench_realtime", "dds_benchmarks", "missed_ticks",
-           "realtime_report"]
+__all__ = ["LOCKSTEP_RUNS", "TIMING_REPORT", "lockstep_nodes", "bench_lockstep", "bench_realtime", "dds_benchmarks",
+           "missed_ticks", "read_timing_report"]
 
-# the plant's reports at the end of a run (`PlantNode._report_run`, `LoopTiming.summary`)
-_RUN_OVER = re.compile(r"run over: (\d+) ticks; ticks 1-\d+ \(([0-9.e+-]+) s simulated\) in ([0-9.e+-]+) s")
-_REALTIME_OVER = re.compile(r"realtime run over: (\d+) ticks answered, (\d+) missed; odometry-to-command latency "
-                            r"median ([0-9.]+) ms, p99 ([0-9.]+) ms, max ([0-9.]+) ms")
-_FIRST_ANSWER = re.compile(r"first answer at steady time ([0-9.]+) s")
-_MISSED_TICK = re.compile(r"([0-9.]+): ([0-9.]+)")  # in the list after "to the next odometry)"
+TIMING_REPORT = "plant_timing.json"  # in the run's log directory
+# the keys of the plant's timing report and the types of their values (None: may be null)
+_REPORT_KEYS: dict[str, tuple[type | None, ...]] = {
+    "mode": (str,), "ticks": (int,), "loop_ticks": (int,), "simulated_s": (int, float), "wall_s": (int, float),
+    "realtime_factor": (int, float, type(None)), "plant_busy_ms_per_tick": (int, float),
+    "wait_ms_per_tick": (int, float), "tick0_answer_s": (int, float, type(None)), "answered": (int,),
+    "missed": (int,), "latency_ms": (dict, type(None)), "first_answer_steady_s": (int, float, type(None)),
+    "missed_ticks": (list,),
+}
+
 
 def lockstep_nodes(
     group: NodeGroup,
@@ -51,12 +61,15 @@ def lockstep_nodes(
     realtime: bool = False,
     plant_overrides: dict[str, Any] | None = None,
     trajectory_overrides: dict[str, Any] | None = None,
+    timing_report: str | os.PathLike | None = None,
 ):
     """Start trajectory, controller and plant (lockstep unless `realtime`); returns the plant's process.
 
     `wait_for` is the plant's ``lockstep_wait_for`` (`LOCKSTEP_WAIT_FOR`, the
     three nodes, when None): add the subscriptions of any other node that
-    must see tick 0 (a probe, the recorder).
+    must see tick 0 (a probe, the recorder). `timing_report` is the plant's
+    parameter of that name: the file it writes its timing report to at the
+    end of the run (`read_timing_report`).
     """
     params_file = params_file or default_params_file()
     mode = "realtime" if realtime else "lockstep"
@@ -65,37 +78,90 @@ def lockstep_nodes(
     group.start("trajectory_node", ros_args(params_file, {"scenario": scenario, "mode": mode,
                                                          **(trajectory_overrides or {})}))
     group.start("controller_node", ros_args(params_file, {"mode": mode}))
+    report = {} if timing_report is None else {"timing_report": str(timing_report)}
     return group.start(
         "plant_node",
         ros_args(params_file, {
             "mode": mode,
             "duration_s": float(duration_s),
             "lockstep_wait_for": list(wait_for or LOCKSTEP_WAIT_FOR),
+            **report,
             **(plant_overrides or {}),
         }),
     )
 
 
-def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, timeout_s: float = 300.0) -> dict:
-    """Run the lockstep loop; returns ``{"lockstep_dds_realtime_factor": ..., "ticks": ..., "host_steal_ms": ...}``.
+def read_timing_report(path: str | os.PathLike, mode: str) -> dict[str, Any]:
+    """The plant's timing report of a `mode` run (``"lockstep"`` or ``"realtime"``), checked.
 
-    The figure is the plant's own (its "run over" log line): the simulated
-    time of ticks 1 .. n - 1 over the wall time from receiving the command of
-    tick 0 to receiving that of the last tick. So startup and discovery do
-    not count (tick 0 is answered once the last endpoints have matched, which
-    can take a Fast DDS announcement period). ``host_steal_ms`` (where the
-    machine reports it, `host_steal`) is the CPU time the hypervisor took
+    The plant writes one JSON object at the end of the run: ``mode``, ``ticks``, ``loop_ticks`` (ticks 1 ..
+    n - 1, timed), ``simulated_s`` and ``wall_s`` of them, ``realtime_factor`` (null with one tick),
+    ``plant_busy_ms_per_tick``, ``wait_ms_per_tick``, ``tick0_answer_s``, and of a realtime run ``answered``,
+    ``missed``, ``latency_ms`` (``median``, ``p99``, ``max``; null without an answer),
+    ``first_answer_steady_s`` and ``missed_ticks`` (``[s after the first answer, s to the next odometry]``,
+    the first `loop_timing.MISSES_KEPT`).
+
+    Raises
+    ------
+    BenchmarkError
+        If the file is missing or not JSON, a key is missing or holds a value of another type, or the
+        report is of another mode.
+    """
+    try:
+        report = json.loads(Path(path).read_text())
+    except OSError as exc:
+        raise BenchmarkError(f"the plant wrote no timing report {path} ({exc.strerror})") from None
+    except ValueError as exc:
+        raise BenchmarkError(f"the plant's timing report {path} is not JSON: {exc}") from None
+    if not isinstance(report, dict):
+        raise BenchmarkError(f"the plant's timing report {path} is not a JSON object")
+    bad = [key for key, types in _REPORT_KEYS.items()
+           if key not in report or isinstance(report[key], bool) or not isinstance(report[key], types)]
+    latency = report.get("latency_ms")
+    if isinstance(latency, dict) and not all(isinstance(latency.get(k), (int, float)) for k in ("median", "p99", "max")):
+        bad.append("latency_ms")
+    if bad:
+        raise BenchmarkError(f"the plant's timing report {path} lacks or mistypes {', '.join(bad)}")
+    if report["mode"] != mode:
+        raise BenchmarkError(f"the plant's timing report {path} is of a {report['mode']} run, not {mode}")
+    return report
+
+
+def _wait(group: NodeGroup, plant, timeout_s: float, what: str) -> None:
+    """Wait for the plant's exit; `BenchmarkError` if a node fails or the run does not end in time."""
+    try:
+        ended = group.wait(plant, timeout_s)
+    except NodeFailed as exc:
+        raise BenchmarkError(f"{what}: {exc}") from None
+    if not ended:
+        raise BenchmarkError(f"{what} did not end within {timeout_s} s:\n{plant.stderr_tail()}")
+
+
+def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, timeout_s: float = 300.0) -> dict:
+    """Run the lockstep loop; the plant's real-time factor and wall time per tick, and the host's steal.
+
+    Returns ``lockstep_dds_realtime_factor`` (the plant's: the simulated time of ticks 1 .. n - 1 over
+    the wall time from receiving the command of tick 0 to receiving that of the last tick, so startup
+    and discovery do not count: tick 0 is answered once the last endpoints have matched, which can take
+    a Fast DDS announcement period), ``lockstep_tick_us`` (that wall time per tick), ``ticks`` and,
+    where the machine reports it (`host_steal`), ``host_steal_ms``: the CPU time the hypervisor took
     during the whole run, startup included.
+
+    Raises
+    ------
+    BenchmarkError
+        If a node fails, the run does not end in `timeout_s`, or its timing report is missing or has no
+        loop to time (one tick).
     """
     with StealSampler(interval_s=0.1) as steal, NodeGroup() as group:
-        plant = lockstep_nodes(group, scenario, duration_s)
-        if not group.wait(plant, timeout_s):
-            raise TimeoutError(f"lockstep run of {duration_s} s did not end within {timeout_s} s")
-        match = _RUN_OVER.search(plant.stderr_tail(lines=50))
-    if match is None:
-        raise RuntimeError("the plant did not report the end of the lockstep run")
-    ticks, simulated, wall = int(match[1]), float(match[2]), float(match[3])
-    out = {"lockstep_dds_realtime_factor": simulated / wall, "ticks": ticks}
+        path = group.log_dir / TIMING_REPORT
+        plant = lockstep_nodes(group, scenario, duration_s, timing_report=path)
+        _wait(group, plant, timeout_s, f"lockstep run of {duration_s} s")
+        report = read_timing_report(path, "lockstep")
+    if report["realtime_factor"] is None or report["loop_ticks"] < 1:
+        raise BenchmarkError(f"the lockstep run of {duration_s} s had {report['ticks']} tick: no loop to time")
+    out = {"lockstep_dds_realtime_factor": report["realtime_factor"],
+           "lockstep_tick_us": 1e6 * report["wall_s"] / report["loop_ticks"], "ticks": report["ticks"]}
     if steal.available:
         out["host_steal_ms"] = 1e3 * steal.total_s()
     return out
@@ -104,27 +170,32 @@ def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, tim
 def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", timeout_s: float | None = None) -> dict:
     """Run the realtime loop for `duration_s`; missed ticks and odometry-to-command latency (median, p99) in ms.
 
-    The figures are the plant's own ("realtime run over" log line, `robotino_sim_node.loop_timing`): from
-    the first answered tick on, the time from publishing a tick's odometry to receiving its command, on
-    the plant's steady clock; no probe subscribes the loop. Where the machine reports steal time
+    The figures are the plant's own (its timing report, `robotino_sim_node.loop_timing`): from the first
+    answered tick on, the time from publishing a tick's odometry to receiving its command, on the
+    plant's steady clock; no probe subscribes the loop. Where the machine reports steal time
     (`host_steal`), the run's steal and the missed ticks during which the host took CPU time are added.
+
+    Raises
+    ------
+    BenchmarkError
+        If a node fails, the run does not end in time, or its timing report is missing or has no answer.
     """
     period_s = load_params()[1].period_s
     with StealSampler() as steal, NodeGroup() as group:
-        plant = lockstep_nodes(group, scenario, duration_s, realtime=True)
-        if not group.wait(plant, timeout_s or duration_s + 60.0):
-            raise TimeoutError(f"realtime run of {duration_s} s did not end")
-        report = plant.stderr_tail(lines=50)
-    summary = realtime_report(report)
-    if summary is None:
-        raise RuntimeError("the plant did not report the end of the realtime run")
+        path = group.log_dir / TIMING_REPORT
+        plant = lockstep_nodes(group, scenario, duration_s, realtime=True, timing_report=path)
+        _wait(group, plant, timeout_s or duration_s + 60.0, f"realtime run of {duration_s} s")
+        report = read_timing_report(path, "realtime")
+    latency = report["latency_ms"]
+    if latency is None:
+        raise BenchmarkError(f"no tick of the realtime run of {duration_s} s was answered")
     out = {
-        "realtime_missed_ticks": summary["missed"],
-        "realtime_ticks": summary["answered"] + summary["missed"],
+        "realtime_missed_ticks": report["missed"],
+        "realtime_ticks": report["answered"] + report["missed"],
         "realtime_expected_ticks": int(round(duration_s / period_s)),
-        "realtime_latency_median_ms": summary["median_ms"],
-        "realtime_latency_p99_ms": summary["p99_ms"],
-        "realtime_latency_max_ms": summary["max_ms"],
+        "realtime_latency_median_ms": latency["median"],
+        "realtime_latency_p99_ms": latency["p99"],
+        "realtime_latency_max_ms": latency["max"],
     }
     if steal.available:
         out["realtime_host_steal_ms"] = 1e3 * steal.total_s()
@@ -133,53 +204,56 @@ def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", tim
     return out
 
 
-def realtime_report(report: str) -> dict[str, Any] | None:
-    """The plant's realtime summary line (`LoopTiming.summary`) read back, or None.
-
-    None if the report lacks the line or no tick was answered (the latencies read nan). Keys:
-    ``answered``, ``missed`` (ticks), ``median_ms``, ``p99_ms``, ``max_ms`` (latency) and
-    ``first_answer_s`` (steady time of the first answer; None if the line does not give it).
-    """
-    match = _REALTIME_OVER.search(report)
-    if match is None:
-        return None
-    first = _FIRST_ANSWER.search(report)
-    return {"answered": int(match[1]), "missed": int(match[2]), "median_ms": float(match[3]),
-            "p99_ms": float(match[4]), "max_ms": float(match[5]), "first_answer_s": float(first[1]) if first else None}
-
-
-def missed_ticks(report: str) -> list[tuple[float, float]]:
-    """The missed ticks the plant's realtime report lists: (steady time of their odometry [s], time to the next [s]).
+def missed_ticks(report: dict[str, Any]) -> list[tuple[float, float]]:
+    """The missed ticks a realtime timing report lists: (steady time of their odometry [s], time to the next [s]).
 
     The report lists at most `loop_timing.MISSES_KEPT` of them, timed from the first answer.
     """
-    line = next((ln for ln in report.splitlines() if "realtime run over:" in ln), "")
-    first = _FIRST_ANSWER.search(line)
-    if first is None or "to the next odometry)" not in line:
+    first = report["first_answer_steady_s"]
+    if first is None:
         return []
-    listed = line.split("to the next odometry)", 1)[1]
-    return [(float(first[1]) + float(t), 1e-3 * float(gap)) for t, gap in _MISSED_TICK.findall(listed)]
+    return [(first + after, gap) for after, gap in report["missed_ticks"]]
 
 
 LOCKSTEP_RUNS = 3  # the lockstep figure is the median of these runs (one with quick)
+ROUNDTRIPS = 5000  # bare round trips per run beside each lockstep run and after the realtime run (quick: 1000)
 
 
 def dds_benchmarks(quick: bool = False) -> dict[str, float]:
-    """The figures `bench` reports: lockstep real-time factor on paper-circle, realtime 100 Hz loop.
+    """The figures `bench` reports: lockstep real-time factor on paper-circle, realtime 100 Hz loop, round trip.
 
     The lockstep factor is the median of `LOCKSTEP_RUNS` runs of 22 s (the
     slowest and fastest are reported too: on a shared 2-core machine single
     runs differ by up to 2x); the realtime figures come from one 60 s run.
+    A bare round trip (`roundtrip.bench_roundtrip`, `ROUNDTRIPS`) follows
+    each of these runs; its median and p99 are the medians over those runs.
+    ``lockstep_tick_over_roundtrip`` is the median lockstep wall time per
+    tick over the median round trip (the lockstep tick cannot be shorter
+    than one round trip); ``realtime_latency_p99_over_roundtrip_p99`` sets
+    the realtime loop's latency p99 beside the round trip's.
     """
-    runs = [bench_lockstep(duration_s=5.0 if quick else 22.0) for _ in range(1 if quick else LOCKSTEP_RUNS)]
+    count = 1000 if quick else ROUNDTRIPS
+    runs, trips = [], []
+    for _ in range(1 if quick else LOCKSTEP_RUNS):
+        runs.append(bench_lockstep(duration_s=5.0 if quick else 22.0))
+        trips.append(bench_roundtrip(count=count))
+    realtime = bench_realtime(duration_s=10.0 if quick else 60.0)
+    trips.append(bench_roundtrip(count=count))
     factors = [run["lockstep_dds_realtime_factor"] for run in runs]
+    tick_us = float(np.median([run["lockstep_tick_us"] for run in runs]))
+    roundtrip_median = float(np.median([trip["roundtrip_us_median"] for trip in trips]))
+    roundtrip_p99 = float(np.median([trip["roundtrip_us_p99"] for trip in trips]))
     out = {
         "lockstep_dds_realtime_factor": float(np.median(factors)),
         "lockstep_dds_realtime_factor_min": min(factors),
         "lockstep_dds_realtime_factor_max": max(factors),
+        "lockstep_tick_us": tick_us,
+        "roundtrip_us_median": roundtrip_median,
+        "roundtrip_us_p99": roundtrip_p99,
+        "lockstep_tick_over_roundtrip": tick_us / roundtrip_median,
     }
     if all("host_steal_ms" in run for run in runs):
         out["lockstep_host_steal_ms"] = sum(run["host_steal_ms"] for run in runs)
-    realtime = bench_realtime(duration_s=10.0 if quick else 60.0)
     out.update({k: v for k, v in realtime.items() if k not in ("realtime_ticks", "realtime_expected_ticks")})
+    out["realtime_latency_p99_over_roundtrip_p99"] = 1e3 * realtime["realtime_latency_p99_ms"] / roundtrip_p99
     return out

@@ -27,7 +27,8 @@ def bench_offline_sim(quick: bool) -> dict[str, float]:
     }
 
 
-@benchmark("dds", "the nodes over DDS: lockstep real-time factor, realtime missed ticks and latency")
+@benchmark("dds", "the nodes over DDS: lockstep real-time factor, realtime missed ticks and latency, "
+           "each beside a bare rclpy round trip")
 def bench_dds(quick: bool) -> dict[str, float]:
     """The figures of `bench.dds.dds_benchmarks`, skipped without ROS 2."""
     try:

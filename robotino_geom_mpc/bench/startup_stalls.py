@@ -9,7 +9,7 @@ nanosleep or clock_nanosleep for 200 ms or more is counted as a sleep (the
 health check of bench/README.md sleeps 333 ms), timed from the plant's first
 answered tick. Prints one line per run and a summary per arm.
 
-    python bench/startup_stalls.py [--runs 20] [--duration 6] [--settle 1.0]
+    python -m robotino_geom_mpc.bench.startup_stalls [--runs 20] [--duration 6] [--settle 1.0]
 """
 
 from __future__ import annotations
@@ -21,7 +21,8 @@ import sys
 import threading
 import time
 
-from robotino_geom_mpc.bench.dds import lockstep_nodes, missed_ticks, realtime_report
+from robotino_geom_mpc.bench.dds import TIMING_REPORT, lockstep_nodes, read_timing_report
+from robotino_geom_mpc.bench.registry import BenchmarkError
 from robotino_geom_mpc.ros.processes import NodeGroup
 
 SLEEP_SYSCALLS = {"x86_64": {"35", "230"}, "aarch64": {"101", "115"}}  # nanosleep, clock_nanosleep
@@ -73,19 +74,24 @@ class SleepSampler:
 
 
 def run_once(settle_s: float, duration_s: float, syscalls: set[str]) -> dict:
-    """One realtime run; its missed ticks and sleeps (start relative to the first answer [s], length [s])."""
+    """One realtime run; its missed ticks and sleeps (start relative to the first answer [s], length [s]).
+
+    Raises `BenchmarkError` if a node fails or the plant's timing report is missing or names no first answer.
+    """
     with NodeGroup() as group:
+        path = group.log_dir / TIMING_REPORT
         plant = lockstep_nodes(group, "paper-circle", duration_s, realtime=True,
-                               trajectory_overrides={"start_settle_s": settle_s})
+                               trajectory_overrides={"start_settle_s": settle_s}, timing_report=path)
         sampler = SleepSampler({node.name: node.popen.pid for node in group.nodes}, syscalls)
-        ended = group.wait(plant, duration_s + 60.0)
-        sleeps = sampler.stop()
-        report = plant.stderr_tail(lines=50)
-    summary = realtime_report(report)
-    if not ended or summary is None or summary["first_answer_s"] is None:
-        raise RuntimeError(f"the realtime run did not report its end:\n{report}")
-    t0 = summary["first_answer_s"]
-    return {"missed": summary["missed"], "gaps": [(t - t0, gap) for t, gap in missed_ticks(report)],
+        try:
+            ended = group.wait(plant, duration_s + 60.0)
+        finally:
+            sleeps = sampler.stop()
+        report = read_timing_report(path, "realtime") if ended else None
+    if report is None or report["first_answer_steady_s"] is None:
+        raise BenchmarkError(f"the realtime run did not end or had no answered tick:\n{plant.stderr_tail()}")
+    t0 = report["first_answer_steady_s"]
+    return {"missed": report["missed"], "gaps": [(after, gap) for after, gap in report["missed_ticks"]],
             "sleeps": [(f"{node}/{comm}", start - t0, length) for node, comm, start, length in sleeps]}
 
 
@@ -103,7 +109,11 @@ def main() -> int:
     totals = {arm: {"runs": 0, "runs_with_misses": 0, "sleeps_before": 0, "sleeps_after": 0} for arm in arms}
     for i in range(args.runs):
         for arm in arms:
-            run = run_once(arm, args.duration, syscalls)
+            try:
+                run = run_once(arm, args.duration, syscalls)
+            except BenchmarkError as exc:
+                print(f"run {i} start_settle_s {arm:g}: {exc}", file=sys.stderr)
+                return 1
             total = totals[arm]
             total["runs"] += 1
             total["runs_with_misses"] += run["missed"] > 0

@@ -1,4 +1,4 @@
-"""`robotino-geom-mpc bench`: the JSON line, the benchmark registry, and the OSQP side's QP.
+"""`robotino-geom-mpc bench`: the JSON line, the benchmark registry, the OSQP side's QP, the CDR benchmark's sides and ratios.
 
 Only structure and sanity are checked (keys present, values positive and
 finite); no test asserts a speed.
@@ -123,3 +123,40 @@ def test_dds_benchmark_skipped_without_ros(monkeypatch):
     lines = []
     assert run_benchmarks(quick=True, names=["dds"], log=lines.append) == {}
     assert "skipped" in lines[-1]
+
+
+CDR_MESSAGES = ("odometry", "reference_preview", "wheel_voltages")
+
+
+def test_cdr_benchmark_reports_every_path_of_every_message_and_its_ratios():
+    out = run_benchmarks(quick=True, names=["cdr"], log=lambda line: None)
+    for name in CDR_MESSAGES:
+        times = {key: out[f"cdr_{key}_us_{name}"] for key in ("pack", "build_serialize", "layout_read", "deserialize",
+                                                              "reader")}
+        assert all(math.isfinite(t) and t > 0 for t in times.values()), name
+        assert out[f"cdr_pack_speedup_{name}"] == pytest.approx(times["build_serialize"] / times["pack"])
+        assert out[f"cdr_read_speedup_{name}"] == pytest.approx(times["deserialize"] / times["layout_read"])
+        assert out[f"cdr_read_speedup_vs_reader_{name}"] == pytest.approx(times["reader"] / times["layout_read"])
+    assert len(out) == 8 * len(CDR_MESSAGES)
+
+
+@pytest.mark.parametrize("break_side, reason", [("values", "read different values"), ("message", "differ")])
+def test_cdr_benchmark_fails_when_its_sides_disagree(monkeypatch, break_side, reason):
+    """A reader that returns other values, or a built message other than the template's, is caught before timing."""
+    from robotino_geom_mpc.bench import cdr as cdr_bench
+    from robotino_geom_mpc.ros.messages import three_values
+
+    cases = cdr_bench.message_cases
+
+    def broken(period_s):
+        out = cases(period_s)
+        voltages = out["wheel_voltages"]
+        if break_side == "values":
+            voltages["values"] = lambda msg: tuple(msg.data)[::-1]
+        else:
+            voltages["message"] = three_values("another_label")  # same numbers, other layout label
+        return out
+
+    monkeypatch.setattr(cdr_bench, "message_cases", broken)
+    with pytest.raises(BenchmarkError, match=f"cdr wheel_voltages: .*{reason}"):
+        cdr_bench.bench_cdr(quick=True)

@@ -10,12 +10,17 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
   block-diagonal QP; all must give the same commanded accelerations u.
 * `offline`: the offline closed loop's real-time factor on paper-circle, and
   the nodes over DDS (`dds`: lockstep real-time factor, realtime missed
-  ticks and latency, skipped when ROS 2 is missing).
+  ticks and latency, each beside the bare rclpy round trip of `roundtrip`;
+  skipped when ROS 2 is missing).
+* `cdr`: the CDR fast path (`ros.cdr` templates and layouts) against
+  rclpy's (de)serialization and rosbags' decoder, per message of the loop.
 * `host_steal` samples the hypervisor's steal beside the realtime run;
   `startup_stalls` is a script (``python -m robotino_geom_mpc.bench.startup_stalls``).
 """
 
-from robotino_geom_mpc.bench import controller_step, offline  # noqa: F401  (registration)
+# registration, in the order `bench` runs them
+from robotino_geom_mpc.bench import controller_step, offline  # noqa: F401, I001
+from robotino_geom_mpc.bench import cdr  # noqa: F401
 from robotino_geom_mpc.bench.registry import REGISTRY, BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
 
 __all__ = ["REGISTRY", "BenchmarkError", "BenchmarkSkipped", "benchmark", "run_benchmarks"]

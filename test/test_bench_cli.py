@@ -1,4 +1,4 @@
-"""`robotino-geom-mpc bench`: the JSON line, the benchmark registry, the OSQP side's QP, the CDR benchmark's sides and ratios.
+"""`robotino-geom-mpc bench`: the JSON line, the registry, the OSQP side's QP, the CDR benchmark's sides and ratios.
 
 Only structure and sanity are checked (keys present, values positive and
 finite); no test asserts a speed.

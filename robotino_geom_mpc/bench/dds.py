@@ -118,7 +118,8 @@ def read_timing_report(path: str | os.PathLike, mode: str) -> dict[str, Any]:
     bad = [key for key, types in _REPORT_KEYS.items()
            if key not in report or isinstance(report[key], bool) or not isinstance(report[key], types)]
     latency = report.get("latency_ms")
-    if isinstance(latency, dict) and not all(isinstance(latency.get(k), (int, float)) for k in ("median", "p99", "max")):
+    if isinstance(latency, dict) and not all(isinstance(latency.get(k), (int, float))
+                                             for k in ("median", "p99", "max")):
         bad.append("latency_ms")
     if bad:
         raise BenchmarkError(f"the plant's timing report {path} lacks or mistypes {', '.join(bad)}")

@@ -21,7 +21,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "bench",
         help=VERBS["bench"],
         description="Run the benchmarks: one control step against OSQP on the same MPC problems, "
-        "the offline simulation's real-time factor, and any further registered benchmark.",
+        "the offline simulation's real-time factor, the nodes over DDS beside a bare rclpy round trip, "
+        "the CDR fast path against rclpy's serialization, and any further registered benchmark.",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object of all figures as the last line")
     parser.add_argument("--quick", action="store_true", help="fewer steps and repeats (smoke run, noisier figures)")

@@ -9,6 +9,7 @@ import sys
 import pytest
 import yaml
 
+from robotino_geom_mpc.cli.run import node_arguments
 from robotino_geom_mpc.core.params import default_params_file, load_params
 from robotino_geom_mpc.results import compute_metrics
 from robotino_geom_mpc.simulation import run_scenario
@@ -58,6 +59,23 @@ def test_a_failing_node_is_named_and_nothing_is_left_running(tmp_path):
     assert proc.returncode == 1
     assert "controller_node exited with status 2" in proc.stderr and "mode" in proc.stderr
     assert _no_node_left(out)
+
+
+def test_each_node_gets_its_scenarios_overrides():
+    """node_arguments passes node_parameters on: robustness reaches the controller and the plant, not only the
+    trajectory (values against the file's robot, scaled by hand)."""
+    robot, _ = load_params()
+    args = node_arguments("robustness", default_params_file(), 3.0, True, seed=5)
+    assert args["controller_node"][-2:] == ["-p", "mode:=lockstep"]
+    controller = " ".join(args["controller_node"])
+    assert f"robot.mass_kg:={1.2 * robot.mass_kg!r}" in controller
+    assert f"robot.yaw_inertia_kg_m2:={0.8 * robot.yaw_inertia_kg_m2!r}" in controller
+    assert f"robot.body_friction_theta_n_m_s:={2.0 * robot.body_friction_theta_n_m_s!r}" in controller
+    plant = " ".join(args["plant_node"])
+    assert "odometry_noise.position_m:=0.001" in plant and "odometry_noise.yaw_rad:=0.001" in plant
+    assert "seed:=5" in plant and "duration_s:=3.0" in plant
+    assert "scenario:=robustness" in " ".join(args["trajectory_node"])
+    assert "robot." not in " ".join(node_arguments("paper-circle", default_params_file(), 3.0, True)["controller_node"])
 
 
 def test_unknown_scenario_is_a_usage_error(tmp_path):

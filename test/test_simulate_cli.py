@@ -70,12 +70,22 @@ def test_default_out_dir_is_out_scenario(tmp_path, monkeypatch, capsys):
     assert read_metrics(tmp_path / "out" / "point-to-point" / "metrics.json")["scenario"] == "point-to-point"
 
 
-def test_unknown_scenario_exits_2_without_traceback(tmp_path):
-    proc = _cli("simulate", "--scenario", "square", "--out", str(tmp_path / "x"), "--no-progress")
+def test_robustness_runs_the_registrys_mismatch_and_noise(tmp_path, capsys):
+    out = tmp_path / "rob"
+    assert main(["simulate", "--scenario", "robustness", "--duration", "0.5", "--out", str(out), "--no-progress"]) == 0
+    run = load_run(out / "run.npz")
+    assert run.scenario == "robustness" and run.meta["odometry_noise"] == [1e-3, 1e-3]
+    assert run.meta["controller_mismatch"] == {"mass": 1.2, "inertia": 0.8, "friction": 2.0}
+
+
+@pytest.mark.parametrize("name, hint", [("square", "paper-circle, lemniscate"),
+                                        ("robustnes", "did you mean 'robustness'")])
+def test_unknown_scenario_exits_2_without_traceback(tmp_path, name, hint):
+    proc = _cli("simulate", "--scenario", name, "--out", str(tmp_path / "x"), "--no-progress")
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "square" in lines[0] and "paper-circle" in lines[0]
+    last = proc.stderr.strip().splitlines()[-1]  # after argparse's usage
+    assert last.startswith("robotino-geom-mpc simulate: error: argument --scenario:") and name in last and hint in last
     assert not (tmp_path / "x").exists()
 
 

@@ -163,11 +163,48 @@ def test_parameter_set_is_validated(trajectory):
         "point-to-point", WAYPOINTS, load_params()[1].period_s]
 
 
+def test_period_and_horizon_cannot_change_while_the_node_runs(trajectory):
+    """Valid values, refused because the node's timer, preview layout and grid are built on them."""
+    h = trajectory
+    _, control = load_params()
+    for name, value in (("control.period_s", 2 * control.period_s), ("control.horizon", control.horizon + 1)):
+        (result,) = h.set_parameters(NODE, {name: value})
+        assert not result.successful and name in result.reason and "cannot change while the node runs" in result.reason
+    assert h.get_parameters(NODE, ["control.period_s", "control.horizon"]) == [control.period_s, control.horizon]
+    (allowed,) = h.set_parameters(NODE, {"start_settle_s": 1.0})  # the check can pass: other parameters still set
+    assert allowed.successful
+
+
+def test_a_silent_clock_is_logged_throttled_with_what_the_node_waits_for(tmp_path):
+    """Lockstep without a plant: the node says it waits for a clock, naming the topic, at most once per 5 s."""
+    timeout_s = 0.3  # checked every 0.15 s: unthrottled, some 13 lines in 2 s
+    with NodeGroup(log_dir=tmp_path) as group:
+        node = group.start("trajectory_node", ros_args(None, {"mode": "lockstep", "clock_timeout_s": timeout_s})
+                           + ["-r", "__ns:=/silent", "-r", "/clock:=/silent/clock"])  # no tick from other tests
+
+        def warnings() -> list[str]:
+            text = node.stdout_path.read_text() + node.stderr_path.read_text()
+            return [line for line in text.splitlines() if "no clock on" in line]
+
+        deadline = time.monotonic() + 30.0
+        while not warnings() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        first_seen = time.monotonic()
+        assert warnings(), node.stderr_tail()
+        time.sleep(2.0)
+        lines = warnings()
+        elapsed = time.monotonic() - first_seen
+    assert "WARN" in lines[0] and "no clock on /silent/clock for" in lines[0]
+    assert "(last tick: none)" in lines[0] and "0 publisher(s) of /silent/clock" in lines[0]
+    assert 1 <= len(lines) <= 2 + elapsed / 5.0  # throttled to one line per 5 s
+
+
 @pytest.mark.parametrize("override, name", [
     ({"scenario": "point-to-point", "waypoints": [1.0, 2.0, 3.0, 4.0]}, "waypoints"),
     ({"scenario": "paper-circle", "waypoints": [1.0, 2.0, 3.0]}, "waypoints"),
     ({"scenario": "spiral"}, "scenario"),
     ({"start_settle_s": 120.0}, "start_settle_s"),
+    ({"clock_timeout_s": 0.0}, "clock_timeout_s"),
 ])
 def test_refuses_to_start_with_a_bad_parameter(override, name):
     proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc.nodes.trajectory_node",

@@ -28,6 +28,7 @@ from pathlib import Path
 
 from ..scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
+from .simulate import add_scenario_argument
 
 __all__ = ["add_parser", "run", "node_arguments"]
 
@@ -44,8 +45,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Run one scenario as ROS 2 nodes over DDS, record it, and write DIR/metrics.json "
         "and the figures from the recording.",
     )
-    parser.add_argument("--scenario", required=True, choices=tuple(SCENARIOS),
-                        help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
+    add_scenario_argument(parser)
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--lockstep", dest="lockstep", action="store_true", default=True,
                       help="the plant drives /clock, one control period per command (default; deterministic)")

@@ -10,10 +10,10 @@ import argparse
 import time
 from pathlib import Path
 
-from ..scenarios import SCENARIOS
+from ..scenarios import SCENARIOS, ScenarioError, get_scenario
 from . import VERBS, UsageError, positive_float, seed_value
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "add_scenario_argument", "run"]
 
 SETTLE_TIME_S = 1.0
 
@@ -26,8 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Run one scenario in the offline closed loop (plant + controller + reference) "
         "and write DIR/metrics.json, DIR/run.npz and the PNGs (paper Figs. 4-6, voltages, errors).",
     )
-    parser.add_argument("--scenario", required=True, choices=tuple(SCENARIOS),
-                        help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
+    add_scenario_argument(parser)
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/<scenario>)")
     parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
@@ -36,6 +35,20 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.set_defaults(func=run)
     return parser
+
+
+def _scenario_name(text: str) -> str:
+    """argparse type: a name of the scenario registry; an unknown one is refused with the closest valid name."""
+    try:
+        return get_scenario(text).name
+    except ScenarioError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_scenario_argument(parser: argparse.ArgumentParser) -> None:
+    """The ``--scenario NAME`` option of `simulate` and `run`: the choices and their help from the registry."""
+    parser.add_argument("--scenario", required=True, type=_scenario_name, choices=tuple(SCENARIOS), metavar="NAME",
+                        help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
 
 
 def _fmt(value: float | None, unit: str) -> str:

@@ -228,11 +228,11 @@ class TrajectoryNode(Node):
         timeout = self.params["clock_timeout_s"]
         if waited < timeout:
             return
+        topic = self.clock_sub.topic_name
+        last = "none" if self.last_clock_ns is None else f"{self.last_clock_ns * 1e-9:g} s"
         self.get_logger().warn(
-            f"lockstep: no /clock for {waited:.1f} s: waiting for the plant's next tick "
-            f"({self.count_publishers('/clock')} publisher(s) of /clock; last tick "
-            f"{'none' if self.last_clock_ns is None else f'{self.last_clock_ns * 1e-9:g} s'}); "
-            "previews follow each /clock",
+            f"lockstep: no clock on {topic} for {waited:.1f} s (last tick: {last}): waiting for the plant's next "
+            f"tick ({self.count_publishers(topic)} publisher(s) of {topic}); previews follow each clock",
             throttle_duration_sec=max(timeout, _WAIT_LOG_PERIOD_S),
         )
 

@@ -1,0 +1,94 @@
+"""The scenario registry: its numbers, the name lookup, and the node overrides against the nodes' own parameters."""
+
+import dataclasses
+import math
+
+import pytest
+import yaml
+
+from robotino_geom_mpc.core.errors import RobotinoError
+from robotino_geom_mpc.core.params import ALL_SPECS, default_params_file, load_params
+from robotino_geom_mpc.core.trajectory import REFERENCES, make_reference
+from robotino_geom_mpc.nodes.trajectory_node import TRAJECTORY_SPECS
+from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
+from robotino_sim_node.plant_node import PLANT_SPECS
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_params()[0]
+
+
+def test_the_registry_holds_the_four_scenarios_with_todays_numbers():
+    assert list(SCENARIOS) == ["paper-circle", "lemniscate", "point-to-point", "robustness"]
+    for name, scenario in SCENARIOS.items():
+        assert scenario.name == name and scenario.description and scenario.reference in REFERENCES
+    assert all(SCENARIOS[n].mismatch is None and SCENARIOS[n].noise.position_m == SCENARIOS[n].noise.yaw_rad == 0.0
+               for n in ("paper-circle", "lemniscate", "point-to-point"))
+    robustness = SCENARIOS["robustness"]
+    assert robustness.reference == "paper-circle"
+    assert dataclasses.asdict(robustness.mismatch) == {"mass": 1.2, "inertia": 0.8, "friction": 2.0}
+    assert (robustness.noise.position_m, robustness.noise.yaw_rad) == (1e-3, 1e-3)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        robustness.reference = "lemniscate"
+
+
+def test_default_duration_is_the_references_length():
+    # the paper's circle: 2 laps of 10 s plus the 2 s of its ramps (CircleReference)
+    assert SCENARIOS["paper-circle"].duration_s == SCENARIOS["robustness"].duration_s == pytest.approx(22.0)
+    for scenario in SCENARIOS.values():
+        assert scenario.duration_s == make_reference(scenario.reference).duration_s
+
+
+def test_a_scenarios_reference_takes_options():
+    ref = SCENARIOS["point-to-point"].make_reference(waypoints=[(1.0, 0.0, 0.0)])
+    assert ref.position(ref.duration_s) == pytest.approx([1.0, 0.0, 0.0])
+    assert SCENARIOS["robustness"].make_reference().position(5.0) == pytest.approx(
+        make_reference("paper-circle").position(5.0))
+
+
+@pytest.mark.parametrize("name, match", [
+    ("robustnes", r"did you mean 'robustness'\?"),
+    ("paper_circle", r"did you mean 'paper-circle'\?"),
+    ("spiral", r"unknown scenario 'spiral' \(valid: paper-circle, lemniscate, point-to-point, robustness\)"),
+    (None, "unknown scenario None"),
+])
+def test_unknown_names_are_refused_with_the_closest_one(name, match):
+    with pytest.raises(ScenarioError, match=match) as info:
+        get_scenario(name)
+    assert isinstance(info.value, RobotinoError)
+    if name == "spiral":
+        assert "did you mean" not in str(info.value)
+
+
+def test_controller_model_scales_mass_inertia_and_friction_only(robot):
+    model = SCENARIOS["robustness"].controller_model(robot)
+    changed = {f.name for f in dataclasses.fields(robot) if getattr(model, f.name) != getattr(robot, f.name)}
+    assert changed == {"mass_kg", "yaw_inertia_kg_m2", "body_friction_x_n_s_per_m", "body_friction_y_n_s_per_m",
+                       "body_friction_theta_n_m_s"}
+    assert SCENARIOS["paper-circle"].controller_model(robot) is robot
+
+
+def test_node_parameters_name_the_nodes_own_parameters_with_the_file_values_scaled(robot):
+    """Keys against the config file and the nodes' specs; values against the file read with plain YAML."""
+    file_values = yaml.safe_load(default_params_file().read_text())["/**"]["ros__parameters"]
+    plant_names = {s.name for s in PLANT_SPECS}
+    controller_names = {s.name for s in ALL_SPECS}
+    for name in SCENARIOS:
+        overrides = node_parameters(name, robot)
+        assert set(overrides) == {"plant_node", "controller_node", "trajectory_node"}
+        assert set(overrides["plant_node"]) <= plant_names and overrides["plant_node"]
+        assert set(overrides["controller_node"]) <= controller_names
+        assert overrides["trajectory_node"] == {"scenario": name}
+        assert name in next(s for s in TRAJECTORY_SPECS if s.name == "scenario").choices
+    robustness = node_parameters("robustness", robot)["controller_node"]
+    assert set(robustness) == {"robot.mass_kg", "robot.yaw_inertia_kg_m2", "robot.body_friction_x_n_s_per_m",
+                               "robot.body_friction_y_n_s_per_m", "robot.body_friction_theta_n_m_s"}
+    for key, factor in (("mass_kg", 1.2), ("yaw_inertia_kg_m2", 0.8), ("body_friction_x_n_s_per_m", 2.0),
+                        ("body_friction_y_n_s_per_m", 2.0), ("body_friction_theta_n_m_s", 2.0)):
+        assert math.isclose(robustness[f"robot.{key}"], factor * file_values["robot"][key], rel_tol=1e-15)
+    assert node_parameters("robustness", robot)["plant_node"] == {"odometry_noise.position_m": 1e-3,
+                                                                  "odometry_noise.yaw_rad": 1e-3}
+    assert node_parameters(SCENARIOS["lemniscate"], robot)["controller_node"] == {}
+    with pytest.raises(ScenarioError):
+        node_parameters("square", robot)

@@ -38,8 +38,8 @@ from robotino_geom_mpc.bench.roundtrip import bench_roundtrip
 from robotino_geom_mpc.core.params import default_params_file, load_params
 from robotino_geom_mpc.ros.processes import LOCKSTEP_WAIT_FOR, NodeFailed, NodeGroup, ros_args
 
-__all__ = ["LOCKSTEP_RUNS", "ROUNDTRIPS", "TIMING_REPORT", "lockstep_nodes", "bench_lockstep", "bench_realtime", "dds_benchmarks",
-           "missed_ticks", "read_timing_report"]
+__all__ = ["LOCKSTEP_RUNS", "ROUNDTRIPS", "TIMING_REPORT", "lockstep_nodes", "bench_lockstep", "bench_realtime",
+           "dds_benchmarks", "missed_ticks", "read_timing_report"]
 
 TIMING_REPORT = "plant_timing.json"  # in the run's log directory
 # the keys of the plant's timing report and the types of their values (None: may be null)

@@ -33,10 +33,27 @@ def test_run_lockstep_records_and_reports_the_metrics_of_simulate(tmp_path):
     proc = _cli("run", "--scenario", "paper-circle", "--duration", str(DURATION_S), "--out", str(out))
     assert proc.returncode == 0, proc.stderr + proc.stdout
     assert _no_node_left(out)
-    metrics = json.loads((out / "metrics.json").read_text())
     assert sorted(p.name for p in out.glob("*.png"))  # the same figures as simulate
+    _assert_metrics_of_simulate(out, "paper-circle")
+    for name in ("plant_node", "controller_node", "trajectory_node", "recorder_node"):
+        assert "Traceback" not in (out / "logs" / f"{name}.err.log").read_text()
+
+
+def test_run_robustness_is_simulates_robustness_with_its_mismatch_and_noise(tmp_path):
+    """The nodes get the scenario's controller model and odometry noise: the recording's metrics are those of the
+    offline robustness run with the same seed (the nominal loop tracks to microns, this one to a tenth of a mm)."""
+    out = tmp_path / "robustness"
+    proc = _cli("run", "--scenario", "robustness", "--duration", "2", "--seed", "4", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    metrics = _assert_metrics_of_simulate(out, "robustness", duration_s=2.0, seed=4)
+    assert metrics["rms_position_error_m"] > 2e-5
+
+
+def _assert_metrics_of_simulate(out, scenario, duration_s=DURATION_S, seed=0) -> dict:
+    """DIR/metrics.json of `run` equals compute_metrics of `run_scenario` (wall-clock times aside)."""
+    metrics = json.loads((out / "metrics.json").read_text())
     robot, control = load_params()
-    want = compute_metrics(run_scenario("paper-circle", robot, control, duration_s=DURATION_S))
+    want = compute_metrics(run_scenario(scenario, robot, control, duration_s=duration_s, seed=seed))
     for key, value in want.items():
         if key.startswith("compute_time"):
             continue  # wall-clock measurements
@@ -44,8 +61,7 @@ def test_run_lockstep_records_and_reports_the_metrics_of_simulate(tmp_path):
             assert metrics[key] == pytest.approx(value, rel=1e-6, abs=1e-12), key
         else:
             assert metrics[key] == value, key
-    for name in ("plant_node", "controller_node", "trajectory_node", "recorder_node"):
-        assert "Traceback" not in (out / "logs" / f"{name}.err.log").read_text()
+    return metrics
 
 
 def test_a_failing_node_is_named_and_nothing_is_left_running(tmp_path):

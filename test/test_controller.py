@@ -9,7 +9,7 @@ from scipy.integrate import solve_ivp
 from robotino_geom_mpc.core import model
 from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, state_from_odometry
 from robotino_geom_mpc.core.decoupling import DecouplingField
-from robotino_geom_mpc.core.mpc import DecoupledMPC
+from robotino_geom_mpc.core.mpc import DecoupledMPC, axis_dampings
 from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.simulation import run_scenario
 from robotino_sim_node.plant import RobotinoPlant
@@ -59,6 +59,20 @@ def test_step_is_mpc_then_decoupling_field_then_currents(params):
     F = DecouplingField(robot).field(theta_mid) @ out.u
     np.testing.assert_allclose(out.currents, model.currents_from_forces(F, robot), rtol=1e-12, atol=1e-15)
     assert not out.saturated and not out.infeasible and out.compute_time_s > 0
+    # the voltages are the drive's relation (eq. 10) for these currents, from rest
+    v = X0[1::2]
+    omega, rate = ctl.kinematics.speeds_and_rates(X0[4], v, out.u - axis_dampings(robot) * v)
+    U = ctl.drive.zoh.voltage(np.array(out.currents), np.zeros(3), omega, rate)
+    np.testing.assert_allclose(out.voltages, U, rtol=1e-12, atol=1e-12)
+
+
+def test_one_period_interval_is_the_default(params):
+    """dt_s = Ts is what None means: the same voltages along a noisy track, filter on."""
+    robot, control = params
+    ctl, twin = MotionController(robot, control), MotionController(robot, control)
+    for X in _noisy_track(X0, control, 20):
+        Y_d = _preview(X, control, (1e-4, 0, 0))
+        np.testing.assert_array_equal(ctl.step(X, Y_d).voltages, twin.step(X, Y_d, control.period_s).voltages)
 
 
 def test_voltages_give_the_commanded_currents_on_the_coupled_plant(params):
@@ -98,15 +112,21 @@ def test_reset_restores_the_initial_behaviour(params, tau):
 
 
 @pytest.mark.parametrize(
-    "X, preview, match",
+    "X, preview, dt_s, match",
     [
-        (np.array([0, 0, np.nan, 0, 0, 0.0]), np.zeros((4, 3)), "X must be finite"),
-        (np.zeros(6), np.full((4, 3), np.inf), "preview must be finite"),
-        (np.zeros(5), np.zeros((4, 3)), r"X must have shape \(6,\)"),
-        (np.zeros(6), np.zeros((3, 3)), r"preview must have shape \(4, 3\)"),
+        (np.array([0, 0, np.nan, 0, 0, 0.0]), np.zeros((4, 3)), None, "X must be finite"),
+        (np.zeros(6), np.full((4, 3), np.inf), None, "preview must be finite"),
+        (np.zeros(5), np.zeros((4, 3)), None, r"X must have shape \(6,\)"),
+        (np.zeros(6), np.zeros((3, 3)), None, r"preview must have shape \(4, 3\)"),
+        (X0, np.zeros((4, 3)), 0.0, "dt_s must be"),
+        (X0, np.zeros((4, 3)), -0.01, "dt_s must be"),
+        (X0, np.zeros((4, 3)), np.nan, "dt_s must be"),
+        (X0, np.zeros((4, 3)), np.inf, "dt_s must be"),
+        (X0, np.zeros((4, 3)), True, "dt_s must be"),
+        (X0, np.zeros((4, 3)), "0.01", "dt_s must be"),
     ],
 )
-def test_bad_input_raises_and_leaves_the_state(params, X, preview, match):
+def test_bad_input_raises_and_leaves_the_state(params, X, preview, dt_s, match):
     robot, control = params
     control = replace(control, odometry_filter_time_constant_s=0.5)
     ctl, twin = MotionController(robot, control), MotionController(robot, control)
@@ -117,7 +137,7 @@ def test_bad_input_raises_and_leaves_the_state(params, X, preview, match):
     u_before, i_before = ctl.u_prev.copy(), ctl.drive.current_estimate.copy()
     estimate_before = ctl.estimator.estimate
     with pytest.raises(ControllerInputError, match=match):
-        ctl.step(X, preview)
+        ctl.step(X, preview, dt_s)
     np.testing.assert_array_equal(ctl.u_prev, u_before)
     np.testing.assert_array_equal(ctl.drive.current_estimate, i_before)
     assert ctl.estimator.estimate == estimate_before

@@ -135,9 +135,60 @@ def test_saturation_is_reported_and_the_mean_current_predicted(robot):
         assert mean[w] == pytest.approx(_circuit(robot, 0.0, U[w], omega[w], 0.0)[0], abs=1e-10)
 
 
+def test_float_path_equals_the_numpy_path(robot):
+    """`InverseDrive.step`'s float path is `ZOHDrive`'s relations on arrays, and i = F r / (gear Km), to 1e-12."""
+    drive, zoh = InverseDrive(robot, Ts), _zoh(robot)
+    rng = np.random.default_rng(5)
+    i_start = np.zeros(3)
+    for _ in range(10):
+        i_cmd, omega, rate = rng.normal(0, 0.3, 3), rng.normal(0, 50, 3), rng.normal(0, 200, 3)
+        U, saturated, mean = drive.step(i_cmd.tolist(), omega.tolist(), rate.tolist())
+        assert not saturated
+        U_ref = zoh.voltage(i_cmd, i_start, omega, rate)
+        np.testing.assert_allclose(U, U_ref, rtol=0.0, atol=1e-12 * np.abs(U_ref).max())
+        np.testing.assert_allclose(mean, i_cmd, rtol=0.0, atol=0.0)
+        i_start = zoh.end_current(i_start, U_ref, omega, rate)
+        np.testing.assert_allclose(drive.current_estimate, i_start, rtol=0.0, atol=1e-12)
+    forces = rng.normal(0, 20, 3)
+    expected = model.currents_from_forces(forces, robot)
+    np.testing.assert_allclose(drive.currents_floats(forces.tolist()), expected, rtol=1e-15)
+
+
+@pytest.mark.parametrize("elapsed_s", [1e-9, 0.003, Ts, 0.021])
+def test_end_current_after_any_interval_matches_integration(robot, elapsed_s):
+    """The `end` relation over an interval other than the period (a late, lost or repeated tick)."""
+    zoh = _zoh(robot)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        i0, U, omega, rate = rng.normal(0.3), rng.normal(0, 10), rng.normal(0, 100), rng.normal(0, 500)
+        _, end = _circuit(robot, i0, U, omega, rate, elapsed_s)
+        assert zoh.end_current(i0, U, omega, rate, elapsed_s) == pytest.approx(end, abs=1e-11)
+
+
+@pytest.mark.parametrize("saturate", [False, True])
+def test_advance_predicts_the_start_current_after_the_elapsed_time(robot, saturate):
+    """After `advance(t)` the estimate is the current after t of the last voltages, integrated (lost tick: 2 Ts)."""
+    drive = InverseDrive(robot, Ts)
+    omega, rate = [40.0, -30.0, 5.0], [100.0, -50.0, 0.0]
+    drive.step([0.2, -0.1, 0.05], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    i0 = drive.current_estimate
+    U, saturated, _ = drive.step([8.0 if saturate else 0.3, -0.2, 0.1], omega, rate)
+    assert saturated == saturate
+    one_period = drive.current_estimate
+    drive.advance(2 * Ts)
+    expected = [_circuit(robot, i0[w], U[w], omega[w], rate[w], 2 * Ts)[1] for w in range(3)]
+    np.testing.assert_allclose(drive.current_estimate, expected, atol=1e-10)
+    drive.advance(Ts)  # one period: the prediction of the step itself
+    np.testing.assert_allclose(drive.current_estimate, one_period, atol=1e-12)
+
+
 def test_bad_input_raises(robot):
     with pytest.raises(DriveError, match="period_s"):
         InverseDrive(robot, 0.0)
+    with pytest.raises(DriveError, match="elapsed_s"):
+        InverseDrive(robot, Ts).advance(0.0)
+    with pytest.raises(DriveError, match="elapsed_s"):
+        _zoh(robot).end_current(0.0, 1.0, 0.0, 0.0, float("nan"))
     with pytest.raises(DriveError, match="currents"):
         InverseDrive(robot, Ts).reset(np.array([1.0, np.nan, 0.0]))
     with pytest.raises(DriveError, match="inductance_h"):

@@ -156,3 +156,47 @@ def test_velocity_bias_becomes_the_predicted_position_bias():
     L = 1.0 - math.exp(-TS / tau)
     error = _run(OdometryFilter(TS, tau), states)[-1] - truth[-1]
     np.testing.assert_allclose(error, b * TS * (1.0 - L) / L, rtol=1e-6)
+
+
+def _irregular_times(n, seed):
+    """Measurement times with intervals from 1e-9 s (a repeated tick) to 25 ms (lost ticks)."""
+    steps = np.random.default_rng(seed).choice([1e-9, 0.004, 0.009, TS, 0.011, 0.021, 0.025], n - 1)
+    return np.concatenate(([0.0], np.cumsum(steps))), steps
+
+
+def test_irregular_intervals_follow_a_constant_acceleration_track_exactly():
+    """The trapezoid over the true interval is exact for constant acceleration, whatever the spacing."""
+    times, steps = _irregular_times(400, 4)
+    pos0, vel, acc = np.array([1.0, -2.0, 3.0]), np.array([0.4, -0.3, 1.5]), np.array([0.5, 0.2, -0.7])
+    t = times[:, None]
+    pos, v = pos0 + vel * t + 0.5 * acc * t**2, vel + acc * t
+    filt = OdometryFilter(TS, 0.5)
+    est = [
+        filt.update(pos[k, 0], v[k, 0], pos[k, 1], v[k, 1], pos[k, 2], v[k, 2], dt)
+        for k, dt in enumerate([None, *steps.tolist()])
+    ]
+    np.testing.assert_allclose(est, pos, rtol=0, atol=1e-12)
+    # told one period each time instead, the same filter drifts off the track
+    filt.reset()
+    wrong = [filt.update(pos[k, 0], v[k, 0], pos[k, 1], v[k, 1], pos[k, 2], v[k, 2]) for k in range(len(times))]
+    assert np.abs(np.array(wrong) - pos).max() > 1e-3
+
+
+def test_pose_step_is_followed_with_the_time_constant_at_irregular_intervals():
+    """At rest after a pose jump d: the estimate is d (1 - exp(-t / tau)) at each measurement time t, however spaced."""
+    tau, d = 0.3, np.array([0.01, -0.02, 0.05])
+    times, steps = _irregular_times(100, 5)
+    filt = OdometryFilter(TS, tau)
+    filt.update(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    est = [filt.update(d[0], 0.0, d[1], 0.0, d[2], 0.0, float(dt)) for dt in steps]
+    np.testing.assert_allclose(est, d * (1.0 - np.exp(-times[1:, None] / tau)), rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("dt", [0.0, -TS, math.nan, math.inf])
+def test_bad_interval_is_rejected_without_touching_the_state(dt):
+    filt = OdometryFilter(TS, 0.5)
+    filt.update(0.1, 0.2, 0.3, 0.0, 0.0, 0.0)
+    before = filt.estimate
+    with pytest.raises(EstimatorError, match="dt_s"):
+        filt.update(0.1, 0.2, 0.3, 0.0, 0.0, 0.0, dt)
+    assert filt.estimate == before

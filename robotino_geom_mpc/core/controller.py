@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import time
-from operator import mul
 from typing import NamedTuple
 
 import numpy as np
@@ -16,6 +15,7 @@ import numpy as np
 from .constrained import ConstrainedMPC
 from .decoupling import DecouplingField
 from .drive import InverseDrive, MotorKinematics
+from .errors import RobotinoError
 from .estimator import OdometryFilter
 from .model import acceleration_block, wheel_forces
 from .mpc import DecoupledMPC, axis_dampings
@@ -24,8 +24,8 @@ from .params import ControlParams, RobotinoParams
 __all__ = ["ControllerInputError", "ControlOutput", "MotionController", "odometry_state_floats", "state_from_odometry"]
 
 
-class ControllerInputError(ValueError):
-    """A measured state or reference preview with the wrong shape or non-finite values."""
+class ControllerInputError(RobotinoError, ValueError):
+    """A measured state, reference preview or interval with the wrong shape or a non-finite or out-of-range value."""
 
 
 class ControlOutput(NamedTuple):
@@ -69,19 +69,24 @@ class MotionController:
     Notes
     -----
     One step, for the measured body state X = (x, x', y, y', theta, theta')
-    and the reference positions y_d(k+1) .. y_d(k+N):
+    taken dt after the previous one, and the reference positions
+    y_d(k+1) .. y_d(k+N) (at Ts, 2 Ts, ... after that measurement):
 
     0. with ``control.odometry_filter_time_constant_s`` > 0, the pose (x, y, theta)
        is replaced by its estimate from `estimator.OdometryFilter` (predicted
-       with the measured velocity, corrected towards the measured pose), so
-       pose noise does not reach u through the MPC's position gain; the
-       velocities are used as measured;
+       with the measured velocity over dt, corrected towards the measured
+       pose), so pose noise does not reach u through the MPC's position gain;
+       the velocities are used as measured. The drive's start currents are
+       predicted over dt as well (`drive.InverseDrive.advance`): the last
+       voltages were held until now;
     1. u(k) = u(k-1) + Delta u(k), Delta u(k) the first component of eq. (56)
-       (or of the constrained QP, `constrained.ConstrainedMPC`);
-    2. wheel forces F = T(theta_m) u(k) with T(theta) = T(0) diag(R(theta), 1)
-       evaluated at the mid-period heading theta_m = theta + theta' Ts / 2 (the
+       (`mpc.DecoupledMPC.delta_u_floats`; or of the constrained QP,
+       `constrained.ConstrainedMPC`); the MPC stays discrete at Ts (eq. 49),
+       u(k-1) is the input applied last;
+    2. wheel forces F = T(theta_m) u(k) (`decoupling.DecouplingField.forces_floats`)
+       at the mid-period heading theta_m = theta + theta' Ts / 2 (the
        forces are held while the body turns), currents i = F r / (gear Km);
-    3. voltages from `drive.InverseDrive` with the motor speeds of the
+    3. voltages from `drive.InverseDrive` (eq. 10) with the motor speeds of the
        measured velocity and their rate under the commanded acceleration
        u - (k/M) v, clipped to the supply. When clipped, u(k) is replaced by
        the acceleration the clipped voltages give (anti-windup), so the next
@@ -97,18 +102,8 @@ class MotionController:
         self.field = DecouplingField(robot)
         self.kinematics = MotorKinematics(robot)
         self.drive = InverseDrive(robot, self.period_s)
-        # i = (r / (gear Km)) T(0) diag(R(theta), 1) u: the fast path of DecouplingField.field
-        self._current_T0 = robot.r / (robot.gear_ratio * robot.torque_constant_n_m_per_a) * self.field.T0
-        self._current_T0_rows = tuple(map(tuple, self._current_T0.tolist()))
         self._damping = axis_dampings(robot)
         self._damping_rates = tuple(self._damping.tolist())
-        # Delta u_a = (K_ref Y_d)_a + kp pos_a + kv vel_a + ku u_a(k-1): the stacked gain of
-        # eq. (56) split into its reference part and its per-axis state part (block-diagonal).
-        K, N = self.mpc.stacked_gain, self.horizon
-        self._K_ref = tuple(tuple(K[a, a : 3 * N : 3].tolist()) for a in range(3))
-        self._K_state = tuple(
-            (float(K[a, 3 * N + 2 * a]), float(K[a, 3 * N + 2 * a + 1]), float(K[a, 3 * N + 6 + a])) for a in range(3)
-        )
         tau = float(control.odometry_filter_time_constant_s)
         self.estimator = OdometryFilter(self.period_s, tau) if tau > 0.0 else None
         self.constrained = ConstrainedMPC(robot, control, self.mpc) if control.mode == "constrained" else None
@@ -148,15 +143,32 @@ class MotionController:
             raise ControllerInputError("preview must be finite and of physical magnitude")
         return x, y
 
-    def step(self, X: object, preview: object) -> ControlOutput:
+    @staticmethod
+    def _interval(dt_s: object) -> float:
+        """dt_s (a real number, not a bool or a string) as a float > 0, or ControllerInputError."""
+        number = isinstance(dt_s, (float, int, np.floating, np.integer)) and not isinstance(dt_s, bool)
+        dt = float(dt_s) if number else math.nan
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ControllerInputError(f"dt_s must be a finite number of seconds > 0 (or None), got {dt_s!r}")
+        return dt
+
+    def step(self, X: object, preview: object, dt_s: float | None = None) -> ControlOutput:
         """One control period: voltages for the measured state and the reference preview.
 
         Parameters
         ----------
         X
-            Measured body state (x, x', y, y', theta, theta'), shape (6,).
+            Measured body state (x, x', y, y', theta, theta'), shape (6,), taken at t.
         preview
             Reference positions (x_d, y_d, theta_d) at t + Ts, ..., t + N Ts, shape (N, 3).
+        dt_s
+            Time [s] since the measurement of the previous step (from the
+            measurements' stamps), > 0; None means one period Ts. Any positive
+            value is taken: a repeated measurement (dt ~ 1e-9 s) predicts no
+            motion and re-solves the MPC from u(k-1) = the input just applied
+            (its increment shrinks by 1 - k_0 F_2p), a lost one (2 Ts) the
+            motion over both periods. Ignored by the first step after
+            construction or `reset`.
 
         Returns
         -------
@@ -165,40 +177,36 @@ class MotionController:
         Raises
         ------
         ControllerInputError
-            For a wrong shape or a NaN / Inf; the state of the controller (and of its filter) is unchanged.
+            For a wrong shape, a NaN / Inf or a dt_s that is not > 0; the state of the
+            controller (and of its filter) is unchanged.
 
         Notes
         -----
-        The closed-form path is a hundred-odd multiply-adds; it runs on Python
-        floats because numpy's per-call overhead on 3-vectors would dominate.
+        Each stage runs the float path of its class (a hundred-odd multiply-adds
+        in all), because numpy's per-call overhead on 3-vectors would dominate.
         """
         start = time.perf_counter()
         x, y = self._check(X, preview)
+        if dt_s is not None:
+            dt_s = self._interval(dt_s)
+            self.drive.advance(dt_s)
         px, vx, py, vy, theta, w = x
         if self.estimator is not None:
-            px, py, theta = self.estimator.update(px, vx, py, vy, theta, w)
+            px, py, theta = self.estimator.update(px, vx, py, vy, theta, w, dt_s)
+            x = [px, vx, py, vy, theta, w]
         theta_m = theta + 0.5 * self.period_s * w
+        u_prev = self._u_prev
         infeasible = False
         if self.constrained is None:
-            (kyx, kyy, kyw), (yx, yy, yw) = self._K_ref, zip(*y)
-            rx, ry, rw = sum(map(mul, kyx, yx)), sum(map(mul, kyy, yy)), sum(map(mul, kyw, yw))
-            (kpx, kvx, kux), (kpy, kvy, kuy), (kpw, kvw, kuw) = self._K_state
-            upx, upy, upw = self._u_prev
-            u = [
-                upx + rx + kpx * px + kvx * vx + kux * upx,
-                upy + ry + kpy * py + kvy * vy + kuy * upy,
-                upw + rw + kpw * theta + kvw * w + kuw * upw,
-            ]
+            du_x, du_y, du_theta = self.mpc.delta_u_floats(x, u_prev, y)
+            u = [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta]
         else:
             u_arr, infeasible = self.constrained.solve(
-                np.array((px, vx, py, vy, theta, w)), np.array(self._u_prev), np.array(y), self.drive.current_estimate
+                np.array(x), np.array(u_prev), np.array(y), self.drive.current_estimate
             )
             u = u_arr.tolist()
+        currents = self.drive.currents_floats(self.field.forces_floats(theta_m, u))
         ux, uy, uw = u
-        c, s = math.cos(theta_m), math.sin(theta_m)
-        rx, ry = c * ux - s * uy, s * ux + c * uy
-        (a0, b0, e0), (a1, b1, e1), (a2, b2, e2) = self._current_T0_rows
-        currents = [a0 * rx + b0 * ry + e0 * uw, a1 * rx + b1 * ry + e1 * uw, a2 * rx + b2 * ry + e2 * uw]
         dx, dy, dw = self._damping_rates
         omega, omega_rate = self.kinematics.speeds_and_rates_floats(theta, (vx, vy, w), (ux - dx * vx, uy - dy * vy, uw - dw * w))
         voltages, saturated, mean_current = self.drive.step(

@@ -9,11 +9,14 @@ paper places singularities (erratum 2: there are none).
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import geometry as geo
+from .errors import RobotinoError
 from .model import A_matrix, C_matrix, VELOCITY_INDEX, g_theta
 from .params import RobotinoParams
 
@@ -34,7 +37,7 @@ __all__ = [
 AXES = ("x", "y", "theta")
 
 
-class DecouplingError(ValueError):
+class DecouplingError(RobotinoError, ValueError):
     """A non-finite or mis-shaped theta, or a grid size out of range."""
 
 
@@ -139,6 +142,7 @@ class DecouplingField:
     def __init__(self, p: RobotinoParams) -> None:
         self.p = p
         self.T0 = decoupling_field_toolbox(0.0, p)
+        self._T0_rows = tuple(map(tuple, self.T0.tolist()))
 
     def field(self, theta: object) -> np.ndarray:
         """T(theta), (3, 3) for a scalar or (n, 3, 3) for a 1-d array; wheel forces F = T(theta) u."""
@@ -148,6 +152,22 @@ class DecouplingField:
         rot[..., 0, 0], rot[..., 0, 1], rot[..., 1, 0], rot[..., 1, 1] = c, -s, s, c
         rot[..., 2, 2] = 1.0
         return self.T0 @ rot
+
+    def forces_floats(self, theta: float, u: Sequence[float]) -> list[float]:
+        """Wheel forces F = T(theta) u [N] (eqs. 36-37) on Python floats, the per-tick path of `field`.
+
+        Parameters
+        ----------
+        theta
+            Heading [rad] (finite; unchecked).
+        u
+            Accelerations (u_x, u_y, u_theta) the three decoupled axes ask for.
+        """
+        ux, uy, ut = u
+        c, s = math.cos(theta), math.sin(theta)
+        rx, ry = c * ux - s * uy, s * ux + c * uy
+        (a0, b0, e0), (a1, b1, e1), (a2, b2, e2) = self._T0_rows
+        return [a0 * rx + b0 * ry + e0 * ut, a1 * rx + b1 * ry + e1 * ut, a2 * rx + b2 * ry + e2 * ut]
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from .errors import RobotinoError
 from .model import wheel_directions
 from .params import RobotinoParams
 
@@ -51,7 +52,7 @@ __all__ = ["DriveError", "ZOHDrive", "InverseDrive", "MotorKinematics"]
 _SATURATION_PASSES = 4  # fixed-point passes for the mean current under clipped voltages
 
 
-class DriveError(ValueError):
+class DriveError(RobotinoError, ValueError):
     """A drive input with the wrong shape or a non-finite value."""
 
 
@@ -119,9 +120,26 @@ class ZOHDrive:
         """Average of the current over the period for a held voltage U."""
         return self.phi * i_start + self._m_volt * (U - self.torque_constant * omega) - self._m_rate * omega_rate
 
-    def end_current(self, i_start, U, omega, omega_rate):
-        """Current at the end of the period for a held voltage U."""
-        return self.alpha * i_start + self._e_volt * (U - self.torque_constant * omega) - self._e_rate * omega_rate
+    def end_current(self, i_start, U, omega, omega_rate, elapsed_s: float | None = None):
+        """Current at the end of the period, or after `elapsed_s` [s] > 0, for a held voltage U."""
+        alpha, e_volt, e_rate = (
+            (self.alpha, self._e_volt, self._e_rate) if elapsed_s is None else self.end_coefficients(elapsed_s)
+        )
+        return alpha * i_start + e_volt * (U - self.torque_constant * omega) - e_rate * omega_rate
+
+    def end_coefficients(self, elapsed_s: float) -> tuple[float, float, float]:
+        """(alpha, (1 - alpha)/R, Km/R (t - tau (1 - alpha))) of the `end` relation over t = `elapsed_s` [s] > 0.
+
+        Raises
+        ------
+        DriveError
+            For a non-finite or non-positive `elapsed_s`.
+        """
+        if not (math.isfinite(elapsed_s) and elapsed_s > 0.0):
+            raise DriveError(f"elapsed_s must be finite and > 0, got {elapsed_s!r}")
+        R, Km, tau = self.resistance_ohm, self.torque_constant, self.tau_s
+        decay = -math.expm1(-elapsed_s / tau)  # 1 - alpha, exact for small t
+        return 1.0 - decay, decay / R, Km / R * (elapsed_s - tau * decay)
 
 
 class InverseDrive:
@@ -139,7 +157,9 @@ class InverseDrive:
         if not (math.isfinite(period_s) and period_s > 0.0):
             raise DriveError(f"period_s must be finite and > 0, got {period_s!r}")
         self.zoh = ZOHDrive(p.resistance_ohm, p.inductance_h, p.torque_constant_n_m_per_a, float(period_s))
+        self.period_s = self.zoh.period_s
         self.supply_voltage_v = p.supply_voltage_v
+        self.current_per_force = p.r / (p.gear_ratio * p.torque_constant_n_m_per_a)  # i = F r / (gear Km) [A/N]
         # The relations are linear: their coefficients over (i*, i_0, omega, omega'), read off the
         # basis, give an unclipped period in a few scalar products per wheel.
         basis = np.eye(4)
@@ -150,12 +170,44 @@ class InverseDrive:
 
     @property
     def current_estimate(self) -> np.ndarray:
-        """Predicted currents at the start of the next period [A]."""
+        """Predicted currents at the start of the next period [A] (one period after the last, or as `advance` set)."""
         return np.array(self._i0)
 
     def reset(self, currents: np.ndarray | None = None) -> None:
         """Start again from known currents (default zero: a robot at rest, drives off)."""
         self._i0 = [0.0, 0.0, 0.0] if currents is None else self._vec(currents, "currents").tolist()
+        self._last: tuple[Sequence[float], ...] | None = None  # (i_0, U, omega, omega') of the last period
+        self._one_period = self._i0  # the step's own prediction, one period on
+
+    def currents_floats(self, forces: Sequence[float]) -> list[float]:
+        """Wheel currents i = F r / (gear Km) [A] for wheel forces F [N] (erratum 4), on Python floats."""
+        k = self.current_per_force
+        return [k * forces[0], k * forces[1], k * forces[2]]
+
+    def advance(self, elapsed_s: float) -> None:
+        """Re-predict the start currents for a next tick `elapsed_s` [s] after the last one instead of one period.
+
+        The last voltages were held until the next command, so the start
+        current is the `end` relation over the time that really elapsed
+        (e.g. 2 Ts after a lost tick, ~0 after a duplicated one), with the
+        back-EMF ramp of that period continued. A no-op before the first
+        period; exactly one period restores the step's own prediction.
+
+        Raises
+        ------
+        DriveError
+            For a non-finite or non-positive `elapsed_s`.
+        """
+        if elapsed_s == self.period_s:
+            self._i0 = self._one_period
+            return
+        alpha, e_volt, e_rate = self.zoh.end_coefficients(elapsed_s)
+        if self._last is None:
+            return
+        Km = self.zoh.torque_constant
+        self._i0 = [
+            alpha * i + e_volt * (U - Km * w) - e_rate * r for i, U, w, r in zip(*self._last)
+        ]
 
     @staticmethod
     def _vec(value: object, name: str) -> np.ndarray:
@@ -202,12 +254,14 @@ class InverseDrive:
         U = [vc * c0 + vs * s0 + vw * w0 + vr * r0, vc * c1 + vs * s1 + vw * w1 + vr * r1, vc * c2 + vs * s2 + vw * w2 + vr * r2]
         limit = self.supply_voltage_v
         if max(abs(U[0]), abs(U[1]), abs(U[2])) <= limit:
+            self._last = (self._i0, U, omega, omega_rate)
             ec, es, ew, er = self._end_row
             self._i0 = [
                 ec * c0 + es * s0 + ew * w0 + er * r0,
                 ec * c1 + es * s1 + ew * w1 + er * r1,
                 ec * c2 + es * s2 + ew * w2 + er * r2,
             ]
+            self._one_period = self._i0
             return U, False, i_cmd
         i0 = self._i0
         zoh, i0_arr = self.zoh, np.array(i0)
@@ -219,6 +273,8 @@ class InverseDrive:
                 omega_rate = np.asarray(rate_of_current(mean), dtype=float)
                 mean = zoh.mean_current(i0_arr, U, omega, omega_rate)
         self._i0 = zoh.end_current(i0_arr, U, omega, omega_rate).tolist()
+        self._last = (i0, U.tolist(), omega.tolist(), omega_rate.tolist())
+        self._one_period = self._i0
         return U.tolist(), True, mean.tolist()
 
 

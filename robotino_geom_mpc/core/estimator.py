@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import math
 
+from .errors import RobotinoError
+
 __all__ = ["EstimatorError", "OdometryFilter", "filter_gain", "noise_std_ratio"]
 
 _TWO_PI = 2.0 * math.pi
 
 
-class EstimatorError(ValueError):
+class EstimatorError(RobotinoError, ValueError):
     """A filter setting or measurement out of range or not finite, named in the message."""
 
 
@@ -79,10 +81,15 @@ class OdometryFilter:
     Notes
     -----
     Per axis a, with the measured position z(k) and velocity v(k) (the states
-    of eq. 2):
+    of eq. 2), taken dt(k) after the previous measurement (Ts unless told):
 
-        predict  p^-(k) = p(k-1) + Ts (v(k-1) + v(k)) / 2,
-        correct  p(k)   = p^-(k) + L wrap(z(k) - p^-(k)),   L = 1 - exp(-Ts / tau).
+        predict  p^-(k) = p(k-1) + dt(k) (v(k-1) + v(k)) / 2,
+        correct  p(k)   = p^-(k) + L(dt(k)) wrap(z(k) - p^-(k)),   L(dt) = 1 - exp(-dt / tau).
+
+    With the true interval a lost measurement (dt = 2 Ts), a late one or a
+    repeated one (dt ~ 0: no motion predicted, L ~ 0) leaves the estimate on
+    the track; assuming Ts instead puts it v Ts behind or ahead, an error the
+    MPC's position gain turns into volts and the filter removes only with tau.
 
     The prediction integrates the measured velocity by the trapezoidal rule:
     exact for a constant acceleration, i.e. for the ZOH model of eq. (49) with
@@ -127,7 +134,9 @@ class OdometryFilter:
         """The last estimate (x, y, theta), or None before the first measurement."""
         return None if self._last is None else self._last[0::2]
 
-    def update(self, x: float, vx: float, y: float, vy: float, theta: float, w: float) -> tuple[float, float, float]:
+    def update(
+        self, x: float, vx: float, y: float, vy: float, theta: float, w: float, dt_s: float | None = None
+    ) -> tuple[float, float, float]:
         """Take one measurement and return the pose estimate.
 
         Parameters
@@ -135,6 +144,8 @@ class OdometryFilter:
         x, vx, y, vy, theta, w
             The measured body state X = (x, x', y, y', theta, theta') of eq. (2)
             in the odom frame [m, m/s, rad, rad/s]; theta may be wrapped.
+        dt_s
+            Time since the previous measurement [s], > 0; None: one period.
 
         Returns
         -------
@@ -144,7 +155,7 @@ class OdometryFilter:
         Raises
         ------
         EstimatorError
-            If a value is not finite; the filter's state is then unchanged.
+            If a value is not finite or dt_s is not > 0; the filter's state is then unchanged.
 
         Notes
         -----
@@ -152,11 +163,16 @@ class OdometryFilter:
         """
         if not math.isfinite(x + vx + y + vy + theta + w):
             raise EstimatorError(f"measurement must be finite, got {(x, vx, y, vy, theta, w)}")
+        if dt_s is None or dt_s == self.period_s:
+            h, L = self._half_period, self.gain
+        elif math.isfinite(dt_s) and dt_s > 0.0:
+            h, L = 0.5 * dt_s, filter_gain(dt_s, self.time_constant_s)
+        else:
+            raise EstimatorError(f"dt_s must be finite and > 0, got {dt_s!r}")
         last = self._last
         if last is None:
             self._last = (x, vx, y, vy, theta, w)
             return x, y, theta
-        h, L = self._half_period, self.gain
         px, vx0, py, vy0, pt, w0 = last
         px += h * (vx0 + vx)
         py += h * (vy0 + vy)

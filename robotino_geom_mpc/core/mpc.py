@@ -15,9 +15,13 @@ gain is kept and one control step is a few dot products for the three axes.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from operator import mul
+
 import numpy as np
 from scipy.linalg import expm
 
+from .errors import RobotinoError
 from .params import ControlParams, RobotinoParams
 
 __all__ = [
@@ -29,7 +33,7 @@ __all__ = [
 ]
 
 
-class MPCError(ValueError):
+class MPCError(RobotinoError, ValueError):
     """An MPC input or setting with the wrong shape, a non-finite value or out of range."""
 
 
@@ -187,6 +191,12 @@ class DecoupledMPC:
             K[a, 3 * N + 2 * a : 3 * N + 2 * a + 2] = -k_ref[a] @ self.G_p[a]
             K[a, 3 * N + 6 + a] = -k_ref[a] @ self.F_2p[a]
         self.stacked_gain = K
+        # The same gain per axis as Python floats for `delta_u_floats`: the reference row, and
+        # (position, velocity, u(k-1)) of the block-diagonal state part.
+        self._reference_gains = tuple(tuple(K[a, a : 3 * N : 3].tolist()) for a in range(3))
+        self._state_gains = tuple(
+            (float(K[a, 3 * N + 2 * a]), float(K[a, 3 * N + 2 * a + 1]), float(K[a, 3 * N + 6 + a])) for a in range(3)
+        )
 
     def predict(self, x: np.ndarray, u_prev: np.ndarray, delta_U: np.ndarray) -> np.ndarray:
         """Predicted outputs Y(k) (eq. 50), shape (N, 3).
@@ -232,3 +242,32 @@ class DecoupledMPC:
         inputs once); this is the per-tick fast path.
         """
         return self.stacked_gain @ np.concatenate((Y_d.ravel(), x.ravel(), u_prev))
+
+    def delta_u_floats(
+        self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]]
+    ) -> list[float]:
+        """`delta_u` on Python floats, the per-tick path (numpy's per-call overhead would dominate).
+
+        Parameters
+        ----------
+        X
+            Body state (x, x', y, y', theta, theta') of eq. (2), 6 floats.
+        u_prev
+            u(k-1), 3 floats.
+        Y_d
+            Reference positions y_d(k+1) .. y_d(k+N), N rows of 3 floats.
+
+        Returns
+        -------
+        list of 3 floats
+            Delta u(k) of eq. (56) for (x, y, theta); unchecked, like `delta_u`.
+        """
+        px, vx, py, vy, pt, vt = X
+        upx, upy, upt = u_prev
+        (kyx, kyy, kyt), (yx, yy, yt) = self._reference_gains, zip(*Y_d)
+        (kpx, kvx, kux), (kpy, kvy, kuy), (kpt, kvt, kut) = self._state_gains
+        return [
+            sum(map(mul, kyx, yx)) + kpx * px + kvx * vx + kux * upx,
+            sum(map(mul, kyy, yy)) + kpy * py + kvy * vy + kuy * upy,
+            sum(map(mul, kyt, yt)) + kpt * pt + kvt * vt + kut * upt,
+        ]

@@ -11,8 +11,8 @@ critical path, the way the nodes do it:
   the controller node does) and answers with a Float64MultiArray of 3
   values (`messages.three_values_template`) carrying the sequence number.
 
-Both use the loop's QoS (`ros.qos`: `PUBLISH_QOS` writers, `CONTROL_QOS`
-readers, raw subscriptions) and its executor (`ros.spin.run_node`: the
+Both use the lockstep loop's QoS (`ros.qos`: ``publish_qos(lockstep=True)``
+writers, keep-all; `CONTROL_QOS` readers; raw subscriptions) and its executor (`ros.spin.run_node`: the
 events executor, the garbage collector frozen after start). A round trip
 runs from just before packing the odometry to the start of the answer's
 callback on the plant's steady clock, as the realtime plant times its
@@ -129,7 +129,7 @@ def _nodes():
     from robotino_geom_mpc.ros.decode import ODOM_FIELDS
     from robotino_geom_mpc.ros.messages import BASE_FRAME, ODOM_FRAME, VOLTAGE_LABEL, odometry_layout, \
         three_values_layout, three_values_template
-    from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
+    from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_qos
     from robotino_geom_mpc.ros.spin import monotonic
 
     class RoundTripPlant(Node):
@@ -138,7 +138,7 @@ def _nodes():
         def __init__(self, count: int, warmup: int, report: Path) -> None:
             super().__init__("bench_roundtrip_plant")
             self.count, self.warmup, self.report = count, warmup, report
-            self.pub = self.create_publisher(Odometry, ODOM_TOPIC, PUBLISH_QOS)
+            self.pub = self.create_publisher(Odometry, ODOM_TOPIC, publish_qos(lockstep=True))
             self.sub = self.create_subscription(Float64MultiArray, ANSWER_TOPIC, self._on_answer, CONTROL_QOS,
                                                 raw=True)
             odom = Odometry()
@@ -191,7 +191,7 @@ def _nodes():
 
         def __init__(self) -> None:
             super().__init__("bench_roundtrip_controller")
-            self.pub = self.create_publisher(Float64MultiArray, ANSWER_TOPIC, PUBLISH_QOS)
+            self.pub = self.create_publisher(Float64MultiArray, ANSWER_TOPIC, publish_qos(lockstep=True))
             self.sub = self.create_subscription(Odometry, ODOM_TOPIC, self._on_odom, CONTROL_QOS, raw=True)
             self.odom_layout = odometry_layout()
             self.answer_cdr = three_values_template(VOLTAGE_LABEL)

@@ -124,3 +124,71 @@ def test_cli_reports_bad_parameter_files_in_one_line_with_status_2(tmp_path, con
     assert len(lines) == 1, result.stderr
     assert "Traceback" not in result.stderr and key in lines[0] and str(path.name) in lines[0]
     assert result.stdout == ""
+
+
+# --- SpecParameters(check=...): the whole candidate set is checked on start and on every set -----------------
+
+
+def _ratio_check(values):
+    """Refuses a q_x / r_x ratio below 1e6 (a stand-in for the controller's stability check)."""
+    ratio = values["control.q_x"] / values["control.r_x"]
+    return None if ratio >= 1e6 else f"q_x / r_x = {ratio:g} < 1e6"
+
+
+@pytest.fixture
+def stand_in():
+    """A node in its own context declaring the robot/control parameters with `_ratio_check`."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+
+    from robotino_geom_mpc.core.params import ALL_SPECS
+    from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
+
+    context = Context()
+    rclpy.init(context=context)
+    nodes = []
+    seen = []
+
+    def make(**overrides):
+        from rclpy.parameter import Parameter
+
+        node = Node("check_stand_in", context=context,
+                    parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
+        nodes.append(node)
+        params = SpecParameters(node, ALL_SPECS, spec_defaults(), seen.append, check=_ratio_check)
+        return node, params
+
+    yield make, seen
+    for node in nodes:
+        node.destroy_node()
+    rclpy.shutdown(context=context)
+
+
+def test_check_refuses_a_set_whose_complete_values_fail_and_keeps_the_old_ones(stand_in):
+    from rclpy.parameter import Parameter
+
+    make, seen = stand_in
+    node, params = make()
+    q, r = params["control.q_x"], params["control.r_x"]
+    assert q / r >= 1e6  # the preset passes
+    # r_x alone is in range, but together with the current q_x the ratio fails
+    result = node.set_parameters([Parameter("control.r_x", value=q / 1e5)])[0]
+    assert not result.successful and "q_x / r_x = 100000" in result.reason
+    assert (params["control.q_x"], params["control.r_x"]) == (q, r) and seen == []
+    assert node.get_parameter("control.r_x").value == r
+    # both at once: the candidate is the current values updated by the whole set
+    result = node.set_parameters_atomically([Parameter("control.q_x", value=1e7), Parameter("control.r_x", value=1.0)])
+    assert result.successful
+    assert (params["control.q_x"], params["control.r_x"]) == (1e7, 1.0) and seen == [{"control.q_x": 1e7,
+                                                                                      "control.r_x": 1.0}]
+    # a set of other parameters is checked against the current values and passes
+    assert node.set_parameters([Parameter("control.horizon", value=6)])[0].successful
+
+
+def test_check_refuses_the_start_values_with_node_start_error(stand_in):
+    from robotino_geom_mpc.ros.parameters import NodeStartError
+
+    make, _ = stand_in
+    with pytest.raises(NodeStartError, match=r"^q_x / r_x = 10 < 1e6$"):
+        make(**{"control.q_x": 10.0, "control.r_x": 1.0})

@@ -76,11 +76,16 @@ class SpecParameters:
         Called with the dict of accepted new values after a successful set.
     fixed
         Names that cannot change while the node runs (a set is refused with that reason).
+    check
+        Called with the complete candidate values (the current values updated by
+        a set) on every set and once at start; a returned string refuses the set
+        with that reason (the node keeps its values), or at start stops the node.
 
     Raises
     ------
     NodeStartError
-        When an override (from --params-file or -p) is mistyped or out of range.
+        When an override (from --params-file or -p) is mistyped or out of range,
+        or `check` refuses the start values.
     """
 
     def __init__(
@@ -90,9 +95,11 @@ class SpecParameters:
         defaults: dict[str, Any],
         on_change: Callable[[dict[str, Any]], None] | None = None,
         fixed: tuple[str, ...] = (),
+        check: Callable[[dict[str, Any]], str | None] | None = None,
     ) -> None:
         self._node = node
         self._fixed = fixed
+        self._check = check
         self.specs = {s.name: s for s in specs}
         self._on_change = on_change
         self.values: dict[str, Any] = {}
@@ -107,6 +114,9 @@ class SpecParameters:
                 self.values[name] = validate_value(spec, param.value, "the node's parameters")
             except ParamError as exc:
                 raise NodeStartError(str(exc)) from None
+        reason = check(dict(self.values)) if check is not None else None
+        if reason is not None:
+            raise NodeStartError(reason)
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._applied)
 
@@ -114,6 +124,7 @@ class SpecParameters:
         return self.values[name]
 
     def _validate(self, params: list[Parameter]) -> SetParametersResult:
+        candidate = dict(self.values)
         for param in params:
             spec = self.specs.get(param.name)
             if spec is None:
@@ -123,10 +134,11 @@ class SpecParameters:
                     successful=False, reason=f"parameter '{param.name}' cannot change while the node runs; restart it"
                 )
             try:
-                validate_value(spec, param.value, "set request")
+                candidate[param.name] = validate_value(spec, param.value, "set request")
             except ParamError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
-        return SetParametersResult(successful=True)
+        reason = self._check(candidate) if self._check is not None else None
+        return SetParametersResult(successful=reason is None, reason=reason or "")
 
     def _applied(self, params: list[Parameter]) -> None:
         changed = {p.name: validate_value(self.specs[p.name], p.value) for p in params if p.name in self.specs}

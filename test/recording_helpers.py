@@ -3,7 +3,9 @@
 Run as a script, this module is the test publisher: ``python recording_helpers.py SPEC_JSON`` with SPEC
 a list of ``{"topic", "type", "rate_hz", "count", "latched"}``. Latched topics are published once at
 start (transient local); the others wait for a subscriber, then publish ``count`` messages at
-``rate_hz`` (message i carries `expected_values(type, i)`). It prints ``{"published": {topic: n}}``.
+``rate_hz`` (message i carries `expected_values(type, i)`). It prints ``{"published": {topic: n}, "times":
+{topic: [t_0, ...]}}`` with the time.monotonic() (CLOCK_MONOTONIC, shared by the processes of the machine)
+just before each publish call.
 """
 
 from __future__ import annotations
@@ -131,10 +133,15 @@ class Processes:
 
     @staticmethod
     def published(proc: subprocess.Popen, timeout: float = 120.0) -> dict[str, int]:
+        return Processes.publisher_result(proc, timeout)["published"]
+
+    @staticmethod
+    def publisher_result(proc: subprocess.Popen, timeout: float = 120.0) -> dict:
+        """The publisher's result line: ``published`` counts and ``times`` of each publish call (monotonic)."""
         proc.wait(timeout)
         for line in proc.log_path.read_text().splitlines():  # type: ignore[attr-defined]
             if line.startswith("{"):
-                return json.loads(line)["published"]
+                return json.loads(line)
         raise AssertionError(f"publisher printed no result: {proc.log_path.read_text()}")  # type: ignore
 
     def close(self) -> None:
@@ -216,6 +223,7 @@ def _publish(spec: list[dict]) -> None:
         else:
             streams.append(item)
     published = {item["topic"]: (1 if item.get("latched") else 0) for item in spec}
+    times: dict[str, list[float]] = {item["topic"]: [] for item in streams}
     deadline = time.monotonic() + 30.0
     waiting = [pubs[s["topic"]] for s in streams if s["count"] > 0]  # a count-0 topic may stay unsubscribed
     while any(p.get_subscription_count() < 1 for p in waiting) and time.monotonic() < deadline:
@@ -226,10 +234,12 @@ def _publish(spec: list[dict]) -> None:
         delay = start + due - time.monotonic()
         if delay > 0:
             time.sleep(delay)
-        pubs[topic].publish(build_message(kind, k))
+        msg = build_message(kind, k)
+        times[topic].append(time.monotonic())
+        pubs[topic].publish(msg)
         published[topic] += 1
     time.sleep(1.0)  # let reliable delivery finish before the publishers go away
-    print(json.dumps({"published": published}), flush=True)
+    print(json.dumps({"published": published, "times": times}), flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
 

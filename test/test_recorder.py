@@ -86,6 +86,8 @@ def test_independent_readers_decode_the_published_values(procs, tmp_path):
             assert conn.msgdef.format.name.lower() == "msg"
             store.register(get_types_from_msg(conn.msgdef.data, conn.msgtype))
         assert {c.topic: c.msgtype for c in reader.connections} == {t: TYPES[k] for t, k in kinds.items()}
+        for conn in reader.connections:  # the stored definition is the one the publisher's type hash was made of
+            assert store.hash_rihs01(conn.msgtype) == conn.digest and conn.digest.startswith("RIHS01_")
         assert {c.topic: c.msgcount for c in reader.connections} == {t: published[t[1:]] for t in kinds}
         got: dict[str, list] = {t: [] for t in kinds}
         for conn, _, raw in reader.messages():

@@ -131,3 +131,30 @@ def test_regression_reproduces_a_realtime_recording(tmp_path):
     moved = [abs(int(v["preview_stamp_ns"]) - stamp_ns(m.header.stamp)) for _, m in
              by_publish_time(BagReader(bag), "/diagnostics") if (v := controller_diagnostics(m))]
     assert len(moved) >= 50 and sum(0 < d < 2 * period_ns for d in moved) > len(moved) / 2  # out of phase
+
+
+def test_regression_of_a_truncated_recording_warns_and_reindex_repairs_it(recording, tmp_path, capsys):
+    import shutil
+    import subprocess
+
+    from recording_helpers import env
+
+    copy = tmp_path / "killed"
+    shutil.copytree(recording, copy)
+    (copy / "metadata.yaml").unlink()
+    mcap = next(copy.glob("*.mcap"))
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: len(data) * 2 // 3])  # a recorder killed before the end (the summary is lost too)
+    full = regress_bag(recording)
+    assert main(["regress", str(copy)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.count("\n") == 1 and "is damaged" in captured.err and "reindex" in captured.err
+    partial = regress_bag(copy)
+    assert 0 < partial.compared < full.compared and partial.passed
+    assert f"PASS: {partial.compared} of" in captured.out
+    result = subprocess.run([PYTHON, "-m", "robotino_geom_mpc", "reindex", str(copy)], capture_output=True,
+                            text=True, env=env(), timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert main(["regress", str(copy)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and f"PASS: {partial.compared} of {partial.ticks} ticks" in captured.out

@@ -157,3 +157,42 @@ def test_report_verb(synthetic, tmp_path, capsys):
     assert main(["report", str(tmp_path / "none"), "--out", str(tmp_path / "p")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no such bag" in err
+
+
+def test_report_on_a_truncated_recording_names_the_damage_and_covers_what_was_read(synthetic, tmp_path, capsys):
+    """A recorder killed mid-run: the report says so in one line and covers the ticks of the readable chunks."""
+    import dataclasses
+
+    from mcap.reader import make_reader
+
+    from robotino_geom_mpc.recording.bag import BagReader
+
+    path, expected = synthetic
+    source = BagReader(path)
+    copy = tmp_path / "killed"
+    with BagWriter(copy, chunk_size=16384) as out:  # small chunks, so a cut leaves several complete ones
+        out.add_metadata(RUN_METADATA, source.metadata[RUN_METADATA])
+        ch = {name: out.add_topic(name, info.type) for name, info in source.topics.items()}
+        for m in source.messages():
+            out.write(ch[m.topic], m.log_time_ns, m.data, m.publish_time_ns)
+    mcap = copy / "killed_0.mcap"
+    with open(mcap, "rb") as fh:
+        reader = make_reader(fh)
+        chunks = sorted(reader.get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+        kept = [m.log_time for _, _, m in reader.iter_messages()]  # mcap's own reader of the intact file
+    assert len(chunks) > 4
+    end = chunks[2].message_end_time  # cut inside the fourth chunk: three complete chunks remain
+    mcap.write_bytes(mcap.read_bytes()[: chunks[3].chunk_start_offset + chunks[3].chunk_length // 2])
+    (copy / "metadata.yaml").unlink()
+    recovered = sum(t <= end for t in kept)
+    # tick k is complete once its currents (logged 0.55 ms after the tick's 1 ms wall slot starts) are read
+    ticks = sum(10**9 + k * 10**6 + 550_000 <= end for k in range(expected.n))
+
+    assert main(["report", str(copy), "--out", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "warning" in err and "is damaged" in err and "reindex" in err
+    assert f"recovered {recovered} messages (" in err
+    part = dataclasses.replace(expected, **{f: getattr(expected, f)[:ticks] for f in
+                                            ("t", "pose", "reference", "currents", "voltages", "compute_time_s")},
+                               flags={k: v[:ticks] for k, v in expected.flags.items()})
+    _assert_same_metrics(read_metrics(tmp_path / "o" / "metrics.json"), compute_metrics(part))

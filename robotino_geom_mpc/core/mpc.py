@@ -11,6 +11,10 @@ the Delta-u form (48)-(49) and predicted over N steps (50)-(53), with the
 corrected F_1p and F_2p of erratum 3. The receding-horizon law applies only
 the first component of the closed form (56), so only the first row of its
 gain is kept and one control step is a few dot products for the three axes.
+
+`closed_loop_poles` and `check_closed_loop` give the poles of that receding-
+horizon law on the nominal axis model: a weight set (q/r small for the
+horizon) can make the loop unstable, which a controller must refuse.
 """
 
 from __future__ import annotations
@@ -21,20 +25,31 @@ from operator import mul
 import numpy as np
 from scipy.linalg import expm
 
+from .decoupling import AXES
 from .errors import RobotinoError
-from .params import ControlParams, RobotinoParams
+from .params import ControlParams, ParamError, RobotinoParams
 
 __all__ = [
     "MPCError",
+    "UnstableClosedLoopError",
     "axis_dampings",
     "discretize_axis",
     "prediction_matrices",
     "DecoupledMPC",
+    "closed_loop_matrices",
+    "closed_loop_poles",
+    "check_closed_loop",
 ]
+
+STABILITY_MARGIN = 1e-3  # default: a pole modulus above 1 - this is refused
 
 
 class MPCError(RobotinoError, ValueError):
     """An MPC input or setting with the wrong shape, a non-finite value or out of range."""
+
+
+class UnstableClosedLoopError(RobotinoError, ParamError):
+    """Control parameters whose nominal closed loop (eqs. 49 and 56) has a pole on or outside the unit circle."""
 
 
 def axis_dampings(p: RobotinoParams) -> np.ndarray:
@@ -271,3 +286,99 @@ class DecoupledMPC:
             sum(map(mul, kyy, yy)) + kpy * py + kvy * vy + kuy * upy,
             sum(map(mul, kyt, yt)) + kpt * pt + kvt * vt + kut * upt,
         ]
+
+
+def closed_loop_matrices(mpc: DecoupledMPC) -> np.ndarray:
+    """Nominal closed loop of each axis under the receding-horizon law, z(k+1) = Phi_a z(k).
+
+    Parameters
+    ----------
+    mpc
+        The three MPCs (their discrete models, eq. 49, and gains, eq. 56).
+
+    Returns
+    -------
+    ndarray, shape (3, 3, 3)
+        Phi_a for the axes (x, y, theta), on z(k) = (pos(k), vel(k), u(k-1)).
+
+    Notes
+    -----
+    With the reference at zero, eq. (56)'s first row k_0 gives
+    Delta u(k) = -k_0 G_p x(k) - k_0 F_2p u(k-1), so u(k) = (1 - k_0 F_2p) u(k-1) - k_0 G_p x(k)
+    and x(k+1) = A_d x(k) + B_d u(k) (eq. 49). The reference enters as an
+    input, so the poles decide stability for every trajectory.
+    """
+    Phi = np.empty((3, 3, 3))
+    for a in range(3):
+        k0 = mpc.gain[a, 0]
+        k_state, k_input = k0 @ mpc.G_p[a], k0 @ mpc.F_2p[a]
+        B = mpc.B_d[a]
+        Phi[a, :2, :2] = mpc.A_d[a] - np.outer(B, k_state)
+        Phi[a, :2, 2] = B * (1.0 - k_input)
+        Phi[a, 2, :2] = -k_state
+        Phi[a, 2, 2] = 1.0 - k_input
+    return Phi
+
+
+def closed_loop_poles(robot: RobotinoParams, control: ControlParams) -> np.ndarray:
+    """Poles of the nominal closed loop of the Delta-u MPC, per axis.
+
+    Parameters
+    ----------
+    robot
+        The controller's model (masses and frictions of eq. 3).
+    control
+        Period, horizon and weights.
+
+    Returns
+    -------
+    ndarray of complex, shape (3, 3)
+        Row a: the eigenvalues of `closed_loop_matrices` for axis (x, y, theta)[a],
+        state (position, velocity, u(k-1)); stable iff all have modulus < 1.
+
+    Raises
+    ------
+    MPCError
+        For weights that are not finite and positive (from `DecoupledMPC`).
+    """
+    return np.linalg.eigvals(closed_loop_matrices(DecoupledMPC(robot, control)))
+
+
+def check_closed_loop(
+    robot: RobotinoParams, control: ControlParams, margin: float = STABILITY_MARGIN
+) -> np.ndarray:
+    """Refuse control parameters whose nominal closed loop is not asymptotically stable.
+
+    Parameters
+    ----------
+    robot, control
+        As for `closed_loop_poles`.
+    margin
+        A spectral radius >= 1 - margin is refused (0 <= margin < 1).
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        The spectral radii of the axes (x, y, theta), all below 1 - margin.
+
+    Raises
+    ------
+    UnstableClosedLoopError
+        Naming each failing axis, its spectral radius, its weights q, r and the horizon and period.
+    MPCError
+        For a margin out of range or weights that are not finite and positive.
+    """
+    if not (0.0 <= margin < 1.0):
+        raise MPCError(f"margin must be in [0, 1), got {margin!r}")
+    radii = np.abs(closed_loop_poles(robot, control)).max(axis=1)
+    bad = [
+        f"axis {axis}: spectral radius {radius:.6f} (q_{axis} = {q:g}, r_{axis} = {r:g}, q/r = {q / r:.3g})"
+        for axis, radius, q, r in zip(AXES, radii, control.q, control.r)
+        if not radius < 1.0 - margin
+    ]
+    if bad:
+        raise UnstableClosedLoopError(
+            f"control weights give an unstable closed loop (horizon {control.horizon}, period {control.period_s:g} s,"
+            f" limit 1 - {margin:g}): " + "; ".join(bad)
+        )
+    return radii

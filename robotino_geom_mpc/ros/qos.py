@@ -20,6 +20,8 @@
     max_samples); a write to a full history blocks for max_blocking_time
     (100 ms) and then fails, which rclpy raises as `RCLError` ("cannot
     publish data"). `publish_acknowledged` turns that into a logged wait.
+    A writer's unacknowledged samples die with its process: a node ending a
+    run calls `wait_acknowledged` first.
 * `LATCHED_QOS` (reference_path): reliable, keep-last 1, transient local, so
   a visualiser or recorder that starts late still gets the whole reference.
 * `CLOCK_SUB_QOS`: the trajectory's own /clock subscription, reliable so no
@@ -30,15 +32,17 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from typing import Any
 
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 __all__ = ["CONTROL_QOS", "PUBLISH_QOS", "LOCKSTEP_PUBLISH_QOS", "LATCHED_QOS", "CLOCK_SUB_QOS", "publish_qos",
-           "publish_acknowledged"]
+           "publish_acknowledged", "wait_acknowledged"]
 
 CONTROL_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
@@ -98,3 +102,16 @@ def publish_acknowledged(node: Node, publisher: Publisher, message: Any) -> None
         except RCLError:
             pass
     raise RCLError(f"{publisher.topic_name}: context shut down while waiting to publish")
+
+
+def wait_acknowledged(node: Node, publishers: Iterable[Publisher | None], timeout_s: float) -> list[str]:
+    """Wait up to `timeout_s` in all until every reader acknowledged every sample; the topics that were not.
+
+    Those are logged as a warning (their samples may not reach a slow reader such as the recorder).
+    """
+    deadline = time.monotonic() + timeout_s
+    late = [pub.topic_name for pub in publishers if pub is not None and not pub.wait_for_all_acked(
+        Duration(seconds=max(deadline - time.monotonic(), 0.0)))]
+    if late:
+        node.get_logger().warn(f"not acknowledged by every subscriber within {timeout_s:g} s: {', '.join(late)}")
+    return late

@@ -1,5 +1,6 @@
 """The plant simulator node alone over DDS: a harness node drives it in lockstep and checks what it publishes."""
 
+import json
 import math
 import subprocess
 import sys
@@ -7,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 from nav_msgs.msg import Odometry
-from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -34,6 +35,7 @@ def plant_run(tmp_path_factory):
     robot, control = load_params()
     Ts = control.period_s
     commands = [[2.0, -1.0, 0.5], [math.nan, 0.0, 0.0], [1.0, 2.0], [0.0, 3.0, -3.0]]
+    report = tmp_path_factory.mktemp("plant_report") / "timing.json"
     with NodeGroup(log_dir=tmp_path_factory.mktemp("plant")) as group, Harness("plant_test") as h:
         odom = h.collect("odom", Odometry)
         truth = h.collect("ground_truth/odom", Odometry)
@@ -44,7 +46,7 @@ def plant_run(tmp_path_factory):
         plant = group.start("plant_node", ros_args(None, {
             "mode": "lockstep", "duration_s": 4 * Ts, "lockstep_wait_for": ["odom:1", "/clock:1"],
             "odometry_noise.position_m": NOISE[0], "odometry_noise.yaw_rad": NOISE[1], "seed": SEED,
-            "lockstep_resend_s": 0.3,
+            "lockstep_resend_s": 0.3, "timing_report": str(report),
         }))
         assert h.spin_until(lambda: len(odom) >= 1, 30.0), plant.stderr_tail()
         # no command for tick 0: the plant resends it (same stamp, same measurement)
@@ -59,7 +61,7 @@ def plant_run(tmp_path_factory):
         h.spin_for(0.2)
         return dict(robot=robot, Ts=Ts, commands=commands, odom=odom, truth=truth, clock=clock,
                     currents=currents, joints=joints, graph=graph, infos=infos, status=plant.popen.returncode,
-                    stderr=plant.stderr_tail(50))
+                    stderr=plant.stderr_tail(50), report=json.loads(report.read_text()))
 
 
 def test_topics_types_and_qos(plant_run):
@@ -72,6 +74,21 @@ def test_topics_types_and_qos(plant_run):
     (info,) = plant_run["infos"]
     assert info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
     assert info.qos_profile.durability == DurabilityPolicy.VOLATILE
+    assert info.qos_profile.history == HistoryPolicy.KEEP_ALL  # lockstep: a slow reader holds the loop back
+
+
+def test_lockstep_timing_report(plant_run):
+    report, Ts = plant_run["report"], plant_run["Ts"]
+    assert report["mode"] == "lockstep"
+    assert report["ticks"] == 4 and report["loop_ticks"] == 3  # duration_s / Ts; ticks 1 .. n - 1
+    assert report["simulated_s"] == pytest.approx(3 * Ts)
+    assert report["realtime_factor"] == pytest.approx(report["simulated_s"] / report["wall_s"])
+    assert (report["answered"], report["missed"], report["missed_ticks"], report["latency_ms"]) == (4, 0, [], None)
+    assert report["resent"] >= 1 and report["refused_commands"] == 2 and report["clamped_commands"] == 0
+    assert report["tick0_answer_s"] >= 0.3  # tick 0 was resent after 0.3 s without a command
+    # the harness waited for each tick's messages before answering: most of a tick is the wait
+    assert report["wait_ms_per_tick"] > report["plant_busy_ms_per_tick"] > 0
+    assert "no command for tick 0 (t = 0.000 s) for 0." in plant_run["stderr"]
 
 
 def test_stamps_clock_frames_and_resend(plant_run):

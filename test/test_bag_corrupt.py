@@ -50,7 +50,11 @@ def test_truncated_bag_reads_its_complete_chunks(tmp_path):
     result = _replay(mcap)
     assert result.returncode == 1
     assert "warning" in result.stderr and "truncated" in result.stderr
+    assert result.stderr.count("\n") == 1
+    assert f"recovered {in_complete} messages (/stream: {in_complete})" in result.stderr
     assert f"replayed {in_complete} messages" in result.stdout
+    # the bytes of the cut chunk are lost, everything before it is read
+    assert bag.bytes_lost == cut - chunks[4].chunk_start_offset
 
 
 def test_corrupt_chunk_is_skipped_and_named(tmp_path):
@@ -66,7 +70,8 @@ def test_corrupt_chunk_is_skipped_and_named(tmp_path):
     lost = {i for i in range(COUNT) if bad.message_start_time <= 10**9 + i * 10**6 <= bad.message_end_time}
     assert _indices(bag) == [i for i in range(COUNT) if i not in lost]
     result = _replay(tmp_path / "bag")
-    assert result.returncode == 1 and "corrupt" in result.stderr
+    assert result.returncode == 1 and "corrupt" in result.stderr and result.stderr.count("\n") == 1
+    assert bag.bytes_lost == bad.chunk_length  # the corrupt chunk record, nothing else
     assert f"replayed {COUNT - len(lost)} messages" in result.stdout
 
 

@@ -1,9 +1,15 @@
 """Plant integration core: the coupled Robotino (body, eqs. 1-9; DC drives, eq. 10) under held voltages.
 
-No rclpy here; `plant_node.py` wraps it. The right-hand side is
-`robotino_geom_mpc.core.model.coupled_rhs`; this module integrates it with the
-armature voltages held over each step (zero-order hold), exactly for the stiff
-electrical mode (L / R = 1.5 ms against a 10 ms control period).
+No rclpy here; `plant_node.py` wraps it. The equations are those of
+`robotino_geom_mpc.core.model.coupled_rhs`, with the armature voltages held
+over each step (zero-order hold). They are not integrated by calling that
+function, which would need a numerical ODE step: they are linear in the state
+once the heading is fixed, so this module assembles them as matrices
+(`RobotinoPlant._frame_matrix`, from the same `A_matrix`, `g_theta` and wheel
+directions) and propagates their exact transition matrices, exact for the
+stiff electrical mode (L / R = 1.5 ms against a 10 ms control period).
+test/test_plant.py checks those matrices against `coupled_rhs` state by state
+and the integration against a DOP853 solution of `coupled_rhs`.
 
 Scheme
 ------

@@ -258,3 +258,27 @@ def test_substep_currents_and_float_accessors():
     np.testing.assert_array_equal(pose, [x, y, theta])
     turn = np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]])  # R(-theta)
     np.testing.assert_allclose(twist, [*(turn @ [vx, vy]), omega], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("anisotropic", [False, True])
+def test_generator_is_coupled_rhs_in_the_heading_frame(anisotropic):
+    """The matrices the plant integrates exactly are model.coupled_rhs (and the wheel-angle rates), state by state.
+
+    In the frame at the heading (planar pairs rotated by theta) the drive directions are
+    d_i(0); the frame's matrix at rest, applied there and rotated back, must give coupled_rhs.
+    """
+    p = replace(ROBOT, body_friction_y_n_s_per_m=3.0 * ROBOT.k_y) if anisotropic else ROBOT
+    plant = RobotinoPlant(p)
+    rng = np.random.default_rng(8)
+    for _ in range(10):
+        state, U = rng.normal(0.0, 1.0, 9) * [1, 0.5, 1, 0.5, 3, 2, 0.5, 0.5, 0.5], rng.uniform(-24, 24, 3)
+        theta = state[4]
+        c, s = np.cos(theta), np.sin(theta)
+        turn, back = np.array([[c, -s], [s, c]]), np.array([[c, s], [-s, c]])
+        w = np.concatenate((state, rng.normal(0.0, 1.0, 3), U))
+        w[[0, 2]], w[[1, 3]] = turn @ state[[0, 2]], turn @ state[[1, 3]]
+        derivative = plant._frame_matrix(0.0, theta) @ w
+        derivative[[0, 2]], derivative[[1, 3]] = back @ derivative[[0, 2]], back @ derivative[[1, 3]]
+        expected = np.concatenate((coupled_rhs(state, U, p), wheel_rim_speeds(theta, state[[1, 3, 5]], p) / p.r))
+        np.testing.assert_allclose(derivative[:12], expected, rtol=1e-12, atol=1e-9)
+        np.testing.assert_array_equal(derivative[12:], 0.0)  # the voltages are held

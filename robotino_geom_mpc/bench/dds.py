@@ -33,10 +33,10 @@ from typing import Any
 import numpy as np
 
 from robotino_geom_mpc.bench.host_steal import StealSampler
-from robotino_geom_mpc.bench.registry import BenchmarkError
+from robotino_geom_mpc.bench.registry import BenchmarkError, wait_for_run
 from robotino_geom_mpc.bench.roundtrip import bench_roundtrip
 from robotino_geom_mpc.core.params import default_params_file, load_params
-from robotino_geom_mpc.ros.processes import LOCKSTEP_WAIT_FOR, NodeFailed, NodeGroup, ros_args
+from robotino_geom_mpc.ros.processes import LOCKSTEP_WAIT_FOR, NodeGroup, ros_args
 
 __all__ = ["LOCKSTEP_RUNS", "ROUNDTRIPS", "TIMING_REPORT", "lockstep_nodes", "bench_lockstep", "bench_realtime",
            "dds_benchmarks", "missed_ticks", "read_timing_report"]
@@ -128,16 +128,6 @@ def read_timing_report(path: str | os.PathLike, mode: str) -> dict[str, Any]:
     return report
 
 
-def _wait(group: NodeGroup, plant, timeout_s: float, what: str) -> None:
-    """Wait for the plant's exit; `BenchmarkError` if a node fails or the run does not end in time."""
-    try:
-        ended = group.wait(plant, timeout_s)
-    except NodeFailed as exc:
-        raise BenchmarkError(f"{what}: {exc}") from None
-    if not ended:
-        raise BenchmarkError(f"{what} did not end within {timeout_s} s:\n{plant.stderr_tail()}")
-
-
 def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, timeout_s: float = 300.0) -> dict:
     """Run the lockstep loop; the plant's real-time factor and wall time per tick, and the host's steal.
 
@@ -157,7 +147,7 @@ def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, tim
     with StealSampler(interval_s=0.1) as steal, NodeGroup() as group:
         path = group.log_dir / TIMING_REPORT
         plant = lockstep_nodes(group, scenario, duration_s, timing_report=path)
-        _wait(group, plant, timeout_s, f"lockstep run of {duration_s} s")
+        wait_for_run(group, plant, timeout_s, f"lockstep run of {duration_s} s")
         report = read_timing_report(path, "lockstep")
     if report["realtime_factor"] is None or report["loop_ticks"] < 1:
         raise BenchmarkError(f"the lockstep run of {duration_s} s had {report['ticks']} tick: no loop to time")
@@ -185,7 +175,7 @@ def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", tim
     with StealSampler() as steal, NodeGroup() as group:
         path = group.log_dir / TIMING_REPORT
         plant = lockstep_nodes(group, scenario, duration_s, realtime=True, timing_report=path)
-        _wait(group, plant, timeout_s or duration_s + 60.0, f"realtime run of {duration_s} s")
+        wait_for_run(group, plant, timeout_s or duration_s + 60.0, f"realtime run of {duration_s} s")
         report = read_timing_report(path, "realtime")
     latency = report["latency_ms"]
     if latency is None:

@@ -32,6 +32,8 @@ def bench_offline_sim(quick: bool) -> dict[str, float]:
 def bench_dds(quick: bool) -> dict[str, float]:
     """The figures of `bench.dds.dds_benchmarks`, skipped without ROS 2."""
     try:
+        import rclpy  # noqa: F401  (the nodes need it; bench.dds itself does not import it)
+
         from robotino_geom_mpc.bench.dds import dds_benchmarks
     except ImportError as exc:
         raise BenchmarkSkipped(f"ROS 2 not available: {exc}") from None

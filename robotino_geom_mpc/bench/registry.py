@@ -15,9 +15,10 @@ from dataclasses import dataclass
 from typing import Callable
 
 from robotino_geom_mpc.core.errors import RobotinoError
+from robotino_geom_mpc.ros.processes import NodeFailed, NodeGroup, NodeProcess
 
 __all__ = ["Benchmark", "BenchmarkError", "BenchmarkSkipped", "REGISTRY", "benchmark", "median_per_call",
-           "run_benchmarks"]
+           "run_benchmarks", "wait_for_run"]
 
 
 class BenchmarkError(RobotinoError, RuntimeError):
@@ -61,6 +62,19 @@ def median_per_call(passes: list[Callable[[], None]], calls: int, repeats: int) 
             run_once()
             store.append((time.perf_counter() - start) / calls)
     return [statistics.median(store) for store in samples]
+
+
+def wait_for_run(group: NodeGroup, process: NodeProcess, timeout_s: float, what: str) -> None:
+    """Wait until `process` of `group` exits; `BenchmarkError` if a process of the group fails or `timeout_s` passes.
+
+    `what` names the run in the message (e.g. "lockstep run of 22 s").
+    """
+    try:
+        ended = group.wait(process, timeout_s)
+    except NodeFailed as exc:
+        raise BenchmarkError(f"{what}: {exc}") from None
+    if not ended:
+        raise BenchmarkError(f"{what} did not end within {timeout_s} s:\n{process.stderr_tail()}")
 
 
 def run_benchmarks(

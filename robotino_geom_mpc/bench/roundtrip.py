@@ -34,6 +34,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+from robotino_geom_mpc.bench.registry import BenchmarkError, wait_for_run
+from robotino_geom_mpc.ros.processes import NodeGroup, NodeProcess, dds_environment
+
 __all__ = ["ANSWER_TOPIC", "ODOM_TOPIC", "bench_roundtrip", "main", "nearest_rank", "read_roundtrip_report",
            "roundtrip_figures"]
 
@@ -65,8 +68,6 @@ def read_roundtrip_report(path: str | os.PathLike, count: int) -> list[float]:
     BenchmarkError
         If the file is missing or not the plant's report of `count` positive finite round trips.
     """
-    from robotino_geom_mpc.bench.registry import BenchmarkError
-
     try:
         samples = json.loads(Path(path).read_text())["roundtrip_s"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
@@ -84,28 +85,17 @@ def bench_roundtrip(count: int = 2000, warmup: int = 200, timeout_s: float = 120
     BenchmarkError
         If a process fails, the run does not end within `timeout_s` or the report is malformed.
     """
-    from robotino_geom_mpc.bench.registry import BenchmarkError
-    from robotino_geom_mpc.ros.processes import NodeFailed, NodeGroup
-
     with NodeGroup() as group:
         report = group.log_dir / "roundtrip.json"
         _start(group, "controller", [])
         plant = _start(group, "plant", ["--count", str(count), "--warmup", str(warmup), "--report", str(report)])
-        try:
-            ended = group.wait(plant, timeout_s)
-        except NodeFailed as exc:
-            raise BenchmarkError(f"round trip: {exc}") from None
-        if not ended:
-            raise BenchmarkError(f"round trip: {count + warmup} round trips did not end within {timeout_s} s:\n"
-                                 f"{plant.stderr_tail()}")
+        wait_for_run(group, plant, timeout_s, f"round trip: {count + warmup} round trips")
         samples = read_roundtrip_report(report, count)
     return roundtrip_figures(samples)
 
 
-def _start(group, role: str, args: list[str]):
+def _start(group: NodeGroup, role: str, args: list[str]) -> NodeProcess:
     """Start one role as ``python -m`` this module in its own process group; `group` stops it with the others."""
-    from robotino_geom_mpc.ros.processes import NodeProcess, dds_environment
-
     out, err = group.log_dir / f"roundtrip_{role}.out.log", group.log_dir / f"roundtrip_{role}.err.log"
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0", **group.env}
     env.update(dds_environment(env))

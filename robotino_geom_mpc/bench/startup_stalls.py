@@ -22,7 +22,7 @@ import threading
 import time
 
 from robotino_geom_mpc.bench.dds import TIMING_REPORT, lockstep_nodes, read_timing_report
-from robotino_geom_mpc.bench.registry import BenchmarkError
+from robotino_geom_mpc.bench.registry import BenchmarkError, wait_for_run
 from robotino_geom_mpc.ros.processes import NodeGroup
 
 SLEEP_SYSCALLS = {"x86_64": {"35", "230"}, "aarch64": {"101", "115"}}  # nanosleep, clock_nanosleep
@@ -76,7 +76,8 @@ class SleepSampler:
 def run_once(settle_s: float, duration_s: float, syscalls: set[str]) -> dict:
     """One realtime run; its missed ticks and sleeps (start relative to the first answer [s], length [s]).
 
-    Raises `BenchmarkError` if a node fails or the plant's timing report is missing or names no first answer.
+    Raises `BenchmarkError` if a node fails, the run does not end, or the plant's timing report is missing
+    or names no first answer.
     """
     with NodeGroup() as group:
         path = group.log_dir / TIMING_REPORT
@@ -84,12 +85,12 @@ def run_once(settle_s: float, duration_s: float, syscalls: set[str]) -> dict:
                                trajectory_overrides={"start_settle_s": settle_s}, timing_report=path)
         sampler = SleepSampler({node.name: node.popen.pid for node in group.nodes}, syscalls)
         try:
-            ended = group.wait(plant, duration_s + 60.0)
+            wait_for_run(group, plant, duration_s + 60.0, f"realtime run of {duration_s} s")
         finally:
             sleeps = sampler.stop()
-        report = read_timing_report(path, "realtime") if ended else None
-    if report is None or report["first_answer_steady_s"] is None:
-        raise BenchmarkError(f"the realtime run did not end or had no answered tick:\n{plant.stderr_tail()}")
+        report = read_timing_report(path, "realtime")
+    if report["first_answer_steady_s"] is None:
+        raise BenchmarkError(f"the realtime run of {duration_s} s had no answered tick")
     t0 = report["first_answer_steady_s"]
     return {"missed": report["missed"], "gaps": [(after, gap) for after, gap in report["missed_ticks"]],
             "sleeps": [(f"{node}/{comm}", start - t0, length) for node, comm, start, length in sleeps]}

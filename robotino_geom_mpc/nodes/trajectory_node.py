@@ -2,7 +2,8 @@
 
 Topics (relative names)
 -----------------------
-publishes  ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory, `PUBLISH_QOS`:
+publishes  ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory, `publish_qos(lockstep)` (lockstep:
+                                  keep-all, a slow reader holds the loop back, `publish_acknowledged`):
                                   header.stamp = the tick time t_k, frame ``odom``, one joint ``base_link``
                                   (the planar pose of the robot), N + 1 points j = 0..N with
                                   time_from_start = j Ts: transforms (x_d, y_d, yaw quaternion of theta_d),
@@ -75,7 +76,7 @@ from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, ns_to_stamp, point_values, preview_template, preview_values, \
     stamp_to_ns, yaw_to_quaternion
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CLOCK_SUB_QOS, LATCHED_QOS, PUBLISH_QOS
+from robotino_geom_mpc.ros.qos import CLOCK_SUB_QOS, LATCHED_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_geom_mpc.scenarios import SCENARIOS, get_scenario
 
@@ -125,7 +126,7 @@ class TrajectoryNode(Node):
             raise NodeStartError(str(exc)) from None
         self.lockstep = self.params["mode"] == "lockstep"
         self.preview_pub = self.create_publisher(
-            MultiDOFJointTrajectory, "reference_preview", PUBLISH_QOS,
+            MultiDOFJointTrajectory, "reference_preview", publish_qos(self.lockstep),
             event_callbacks=PublisherEventCallbacks(matched=self._on_preview_matched),
         )
         self.path_pub = self.create_publisher(Path, "reference_path", LATCHED_QOS)
@@ -212,7 +213,7 @@ class TrajectoryNode(Node):
         values = self._grid_values(reference_t_ns) if self.lockstep else None
         if values is None:
             values = preview_values(self.reference, reference_t_ns, period_s, horizon)
-        self.preview_pub.publish(self.preview_cdr.pack(*divmod(t_ns, 1_000_000_000), *values))
+        publish_acknowledged(self, self.preview_pub, self.preview_cdr.pack(*divmod(t_ns, 1_000_000_000), *values))
         self.last_published_ns = t_ns
 
     def _on_clock(self, msg: ClockMsg) -> None:

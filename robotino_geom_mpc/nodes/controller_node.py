@@ -56,8 +56,6 @@ section) plus `CONTROLLER_SPECS`; a change rebuilds (and resets) the controller.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
@@ -67,15 +65,17 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, odometry_state_floats
-from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
+from robotino_geom_mpc.core.controller import ControllerInputError, MotionController
+from robotino_geom_mpc.core.params import ALL_SPECS
 from robotino_geom_mpc.core.trajectory import shift_preview
+from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
+    BlendEngagement, InputCounters, closed_loop_problem, reference_jump
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
-    state_of_odometry
+    stamp_problem, state_of_odometry
 from robotino_geom_mpc.ros.messages import VOLTAGE_LABEL, odometry_layout, preview_layout, three_values_template
 from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 
 __all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
@@ -84,20 +84,13 @@ STATUS_NAME = "robotino_geom_mpc: controller"
 # the general decoders (field names are all `odometry_values` and `preview_point_values` use, so either one fits)
 _read_odom = cdr_reader(Odometry, "nav_msgs/msg/Odometry")
 _read_preview = cdr_reader(MultiDOFJointTrajectory, "trajectory_msgs/msg/MultiDOFJointTrajectory")
-
-CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("mode", str, "realtime: freshest preview, watchdog outputs zero volts; lockstep: preview of the same stamp",
-              choices=("realtime", "lockstep")),
-    ParamSpec("odom_timeout_s", float, "Odometry older than this is stale (zero volts)", "s", 0.0, 60.0, True),
-    ParamSpec("reference_timeout_s", float, "Reference preview older than this is stale (zero volts)", "s", 0.0, 60.0,
-              True),
-)
-_DEFAULTS = {"mode": "realtime", "odom_timeout_s": 0.1, "reference_timeout_s": 0.1}
-
+_WAIT_LOG_PERIOD_S = 5.0  # throttle of the "waiting for ..." log
 
 _TRACKING_KEYS = ("error_x_m", "error_y_m", "error_theta_rad", "compute_time_ms", "saturated", "infeasible",
-                  "preview_stamp_ns")
-_EVENT_KEYS = ("watchdog", "rejected")
+                  "preview_stamp_ns", "dt_s")
+_EVENT_KEYS = ("watchdog", *InputCounters.KEYS, "blend_remaining_s", "blend_engagements")
+_ROBOT_CONTROL = frozenset(s.name for s in ALL_SPECS)
+_ZERO = (0.0, 0.0, 0.0)
 
 
 def _diagnostics_message(keys: tuple[str, ...]) -> DiagnosticArray:
@@ -111,18 +104,21 @@ class ControllerNode(Node):
 
     def __init__(self) -> None:
         super().__init__("robotino_controller")
-        self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS, {**spec_defaults(), **_DEFAULTS},
-                                     self._on_params, fixed=("mode",))
+        self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS, {**spec_defaults(), **CONTROLLER_DEFAULTS},
+                                     self._on_params, fixed=FIXED_WHILE_RUNNING, check=closed_loop_problem)
         self.robot, self.control = self.params.robot_control()
         self.controller = MotionController(self.robot, self.control)
         self.lockstep = self.params["mode"] == "lockstep"
+        self.period_ns = int(round(self.control.period_s * 1e9))
+        self._read_limits()
 
+        qos = publish_qos(self.lockstep)
         self.voltage_pub = self.create_publisher(
-            Float64MultiArray, "wheel_voltages", PUBLISH_QOS,
+            Float64MultiArray, "wheel_voltages", qos,
             event_callbacks=PublisherEventCallbacks(matched=self._on_voltage_matched),
         )
         self.voltage_cdr = three_values_template(VOLTAGE_LABEL)
-        self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", PUBLISH_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", qos)
         # built once, values rewritten per tick (a third of the cost of building the message anew)
         self.diag_tracking = _diagnostics_message(_TRACKING_KEYS + _EVENT_KEYS)
         self.diag_event = _diagnostics_message(_EVENT_KEYS)
@@ -134,56 +130,127 @@ class ControllerNode(Node):
         )
 
         self.theta = 0.0  # last measured (continuous) yaw
-        self.previews: dict[int, np.ndarray] = {}  # stamp [ns] -> (N + 1, 3)
-        # realtime: stamp [ns], positions, velocities, accelerations of the freshest preview
+        # lockstep: stamp [ns] -> (positions, velocities, accelerations), each (N + 1, 3)
+        self.previews: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # the newest preview: stamp [ns], positions, velocities, accelerations (realtime: the one used)
         self.latest_preview: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.pending: tuple[int, np.ndarray] | None = None  # lockstep: odometry waiting for its preview
+        self.pending_since = 0.0
         self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, voltages
-        self.odom_time = self.preview_time = None  # steady arrival times
+        self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
+        self.odom_time = self.preview_time = None  # steady arrival times of accepted inputs
+        self.start_time = monotonic()
         self.watchdog_state = "waiting"
-        self.rejected = 0
-        timeout = min(self.params["odom_timeout_s"], self.params["reference_timeout_s"])
-        self.watchdog = self.create_timer(timeout / 2, self._check_watchdog,
-                                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.counters = InputCounters()
+        self.blend = BlendEngagement(self.control.period_s, self.control.horizon)
+        self.watchdog = None
+        self._start_watchdog()
         self.get_logger().info(f"controller ready ({self.params['mode']}, mode {self.control.mode}, "
                                f"N = {self.control.horizon}, Ts = {self.control.period_s:g} s)")
 
+    # parameters ---------------------------------------------------------------------------------
+    def _read_limits(self) -> None:
+        """The node's own parameters as attributes (read per tick)."""
+        p = self.params
+        self.odom_timeout_ns = int(p["odom_timeout_s"] * 1e9)
+        self.reference_timeout_ns = int(p["reference_timeout_s"] * 1e9)
+        self.future_ns = int(p["future_tolerance_s"] * 1e9)
+        self.tolerances = (p["quaternion_norm_tolerance"], p["tilt_tolerance_rad"])
+        self.jump_limits = (p["reference_jump_m"], p["reference_jump_rad"])
+        self.blend_limits = (p["blend_acceleration_mps2"], p["blend_acceleration_radps2"])
+
+    def _start_watchdog(self) -> None:
+        if self.watchdog is not None:
+            self.destroy_timer(self.watchdog)
+        timeout = min(self.params["odom_timeout_s"], self.params["reference_timeout_s"])
+        self.watchdog = self.create_timer(timeout / 2, self._check_watchdog,
+                                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
     def _on_params(self, changed: dict) -> None:
-        self.robot, self.control = self.params.robot_control()
-        self.controller = MotionController(self.robot, self.control)
-        self.preview_layout = preview_layout(self.control.period_s, self.control.horizon)
-        self.previews.clear()
-        self.latest_preview = None
+        self._read_limits()
+        if {"odom_timeout_s", "reference_timeout_s"} & changed.keys():
+            self._start_watchdog()
+        if _ROBOT_CONTROL & changed.keys():
+            self.robot, self.control = self.params.robot_control()
+            self.controller = MotionController(self.robot, self.control)
+            self.blend.request("parameters")  # the new controller starts from u(k-1) = 0: blend from the state
+            self.get_logger().info(f"parameters {sorted(changed)} changed: controller rebuilt, bumpless restart")
 
     # inputs -------------------------------------------------------------------------------------
-    def _reject(self, stamp: int, reason: str) -> None:
-        self.rejected += 1
-        self.get_logger().warn(f"rejected input: {reason}; zero volts", throttle_duration_sec=1.0)
-        self.voltage_pub.publish(self.voltage_cdr.pack(0.0, 0.0, 0.0))
-        self._diagnose(stamp, DiagnosticStatus.ERROR, f"rejected input: {reason}", None, None, None)
+    def _send(self, voltages) -> None:
+        publish_acknowledged(self, self.voltage_pub, self.voltage_cdr.pack(*voltages))
+
+    def _reject(self, stamp: int | None, what: str, reason: str, message: str) -> None:
+        """A refused input: counted, logged, zero volts, an ERROR diagnostic naming the reason."""
+        self.counters.refuse(reason)
+        self.get_logger().warn(f"refused {what}: {message}; zero volts", throttle_duration_sec=1.0)
+        self._send(_ZERO)
+        self._diagnose(stamp, DiagnosticStatus.ERROR, f"refused {what} ({reason}): {message}")
+
+    def _drop(self, stamp: int, what: str, reason: str) -> None:
+        """A dropped input (duplicate or older stamp than the last used): counted, logged, a WARN diagnostic."""
+        self.counters.drop(reason)
+        self.get_logger().warn(f"dropped {what} of stamp {stamp} ns: {reason} (last used "
+                               f"{self.last_odom_ns if what == 'odom' else self.latest_preview[0]} ns)",
+                               throttle_duration_sec=1.0)
+        self._diagnose(stamp, DiagnosticStatus.WARN, f"dropped {what} ({reason})")
+
+    def _now_ns(self) -> int | None:
+        """The node clock (realtime), None in lockstep (stamps are simulated time there)."""
+        return None if self.lockstep else self.get_clock().now().nanoseconds
 
     def _on_preview(self, data: bytes) -> None:
+        stamp = None
         try:
             values = self.preview_layout.read(data)
             if values is None:
                 msg = _read_preview(data)
-                header = msg.header
-                values = (header.stamp.sec, header.stamp.nanosec, *preview_point_values(msg, self.control.horizon))
-            positions, velocities, accelerations = preview_of_values(values[2:], self.theta)
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                values = (msg.header.stamp.sec, msg.header.stamp.nanosec,
+                          *preview_point_values(msg, self.control.horizon))
+            stamp = values[0] * 1_000_000_000 + values[1]
+            latest = self.latest_preview
+            if not self.lockstep:  # lockstep: the trajectory resends previews on purpose, keyed by stamp
+                problem = stamp_problem(stamp, None if latest is None else latest[0], self._now_ns(),
+                                        self.reference_timeout_ns, self.future_ns)
+                if problem in ("duplicate", "old"):
+                    self._drop(stamp, "reference_preview", problem)
+                    return
+                if problem is not None:
+                    raise InputRejected(f"stamp {stamp} ns is {problem}", problem)
+            arrays = preview_of_values(values[2:], self.theta, *self.tolerances)
         except (MalformedMessage, InputRejected) as exc:
-            self.rejected += 1
-            self.get_logger().warn(f"rejected reference_preview: {exc}", throttle_duration_sec=1.0)
+            self._refuse_preview(stamp, getattr(exc, "reason", "malformed"), str(exc))
             return
         self.preview_time = monotonic()
-        stamp = values[0] * 1_000_000_000 + values[1]
+        if latest is None or stamp > latest[0]:
+            jump = reference_jump(latest, stamp, arrays[0][0], *self.jump_limits)
+            if jump is not None and latest is not None:
+                self.blend.jump_ns = stamp
+                self.get_logger().warn(f"{jump}: bumpless restart", throttle_duration_sec=1.0)
+            self.latest_preview = (stamp, *arrays)
         if not self.lockstep:
-            self.latest_preview = (stamp, positions, velocities, accelerations)
             return
-        self.previews[stamp] = positions
+        self.previews[stamp] = arrays
         if self.pending is not None and self.pending[0] == stamp:
             odom_stamp, X = self.pending
             self.pending = None
-            self._control(odom_stamp, X, positions, stamp)
+            self._control(odom_stamp, X, *arrays, stamp)
+
+    def _refuse_preview(self, stamp: int | None, reason: str, message: str) -> None:
+        """Realtime: zero volts now. Lockstep: the tick of that stamp gets zero volts (a preview of unknown
+        stamp is only counted: it belongs to no tick)."""
+        if not self.lockstep:
+            self._reject(stamp, "reference_preview", reason, message)
+            return
+        self.counters.refuse(reason)
+        self.get_logger().warn(f"refused reference_preview: {message}", throttle_duration_sec=1.0)
+        if stamp is None:
+            return
+        self.previews[stamp] = InputRejected(message, reason)
+        if self.pending is not None and self.pending[0] == stamp:
+            self.pending = None
+            self._reject(stamp, "odom", f"preview_{reason}", f"the preview of this tick was refused: {message}")
 
     def _on_odom(self, data: bytes) -> None:
         try:
@@ -191,38 +258,51 @@ class ControllerNode(Node):
             if values is None:
                 values = odometry_values(_read_odom(data))
         except MalformedMessage as exc:
-            self.rejected += 1
-            self.get_logger().warn(f"rejected malformed odom: {exc!r}", throttle_duration_sec=1.0)
+            self._reject(None, "odom", "malformed", repr(exc))
             return
         stamp = values[0] * 1_000_000_000 + values[1]
+        problem = stamp_problem(stamp, self.last_odom_ns, self._now_ns(), self.odom_timeout_ns, self.future_ns)
+        if problem is not None:
+            if problem == "duplicate" and self.lockstep:
+                self._deliver_answer()  # the plant resent a tick: answer again only if undelivered
+            if problem in ("duplicate", "old"):
+                self._drop(stamp, "odom", problem)
+            else:
+                self._reject(stamp, "odom", problem, f"stamp {stamp} ns is {problem}")
+            return
         try:
-            X = state_of_odometry(values[2:], self.theta)
+            X = state_of_odometry(values[2:], self.theta, *self.tolerances)
         except InputRejected as exc:
-            self._reject(stamp, str(exc))
+            self._reject(stamp, "odom", exc.reason, str(exc))
             return
         self.odom_time = monotonic()
-        if self.answered is not None and self.answered[0] == stamp and self.lockstep:
-            self._deliver_answer()
-            return
         self.theta = X[4]
         if self.lockstep:
             for old in [s for s in self.previews if s < stamp]:
                 del self.previews[old]
-            positions, preview_stamp = self.previews.get(stamp), stamp
-            if positions is None:
+            arrays = self.previews.get(stamp)
+            if arrays is None:
+                if self.pending is None or self.pending[0] != stamp:
+                    self.pending_since = self.odom_time
                 self.pending = (stamp, X)
                 return
-        else:
-            if self.latest_preview is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
-                return  # stale reference: the watchdog outputs zero volts
-            preview_stamp, positions, velocities, accelerations = self.latest_preview
-            positions = shift_preview(positions, velocities, accelerations, (stamp - preview_stamp) * 1e-9)
-        self._control(stamp, X, positions, preview_stamp)
+            if isinstance(arrays, InputRejected):
+                self._reject(stamp, "odom", f"preview_{arrays.reason}", f"the preview of this tick was refused: "
+                             f"{arrays}")
+                return
+            self._control(stamp, X, *arrays, stamp)
+            return
+        if self.latest_preview is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
+            return  # stale reference: the watchdog outputs zero volts
+        preview_stamp, positions, velocities, accelerations = self.latest_preview
+        dt = (stamp - preview_stamp) * 1e-9
+        self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt), velocities + dt * accelerations,
+                      accelerations, preview_stamp)
 
     def _deliver_answer(self) -> None:
         """Lockstep: publish the last answer again if it went out before any subscription matched."""
         if self.answered is not None and not self.answered[1] and self.voltage_pub.get_subscription_count() > 0:
-            self.voltage_pub.publish(self.voltage_cdr.pack(*self.answered[2]))
+            self._send(self.answered[2])
             self.answered = (self.answered[0], True, self.answered[2])
 
     def _on_voltage_matched(self, info: QoSPublisherMatchedInfo) -> None:
@@ -230,60 +310,109 @@ class ControllerNode(Node):
             self._deliver_answer()
 
     # control ------------------------------------------------------------------------------------
-    def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray, preview_stamp: int) -> None:
-        """One step on the odometry of `stamp` and the preview of `preview_stamp` (its `positions`, moved to `stamp`)."""
-        try:
-            out = self.controller.step(X, positions[1:])
-        except ControllerInputError as exc:
-            self._reject(stamp, str(exc))
-            return
-        compute_s = out.compute_time_s
-        voltages = [float(v) for v in out.voltages]
-        delivered = self.voltage_pub.get_subscription_count() > 0
-        self.voltage_pub.publish(self.voltage_cdr.pack(*voltages))
-        self.answered = (stamp, delivered, voltages)
-        error = X[[0, 2, 4]] - positions[0]
-        flags = (bool(out.saturated), bool(out.infeasible))
-        level = DiagnosticStatus.WARN if any(flags) else DiagnosticStatus.OK
-        self._diagnose(stamp, level, "tracking", error, compute_s, flags, preview_stamp)
+    def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
+                 accelerations: np.ndarray, preview_stamp: int) -> None:
+        """One step on the odometry of `stamp` and the preview of `preview_stamp` (moved to `stamp`).
 
-    def _diagnose(self, stamp: int, level, message: str, error, compute_s, flags, preview_stamp=None) -> None:
-        """Publish the status (if a subscription is matched); `error` None: only the watchdog state and rejections."""
+        `positions`, `velocities`, `accelerations` are the reference at `stamp` + j Ts, j = 0..N.
+        """
+        reason = self.blend.due(preview_stamp)
+        if reason == "start" and self.lockstep and stamp == 0:
+            self.blend.reason = reason = None  # t = 0 of a lockstep run: robot and reference start together
+        if reason is not None:
+            self._engage(stamp, X, positions[0], velocities[0], accelerations[0], reason)
+            dt_s = None  # the controller starts over
+        else:
+            dt_ns = stamp - self.last_odom_ns
+            dt_s = None if dt_ns == self.period_ns else dt_ns * 1e-9  # None: one period, exactly
+        preview = positions[1:]
+        offsets = self.blend.offsets(stamp)
+        if offsets is not None:
+            preview = preview + offsets
+        try:
+            out = self.controller.step(X, preview, dt_s)
+        except ControllerInputError as exc:
+            self._reject(stamp, "input", "controller", str(exc))
+            return
+        self.last_odom_ns = stamp
+        voltages = list(out.voltages)
+        delivered = self.voltage_pub.get_subscription_count() > 0
+        self._send(voltages)
+        self.answered = (stamp, delivered, voltages)
         if not self.diag_pub.get_subscription_count():
             return  # building and serializing the array costs ~70 us a tick
-        msg = self.diag_tracking if error is not None else self.diag_event
+        error = X[0::2] - positions[0]
+        flags = (out.saturated, out.infeasible)
+        level = DiagnosticStatus.WARN if any(flags) else DiagnosticStatus.OK
+        tracking = [f"{e:.9g}" for e in error.tolist()] + [
+            f"{out.compute_time_s * 1e3:.4f}", str(flags[0]).lower(), str(flags[1]).lower(), str(preview_stamp),
+            f"{self.control.period_s if dt_s is None else dt_s:.9g}"]
+        self._diagnose(stamp, level, "tracking", tracking)
+
+    def _engage(self, stamp: int, X: np.ndarray, position: np.ndarray, velocity: np.ndarray,
+                acceleration: np.ndarray, reason: str) -> None:
+        """Bumpless (re)start: reset the controller and blend the reference in from the measured state."""
+        self.controller.reset()
+        blend = self.blend.engage(stamp, X, position, velocity, acceleration, *self.blend_limits)
+        if self.blend.blend is not None:
+            limited = " (limit raised: the reference's own acceleration needs more)" if blend.limited else ""
+            self.get_logger().info(
+                f"bumpless restart ({reason}) at stamp {stamp} ns: offset {np.round(blend.dp, 6).tolist()}, "
+                f"rate {np.round(blend.dv, 6).tolist()}, blended in over {blend.duration_s:.3f} s{limited}")
+
+    def _diagnose(self, stamp: int | None, level, message: str, tracking: list[str] | None = None) -> None:
+        """Publish the status (if a subscription is matched); without `tracking` only the event values."""
+        if not self.diag_pub.get_subscription_count():
+            return
+        if stamp is None:
+            stamp = self.get_clock().now().nanoseconds
+        msg = self.diag_tracking if tracking is not None else self.diag_event
         status = msg.status[0]
         status.level, status.message = level, message
-        text = []
-        if error is not None:
-            text += [f"{e:.9g}" for e in error]
-            text += [f"{compute_s * 1e3:.4f}", str(flags[0]).lower(), str(flags[1]).lower(), str(preview_stamp)]
-        text += [self.watchdog_state, str(self.rejected)]
+        text = (tracking or []) + [self.watchdog_state, *self.counters.values(),
+                                   f"{self.blend.remaining_s(stamp):.4f}", str(self.blend.engagements)]
         for pair, value in zip(status.values, text):
             pair.value = value
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-        self.diag_pub.publish(msg)
+        publish_acknowledged(self, self.diag_pub, msg)
 
     # watchdog -----------------------------------------------------------------------------------
-    def _check_watchdog(self) -> None:
-        if self.odom_time is None or self.preview_time is None:
+    def _log_wait(self, now: float) -> None:
+        """Say what the controller waits for when it has heard nothing for a timeout (throttled)."""
+        if self.pending is not None and now - self.pending_since > self.params["reference_timeout_s"]:
+            what = (f"the odometry of stamp {self.pending[0]} ns waits {now - self.pending_since:.1f} s for the "
+                    f"reference_preview of that stamp on {self.preview_sub.topic_name} "
+                    f"({self.count_publishers(self.preview_sub.topic_name)} publishers)")
+        elif now - (self.odom_time or self.start_time) > self.params["odom_timeout_s"]:
+            heard = "since the start" if self.odom_time is None else "since the last one"
+            what = (f"no odometry on {self.odom_sub.topic_name} for {now - (self.odom_time or self.start_time):.1f} s "
+                    f"{heard} ({self.count_publishers(self.odom_sub.topic_name)} publishers)")
+        elif self.preview_time is None and now - self.start_time > self.params["reference_timeout_s"]:
+            what = (f"no reference_preview on {self.preview_sub.topic_name} yet "
+                    f"({self.count_publishers(self.preview_sub.topic_name)} publishers)")
+        else:
             return
+        self.get_logger().info(f"waiting: {what}", throttle_duration_sec=_WAIT_LOG_PERIOD_S)
+
+    def _check_watchdog(self) -> None:
         now = monotonic()
+        if self.odom_time is None or self.preview_time is None or self.lockstep:
+            self._log_wait(now)  # lockstep: the plant holds the time; only say what is missing
+            if self.odom_time is None or self.preview_time is None:
+                return
         if now - self.odom_time > self.params["odom_timeout_s"]:
             state = "stale_odom"
         elif now - self.preview_time > self.params["reference_timeout_s"]:
             state = "stale_reference"
         else:
             state = "ok"
-        previous, self.watchdog_state = self.watchdog_state, state
-        if state == "ok" or self.lockstep:  # lockstep: the plant holds the time; report only
+        self.watchdog_state = state
+        if state == "ok" or self.lockstep:
             return
-        if previous == "ok":
-            self.controller.reset()  # u(k-1) of the Delta-u form is stale when data return
+        self.blend.request("watchdog")  # data that return restart the tracking bumplessly
         self.get_logger().warn(f"watchdog: {state.replace('_', ' ')}; zero volts", throttle_duration_sec=1.0)
-        self.voltage_pub.publish(self.voltage_cdr.pack(0.0, 0.0, 0.0))
-        self._diagnose(self.get_clock().now().nanoseconds, DiagnosticStatus.WARN, f"watchdog: {state}", None, None,
-                       None)
+        self._send(_ZERO)
+        self._diagnose(None, DiagnosticStatus.WARN, f"watchdog: {state}")
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,7 +1,11 @@
 """Values of decoded odometry and preview messages, as the controller and `regress` read them (no rclpy needed).
 
 The functions take any object with the messages' field names: rclpy's
-message classes, rosbags' or mcap-ros2-support's decoded messages.
+message classes, rosbags' or mcap-ros2-support's decoded messages. The
+checks the controller node makes on each input are here too, as plain
+float operations on the values already read (`check_yaw_quaternion`,
+`stamp_problem`); a refused input raises `InputRejected`, whose `reason`
+is a short key the node counts and reports.
 """
 
 from __future__ import annotations
@@ -14,8 +18,9 @@ from robotino_geom_mpc.core.controller import odometry_state_floats
 from robotino_geom_mpc.core.errors import RobotinoError
 
 __all__ = [
-    "InputRejected", "ODOM_FIELDS", "POINT_FIELDS", "STAMP_FIELDS", "odometry_state", "odometry_values",
-    "preview_arrays", "preview_of_values", "preview_point_values", "state_of_odometry", "unwrap_near", "yaw_of",
+    "InputRejected", "ODOM_FIELDS", "POINT_FIELDS", "QUATERNION_NORM_TOLERANCE", "STAMP_FIELDS", "TILT_TOLERANCE_RAD",
+    "check_yaw_quaternion", "odometry_state", "odometry_values", "preview_arrays", "preview_of_values",
+    "preview_point_values", "stamp_problem", "state_of_odometry", "unwrap_near", "yaw_of",
 ]
 
 STAMP_FIELDS = ("header.stamp.sec", "header.stamp.nanosec")
@@ -28,10 +33,82 @@ POINT_FIELDS = tuple(f"transforms[0].{f}" for f in (
     "translation.x", "translation.y", "rotation.x", "rotation.y", "rotation.z", "rotation.w")) + tuple(
     f"{kind}[0].{f}" for kind in ("velocities", "accelerations") for f in ("linear.x", "linear.y", "angular.z"))
 _POINT_SIZE = len(POINT_FIELDS)
+# defaults of the controller's quaternion checks (its parameters quaternion_norm_tolerance, tilt_tolerance_rad)
+QUATERNION_NORM_TOLERANCE = 1e-3  # relative: | |q| - 1 | above this is refused
+TILT_TOLERANCE_RAD = 0.05  # roll/pitch: the body z axis tilted more than this from the odom z axis is refused
 
 
 class InputRejected(RobotinoError, ValueError):
-    """An odometry or preview message with non-finite values or the wrong size."""
+    """An odometry or preview message that is refused: non-finite values, wrong size, a quaternion that is not a yaw.
+
+    Attributes
+    ----------
+    reason
+        Short key of the refusal (``non_finite``, ``size``, ``quaternion_norm``, ``quaternion_tilt``, ...).
+    """
+
+    def __init__(self, message: str, reason: str = "invalid") -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+def check_yaw_quaternion(qx: float, qy: float, qz: float, qw: float, what: str,
+                         norm_tolerance: float = QUATERNION_NORM_TOLERANCE,
+                         tilt_tolerance_rad: float = TILT_TOLERANCE_RAD) -> None:
+    """Refuse a quaternion that is not a unit rotation about z (the planar robot's heading, REP-103).
+
+    The norm must be within `norm_tolerance` of 1 (relative): the all-zero
+    quaternion is no rotation, and (0, 0, 0.5, 0.5) is not pi/4 about z but no
+    rotation at all. The rotation may tilt the body's z axis by at most
+    `tilt_tolerance_rad` (roll/pitch): the tilt t has cos t = 1 - 2 (q_x^2 + q_y^2) / |q|^2,
+    so the test is (q_x^2 + q_y^2) / |q|^2 <= sin^2(t_max / 2).
+
+    Raises
+    ------
+    InputRejected
+        With reason ``quaternion_norm`` or ``quaternion_tilt``; `what` names the input in the message.
+    """
+    xy = qx * qx + qy * qy
+    norm2 = xy + qz * qz + qw * qw
+    if not abs(math.sqrt(norm2) - 1.0) <= norm_tolerance:
+        raise InputRejected(f"{what} quaternion ({qx:g}, {qy:g}, {qz:g}, {qw:g}) has norm {math.sqrt(norm2):.6g}, "
+                            f"not 1 within {norm_tolerance:g}", "quaternion_norm")
+    half = math.sin(0.5 * tilt_tolerance_rad)
+    if xy > half * half * norm2:
+        tilt = math.acos(max(-1.0, 1.0 - 2.0 * xy / norm2))
+        raise InputRejected(f"{what} quaternion ({qx:g}, {qy:g}, {qz:g}, {qw:g}) tilts the robot by {tilt:.4g} rad "
+                            f"(roll/pitch), more than {tilt_tolerance_rad:g}", "quaternion_tilt")
+
+
+def stamp_problem(stamp_ns: int, last_ns: int | None, now_ns: int | None, timeout_ns: int,
+                  future_ns: int) -> str | None:
+    """What is wrong with an input's stamp, as a reason key, or None.
+
+    Parameters
+    ----------
+    stamp_ns
+        The input's header stamp.
+    last_ns
+        The stamp of the last input of this kind that was used (None: none yet).
+    now_ns
+        The receiver's clock (None: not comparable, e.g. lockstep, where stamps are simulated time).
+    timeout_ns, future_ns
+        How old, and how far ahead of `now_ns`, a stamp may be.
+
+    Returns
+    -------
+    ``"future"`` (ahead of now by more than `future_ns`) or ``"stale"`` (older than `timeout_ns`):
+    the input is refused; ``"duplicate"`` (the stamp of the last used one) or ``"old"`` (older than it,
+    e.g. a message that arrived late, or a clock that went back): the input is dropped; None: fine.
+    """
+    if now_ns is not None:
+        if stamp_ns - now_ns > future_ns:
+            return "future"
+        if now_ns - stamp_ns > timeout_ns:
+            return "stale"
+    if last_ns is not None and stamp_ns <= last_ns:
+        return "duplicate" if stamp_ns == last_ns else "old"
+    return None
 
 
 def yaw_of(x: float, y: float, z: float, w: float) -> float:
@@ -51,7 +128,8 @@ def odometry_values(msg) -> tuple:
             tw.linear.x, tw.linear.y, tw.angular.z)
 
 
-def state_of_odometry(values: tuple, previous_theta: float) -> np.ndarray:
+def state_of_odometry(values: tuple, previous_theta: float, norm_tolerance: float = QUATERNION_NORM_TOLERANCE,
+                      tilt_tolerance_rad: float = TILT_TOLERANCE_RAD) -> np.ndarray:
     """Body state X = (x, x', y, y', theta, theta') (eq. 2) of `odometry_values` (without the stamp).
 
     theta is unwrapped next to `previous_theta`; the base_link twist is
@@ -60,18 +138,21 @@ def state_of_odometry(values: tuple, previous_theta: float) -> np.ndarray:
     Raises
     ------
     InputRejected
-        If any value is not finite.
+        If any value is not finite (reason ``non_finite``), or the orientation is not a yaw
+        (`check_yaw_quaternion` with the tolerances).
     """
     x, y, qx, qy, qz, qw, vx, vy, omega = values
     if not math.isfinite(sum(values)):
-        raise InputRejected("odom contains non-finite values")
+        raise InputRejected("odom contains non-finite values", "non_finite")
+    check_yaw_quaternion(qx, qy, qz, qw, "odom", norm_tolerance, tilt_tolerance_rad)
     theta = unwrap_near(yaw_of(qx, qy, qz, qw), previous_theta)
     return np.array(odometry_state_floats((x, y, theta), (vx, vy, omega)))
 
 
-def odometry_state(msg, previous_theta: float) -> np.ndarray:
+def odometry_state(msg, previous_theta: float, norm_tolerance: float = QUATERNION_NORM_TOLERANCE,
+                   tilt_tolerance_rad: float = TILT_TOLERANCE_RAD) -> np.ndarray:
     """`state_of_odometry` of a decoded odometry message."""
-    return state_of_odometry(odometry_values(msg)[2:], previous_theta)
+    return state_of_odometry(odometry_values(msg)[2:], previous_theta, norm_tolerance, tilt_tolerance_rad)
 
 
 def preview_point_values(msg, horizon: int) -> tuple:
@@ -86,13 +167,13 @@ def preview_point_values(msg, horizon: int) -> tuple:
         acceleration) each.
     """
     if len(msg.points) != horizon + 1:
-        raise InputRejected(f"reference_preview has {len(msg.points)} points, need N + 1 = {horizon + 1}")
+        raise InputRejected(f"reference_preview has {len(msg.points)} points, need N + 1 = {horizon + 1}", "size")
     out = []
     for j, point in enumerate(msg.points):
         if len(point.transforms) != 1 or len(point.velocities) > 1 or len(point.accelerations) > 1:
             raise InputRejected(f"reference_preview point {j} has {len(point.transforms)} transforms, "
                                 f"{len(point.velocities)} velocities, {len(point.accelerations)} accelerations; "
-                                "need 1, at most 1, at most 1")
+                                "need 1, at most 1, at most 1", "size")
         tr, q = point.transforms[0].translation, point.transforms[0].rotation
         out += (tr.x, tr.y, q.x, q.y, q.z, q.w)
         for twists in (point.velocities, point.accelerations):
@@ -100,7 +181,8 @@ def preview_point_values(msg, horizon: int) -> tuple:
     return tuple(out)
 
 
-def preview_of_values(values: tuple, theta_near: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def preview_of_values(values: tuple, theta_near: float, norm_tolerance: float = QUATERNION_NORM_TOLERANCE,
+                      tilt_tolerance_rad: float = TILT_TOLERANCE_RAD) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Positions (x, y, theta), velocities and accelerations of `preview_point_values`, each (N + 1, 3).
 
     Theta is unwrapped from `theta_near`.
@@ -108,11 +190,21 @@ def preview_of_values(values: tuple, theta_near: float) -> tuple[np.ndarray, np.
     Raises
     ------
     InputRejected
-        If a value is not finite.
+        If a value is not finite (reason ``non_finite``) or a point's rotation is not a yaw
+        (`check_yaw_quaternion` with the tolerances, on every point).
     """
     if not math.isfinite(sum(values)):
-        raise InputRejected("reference_preview contains non-finite values")
+        raise InputRejected("reference_preview contains non-finite values", "non_finite")
     points = np.array(values, dtype=float).reshape(-1, _POINT_SIZE)
+    quaternions = points[:, 2:6]
+    squares = quaternions * quaternions
+    norm2 = squares.sum(axis=1)
+    half = math.sin(0.5 * tilt_tolerance_rad)
+    bad = (np.abs(np.sqrt(norm2) - 1.0) > norm_tolerance) | (squares[:, 0] + squares[:, 1] > half * half * norm2)
+    if bad.any():  # the vectorised test found one: name it with the scalar check
+        j = int(np.argmax(bad))
+        check_yaw_quaternion(*quaternions[j].tolist(), f"reference_preview point {j}", norm_tolerance,
+                             tilt_tolerance_rad)
     positions = np.empty((len(points), 3))
     theta = theta_near
     for j, (x, y, qx, qy, qz, qw) in enumerate(points[:, :6].tolist()):
@@ -121,12 +213,14 @@ def preview_of_values(values: tuple, theta_near: float) -> tuple[np.ndarray, np.
     return positions, points[:, 6:9], points[:, 9:12]
 
 
-def preview_arrays(msg, horizon: int, theta_near: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def preview_arrays(msg, horizon: int, theta_near: float, norm_tolerance: float = QUATERNION_NORM_TOLERANCE,
+                   tilt_tolerance_rad: float = TILT_TOLERANCE_RAD) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`preview_of_values` of a decoded preview (N + 1 points).
 
     Raises
     ------
     InputRejected
-        If the message does not have the points `preview_point_values` needs, or holds non-finite values.
+        If the message does not have the points `preview_point_values` needs, holds non-finite values
+        or a rotation that is not a yaw.
     """
-    return preview_of_values(preview_point_values(msg, horizon), theta_near)
+    return preview_of_values(preview_point_values(msg, horizon), theta_near, norm_tolerance, tilt_tolerance_rad)

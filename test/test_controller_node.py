@@ -239,18 +239,24 @@ def test_realtime_watchdog_outputs_zero_volts_on_stale_odometry(harness, tmp_pat
                             and preview_pub.get_subscription_count() >= 1
                             and h.node.count_publishers("/rt/wheel_voltages") >= 1, 30.0), node.stderr_tail()
         h.spin_for(0.2)
-        for k in range(5):
+
+        def tracking():
+            return sum(values(d)[0].message == "tracking" for d in diagnostics)
+
+        k = 0
+        while tracking() < 5 and k < 200:  # the first messages can arrive late (discovery): refused as stale
             stamp = h.node.get_clock().now().nanoseconds
             preview_pub.publish(stamped_preview(reference, k * round(control.period_s * 1e9), stamp, control))
-            odom_pub.publish(odometry(stamp, 0.0, 0.0, 0.0))
+            odom_pub.publish(odometry(stamp, 0.001, 0.0, 0.0))
             h.spin_for(0.03)
-        assert h.spin_until(lambda: len(voltages) >= 4), node.stderr_tail()
+            k += 1
+        assert tracking() >= 5, node.stderr_tail()
+        count = len(voltages)
         h.spin_for(1.0)  # nothing arrives: stale after 0.2 s
         data = [list(m.data) for m in voltages]
-        answers = [i for i, d in enumerate(data) if d != [0.0, 0.0, 0.0]]
-        assert answers and len(answers) <= 5  # one answer per odometry message at most
-        zeros = data[answers[-1] + 1 :]  # then only the watchdog's zero volts
-        assert zeros and all(d == [0.0, 0.0, 0.0] for d in zeros)
+        assert data[count - 1] != [0.0, 0.0, 0.0]  # the last answer
+        zeros = data[count:]  # then only the watchdog's zero volts
+        assert len(zeros) >= 2 and all(d == [0.0, 0.0, 0.0] for d in zeros)
         states = [values(d)[1]["watchdog"] for d in diagnostics]
         assert "stale_odom" in states
 
@@ -283,18 +289,22 @@ def test_realtime_moves_the_freshest_preview_to_the_odometry_stamp(harness, tmp_
                             and preview_pub.get_subscription_count() >= 1
                             and h.node.count_publishers("/shift/wheel_voltages") >= 1, 30.0), node.stderr_tail()
         h.spin_for(0.2)
-        base = h.node.get_clock().now().nanoseconds - first_t  # stamp = base + reference time
-        preview_pub.publish(stamped_preview(reference, first_t, base + first_t, control))
-        h.spin_for(0.05)
-        first_odom.header.stamp = ns_to_stamp(base + first_t)
-        odom_pub.publish(first_odom)
-        assert h.spin_until(lambda: voltages and diagnostics), node.stderr_tail()
+        for _ in range(10):  # the first messages can arrive late (discovery): refused as stale, then sent again
+            base = h.node.get_clock().now().nanoseconds - first_t  # stamp = base + reference time
+            preview_pub.publish(stamped_preview(reference, first_t, base + first_t, control))
+            h.spin_for(0.05)
+            first_odom.header.stamp = ns_to_stamp(base + first_t)
+            odom_pub.publish(first_odom)
+            if h.spin_until(lambda: any(values(d)[0].message == "tracking" for d in diagnostics), 1.0):
+                break
+        voltages.clear()
+        diagnostics.clear()
         h.spin_until(lambda: h.node.get_clock().now().nanoseconds > base + preview_t, 2.0)
         preview_pub.publish(stamped_preview(reference, preview_t, base + preview_t, control))
         h.spin_for(0.05)
         second_odom.header.stamp = ns_to_stamp(base + t)
         odom_pub.publish(second_odom)
-        assert h.spin_until(lambda: len(voltages) >= 2 and len(diagnostics) >= 2), node.stderr_tail()
+        assert h.spin_until(lambda: voltages and diagnostics), node.stderr_tail()
     blend = start_blend(reference, X1, first_t * 1e-9, control, limits)
     assert blend.duration_s < 0.3  # over at the second tick
 
@@ -305,10 +315,10 @@ def test_realtime_moves_the_freshest_preview_to_the_odometry_stamp(harness, tmp_
                          (t - first_t) * 1e-9).voltages
 
     exact, unmoved = second_tick(t), second_tick(preview_t)
-    got = np.array(voltages[1].data)
+    got = np.array(voltages[0].data)
     assert np.max(np.abs(got - exact)) < 1e-3
     assert np.max(np.abs(got - unmoved)) > 100 * np.max(np.abs(got - exact))
-    _, kv = values(diagnostics[1])
+    _, kv = values(diagnostics[0])
     assert float(kv["error_x_m"]) == pytest.approx(0.001, abs=1e-7)  # against x_d at the odometry stamp
     assert abs(float(kv["error_y_m"])) < 1e-7
     assert float(kv["dt_s"]) == pytest.approx((t - first_t) * 1e-9, abs=1e-12)
@@ -419,8 +429,12 @@ def test_realtime_stamps_are_checked_against_the_node_clock(harness, tmp_path_fa
                             and preview_pub.get_subscription_count() >= 1
                             and h.node.count_publishers("/stamps/wheel_voltages") >= 1, 30.0), node.stderr_tail()
         h.spin_for(0.3)
-        ok_v, ok_d = send(lambda t: t)
+        for _ in range(10):  # the first messages can arrive late (discovery): refused as stale, then sent again
+            ok_v, ok_d = send(lambda t: t)
+            if ok_d and ok_d[0][0].message == "tracking":
+                break
         assert len(ok_v) == 1 and ok_v[0] != [0.0] * 3 and ok_d[0][0].message == "tracking", (ok_v, ok_d)
+        refused = int(ok_d[0][1]["rejected"])
         for name, shifted, reason in (("an hour old", lambda t: t - hour, "stale"), ("zero", lambda t: 0, "stale"),
                                       ("1 s ahead", lambda t: t + 10**9, "future")):
             got_v, got_d = send(shifted)
@@ -428,8 +442,7 @@ def test_realtime_stamps_are_checked_against_the_node_clock(harness, tmp_path_fa
             (status, kv), = got_d
             assert status.level == DiagnosticStatus.ERROR and reason in status.message, name
             assert kv["last_refusal"] == reason, name
-        assert int(kv["rejected"]) == 3
-        last_used = [int(values(d)[1]["preview_stamp_ns"]) for d in diagnostics if values(d)[0].message == "tracking"]
+        assert int(kv["rejected"]) == refused + 3
         ok_v, _ = send(lambda t: t)  # a valid tick, then one 5 ms older than it: dropped, no answer
         assert len(ok_v) == 1 and ok_v[0] != [0.0] * 3
         newest = now()
@@ -442,7 +455,6 @@ def test_realtime_stamps_are_checked_against_the_node_clock(harness, tmp_path_fa
         assert h.spin_until(lambda: any(values(d)[0].message == "dropped odom (old)" for d in diagnostics[d0:]), 2.0)
         assert len(voltages) == v0 + 1  # only the answer to the newest tick
         status, kv = [values(d) for d in diagnostics[d0:] if values(d)[0].message == "dropped odom (old)"][0]
-        assert status.level == DiagnosticStatus.WARN and kv["dropped_old"] == "1" and kv["rejected"] == "3"
+        assert status.level == DiagnosticStatus.WARN and kv["dropped_old"] == "1"
         assert h.spin_until(lambda: len(voltages) > v0 + 1, 3.0)  # nothing valid within 1 s: the watchdog
         assert list(voltages[v0 + 1].data) == [0.0] * 3
-        assert last_used

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
 import yaml
+
+from robotino_geom_mpc.core.errors import RobotinoError
 
 __all__ = [
     "ParamSpec",
@@ -26,6 +29,7 @@ __all__ = [
     "config_file",
     "default_params_file",
     "preset_file",
+    "parse_parameter_file",
     "read_parameter_file",
     "load_params",
     "params_from_values",
@@ -33,7 +37,7 @@ __all__ = [
 ]
 
 
-class ParamError(ValueError):
+class ParamError(RobotinoError, ValueError):
     """A parameter file or value that is missing, mistyped or out of range."""
 
 
@@ -282,6 +286,15 @@ def default_params_file() -> Path:
     return preset_file("robotino3")
 
 
+class _RclLoader(yaml.SafeLoader):
+    """YAML as rcl reads parameter files: ``1e6`` and ``-2.5E-3`` are numbers (YAML 1.1 wants a dot)."""
+
+
+_RclLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9][0-9_]*)?\.?[0-9]*[eE][-+]?[0-9]+$"), list("-+0123456789.")
+)
+
+
 def _flatten(tree: dict, prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in tree.items():
@@ -293,11 +306,23 @@ def _flatten(tree: dict, prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def read_parameter_file(path: str | os.PathLike, node: str | None = None) -> dict[str, Any]:
-    """Read a ROS 2 parameter file into flat dotted names.
+def _sections(path: Path, tree: dict, prefix: str = "") -> dict[str, dict[str, Any]]:
+    out: dict[str, dict[str, Any]] = {}
+    for key, body in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(body, dict) and "ros__parameters" in body and isinstance(body["ros__parameters"], dict):
+            out[name] = _flatten(body["ros__parameters"])
+        elif isinstance(body, dict) and body and "ros__parameters" not in body and all(
+            isinstance(v, dict) for v in body.values()
+        ):
+            out.update(_sections(path, body, name.rstrip("/") + "/"))  # a namespace level
+        else:
+            raise ParamError(f"{path}: section '{name}' must contain a 'ros__parameters' mapping")
+    return out
 
-    The `/**` section applies to every node; the section named `node` (if
-    given and present) overrides it, as rcl does.
+
+def parse_parameter_file(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
+    """Every section of a ROS 2 parameter file: node name (namespaces joined by '/') -> flat dotted values.
 
     Raises
     ------
@@ -311,21 +336,31 @@ def read_parameter_file(path: str | os.PathLike, node: str | None = None) -> dic
     except OSError as exc:
         raise ParamError(f"cannot read parameter file {path}: {exc.strerror or exc}") from None
     try:
-        doc = yaml.safe_load(text)
+        doc = yaml.load(text, Loader=_RclLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f" at line {mark.line + 1}" if mark is not None else ""
         raise ParamError(f"{path}{line}: not valid YAML") from None
     if not isinstance(doc, dict):
         raise ParamError(f"{path}: expected a mapping of node names to 'ros__parameters'")
+    return _sections(path, doc)
+
+
+def read_parameter_file(path: str | os.PathLike, node: str | None = None) -> dict[str, Any]:
+    """Read a ROS 2 parameter file into flat dotted names.
+
+    The `/**` section applies to every node; the section named `node` (if
+    given and present) overrides it, as rcl does.
+
+    Raises
+    ------
+    ParamError
+        As `parse_parameter_file`, or if neither section is there.
+    """
+    sections = parse_parameter_file(path)
     values: dict[str, Any] = {}
     for section in ("/**", node):
-        if section is None or section not in doc:
-            continue
-        body = doc[section]
-        if not isinstance(body, dict) or not isinstance(body.get("ros__parameters"), dict):
-            raise ParamError(f"{path}: section '{section}' must contain a 'ros__parameters' mapping")
-        values.update(_flatten(body["ros__parameters"]))
+        values.update(sections.get(section, {}) if section is not None else {})
     if not values:
         raise ParamError(f"{path}: no '/**' section with 'ros__parameters' found")
     return values
@@ -356,9 +391,13 @@ def load_params(
     Raises
     ------
     ParamError
-        A one-line message naming the key and the file.
+        A one-line message naming the key and the file; the file is checked
+        as a node checks it (`core.param_files.check_parameter_files`).
     """
+    from robotino_geom_mpc.core.param_files import check_parameter_files  # (it imports this module)
+
     path = Path(path) if path is not None else default_params_file()
+    check_parameter_files([path])
     values = read_parameter_file(path, node)
     where = str(path)
     return _build(RobotinoParams, ROBOT_SPECS, values, where), _build(ControlParams, CONTROL_SPECS, values, where)

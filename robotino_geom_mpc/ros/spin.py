@@ -1,11 +1,9 @@
-"""The main loop every node runs: rclpy init, the events executor, quiet exits on signals and start errors."""
+"""The main loop every node runs: parameter files checked, rclpy init, the events executor, quiet exits on signals."""
 
 from __future__ import annotations
 
 import gc
-import signal
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -13,54 +11,107 @@ from pathlib import Path
 import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
+from robotino_geom_mpc.core.param_files import check_parameter_files
+from robotino_geom_mpc.core.params import ParamError
 from robotino_geom_mpc.ros.parameters import NodeStartError
+from robotino_geom_mpc.ros.signals import STOP, ignore_stop_signals, stop_on_signals
 
-__all__ = ["monotonic", "run_node"]
+__all__ = ["monotonic", "params_files", "run_node", "start_rclpy"]
+
+
+def params_files(argv: list[str]) -> list[str]:
+    """The ``--params-file`` arguments of the ``--ros-args`` parts of `argv`, in order (as rcl reads them)."""
+    files, ros, i = [], False, 0
+    while i < len(argv):
+        if argv[i] == "--ros-args":
+            ros = True
+        elif argv[i] == "--":
+            ros = False
+        elif ros and argv[i] == "--params-file" and i + 1 < len(argv):
+            i += 1
+            files.append(argv[i])
+        i += 1
+    return files
+
+
+def start_rclpy(args: list[str] | None = None) -> int | None:
+    """What every node process does before its node: SIGINT/SIGTERM set `STOP`, parameter files checked, `rclpy.init`.
+
+    Returns None to go on, or the exit status to end with: 0 when a signal
+    came already, 2 when a ``--params-file`` fails
+    `core.param_files.check_parameter_files` (checked before rcl reads it,
+    whose YAML errors would be a traceback) or rcl refuses the arguments,
+    after one line on stderr naming the file and the key.
+    """
+    from rclpy.signals import SignalHandlerOptions
+
+    stop = stop_on_signals()
+    try:
+        check_parameter_files(params_files(sys.argv if args is None else args))
+        if not stop.is_set():
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+            return None
+    except (ParamError, _rclpy.RCLError, _rclpy.RCLInvalidROSArgsError, _rclpy.UnknownROSArgsError) as exc:
+        message = f"unknown ROS arguments {exc}" if isinstance(exc, _rclpy.UnknownROSArgsError) else str(exc)
+        print(f"{_prog()}: error: {(message or type(exc).__name__).splitlines()[0]}", file=sys.stderr)
+        ignore_stop_signals()
+        return 2
+    ignore_stop_signals()
+    return 0
+
+
+def _prog() -> str:
+    return Path(sys.argv[0]).name.removesuffix(".py")
 
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
-    """Init rclpy, build the node, spin it with the events executor, exit quietly on SIGINT/SIGTERM.
+    """Start (`start_rclpy`), build the node, spin it with the events executor until a signal; returns the status.
 
-    SIGINT and SIGTERM only set a flag the spin loop checks (at least every
-    0.1 s), so no callback is interrupted half-way and no traceback is
-    printed. Once the node is built, every object there is is moved out of
-    the garbage collector's reach (`gc.freeze`): a full collection of the
-    ~70 000 objects rclpy, numpy and scipy leave takes ~45 ms, long enough
-    to miss several control periods; what the loop allocates later is
-    still collected. A node that ends its own run sets a `Future` attribute ``done``
-    and may set ``exit_status``. A `NodeStartError` (bad parameter) is
-    reported in one line on stderr with exit status 2. Returns the exit status.
+    SIGINT and SIGTERM only set a flag (`ros.signals.STOP`; in a node process
+    from the package's first import on) that is checked before `rclpy.init`
+    and by the spin loop (at least every 0.1 s), so no import, callback or
+    construction is interrupted half-way; once the loop has ended they are
+    ignored, so a second signal during the shutdown cannot kill the process
+    either: exit status 0, no traceback. Once the node is built, every
+    object there is is moved out of the garbage collector's reach
+    (`gc.freeze`): a full collection of the ~70 000 objects rclpy, numpy and
+    scipy leave takes ~45 ms, long enough to miss several control periods;
+    what the loop allocates later is still collected. A node that ends its
+    own run sets a `Future` attribute ``done`` and may set ``exit_status``.
+    A bad parameter file (see `start_rclpy`) or a `NodeStartError` (bad
+    parameter) is reported in one line on stderr with exit status 2.
     """
     from rclpy.experimental import EventsExecutor
-    from rclpy.signals import SignalHandlerOptions
 
-    stop = threading.Event()
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    node = None
-    status = 0
+    status = start_rclpy(args)
+    if status is not None:
+        return status
+    node, status = None, 0
     try:
+        if STOP.is_set():  # a signal during rclpy.init
+            return 0
         node = factory()
         gc.collect()
         gc.freeze()
         executor = EventsExecutor()
         executor.add_node(node)
         done = getattr(node, "done", None)
-        while not stop.is_set() and rclpy.ok() and not (done is not None and done.done()):
+        while not STOP.is_set() and rclpy.ok() and not (done is not None and done.done()):
             executor.spin_once(timeout_sec=0.1)
         status = getattr(node, "exit_status", 0)
         if done is not None and done.done():  # a finished run: let the last samples reach every reader
             for pub in node.publishers:
                 pub.wait_for_all_acked(Duration(seconds=1.0))
     except NodeStartError as exc:
-        print(f"{Path(sys.argv[0]).name.removesuffix('.py')}: error: {exc}", file=sys.stderr)
+        print(f"{_prog()}: error: {exc}", file=sys.stderr)
         status = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        ignore_stop_signals()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -166,9 +166,9 @@ class MotionController:
             measurements' stamps), > 0; None means one period Ts. Any positive
             value is taken: a repeated measurement (dt ~ 1e-9 s) predicts no
             motion and re-solves the MPC from u(k-1) = the input just applied
-            (its increment shrinks by 1 - k_0 F_2p), a lost one (2 Ts) the
-            motion over both periods. Ignored by the first step after
-            construction or `reset`.
+            (its increment scaled by 1 - k_0 F_2p, 0.39 for the Robotino 3
+            preset), a lost one (2 Ts) the motion over both periods. Ignored
+            by the first step after construction or `reset`.
 
         Returns
         -------

@@ -101,10 +101,10 @@ def check_parameter_files(paths: Sequence[str | os.PathLike]) -> None:
                 if hint:
                     raise ParamError(f"section '{section}' in {path} names no node of robotino_geom_mpc{hint}")
                 continue
-            for name, value in values.items():
+            for name in values:
                 if not _known(name, nodes):
-                    names = {p for n in nodes for p in NODE_PARAMETERS[n]} | set(RCLPY_PARAMETERS)
-                    raise ParamError(f"unknown parameter '{name}' in {path} (section '{section}'){_suggestion(name, names)}")
+                    hint = _suggestion(name, {p for n in nodes for p in NODE_PARAMETERS[n]} | set(RCLPY_PARAMETERS))
+                    raise ParamError(f"unknown parameter '{name}' in {path} (section '{section}'){hint}")
             for spec in ALL_SPECS:
                 if spec.name in values:
                     validate_value(spec, values[spec.name], str(path))

@@ -137,7 +137,7 @@ def _ratio_check(values):
 
 @pytest.fixture
 def stand_in():
-    """A node in its own context declaring the robot/control parameters with `_ratio_check`."""
+    """Makes nodes in their own context declaring the robot/control parameters (with `_ratio_check` by default)."""
     import rclpy
     from rclpy.context import Context
     from rclpy.node import Node
@@ -150,13 +150,13 @@ def stand_in():
     nodes = []
     seen = []
 
-    def make(**overrides):
+    def make(check=_ratio_check, **overrides):
         from rclpy.parameter import Parameter
 
         node = Node("check_stand_in", context=context,
                     parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
         nodes.append(node)
-        params = SpecParameters(node, ALL_SPECS, spec_defaults(), seen.append, check=_ratio_check)
+        params = SpecParameters(node, ALL_SPECS, spec_defaults(), seen.append, check=check)
         return node, params
 
     yield make, seen
@@ -192,3 +192,13 @@ def test_check_refuses_the_start_values_with_node_start_error(stand_in):
     make, _ = stand_in
     with pytest.raises(NodeStartError, match=r"^q_x / r_x = 10 < 1e6$"):
         make(**{"control.q_x": 10.0, "control.r_x": 1.0})
+
+
+def test_a_check_that_raises_refuses_the_set_instead_of_crashing(stand_in):
+    from rclpy.parameter import Parameter
+
+    make, _ = stand_in
+    node, params = make(check=lambda values: 1.0 / (values["control.q_y"] - 5.0) and None)  # raises at q_y = 5
+    result = node.set_parameters([Parameter("control.q_y", value=5.0)])[0]
+    assert not result.successful and "ZeroDivisionError" in result.reason
+    assert params["control.q_y"] != 5.0

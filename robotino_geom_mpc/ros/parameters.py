@@ -114,7 +114,7 @@ class SpecParameters:
                 self.values[name] = validate_value(spec, param.value, "the node's parameters")
             except ParamError as exc:
                 raise NodeStartError(str(exc)) from None
-        reason = check(dict(self.values)) if check is not None else None
+        reason = self._checked(dict(self.values))
         if reason is not None:
             raise NodeStartError(reason)
         node.add_on_set_parameters_callback(self._validate)
@@ -122,6 +122,15 @@ class SpecParameters:
 
     def __getitem__(self, name: str) -> Any:
         return self.values[name]
+
+    def _checked(self, values: dict[str, Any]) -> str | None:
+        """The `check`'s reason to refuse `values`; a check that raises refuses them too (never a crash)."""
+        if self._check is None:
+            return None
+        try:
+            return self._check(values)
+        except Exception as exc:  # e.g. a LinAlgError of a stability check on extreme values
+            return f"the parameter check failed on these values: {type(exc).__name__}: {exc}"
 
     def _validate(self, params: list[Parameter]) -> SetParametersResult:
         candidate = dict(self.values)
@@ -137,7 +146,7 @@ class SpecParameters:
                 candidate[param.name] = validate_value(spec, param.value, "set request")
             except ParamError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
-        reason = self._check(candidate) if self._check is not None else None
+        reason = self._checked(candidate)
         return SetParametersResult(successful=reason is None, reason=reason or "")
 
     def _applied(self, params: list[Parameter]) -> None:

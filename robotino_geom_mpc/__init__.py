@@ -7,3 +7,7 @@ drive), `robotino_sim_node` (the plant), `nodes` (ROS 2 adapters),
 """
 
 __version__ = "0.1.0"
+
+from robotino_geom_mpc.ros.signals import stop_signals_early as _stop_signals_early
+
+_stop_signals_early()  # in a node process SIGINT/SIGTERM set a stop flag from here on (ros/signals.py)

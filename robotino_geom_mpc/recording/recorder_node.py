@@ -38,7 +38,6 @@ metadata.yaml.
 from __future__ import annotations
 
 import json
-import signal
 import sys
 import time
 from pathlib import Path
@@ -48,7 +47,6 @@ import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 
 from robotino_geom_mpc.core.params import ALL_SPECS
 from robotino_geom_mpc.recording.bag import (
@@ -59,8 +57,12 @@ from robotino_geom_mpc.recording.bag import (
     message_class,
 )
 from robotino_geom_mpc.ros.bag_qos import adapt_request_to_offers, profile_to_dict
+from robotino_geom_mpc.ros.signals import STOP, ignore_stop_signals
+from robotino_geom_mpc.ros.spin import start_rclpy
 
-__all__ = ["RecorderNode", "main"]
+__all__ = ["DRAIN_LIMIT_S", "RecorderNode", "main"]
+
+DRAIN_LIMIT_S = 60.0  # at stop: the longest the recorder keeps taking samples its readers still hold
 
 def _hidden(topic: str) -> bool:
     return any(part.startswith("_") for part in topic.split("/") if part)
@@ -165,41 +167,59 @@ class RecorderNode(Node):
 
         return on_message
 
+    def drain(self, limit_s: float) -> int:
+        """Write every sample DDS has received and not yet handed over, until all readers are empty; returns the count.
+
+        A keep-all reader can hold thousands of samples when a fast lockstep loop stops (the loop's
+        keep-all writers waited for this recorder's acknowledgements, not for its writes), so the stop
+        takes them directly from each subscription rather than spinning for a fixed time. `limit_s`
+        bounds it when a live publisher keeps sending.
+        """
+        taken, deadline = 0, time.monotonic() + limit_s
+        while time.monotonic() < deadline:
+            before = taken
+            for sub in self._recording_subs:
+                with sub.handle:
+                    while (sample := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
+                        sub.callback(*sample)  # (data, info): the recording callbacks take both
+                        taken += 1
+            if taken == before:
+                return taken
+        self.get_logger().warn(f"stopped draining after {limit_s:g} s ({taken} samples taken); later ones are lost")
+        return taken
+
     def close(self) -> None:
         """Finish the bag (summary, indexes, metadata.yaml)."""
         self.writer.close()
         self.get_logger().info(f"bag closed: {self.writer.message_count} messages on {len(self._channels)} topics")
 
 
-def main(args: list[str] | None = None) -> None:
+def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run robotino_geom_mpc recorder_node``: record until SIGINT/SIGTERM."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.append(True))
+    status = start_rclpy(args)
+    if status is not None:
+        return status
     try:
         node = RecorderNode()
     except BagError as exc:
         print(f"recorder_node: error: {exc}", file=sys.stderr)
+        ignore_stop_signals()
         rclpy.shutdown()
-        sys.exit(2)
+        return 2
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        while not stop:
+        while not STOP.is_set():
             executor.spin_once(timeout_sec=0.05)
-        # take what DDS had already received (bounded: a live publisher keeps sending), then finish the file
-        idle, deadline = 0, time.monotonic() + 0.5
-        while idle < 5 and time.monotonic() < deadline:
-            before = node.writer.message_count
-            executor.spin_once(timeout_sec=0.01)
-            idle = idle + 1 if node.writer.message_count == before else 0
+        node.drain(DRAIN_LIMIT_S)
     finally:
+        ignore_stop_signals()
         node.close()
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

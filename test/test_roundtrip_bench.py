@@ -8,9 +8,9 @@ import sys
 
 import pytest
 
-from robotino_geom_mpc.bench import roundtrip
 from robotino_geom_mpc.bench.registry import BenchmarkError
 from robotino_geom_mpc.bench.roundtrip import bench_roundtrip, nearest_rank, read_roundtrip_report, roundtrip_figures
+from robotino_geom_mpc.ros.processes import NodeGroup
 
 
 def test_figures_are_the_nearest_rank_median_and_p99_in_us():
@@ -58,15 +58,15 @@ def test_a_real_run_completes_with_consistent_positive_figures():
 def test_a_failing_process_is_a_benchmark_error_and_nothing_is_left_running(monkeypatch):
     """A plant that exits at once (bad arguments): the error names it, the controller is stopped."""
     started = []
-    start = roundtrip._start
+    start = NodeGroup.start
 
-    def bad_start(group, role, args):
-        node = start(group, role, ["--count", "0"] if role == "plant" else args)
+    def bad_start(group, name, args, module=None):
+        node = start(group, name, ["--role", "plant", "--count", "0"] if name == "roundtrip_plant" else args, module)
         started.append(node.popen)
         return node
 
-    monkeypatch.setattr(roundtrip, "_start", bad_start)
-    with pytest.raises(BenchmarkError, match="roundtrip plant exited with status 2"):
+    monkeypatch.setattr(NodeGroup, "start", bad_start)
+    with pytest.raises(BenchmarkError, match="roundtrip_plant exited with status 2"):
         bench_roundtrip(count=10, warmup=0, timeout_s=60.0)
     assert len(started) == 2 and all(p.poll() is not None for p in started)
     for popen in started:  # their process groups are gone too

@@ -30,12 +30,11 @@ import argparse
 import json
 import math
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 from robotino_geom_mpc.bench.registry import BenchmarkError, wait_for_run
-from robotino_geom_mpc.ros.processes import NodeGroup, NodeProcess, dds_environment
+from robotino_geom_mpc.ros.processes import NodeGroup
 
 __all__ = ["ANSWER_TOPIC", "ODOM_TOPIC", "bench_roundtrip", "main", "nearest_rank", "read_roundtrip_report",
            "roundtrip_figures"]
@@ -87,24 +86,12 @@ def bench_roundtrip(count: int = 2000, warmup: int = 200, timeout_s: float = 120
     """
     with NodeGroup() as group:
         report = group.log_dir / "roundtrip.json"
-        _start(group, "controller", [])
-        plant = _start(group, "plant", ["--count", str(count), "--warmup", str(warmup), "--report", str(report)])
+        group.start("roundtrip_controller", ["--role", "controller"], module=__name__)
+        plant = group.start("roundtrip_plant", ["--role", "plant", "--count", str(count), "--warmup", str(warmup),
+                                                "--report", str(report)], module=__name__)
         wait_for_run(group, plant, timeout_s, f"round trip: {count + warmup} round trips")
         samples = read_roundtrip_report(report, count)
     return roundtrip_figures(samples)
-
-
-def _start(group: NodeGroup, role: str, args: list[str]) -> NodeProcess:
-    """Start one role as ``python -m`` this module in its own process group; `group` stops it with the others."""
-    out, err = group.log_dir / f"roundtrip_{role}.out.log", group.log_dir / f"roundtrip_{role}.err.log"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0", **group.env}
-    env.update(dds_environment(env))
-    with open(out, "wb") as fout, open(err, "wb") as ferr:
-        popen = subprocess.Popen([sys.executable, "-m", __name__, "--role", role, *args], stdout=fout, stderr=ferr,
-                                 stdin=subprocess.DEVNULL, env=env, start_new_session=True)
-    node = NodeProcess(f"roundtrip {role}", popen, out, err)
-    group.nodes.append(node)
-    return node
 
 
 def _nodes():

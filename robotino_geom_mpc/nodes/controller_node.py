@@ -6,52 +6,81 @@ subscribes ``odom``               nav_msgs/Odometry (pose in ``odom``, twist in 
            ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory (N + 1 points, see trajectory_node)
 publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layout label ``wheel_voltage_v``
            ``diagnostics``        diagnostic_msgs/DiagnosticArray, one status ``robotino_geom_mpc: controller``
-                                  per tick, header.stamp = the odometry stamp, values: ``error_x_m``,
-                                  ``error_y_m``, ``error_theta_rad`` (measured - reference at t_k),
-                                  ``compute_time_ms`` (the step), ``saturated``, ``infeasible``,
-                                  ``preview_stamp_ns`` (the stamp of the preview used, see below),
-                                  ``watchdog`` (waiting, ok, stale_odom, stale_reference), ``rejected``
-                                  (inputs refused so far); built and sent only while a subscription
-                                  is matched
+                                  per tick and per event, header.stamp = the odometry stamp (events without
+                                  one: the node clock). Per tick (message ``tracking``): ``error_x_m``,
+                                  ``error_y_m``, ``error_theta_rad`` (measured - reference at t_k, the
+                                  reference without the blend), ``compute_time_ms``, ``saturated``,
+                                  ``infeasible``, ``preview_stamp_ns`` (the preview used), ``dt_s`` (the
+                                  interval passed to the step). Always: ``watchdog`` (waiting, ok,
+                                  stale_odom, stale_reference), ``rejected`` (refusals so far),
+                                  ``last_refusal`` (its reason key, ``none``), ``dropped_duplicate``,
+                                  ``dropped_old``, ``blend_remaining_s``, ``blend_engagements``. Built and
+                                  sent only while a subscription is matched.
 
-Both inputs are taken serialized. Bytes laid out as the plant and the
-trajectory node send them (frames ``odom``/``base_link``, N + 1 preview
-points of one transform each) are read in place by a `ros.cdr.CdrLayout`
-(a few microseconds); any other layout is decoded by `ros.cdr.cdr_reader`
-(rosbags' CDR reader when installed, else rclpy). The wheel_voltages go out
-as `CdrTemplate` bytes.
+Publishers: `ros.qos.publish_qos` (keep-all in lockstep). Inputs are read in
+place by a `ros.cdr.CdrLayout` (any other layout: `ros.cdr.cdr_reader`).
 
-Each odometry message is one control tick: the node computes on its arrival,
-which keeps the odometry-to-voltage latency to one step. The preview used is
-the one whose stamp equals the odometry stamp in ``lockstep`` (the odometry
-waits for it if it comes first), the freshest in ``realtime``, moved in time
-from its stamp to the odometry's with its velocities and accelerations
-(`core.trajectory.shift_preview`: the trajectory node's timer and the
-plant's do not tick in phase, and up to a period apart the reference has
-moved v Ts, 3 mm on paper-circle). In lockstep a
-repeated odometry stamp (the plant resends a tick) is answered again only if
-the first answer could not be delivered (no matched subscriber then), so no
-tick is answered twice; such an answer also goes out as soon as a
-subscription matches the wheel_voltages publisher.
+Each odometry message is one control tick: the node computes on its arrival.
+The preview used is the one whose stamp equals the odometry stamp in
+``lockstep`` (the odometry waits for it if it comes first), the freshest in
+``realtime``, moved in time from its stamp to the odometry's with its
+velocities and accelerations (`core.trajectory.shift_preview`). The step gets
+``dt_s`` = the interval between the stamps of this odometry and of the last
+one used (None when it is exactly one period, and after a (re)start).
 
-Time: the controller's time is the stamps of its inputs (the odometry
-stamp is the tick); only the watchdog's own zero-volt diagnostics in
-realtime read the node clock. It honours ``use_sim_time``, but `run` and
-the launch file leave it false in lockstep: a /clock reader would cost a
-wake-up per tick (lockstep real-time factor 8.6-10.2 with it, 12.8-14.2
-without, measured side by side) and change nothing the node outputs.
+Time: the stamps of the inputs; in realtime the node clock (``use_sim_time``
+honoured) is read once per input to check its stamp.
 
-A steady-clock watchdog checks the arrival age of the odometry and of the
-preview: older than ``odom_timeout_s`` / ``reference_timeout_s`` (after the
-first of each arrived) means zero volts (realtime), a throttled warning, the
-watchdog state in the diagnostics, and a controller reset when data return.
-In lockstep the plant holds the time, so the watchdog only reports.
+Bad input (`ros.decode` does the checks on the values already read):
 
-A NaN/Inf or wrongly sized input is rejected with a throttled warning and
-never reaches the output: the tick gets zero volts and an ERROR diagnostic.
+* refused, with zero volts, an ERROR diagnostic naming the reason key, a
+  throttled warning and ``rejected`` counted: non-finite values
+  (``non_finite``), a wrongly sized preview (``size``), undecodable bytes
+  (``malformed``), a quaternion whose norm is off 1 by more than
+  ``quaternion_norm_tolerance`` (``quaternion_norm``: the all-zero one, or
+  (0, 0, 0.5, 0.5)) or that tilts the robot by more than
+  ``tilt_tolerance_rad`` (``quaternion_tilt``), on odometry and on every
+  preview point; in realtime, a stamp older than ``odom_timeout_s``
+  (preview: ``reference_timeout_s``) against the node clock (``stale``: an
+  hour old, or zero) or ahead of it by more than ``future_tolerance_s``
+  (``future``). In lockstep a refused preview makes the tick of its stamp
+  get zero volts (reason ``preview_<reason>``);
+* dropped, counted (``dropped_duplicate``, ``dropped_old``), with a WARN
+  diagnostic and no output (a newer input was used already): an odometry
+  (realtime: also a preview) whose stamp equals the last used one
+  (``duplicate``; in lockstep the plant's resend, answered again only if the
+  first answer could not be delivered, also as soon as a subscription
+  matches the wheel_voltages publisher) or is older (``old``: a late
+  message, a clock that went back). If nothing valid follows, the watchdog
+  gives zero volts after the timeout.
 
-Parameters: the robot/control parameters of config/*.yaml (``/**``
-section) plus `CONTROLLER_SPECS`; a change rebuilds (and resets) the controller.
+Stale data: a steady-clock watchdog checks the arrival age of the accepted
+odometry and preview: older than ``odom_timeout_s`` / ``reference_timeout_s``
+means (realtime) zero volts, a throttled warning, the watchdog state in the
+diagnostics, and a bumpless restart when data return. In lockstep the plant
+holds the time, so the watchdog only reports, and a controller that has heard
+nothing for a timeout (no odometry, or an odometry waiting for its preview)
+logs what it waits for (every 5 s).
+
+Bumpless (re)start (`core.blend`, `controller_inputs.BlendEngagement`): at
+the first tick (except tick t = 0 of a lockstep run, where robot and
+reference start together as in `simulate`), at the first tick after the
+watchdog saw stale data, at the tick using a preview whose reference jumped
+(more than ``reference_jump_m`` / ``reference_jump_rad`` from the previous
+preview moved to its stamp, e.g. a restarted trajectory node starting over
+at the origin), and after a parameter change, the controller is reset
+(u(k-1) = 0, pose filter restarted) and a C^3 offset o(t) is added to the
+preview, taking the reference from the measured pose and velocity (zero
+acceleration) to itself within the shortest time T whose offset acceleration
+stays within ``blend_acceleration_mps2`` / ``blend_acceleration_radps2``.
+
+Parameters: the robot/control parameters of config/*.yaml (``/**`` section)
+plus `controller_inputs.CONTROLLER_SPECS`. A set is refused with the reason
+when its nominal closed loop is unstable (`core.mpc.check_closed_loop`, also
+at start: exit status 2) and for ``mode``, ``control.period_s`` and
+``control.horizon`` (they must agree with the trajectory node: restart
+instead); any other accepted change of a robot/control parameter rebuilds the
+controller with a bumpless restart.
 """
 
 from __future__ import annotations
@@ -143,8 +172,7 @@ class ControllerNode(Node):
         self.watchdog_state = "waiting"
         self.counters = InputCounters()
         self.blend = BlendEngagement(self.control.period_s, self.control.horizon)
-        self.watchdog = None
-        self._start_watchdog()
+        self.watchdog = self._start_watchdog()
         self.get_logger().info(f"controller ready ({self.params['mode']}, mode {self.control.mode}, "
                                f"N = {self.control.horizon}, Ts = {self.control.period_s:g} s)")
 
@@ -159,17 +187,16 @@ class ControllerNode(Node):
         self.jump_limits = (p["reference_jump_m"], p["reference_jump_rad"])
         self.blend_limits = (p["blend_acceleration_mps2"], p["blend_acceleration_radps2"])
 
-    def _start_watchdog(self) -> None:
-        if self.watchdog is not None:
-            self.destroy_timer(self.watchdog)
+    def _start_watchdog(self):
+        """The steady-clock timer of the watchdog, at half the shorter timeout."""
         timeout = min(self.params["odom_timeout_s"], self.params["reference_timeout_s"])
-        self.watchdog = self.create_timer(timeout / 2, self._check_watchdog,
-                                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        return self.create_timer(timeout / 2, self._check_watchdog, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _on_params(self, changed: dict) -> None:
         self._read_limits()
         if {"odom_timeout_s", "reference_timeout_s"} & changed.keys():
-            self._start_watchdog()
+            self.destroy_timer(self.watchdog)
+            self.watchdog = self._start_watchdog()
         if _ROBOT_CONTROL & changed.keys():
             self.robot, self.control = self.params.robot_control()
             self.controller = MotionController(self.robot, self.control)
@@ -190,9 +217,7 @@ class ControllerNode(Node):
     def _drop(self, stamp: int, what: str, reason: str) -> None:
         """A dropped input (duplicate or older stamp than the last used): counted, logged, a WARN diagnostic."""
         self.counters.drop(reason)
-        self.get_logger().warn(f"dropped {what} of stamp {stamp} ns: {reason} (last used "
-                               f"{self.last_odom_ns if what == 'odom' else self.latest_preview[0]} ns)",
-                               throttle_duration_sec=1.0)
+        self.get_logger().warn(f"dropped {what} of stamp {stamp} ns: {reason}", throttle_duration_sec=1.0)
         self._diagnose(stamp, DiagnosticStatus.WARN, f"dropped {what} ({reason})")
 
     def _now_ns(self) -> int | None:
@@ -225,7 +250,7 @@ class ControllerNode(Node):
         self.preview_time = monotonic()
         if latest is None or stamp > latest[0]:
             jump = reference_jump(latest, stamp, arrays[0][0], *self.jump_limits)
-            if jump is not None and latest is not None:
+            if jump is not None:
                 self.blend.jump_ns = stamp
                 self.get_logger().warn(f"{jump}: bumpless restart", throttle_duration_sec=1.0)
             self.latest_preview = (stamp, *arrays)
@@ -238,8 +263,7 @@ class ControllerNode(Node):
             self._control(odom_stamp, X, *arrays, stamp)
 
     def _refuse_preview(self, stamp: int | None, reason: str, message: str) -> None:
-        """Realtime: zero volts now. Lockstep: the tick of that stamp gets zero volts (a preview of unknown
-        stamp is only counted: it belongs to no tick)."""
+        """Realtime: zero volts now; lockstep: for the tick of its stamp (of none if unknown: only counted)."""
         if not self.lockstep:
             self._reject(stamp, "reference_preview", reason, message)
             return

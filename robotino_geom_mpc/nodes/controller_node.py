@@ -346,9 +346,9 @@ class ControllerNode(Node):
         if reason is not None:
             self._engage(stamp, X, positions[0], velocities[0], accelerations[0], reason)
             dt_s = None  # the controller starts over
-        else:
-            dt_ns = stamp - self.last_odom_ns
-            dt_s = None if dt_ns == self.period_ns else dt_ns * 1e-9  # None: one period, exactly
+        else:  # None: one period exactly, or the first tick
+            dt_ns = self.period_ns if self.last_odom_ns is None else stamp - self.last_odom_ns
+            dt_s = None if dt_ns == self.period_ns else dt_ns * 1e-9
         preview = positions[1:]
         offsets = self.blend.offsets(stamp)
         if offsets is not None:

@@ -38,7 +38,11 @@ from numpy.polynomial import Polynomial
 
 from .errors import RobotinoError, checked_array
 
-__all__ = ["BlendError", "ReferenceBlend"]
+__all__ = ["ANGULAR_LIMIT_RADPS2", "BlendEngagement", "BlendError", "LINEAR_LIMIT_MPS2", "ReferenceBlend"]
+
+# default acceleration limits of the offset: with them the extra wheel currents stay a fraction of the nominal
+LINEAR_LIMIT_MPS2 = 0.3
+ANGULAR_LIMIT_RADPS2 = 1.0
 
 # w(tau) = 1 - s(tau) and tau^k w(tau), k = 0, 1, 2, as polynomials in tau (valid on [0, 1])
 _W = Polynomial([1.0, 0.0, 0.0, 0.0, -35.0, 84.0, -70.0, 20.0])
@@ -174,3 +178,63 @@ class ReferenceBlend:
     def offset(self, t_s: object) -> np.ndarray:
         """o(t) at the times `t_s`, shape (n, 3)."""
         return self.derivatives(t_s, 0)
+
+
+class BlendEngagement:
+    """The node's bumpless (re)start: when to engage a `core.blend.ReferenceBlend`, and the offsets of each tick.
+
+    Parameters
+    ----------
+    period_s, horizon
+        Ts and N (the preview points 1..N lie at t_k + j Ts).
+    """
+
+    def __init__(self, period_s: float, horizon: int) -> None:
+        self.period_s = period_s
+        self.preview_times = period_s * np.arange(1, horizon + 1)
+        self.reason: str | None = "start"  # why the next tick engages (None: it does not)
+        self.jump_ns: int | None = None  # stamp of a preview whose reference jumped (engage at the tick using it)
+        self.blend: ReferenceBlend | None = None
+        self.t0_ns = 0
+        self.engagements = 0
+
+    def request(self, reason: str) -> None:
+        """Engage at the next tick."""
+        self.reason = reason
+        self.blend = None
+
+    def due(self, preview_stamp_ns: int) -> str | None:
+        """The reason to engage at a tick using the preview of `preview_stamp_ns`, or None."""
+        if self.jump_ns is not None and preview_stamp_ns >= self.jump_ns:
+            self.jump_ns = None
+            return self.reason or "reference_jump"
+        return self.reason
+
+    def engage(self, stamp_ns: int, X: np.ndarray, position: np.ndarray, velocity: np.ndarray,
+               acceleration: np.ndarray, linear_limit: float, angular_limit: float) -> ReferenceBlend:
+        """Engage the blend from the measured state X (eq. 2) to the reference (position, velocity, acceleration).
+
+        dp = measured pose - reference, dv = measured velocity - reference velocity, da = - reference
+        acceleration (the controller is reset with it: u(k-1) = 0). An all-zero offset (the robot exactly
+        on a reference at rest, as in the nominal start) leaves no blend.
+        """
+        dp = X[0::2] - position
+        dv = X[1::2] - velocity
+        blend = ReferenceBlend.engage(0.0, dp, dv, -acceleration, linear_limit, angular_limit, self.period_s)
+        self.reason, self.t0_ns, self.engagements = None, stamp_ns, self.engagements + 1
+        self.blend = None if not (dp.any() or dv.any() or acceleration.any()) else blend
+        return blend
+
+    def offsets(self, stamp_ns: int) -> np.ndarray | None:
+        """The offsets o(t_k + j Ts), j = 1..N, of the tick `stamp_ns` (shape (N, 3)), or None (no blend)."""
+        if self.blend is None:
+            return None
+        t = (stamp_ns - self.t0_ns) * 1e-9
+        if t >= self.blend.duration_s:
+            self.blend = None
+            return None
+        return self.blend.offset(t + self.preview_times)
+
+    def remaining_s(self, stamp_ns: int) -> float:
+        """Time left of the blend at `stamp_ns` [s]."""
+        return 0.0 if self.blend is None else self.blend.remaining_s((stamp_ns - self.t0_ns) * 1e-9)

@@ -1,4 +1,4 @@
-"""The controller node's input bookkeeping: its own parameters, refusal and drop counters, reference jumps, the blend.
+"""The controller node's input bookkeeping: its own parameters, refusal and drop counters, reference jumps.
 
 Plain Python (no rclpy), so each piece is a few float operations on values
 the node has already read; `controller_node` wires them to the topics.
@@ -11,14 +11,14 @@ from typing import Any
 
 import numpy as np
 
-from robotino_geom_mpc.core.blend import ReferenceBlend
+from robotino_geom_mpc.core.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2
 from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.core.mpc import check_closed_loop
 from robotino_geom_mpc.core.params import ParamError, ParamSpec, params_from_values
 from robotino_geom_mpc.core.trajectory import shift_preview
 from robotino_geom_mpc.ros.decode import QUATERNION_NORM_TOLERANCE, TILT_TOLERANCE_RAD
 
-__all__ = ["CONTROLLER_DEFAULTS", "CONTROLLER_SPECS", "FIXED_WHILE_RUNNING", "BlendEngagement", "InputCounters",
+__all__ = ["CONTROLLER_DEFAULTS", "CONTROLLER_SPECS", "FIXED_WHILE_RUNNING", "InputCounters",
            "closed_loop_problem", "reference_jump"]
 
 CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
@@ -46,7 +46,7 @@ CONTROLLER_DEFAULTS: dict[str, Any] = {
     "mode": "realtime", "odom_timeout_s": 0.1, "reference_timeout_s": 0.1, "future_tolerance_s": 0.05,
     "quaternion_norm_tolerance": QUATERNION_NORM_TOLERANCE, "tilt_tolerance_rad": TILT_TOLERANCE_RAD,
     "reference_jump_m": 0.005, "reference_jump_rad": 0.02,
-    "blend_acceleration_mps2": 0.3, "blend_acceleration_radps2": 1.0,
+    "blend_acceleration_mps2": LINEAR_LIMIT_MPS2, "blend_acceleration_radps2": ANGULAR_LIMIT_RADPS2,
 }
 # the mode, and what must agree with the trajectory node (the preview's layout)
 FIXED_WHILE_RUNNING = ("mode", "control.period_s", "control.horizon")
@@ -110,63 +110,3 @@ class InputCounters:
         return [str(self.rejected), self.last_refusal, str(self.dropped_duplicate), str(self.dropped_old)]
 
     KEYS = ("rejected", "last_refusal", "dropped_duplicate", "dropped_old")
-
-
-class BlendEngagement:
-    """The node's bumpless (re)start: when to engage a `core.blend.ReferenceBlend`, and the offsets of each tick.
-
-    Parameters
-    ----------
-    period_s, horizon
-        Ts and N (the preview points 1..N lie at t_k + j Ts).
-    """
-
-    def __init__(self, period_s: float, horizon: int) -> None:
-        self.period_s = period_s
-        self.preview_times = period_s * np.arange(1, horizon + 1)
-        self.reason: str | None = "start"  # why the next tick engages (None: it does not)
-        self.jump_ns: int | None = None  # stamp of a preview whose reference jumped (engage at the tick using it)
-        self.blend: ReferenceBlend | None = None
-        self.t0_ns = 0
-        self.engagements = 0
-
-    def request(self, reason: str) -> None:
-        """Engage at the next tick."""
-        self.reason = reason
-        self.blend = None
-
-    def due(self, preview_stamp_ns: int) -> str | None:
-        """The reason to engage at a tick using the preview of `preview_stamp_ns`, or None."""
-        if self.jump_ns is not None and preview_stamp_ns >= self.jump_ns:
-            self.jump_ns = None
-            return self.reason or "reference_jump"
-        return self.reason
-
-    def engage(self, stamp_ns: int, X: np.ndarray, position: np.ndarray, velocity: np.ndarray,
-               acceleration: np.ndarray, linear_limit: float, angular_limit: float) -> ReferenceBlend:
-        """Engage the blend from the measured state X (eq. 2) to the reference (position, velocity, acceleration).
-
-        dp = measured pose - reference, dv = measured velocity - reference velocity, da = - reference
-        acceleration (the controller is reset with it: u(k-1) = 0). An all-zero offset (the robot exactly
-        on a reference at rest, as in the nominal start) leaves no blend.
-        """
-        dp = X[0::2] - position
-        dv = X[1::2] - velocity
-        blend = ReferenceBlend.engage(0.0, dp, dv, -acceleration, linear_limit, angular_limit, self.period_s)
-        self.reason, self.t0_ns, self.engagements = None, stamp_ns, self.engagements + 1
-        self.blend = None if not (dp.any() or dv.any() or acceleration.any()) else blend
-        return blend
-
-    def offsets(self, stamp_ns: int) -> np.ndarray | None:
-        """The offsets o(t_k + j Ts), j = 1..N, of the tick `stamp_ns` (shape (N, 3)), or None (no blend)."""
-        if self.blend is None:
-            return None
-        t = (stamp_ns - self.t0_ns) * 1e-9
-        if t >= self.blend.duration_s:
-            self.blend = None
-            return None
-        return self.blend.offset(t + self.preview_times)
-
-    def remaining_s(self, stamp_ns: int) -> float:
-        """Time left of the blend at `stamp_ns` [s]."""
-        return 0.0 if self.blend is None else self.blend.remaining_s((stamp_ns - self.t0_ns) * 1e-9)

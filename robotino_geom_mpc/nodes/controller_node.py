@@ -62,7 +62,7 @@ holds the time, so the watchdog only reports, and a controller that has heard
 nothing for a timeout (no odometry, or an odometry waiting for its preview)
 logs what it waits for (every 5 s).
 
-Bumpless (re)start (`core.blend`, `controller_inputs.BlendEngagement`): at
+Bumpless (re)start (`core.blend.BlendEngagement`): at
 the first tick (except tick t = 0 of a lockstep run, where robot and
 reference start together as in `simulate`), at the first tick after the
 watchdog saw stale data, at the tick using a preview whose reference jumped
@@ -94,11 +94,12 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from robotino_geom_mpc.core.blend import BlendEngagement
 from robotino_geom_mpc.core.controller import ControllerInputError, MotionController
 from robotino_geom_mpc.core.params import ALL_SPECS
 from robotino_geom_mpc.core.trajectory import shift_preview
 from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
-    BlendEngagement, InputCounters, closed_loop_problem, reference_jump
+    InputCounters, closed_loop_problem, reference_jump
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
     stamp_problem, state_of_odometry

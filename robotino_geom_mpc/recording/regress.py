@@ -24,9 +24,13 @@ recording, and says so (`RegressionResult.gap_at_s`). A recorder that fell
 behind a fast lockstep loop can have lost samples; the ticks before the gap
 are still compared.
 
-Limits: a parameter change during the run (the node rebuilds its
-controller) or a watchdog reset in realtime mode is not replayed; those
-recordings show a deviation from that tick on.
+The node's time steps (``dt_s``: the interval between the odometry stamps
+it used) and its bumpless restarts (`core.blend.BlendEngagement`, engaged
+where the diagnostics' ``blend_engagements`` count goes up) are replayed as
+the node ran them, with the default blend limits (the recording does not
+store the controller node's own parameters). Limits: a parameter change
+during the run (the node rebuilds its controller) is not replayed; such a
+recording shows a deviation from that tick on.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robotino_geom_mpc.core.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2, BlendEngagement
 from robotino_geom_mpc.core.controller import ControllerInputError, MotionController
 from robotino_geom_mpc.core.trajectory import shift_preview
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
@@ -114,12 +119,15 @@ def regress_bag(
     volt_t = [p for p, _ in voltages]
     answers: dict[int, np.ndarray] = {}  # tick stamp -> recorded voltages
     used: dict[int, int] = {}  # tick stamp -> stamp of the preview the node used (its diagnostics say)
+    engagements: dict[int, int] = {}  # tick stamp -> the node's bumpless restarts so far, that tick's included
     for publish, msg in diags:
         values = controller_diagnostics(msg)
         if values is None:
             continue
         if values.get("preview_stamp_ns", "").isdigit():
             used.setdefault(stamp_ns(msg.header.stamp), int(values["preview_stamp_ns"]))
+            if values.get("blend_engagements", "").isdigit():
+                engagements.setdefault(stamp_ns(msg.header.stamp), int(values["blend_engagements"]))
         i = bisect_left(volt_t, publish) - 1
         if i >= 0:
             answers.setdefault(stamp_ns(msg.header.stamp), np.array(voltages[i][1].data))
@@ -129,6 +137,9 @@ def regress_bag(
     prev_t = [p for p, _ in previews]
 
     controller = MotionController(robot, control)
+    blend = BlendEngagement(control.period_s, control.horizon)
+    engaged = 0  # restarts replayed so far
+    last_used = None  # stamp of the last tick stepped (the node's dt_s runs from it)
     theta = 0.0
     seen: set[int] = set()
     ticks = compared = 0
@@ -167,11 +178,24 @@ def regress_bag(
                     continue
                 preview = previews[i][1]
             positions, velocities, accelerations = preview_arrays(preview, control.horizon, theta)
-            positions = shift_preview(positions, velocities, accelerations,
-                                      (stamp - stamp_ns(preview.header.stamp)) * 1e-9)  # lockstep: by 0
+            dt = (stamp - stamp_ns(preview.header.stamp)) * 1e-9  # lockstep: 0
+            positions = shift_preview(positions, velocities, accelerations, dt)
+            velocities = velocities + dt * accelerations
             theta = X[4]
+            if engagements.get(stamp, engaged) > engaged:  # the node restarted bumplessly here
+                engaged = engagements[stamp]
+                controller.reset()
+                blend.engage(stamp, X, positions[0], velocities[0], accelerations[0], LINEAR_LIMIT_MPS2,
+                             ANGULAR_LIMIT_RADPS2)
+                dt_s = None
+            else:
+                dt_ns = period_ns if last_used is None else stamp - last_used
+                dt_s = None if dt_ns == period_ns else dt_ns * 1e-9
+            offsets = blend.offsets(stamp)
+            Y_d = positions[1:] if offsets is None else positions[1:] + offsets
             try:
-                expected = controller.step(X, positions[1:]).voltages
+                expected = controller.step(X, Y_d, dt_s).voltages
+                last_used = stamp
             except ControllerInputError:
                 expected = np.zeros(3)
         ticks += 1

@@ -145,11 +145,14 @@ def run(args: argparse.Namespace) -> int:
     if bag is None:
         print("  not recorded (--no-record): no metrics or figures")
         return 0
-    from ..recording.bag import BagError
+    from ..recording.bag import BagError, BagReader, damage_report
     from ..recording.report import report_bag
+    from .reindex import warn_damage
 
     try:
-        metrics = report_bag(bag, out, params_file)
+        reader = BagReader(bag)
+        warn_damage("run", damage_report(reader))
+        metrics = report_bag(reader, out, params_file)
     except BagError as exc:
         print(f"robotino-geom-mpc run: error: {exc}", file=sys.stderr)
         return 1

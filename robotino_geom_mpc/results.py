@@ -20,6 +20,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from robotino_geom_mpc.core.errors import RobotinoError
+
 __all__ = [
     "RunDataError",
     "MetricsError",
@@ -34,11 +36,11 @@ __all__ = [
 ]
 
 
-class RunDataError(ValueError):
+class RunDataError(RobotinoError, ValueError):
     """A run whose arrays have inconsistent shapes, non-finite values, or bad scalars."""
 
 
-class MetricsError(ValueError):
+class MetricsError(RobotinoError, ValueError):
     """A metrics file that cannot be read or is not a JSON object of metrics."""
 
 

@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
+from robotino_geom_mpc.core.errors import RobotinoError, checked_array
 from robotino_geom_mpc.core.model import A_matrix, N_PLANT, g_theta, wheel_directions, wheel_rim_speeds
 from robotino_geom_mpc.core.params import RobotinoParams
 
@@ -81,7 +82,7 @@ _EXPONENTS = np.append(np.arange(_FIT_DEGREE + 1.0), 1.0)
 _BASIS = _FIT_DEGREE + 2
 
 
-class PlantError(ValueError):
+class PlantError(RobotinoError, ValueError):
     """A bad input of the plant (voltages, step size, state, noise), named in the message."""
 
 
@@ -323,9 +324,7 @@ class RobotinoPlant:
 
     def reset(self, state0: np.ndarray | None = None) -> None:
         """Back to `state0` (zeros if None) at time 0 with zero wheel angles."""
-        state = np.zeros(N_PLANT) if state0 is None else np.array(state0, dtype=float)
-        if state.shape != (N_PLANT,) or not np.isfinite(state).all():
-            raise PlantError(f"state0 must be {N_PLANT} finite numbers, got {state0!r}")
+        state = np.zeros(N_PLANT) if state0 is None else checked_array(state0, (N_PLANT,), "state0", PlantError)
         self._w = state.tolist() + [0.0, 0.0, 0.0]  # w without the voltages, as floats
         self._trace = np.zeros((1, _N_LOOP))
         self._trace[0, _CURRENTS] = state[6:9]  # the peak currents before any step are |i(0)|

@@ -13,6 +13,7 @@ import math
 import os
 import sys
 
+from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.core.params import ParamError
 
 __all__ = ["UsageError", "main", "VERBS", "positive_float", "seed_value"]
@@ -31,7 +32,7 @@ VERBS: dict[str, str] = {
 }
 
 
-class UsageError(Exception):
+class UsageError(RobotinoError):
     """An error in what the user asked for; reported in one line, exit status 2."""
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from .constrained import ConstrainedMPC
 from .decoupling import DecouplingField
 from .drive import InverseDrive, MotorKinematics
-from .errors import RobotinoError
+from .errors import RobotinoError, checked_array
 from .estimator import OdometryFilter
 from .model import acceleration_block, wheel_forces
 from .mpc import DecoupledMPC, axis_dampings
@@ -242,12 +242,8 @@ def state_from_odometry(pose: object, twist_body: object) -> np.ndarray:
         The velocity rotated into the odom frame by the *measured* heading
         (all a controller on the robot knows).
     """
-    pose = np.asarray(pose, dtype=float)
-    twist = np.asarray(twist_body, dtype=float)
-    if pose.shape != (3,):
-        raise ControllerInputError(f"pose must have shape (3,), got {pose.shape}")
-    if twist.shape != (3,):
-        raise ControllerInputError(f"twist_body must have shape (3,), got {twist.shape}")
+    pose = checked_array(pose, (3,), "pose", ControllerInputError, finite=False)
+    twist = checked_array(twist_body, (3,), "twist_body", ControllerInputError, finite=False)
     return np.array(odometry_state_floats(pose.tolist(), twist.tolist()))
 
 

@@ -43,7 +43,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from .errors import RobotinoError
+from .errors import RobotinoError, checked_array
 from .model import wheel_directions
 from .params import RobotinoParams
 
@@ -211,10 +211,7 @@ class InverseDrive:
 
     @staticmethod
     def _vec(value: object, name: str) -> np.ndarray:
-        arr = np.asarray(value, dtype=float)
-        if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-            raise DriveError(f"{name} must be 3 finite values, got {value!r}")
-        return arr
+        return checked_array(value, (3,), name, DriveError)
 
     def step(
         self,

@@ -22,6 +22,7 @@ import numpy as np
 
 from . import geometry as geo
 from .decoupling import AXES, B_decoupled, DecouplingField
+from .errors import RobotinoError
 from .model import A_matrix, C_matrix, N_BODY, OUTPUT_INDEX, VELOCITY_INDEX, drive_matrices, g_theta, wheel_directions
 from .params import RobotinoParams
 
@@ -38,7 +39,7 @@ __all__ = [
 ]
 
 
-class FunctionalError(ValueError):
+class FunctionalError(RobotinoError, ValueError):
     """A system matrix with the wrong shape or non-finite entries, or a bad order bound."""
 
 

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import RobotinoError
+
 __all__ = [
     "DEFAULT_RTOL_FACTOR",
     "GeometryError",
@@ -49,7 +51,7 @@ DEFAULT_RTOL_FACTOR = 1.0e3
 _EPS = np.finfo(float).eps
 
 
-class GeometryError(ValueError):
+class GeometryError(RobotinoError, ValueError):
     """A matrix argument with the wrong shape or non-finite entries, or a stack of unequal dimensions."""
 
 

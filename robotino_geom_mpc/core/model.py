@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import RobotinoError, checked_array
 from .params import RobotinoParams
 
 __all__ = [
@@ -53,15 +54,12 @@ OUTPUT_INDEX = np.array([0, 2, 4])  # x, y, theta in X
 VELOCITY_INDEX = np.array([1, 3, 5])  # x', y', theta' in X
 
 
-class ModelError(ValueError):
+class ModelError(RobotinoError, ValueError):
     """An input of the model with the wrong shape or non-finite values."""
 
 
 def _vector(value: object, size: int, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (size,):
-        raise ModelError(f"{name} must have shape ({size},), got {arr.shape}")
-    return arr
+    return checked_array(value, (size,), name, ModelError, finite=False)
 
 
 def A_matrix(p: RobotinoParams) -> np.ndarray:

@@ -29,6 +29,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .errors import checked_array
 from .time_law import TrajectoryError, _Backend, _compose, _RampedPhase, _Scalar, _septic, _Vector, septic
 
 __all__ = [
@@ -261,9 +262,7 @@ class PointToPointReference(Reference):
             )
         if not np.isfinite(wp).all():
             raise TrajectoryError("waypoints must be finite")
-        p_start = _array(start, "start")
-        if p_start.shape != (3,) or not np.isfinite(p_start).all():
-            raise TrajectoryError(f"start must be a finite (x, y, theta), got {start!r}")
+        p_start = checked_array(start, (3,), "start (x, y, theta)", TrajectoryError)
         dwell = _array(dwell_s, "dwell_s")
         if dwell.shape != () or not math.isfinite(dwell) or dwell < 0.0:
             raise TrajectoryError(f"dwell_s must be >= 0, got {dwell_s!r}")

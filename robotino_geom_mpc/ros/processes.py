@@ -23,6 +23,7 @@ from typing import Any
 __all__ = ["NODE_MODULES", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR", "NodeFailed", "NodeProcess", "NodeGroup",
            "dds_environment", "ros_args"]
 
+from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.ros.signals import NODE_MODULES  # executable name -> module run with `python -m`
 
 # the lockstep plant's ``lockstep_wait_for`` (subscriptions ``topic:count`` it waits for before tick 0):
@@ -49,7 +50,7 @@ def dds_environment(environ: Mapping[str, str]) -> dict[str, str]:
     return {"FASTRTPS_DEFAULT_PROFILES_FILE": str(config_file(FASTDDS_PROFILE))}
 
 
-class NodeFailed(RuntimeError):
+class NodeFailed(RobotinoError, RuntimeError):
     """A node process exited with a non-zero status; the message names it and quotes its stderr tail."""
 
 

@@ -9,7 +9,7 @@ import sys
 import pytest
 import yaml
 
-from robotino_geom_mpc.cli.run import node_arguments
+from robotino_geom_mpc.ros.processes import node_arguments
 from robotino_geom_mpc.core.params import default_params_file, load_params
 from robotino_geom_mpc.results import compute_metrics
 from robotino_geom_mpc.simulation import run_scenario

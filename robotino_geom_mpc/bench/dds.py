@@ -36,7 +36,7 @@ from robotino_geom_mpc.bench.host_steal import StealSampler
 from robotino_geom_mpc.bench.registry import BenchmarkError, wait_for_run
 from robotino_geom_mpc.bench.roundtrip import bench_roundtrip
 from robotino_geom_mpc.core.params import default_params_file, load_params
-from robotino_geom_mpc.ros.processes import LOCKSTEP_WAIT_FOR, NodeGroup, ros_args
+from robotino_geom_mpc.ros.processes import LOCKSTEP_WAIT_FOR, NodeGroup, node_arguments
 
 __all__ = ["LOCKSTEP_RUNS", "ROUNDTRIPS", "TIMING_REPORT", "lockstep_nodes", "bench_lockstep", "bench_realtime",
            "dds_benchmarks", "missed_ticks", "read_timing_report"]
@@ -71,24 +71,15 @@ def lockstep_nodes(
     parameter of that name: the file it writes its timing report to at the
     end of the run (`read_timing_report`).
     """
-    params_file = params_file or default_params_file()
-    mode = "realtime" if realtime else "lockstep"
-    # neither reads its node clock in the loop: the trajectory's time is the /clock messages, the controller's
-    # the odometry stamps
-    group.start("trajectory_node", ros_args(params_file, {"scenario": scenario, "mode": mode,
-                                                         **(trajectory_overrides or {})}))
-    group.start("controller_node", ros_args(params_file, {"mode": mode}))
     report = {} if timing_report is None else {"timing_report": str(timing_report)}
-    return group.start(
-        "plant_node",
-        ros_args(params_file, {
-            "mode": mode,
-            "duration_s": float(duration_s),
-            "lockstep_wait_for": list(wait_for or LOCKSTEP_WAIT_FOR),
-            **report,
-            **(plant_overrides or {}),
-        }),
-    )
+    args = node_arguments(scenario, params_file or default_params_file(), duration_s, not realtime,
+                          wait_for=list(wait_for or LOCKSTEP_WAIT_FOR),
+                          overrides={"plant_node": {**report, **(plant_overrides or {})},
+                                     "trajectory_node": trajectory_overrides or {}})
+    plant = None
+    for name, argv in args.items():
+        plant = group.start(name, argv)
+    return plant
 
 
 def read_timing_report(path: str | os.PathLike, mode: str) -> dict[str, Any]:

@@ -30,7 +30,7 @@ from ..scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
 from .simulate import add_scenario_argument
 
-__all__ = ["add_parser", "run", "node_arguments"]
+__all__ = ["add_parser", "run"]
 
 GRACE_S = 5.0
 # after the plant's last tick: time for the controller's last answer to reach the recorder
@@ -61,40 +61,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return parser
 
 
-def node_arguments(
-    scenario: str,
-    params_file: Path,
-    duration_s: float,
-    lockstep: bool,
-    seed: int = 0,
-    bag: Path | None = None,
-) -> dict[str, list[str]]:
-    """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`."""
-    from ..core.params import load_params
-    from ..ros.processes import LOCKSTEP_WAIT_FOR, RECORDER_WAIT_FOR, ros_args
-    from ..scenarios import node_parameters
-
-    robot, _ = load_params(params_file)
-    mode = "lockstep" if lockstep else "realtime"
-    overrides = node_parameters(scenario, robot)
-    wait_for = list(LOCKSTEP_WAIT_FOR if bag is None else RECORDER_WAIT_FOR)
-    args = {}
-    if bag is not None:
-        args["recorder_node"] = ros_args(params_file, {"output": str(bag), "scenario": scenario})
-    # no use_sim_time: in lockstep the trajectory's time is the /clock messages and the controller's the
-    # odometry stamps; the time source's /clock reader would cost each a wake-up a tick
-    args["trajectory_node"] = ros_args(params_file, {**overrides["trajectory_node"], "mode": mode})
-    args["controller_node"] = ros_args(params_file, {**overrides["controller_node"], "mode": mode})
-    args["plant_node"] = ros_args(params_file, {
-        **overrides["plant_node"],
-        "mode": mode,
-        "duration_s": float(duration_s),
-        "seed": int(seed),
-        "lockstep_wait_for": wait_for,
-    })
-    return args
-
-
 def _raise_interrupt(*_: object) -> None:
     raise KeyboardInterrupt
 
@@ -102,7 +68,7 @@ def _raise_interrupt(*_: object) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
     from ..core.params import default_params_file, load_params
-    from ..ros.processes import NodeFailed, NodeGroup
+    from ..ros.processes import NodeFailed, NodeGroup, node_arguments
 
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)

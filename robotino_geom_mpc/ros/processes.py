@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["NODE_MODULES", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR", "NodeFailed", "NodeProcess", "NodeGroup",
-           "dds_environment", "ros_args"]
+           "dds_environment", "node_arguments", "ros_args"]
 
 from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.ros.signals import NODE_MODULES  # executable name -> module run with `python -m`
@@ -34,6 +34,51 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
                      "wheel_currents:1", "joint_states:1", "diagnostics:1")
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/
+
+
+def node_arguments(
+    scenario: str,
+    params_file: str | os.PathLike,
+    duration_s: float,
+    lockstep: bool,
+    seed: int = 0,
+    bag: str | os.PathLike | None = None,
+    wait_for: list[str] | None = None,
+    overrides: dict[str, dict[str, Any]] | None = None,
+) -> dict[str, list[str]]:
+    """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`.
+
+    Each node gets the parameter file, the scenario's overrides (`scenarios.node_parameters`) and the
+    mode; the plant the run's length, the seed and ``lockstep_wait_for`` (`wait_for`, by default the
+    subscriptions of the nodes started: `LOCKSTEP_WAIT_FOR`, or `RECORDER_WAIT_FOR` with a recorder);
+    `overrides` (per executable name) come last.
+    """
+    from robotino_geom_mpc.core.params import load_params
+    from robotino_geom_mpc.scenarios import node_parameters
+
+    robot, _ = load_params(params_file)
+    mode = "lockstep" if lockstep else "realtime"
+    scenario_overrides = node_parameters(scenario, robot)
+    extra = overrides or {}
+    if wait_for is None:
+        wait_for = list(LOCKSTEP_WAIT_FOR if bag is None else RECORDER_WAIT_FOR)
+    args = {}
+    if bag is not None:
+        args["recorder_node"] = ros_args(params_file, {"output": str(bag), "scenario": scenario,
+                                                       **extra.get("recorder_node", {})})
+    # no use_sim_time: in lockstep the trajectory's time is the /clock messages and the controller's the
+    # odometry stamps; the time source's /clock reader would cost each a wake-up a tick
+    for name in ("trajectory_node", "controller_node"):
+        args[name] = ros_args(params_file, {**scenario_overrides[name], "mode": mode, **extra.get(name, {})})
+    args["plant_node"] = ros_args(params_file, {
+        **scenario_overrides["plant_node"],
+        "mode": mode,
+        "duration_s": float(duration_s),
+        "seed": int(seed),
+        "lockstep_wait_for": list(wait_for),
+        **extra.get("plant_node", {}),
+    })
+    return args
 
 
 def dds_environment(environ: Mapping[str, str]) -> dict[str, str]:

@@ -78,8 +78,8 @@ from std_msgs.msg import Float64MultiArray
 from robotino_geom_mpc.core.params import ParamSpec
 from robotino_geom_mpc.ros.cdr import CdrTemplate, MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import STAMP_FIELDS
-from robotino_geom_mpc.ros.messages import BASE_FRAME, CURRENT_LABEL, ODOM_FRAME, VOLTAGE_LABEL, \
-    three_values_layout, three_values_template
+from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, odometry_message, three_values_layout, \
+    three_values_template
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos, wait_acknowledged
 from robotino_geom_mpc.ros.spin import monotonic, run_node
@@ -411,9 +411,7 @@ class PlantNode(Node):
 
 def _odometry_template(sigma_position: float, sigma_yaw: float) -> Odometry:
     """An Odometry with frames and covariances set: pose variance from the noise, z/roll/pitch certain (planar)."""
-    msg = Odometry()
-    msg.header.frame_id = ODOM_FRAME
-    msg.child_frame_id = BASE_FRAME
+    msg = odometry_message()
     pose_var = (max(sigma_position**2, _CERTAIN),) * 2 + (_CERTAIN,) * 3 + (max(sigma_yaw**2, _CERTAIN),)
     msg.pose.covariance = np.diag(pose_var).ravel()
     msg.twist.covariance = np.diag([_CERTAIN] * 6).ravel()  # twist from noise-free wheel speeds

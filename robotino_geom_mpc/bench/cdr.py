@@ -44,11 +44,10 @@ def message_cases(period_s: float) -> dict[str, dict[str, Any]]:
 
     from robotino_geom_mpc.ros.cdr import CdrTemplate, cdr_reader
     from robotino_geom_mpc.ros.decode import ODOM_FIELDS, odometry_values, preview_point_values
-    from robotino_geom_mpc.ros.messages import BASE_FRAME, ODOM_FRAME, VOLTAGE_LABEL, odometry_layout, \
+    from robotino_geom_mpc.ros.messages import VOLTAGE_LABEL, odometry_layout, odometry_message, \
         preview_layout, preview_skeleton, preview_template, three_values, three_values_layout, three_values_template
 
-    odom = Odometry()
-    odom.header.frame_id, odom.child_frame_id = ODOM_FRAME, BASE_FRAME
+    odom = odometry_message()
     preview = preview_template(period_s, PREVIEW_HORIZON)
     return {
         "odometry": {
@@ -73,13 +72,12 @@ def message_cases(period_s: float) -> dict[str, dict[str, Any]]:
 
 def _setter(msg: Any, paths: tuple[str, ...]) -> Callable[[tuple], Any]:
     """Sets the `paths` fields of `msg` to given values and returns it (the fields resolved once)."""
-    from robotino_geom_mpc.ros.cdr import _assign, _resolve  # the template's own field resolution
+    from robotino_geom_mpc.ros.cdr import field_setter
 
-    fields = [_resolve(msg, path)[:3] for path in paths]
+    set_fields = field_setter(msg, paths)
 
     def build(values: tuple) -> Any:
-        for (holder, name, index), value in zip(fields, values):
-            _assign(holder, name, index, value)
+        set_fields(values)
         return msg
 
     return build

@@ -104,7 +104,7 @@ def _nodes():
 
     from robotino_geom_mpc.ros.cdr import CdrTemplate
     from robotino_geom_mpc.ros.decode import ODOM_FIELDS
-    from robotino_geom_mpc.ros.messages import BASE_FRAME, ODOM_FRAME, VOLTAGE_LABEL, odometry_layout, \
+    from robotino_geom_mpc.ros.messages import VOLTAGE_LABEL, odometry_layout, odometry_message, \
         three_values_layout, three_values_template
     from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_qos
     from robotino_geom_mpc.ros.spin import monotonic
@@ -118,9 +118,7 @@ def _nodes():
             self.pub = self.create_publisher(Odometry, ODOM_TOPIC, publish_qos(lockstep=True))
             self.sub = self.create_subscription(Float64MultiArray, ANSWER_TOPIC, self._on_answer, CONTROL_QOS,
                                                 raw=True)
-            odom = Odometry()
-            odom.header.frame_id, odom.child_frame_id = ODOM_FRAME, BASE_FRAME
-            self.odom_cdr = CdrTemplate(odom, ODOM_FIELDS)
+            self.odom_cdr = CdrTemplate(odometry_message(), ODOM_FIELDS)
             self.answer_layout = three_values_layout(VOLTAGE_LABEL)
             self.values = [0.0] * (len(ODOM_FIELDS) - 2)
             self.seq, self.sent_at, self.ready_at = 0, math.inf, math.inf

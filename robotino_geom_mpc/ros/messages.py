@@ -27,7 +27,7 @@ from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate
 from robotino_geom_mpc.ros.decode import ODOM_FIELDS, POINT_FIELDS, STAMP_FIELDS, yaw_of
 
 __all__ = [
-    "BASE_FRAME", "CURRENT_LABEL", "ODOM_FRAME", "VOLTAGE_LABEL", "ns_to_stamp", "odometry_layout", "point_values",
+    "BASE_FRAME", "CURRENT_LABEL", "ODOM_FRAME", "VOLTAGE_LABEL", "ns_to_stamp", "odometry_layout", "odometry_message", "point_values",
     "preview_layout", "preview_message", "preview_skeleton", "preview_template", "preview_values",
     "quaternion_to_yaw", "stamp_to_ns", "three_values", "three_values_layout", "three_values_template",
     "yaw_to_quaternion",
@@ -85,11 +85,16 @@ def three_values_layout(label: str) -> CdrLayout:
     return CdrLayout(three_values(label), _THREE)
 
 
-def odometry_layout() -> CdrLayout:
-    """The odometry the plant sends (REP-105 frames), read in place: the values of `decode.ODOM_FIELDS`."""
+def odometry_message() -> Odometry:
+    """An Odometry ``odom`` -> ``base_link`` (REP-105), all values zero."""
     msg = Odometry()
     msg.header.frame_id, msg.child_frame_id = ODOM_FRAME, BASE_FRAME
-    return CdrLayout(msg, ODOM_FIELDS)
+    return msg
+
+
+def odometry_layout() -> CdrLayout:
+    """The odometry the plant sends (REP-105 frames), read in place: the values of `decode.ODOM_FIELDS`."""
+    return CdrLayout(odometry_message(), ODOM_FIELDS)
 
 
 def point_values(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> np.ndarray:

@@ -81,7 +81,7 @@ from robotino_geom_mpc.ros.decode import STAMP_FIELDS
 from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, odometry_message, three_values_layout, \
     three_values_template
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos, wait_acknowledged
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_sim_node.lockstep_start import StartHandshake
 from robotino_sim_node.loop_timing import LoopTiming, lockstep_line, lockstep_report, realtime_report, write_report
@@ -122,7 +122,6 @@ _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray") 
 _MAX_CHUNK = 10  # realtime: grid steps per plant step
 _MAX_BEHIND_S = 1.0  # realtime: a longer stall is skipped, not integrated
 _ZERO_VOLTS = np.zeros(3)
-_FLUSH_S = 30.0  # at the end of a run: longest wait for readers to acknowledge the last samples
 
 _ODOM_FIELDS = STAMP_FIELDS + (
     "pose.pose.position.x", "pose.pose.position.y", "pose.pose.orientation.z", "pose.pose.orientation.w",
@@ -276,7 +275,6 @@ class PlantNode(Node):
         if self.last_tick is not None and self.tick >= self.last_tick:
             self._publish_currents()  # of the last period; no tick follows
             self._report_run(begin)
-            self._flush()
             self.done.set_result(True)  # the last tick is answered: the run is over
             return
         self.tick += 1
@@ -300,11 +298,6 @@ class PlantNode(Node):
                                  last_answer_at, self.busy_s, self.wait_s, resent=self.resent, **self.counts)
         self.get_logger().info(lockstep_line(report))
         self._write_report(report)
-
-    def _flush(self) -> None:
-        """Before the process ends: wait for readers (a slow recorder) to acknowledge what was published."""
-        wait_acknowledged(self, (self.odom_pub, self.truth_pub, self.current_pub, self.joint_pub, self.clock_pub),
-                          _FLUSH_S)
 
     def _write_report(self, report: dict) -> None:
         """Write the timing report to ``timing_report`` (if set); a failure is logged and the exit status 1."""
@@ -349,7 +342,6 @@ class PlantNode(Node):
             simulated = self.grid / self.params["physics_rate_hz"]
             self._write_report(realtime_report(self.timing, self.ticks, simulated, now - self.started_at,
                                                self.busy_s, **self.counts))
-            self._flush()
             self.done.set_result(True)
             return
         stamp_ns = clock_ns - int((now - self._advance(now)) * 1e9)

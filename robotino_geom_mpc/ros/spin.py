@@ -9,7 +9,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import rclpy
-from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
@@ -17,9 +16,16 @@ from rclpy.node import Node
 from robotino_geom_mpc.core.param_files import check_parameter_files
 from robotino_geom_mpc.core.params import ParamError
 from robotino_geom_mpc.ros.parameters import NodeStartError
+from robotino_geom_mpc.ros.qos import wait_acknowledged
 from robotino_geom_mpc.ros.signals import STOP, ignore_stop_signals, stop_on_signals
 
-__all__ = ["monotonic", "params_files", "run_node", "start_rclpy"]
+__all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "monotonic", "params_files", "run_node", "start_rclpy"]
+
+# before exiting, the longest a node waits for its readers to acknowledge what it published: after a run it
+# ended itself (the lockstep plant; a recorder can be thousands of samples behind), and when stopped by a
+# signal (shorter than the grace before SIGTERM of `ros.processes.NodeGroup.stop` and of `ros2 launch`)
+FINISHED_ACK_WAIT_S = 30.0
+STOPPED_ACK_WAIT_S = 3.0
 
 
 def params_files(argv: list[str]) -> list[str]:
@@ -102,9 +108,9 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         while not STOP.is_set() and rclpy.ok() and not (done is not None and done.done()):
             executor.spin_once(timeout_sec=0.1)
         status = getattr(node, "exit_status", 0)
-        if done is not None and done.done():  # a finished run: let the last samples reach every reader
-            for pub in node.publishers:
-                pub.wait_for_all_acked(Duration(seconds=1.0))
+        # the last samples die with the process: let every reader (a recorder behind the loop) acknowledge them
+        finished = done is not None and done.done()
+        wait_acknowledged(node, node.publishers, FINISHED_ACK_WAIT_S if finished else STOPPED_ACK_WAIT_S)
     except NodeStartError as exc:
         print(f"{_prog()}: error: {exc}", file=sys.stderr)
         status = 2

@@ -26,6 +26,7 @@ __all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "monotonic", "params_fil
 # signal (shorter than the grace before SIGTERM of `ros.processes.NodeGroup.stop` and of `ros2 launch`)
 FINISHED_ACK_WAIT_S = 30.0
 STOPPED_ACK_WAIT_S = 3.0
+_RCLPY_TOPICS = ("/rosout", "/parameter_events")  # every node's own publishers of these, not its data
 
 
 def params_files(argv: list[str]) -> list[str]:
@@ -110,7 +111,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         status = getattr(node, "exit_status", 0)
         # the last samples die with the process: let every reader (a recorder behind the loop) acknowledge them
         finished = done is not None and done.done()
-        wait_acknowledged(node, node.publishers, FINISHED_ACK_WAIT_S if finished else STOPPED_ACK_WAIT_S)
+        own = [pub for pub in node.publishers if pub.topic_name not in _RCLPY_TOPICS]
+        wait_acknowledged(node, own, FINISHED_ACK_WAIT_S if finished else STOPPED_ACK_WAIT_S)
     except NodeStartError as exc:
         print(f"{_prog()}: error: {exc}", file=sys.stderr)
         status = 2

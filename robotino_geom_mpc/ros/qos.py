@@ -20,8 +20,10 @@
     max_samples); a write to a full history blocks for max_blocking_time
     (100 ms) and then fails, which rclpy raises as `RCLError` ("cannot
     publish data"). `publish_acknowledged` turns that into a logged wait.
-    A writer's unacknowledged samples die with its process: a node ending a
-    run calls `wait_acknowledged` first.
+    A writer's unacknowledged samples die with its process: `ros.spin.run_node`
+    calls `wait_acknowledged` before every node exits. A reader that dies
+    without leaving the graph (SIGKILL) holds a full history back until DDS
+    drops it (the participant's lease, 20 s by default).
 * `LATCHED_QOS` (reference_path): reliable, keep-last 1, transient local, so
   a visualiser or recorder that starts late still gets the whole reference.
 * `CLOCK_SUB_QOS`: the trajectory's own /clock subscription, reliable so no

@@ -223,15 +223,21 @@ def test_parameter_set_is_validated_and_refusal_keeps_the_old_value(harness, loc
     assert h.get_parameters(NODE, ["control.q_x"]) == [2.0e6]
 
 
+def _rig(h, namespace: str):
+    """The test's side of a controller in `namespace`: collected voltages and diagnostics, odometry and preview
+    publishers."""
+    return (h.collect(f"{namespace}/wheel_voltages", Float64MultiArray),
+            h.collect(f"{namespace}/diagnostics", DiagnosticArray),
+            h.node.create_publisher(Odometry, f"{namespace}/odom", PUBLISH_QOS),
+            h.node.create_publisher(MultiDOFJointTrajectory, f"{namespace}/reference_preview", PUBLISH_QOS))
+
+
 def test_realtime_watchdog_outputs_zero_volts_on_stale_odometry(harness, tmp_path_factory):
     """In a namespace (relative topic names), apart from the lockstep controller."""
     h = harness
     _, control = load_params()
     reference = make_reference("paper-circle")
-    voltages = h.collect("/rt/wheel_voltages", Float64MultiArray)
-    diagnostics = h.collect("/rt/diagnostics", DiagnosticArray)
-    odom_pub = h.node.create_publisher(Odometry, "/rt/odom", PUBLISH_QOS)
-    preview_pub = h.node.create_publisher(MultiDOFJointTrajectory, "/rt/reference_preview", PUBLISH_QOS)
+    voltages, diagnostics, odom_pub, preview_pub = _rig(h, "/rt")
     with NodeGroup(log_dir=tmp_path_factory.mktemp("controller_rt")) as group:
         args = ros_args(None, {"mode": "realtime", "odom_timeout_s": 0.2, "reference_timeout_s": 0.2})
         node = group.start("controller_node", [*args, "-r", "__ns:=/rt"])
@@ -276,10 +282,7 @@ def test_realtime_moves_the_freshest_preview_to_the_odometry_stamp(harness, tmp_
     first_odom, X1 = moving_odometry(0, reference, first_t * 1e-9, 0.001)
     second_odom, X = moving_odometry(0, reference, t * 1e-9, 0.001)
     limits = (50.0, 500.0)  # a short blend
-    voltages = h.collect("/shift/wheel_voltages", Float64MultiArray)
-    diagnostics = h.collect("/shift/diagnostics", DiagnosticArray)
-    odom_pub = h.node.create_publisher(Odometry, "/shift/odom", PUBLISH_QOS)
-    preview_pub = h.node.create_publisher(MultiDOFJointTrajectory, "/shift/reference_preview", PUBLISH_QOS)
+    voltages, diagnostics, odom_pub, preview_pub = _rig(h, "/shift")
     with NodeGroup(log_dir=tmp_path_factory.mktemp("controller_shift")) as group:
         # long timeouts: Fast DDS can hold the first messages between two participants 333 ms (bench/README.md)
         node = group.start("controller_node", [*ros_args(None, {
@@ -402,10 +405,7 @@ def test_realtime_stamps_are_checked_against_the_node_clock(harness, tmp_path_fa
     h = harness
     _, control = load_params()
     reference = make_reference("paper-circle")
-    voltages = h.collect("/stamps/wheel_voltages", Float64MultiArray)
-    diagnostics = h.collect("/stamps/diagnostics", DiagnosticArray)
-    odom_pub = h.node.create_publisher(Odometry, "/stamps/odom", PUBLISH_QOS)
-    preview_pub = h.node.create_publisher(MultiDOFJointTrajectory, "/stamps/reference_preview", PUBLISH_QOS)
+    voltages, diagnostics, odom_pub, preview_pub = _rig(h, "/stamps")
     hour = 3600 * 10**9
 
     def now():

@@ -28,6 +28,7 @@ VERBS: dict[str, str] = {
     "replay": "republish a recorded bag over DDS (original timing, optional /clock)",
     "regress": "recompute a recording's wheel voltages with a fresh controller and compare",
     "reindex": "make a bag usable after its recorder was killed (finalised MCAP, metadata.yaml)",
+    "study": "Monte-Carlo robustness study: many offline runs with the controller's model drawn off the truth",
     "bench": "time the control step against OSQP and the offline simulation",
 }
 

@@ -121,6 +121,10 @@ class RunData:
         Optional per-sample boolean series, e.g. ``saturated``, ``infeasible``.
     compute_time_s
         Optional per-sample wall-clock time of the control step [s], shape (n,).
+    odometry
+        Optional pose the controller measured (the odometry, its noise
+        included) at the same times, shape (n, 3); the controller tracks in
+        this odom frame, which drifts from the truth with encoder odometry.
     meta
         Optional JSON-serialisable facts about the run (seed, params file, mode).
 
@@ -144,6 +148,7 @@ class RunData:
     flags: dict[str, np.ndarray] = field(default_factory=dict)
     compute_time_s: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    odometry: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.scenario, str) or not self.scenario:
@@ -171,6 +176,8 @@ class RunData:
         self.flags = flags
         if self.compute_time_s is not None:
             self.compute_time_s = _series(self.compute_time_s, "compute_time_s", None, n)
+        if self.odometry is not None:
+            self.odometry = _series(self.odometry, "odometry", 3, n)
         if not isinstance(self.meta, dict):
             raise RunDataError(f"meta must be a dict, got {type(self.meta).__name__}")
 
@@ -179,9 +186,9 @@ class RunData:
         """Number of samples."""
         return int(self.t.shape[0])
 
-    def errors(self) -> np.ndarray:
-        """Tracking errors pose - reference, shape (n, 3), theta wrapped to [-pi, pi)."""
-        err = self.pose - self.reference
+    def errors(self, pose: np.ndarray | None = None) -> np.ndarray:
+        """Tracking errors pose - reference, shape (n, 3), theta wrapped to [-pi, pi); `pose`: the true one if None."""
+        err = (self.pose if pose is None else pose) - self.reference
         err[:, 2] = wrap_angle(err[:, 2])
         return err
 
@@ -208,7 +215,13 @@ def compute_metrics(run: RunData, settle_time_s: float = 1.0) -> dict[str, Any]:
         Plain Python scalars. Position-error metrics are None when no sample
         lies after the settle time. Further keys: ``<flag>_steps`` (samples
         with the flag set) and, with compute times, ``compute_time_median_s``,
-        ``compute_time_p99_s``, ``compute_time_max_s``.
+        ``compute_time_p99_s``, ``compute_time_max_s``; with the odometry
+        (`RunData.odometry`), the tracking as the controller saw it, in the
+        odom frame: ``rms_position_error_odom_m``, ``max_position_error_odom_m``
+        and ``rms_theta_error_odom_rad`` (after the settle time), and its
+        drift from the truth: ``odometry_drift_final_m`` (x-y distance at the
+        last sample) and ``odometry_drift_max_m``. The other keys are against
+        the ground truth (the true pose).
 
     Notes
     -----
@@ -262,6 +275,15 @@ def compute_metrics(run: RunData, settle_time_s: float = 1.0) -> dict[str, Any]:
         metrics["compute_time_median_s"] = float(np.median(ct))
         metrics["compute_time_p99_s"] = float(np.percentile(ct, 99))
         metrics["compute_time_max_s"] = float(ct.max())
+    if run.odometry is not None:
+        err_odom = run.errors(run.odometry)
+        pos_odom = np.hypot(err_odom[:, 0], err_odom[:, 1])
+        metrics["rms_position_error_odom_m"] = after_or_none(_rms, pos_odom)
+        metrics["max_position_error_odom_m"] = after_or_none(lambda v: float(v.max()), pos_odom)
+        metrics["rms_theta_error_odom_rad"] = after_or_none(_rms, err_odom[:, 2])
+        drift = np.hypot(*(run.odometry[:, :2] - run.pose[:, :2]).T)
+        metrics["odometry_drift_final_m"] = float(drift[-1])
+        metrics["odometry_drift_max_m"] = float(drift.max())
     return metrics
 
 
@@ -326,8 +348,9 @@ def save_run(run: RunData, path: str | os.PathLike) -> Path:
     arrays["scenario"] = np.asarray(run.scenario)
     arrays["meta"] = np.asarray(json.dumps(run.meta, sort_keys=True))
     arrays.update({f"flag_{name}": series for name, series in run.flags.items()})
-    if run.compute_time_s is not None:
-        arrays["compute_time_s"] = run.compute_time_s
+    for name in ("compute_time_s", "odometry"):
+        if getattr(run, name) is not None:
+            arrays[name] = getattr(run, name)
     with path.open("wb") as fh:
         np.savez_compressed(fh, **arrays)
     return path
@@ -356,6 +379,7 @@ def load_run(path: str | os.PathLike) -> RunData:
                 supply_voltage_v=float(data["supply_voltage_v"]),
                 flags={k[len("flag_"):]: data[k] for k in data.files if k.startswith("flag_")},
                 compute_time_s=data["compute_time_s"] if "compute_time_s" in data.files else None,
+                odometry=data["odometry"] if "odometry" in data.files else None,
                 meta=json.loads(str(data["meta"])),
             )
     except (OSError, ValueError, zipfile.BadZipFile, json.JSONDecodeError) as exc:

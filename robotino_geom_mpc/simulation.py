@@ -4,14 +4,16 @@ This engine is the reference the ROS 2 nodes reproduce (to 1e-6), so each
 tick k (t_k = k Ts, k = 0 .. n-1) does exactly, in this order:
 
 1. measure: ``pose, twist = plant.odometry(rng, noise)`` (pose plus Gaussian
-   noise drawn from the run's seeded generator, noise-free body-frame twist),
+   noise drawn from the run's seeded generator, noise-free body-frame twist;
+   with ``odometry="encoders"`` the pose integrated from the wheel-encoder
+   counts plus the same noise, and the encoder twist: `encoders`),
    ``X = state_from_odometry(pose, twist)`` (both on Python floats here:
    `RobotinoPlant.odometry_floats`, `odometry_state_floats`);
 2. ``Y_d`` = the reference positions at t_{k+1} .. t_{k+N} (eq. 54), sampled
    for the whole run at once: rows k+1 .. k+N of ``reference.position(j Ts)``,
    equal to ``preview(reference, t_k, Ts, N)`` to rounding (1e-14);
 3. ``out = controller.step(X, Y_d)``;
-4. record t_k, the true pose, the reference at t_k, ``out.voltages``;
+4. record t_k, the true pose, the measured pose, the reference at t_k, ``out.voltages``;
 5. ``plant.step(out.voltages, Ts)`` and record the largest |current| of each
    drive over that period (the plant's substeps), signed like the current
    at the period's end.
@@ -33,6 +35,7 @@ from dataclasses import asdict
 import numpy as np
 from tqdm import tqdm
 
+from robotino_sim_node.encoders import DEFAULT_COUNTS_PER_REV, EncoderError, odometry_source
 from robotino_sim_node.plant import RobotinoPlant
 
 from .core.controller import MotionController, odometry_state_floats
@@ -69,6 +72,9 @@ def run_scenario(
     progress: bool = False,
     plant_robot: RobotinoParams | None = None,
     odometry_noise: tuple[float, float] | None = None,
+    odometry: str = "ideal",
+    encoder_counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
+    wheel_slip_std: float = 0.0,
 ) -> RunData:
     """Simulate one scenario in closed loop.
 
@@ -90,6 +96,12 @@ def run_scenario(
         A different true robot for the plant (mismatch studies); `robot` if None.
     odometry_noise
         (position [m], heading [rad]) noise std; None means the scenario's.
+    odometry
+        ``ideal`` (the true pose plus the noise, the true twist) or ``encoders``
+        (`robotino_sim_node.encoders`: dead reckoning from the wheel encoders).
+    encoder_counts_per_rev, wheel_slip_std
+        The encoders' counts per motor revolution and the wheel slip (std as
+        a fraction of the wheel speed; its generator is seeded by `seed`).
 
     Returns
     -------
@@ -102,7 +114,7 @@ def run_scenario(
     scenarios.ScenarioError
         Unknown scenario.
     SimulationError
-        Non-positive duration or negative noise.
+        Non-positive duration, negative noise or a bad odometry setting.
     """
     spec = get_scenario(scenario)
     if odometry_noise is None:
@@ -118,17 +130,23 @@ def run_scenario(
     n = max(1, int(round(duration / Ts)))
 
     plant = RobotinoPlant(plant_robot if plant_robot is not None else robot)
+    try:
+        source = odometry_source(plant, odometry, encoder_counts_per_rev, wheel_slip_std, seed)
+    except EncoderError as exc:
+        raise SimulationError(str(exc)) from None
     controller = MotionController(spec.controller_model(robot), control)
     rng = np.random.default_rng(seed)
 
     t = np.arange(n) * Ts
     targets = reference.position(np.arange(n + N + 1) * Ts)  # row j: the reference at j Ts
     # Only floats and arrays are kept per tick (no tuples): nothing for the garbage collector to scan.
-    poses, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], []
+    poses, measured, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], [], []
     for k in tqdm(range(n), desc=scenario, unit="tick", disable=not progress, mininterval=0.5):
-        X = odometry_state_floats(*plant.odometry_floats(rng, noise))
+        pose_measured, twist_measured = source.odometry_floats(rng, noise)
+        X = odometry_state_floats(pose_measured, twist_measured)
         out = controller.step(X, targets[k + 1 : k + N + 1])
         poses.append(plant.pose)
+        measured += pose_measured
         voltages += out.voltages
         saturated.append(out.saturated)
         infeasible.append(out.infeasible)
@@ -144,6 +162,7 @@ def run_scenario(
         t=t,
         pose=pose,
         reference=targets[:n],
+        odometry=np.array(measured).reshape(n, 3),
         currents=currents,
         voltages=np.array(voltages).reshape(n, 3),
         control_period_s=Ts,
@@ -156,6 +175,9 @@ def run_scenario(
             "seed": int(seed),
             "mode": control.mode,
             "odometry_noise": list(noise),
+            "odometry": odometry,
+            **({"encoder_counts_per_rev": int(encoder_counts_per_rev), "wheel_slip_std": float(wheel_slip_std)}
+               if odometry == "encoders" else {}),
             "controller_mismatch": None if spec.mismatch is None else asdict(spec.mismatch),
             "plant_params": "plant_robot" if plant_robot is not None else "robot",
         },

@@ -408,6 +408,25 @@ class RobotinoPlant:
         self, rng: np.random.Generator | None = None, noise_std: tuple[float, float] = (0.0, 0.0)
     ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """`odometry` as tuples of Python floats (same values, same draws from the generator)."""
+        x, vx, y, vy, theta, w = self._w[:6]
+        c, s = math.cos(theta), math.sin(theta)
+        twist = (c * vx + s * vy, -s * vx + c * vy, w)
+        noise = self.pose_noise(rng, noise_std)
+        if noise is not None:
+            nx, ny, ntheta = noise
+            return (x + nx, y + ny, theta + ntheta), twist
+        return (x, y, theta), twist
+
+    def pose_noise(
+        self, rng: np.random.Generator | None, noise_std: tuple[float, float]
+    ) -> tuple[float, float, float] | None:
+        """The Gaussian pose noise (x, y, theta) of one measurement, None when both std are 0 (nothing drawn).
+
+        Raises
+        ------
+        PlantError
+            If `noise_std` is not two non-negative finite numbers (m, rad).
+        """
         try:
             std_pos, std_angle = noise_std
             std_pos, std_angle = float(std_pos), float(std_angle)
@@ -415,10 +434,6 @@ class RobotinoPlant:
             raise PlantError(f"noise_std must be two non-negative numbers (m, rad), got {noise_std!r}") from None
         if not (std_pos >= 0.0 and std_angle >= 0.0 and math.isfinite(std_pos + std_angle)):
             raise PlantError(f"noise_std must be two non-negative numbers (m, rad), got {noise_std!r}")
-        x, vx, y, vy, theta, w = self._w[:6]
-        c, s = math.cos(theta), math.sin(theta)
-        twist = (c * vx + s * vy, -s * vx + c * vy, w)
         if std_pos or std_angle:
-            nx, ny, ntheta = (rng if rng is not None else self._rng).normal(0.0, (std_pos, std_pos, std_angle)).tolist()
-            return (x + nx, y + ny, theta + ntheta), twist
-        return (x, y, theta), twist
+            return tuple((rng if rng is not None else self._rng).normal(0.0, (std_pos, std_pos, std_angle)).tolist())
+        return None

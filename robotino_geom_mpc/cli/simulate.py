@@ -10,10 +10,12 @@ import argparse
 import time
 from pathlib import Path
 
+from robotino_sim_node.encoders import ODOMETRY_MODELS
+
 from ..scenarios import SCENARIOS, ScenarioError, get_scenario
 from . import VERBS, UsageError, positive_float, seed_value
 
-__all__ = ["add_parser", "add_scenario_argument", "run"]
+__all__ = ["add_parser", "add_scenario_argument", "add_odometry_argument", "run"]
 
 SETTLE_TIME_S = 1.0
 
@@ -32,6 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
                         help="simulated time [s] (default: the scenario's length)")
     parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
+    add_odometry_argument(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.set_defaults(func=run)
     return parser
@@ -49,6 +52,13 @@ def add_scenario_argument(parser: argparse.ArgumentParser) -> None:
     """The ``--scenario NAME`` option of `simulate` and `run`: the choices and their help from the registry."""
     parser.add_argument("--scenario", required=True, type=_scenario_name, choices=tuple(SCENARIOS), metavar="NAME",
                         help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
+
+
+def add_odometry_argument(parser: argparse.ArgumentParser) -> None:
+    """The ``--odometry {ideal,encoders}`` option of `simulate` and `run`."""
+    parser.add_argument("--odometry", choices=ODOMETRY_MODELS, default="ideal",
+                        help="the plant's odometry: ideal (true pose plus the scenario's noise, true twist; default) "
+                        "or encoders (dead reckoning from 2048-count motor encoders: drifts from the ground truth)")
 
 
 def _fmt(value: float | None, unit: str) -> str:
@@ -71,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     data = run_scenario(
-        args.scenario, robot, control, duration_s=args.duration, seed=args.seed, progress=not args.no_progress
+        args.scenario, robot, control, duration_s=args.duration, seed=args.seed, progress=not args.no_progress,
+        odometry=args.odometry,
     )
     wall_s = time.perf_counter() - start
 
@@ -86,6 +97,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"scenario {m['scenario']}: {m['duration_s']:.3g} s simulated in {wall_s:.3g} s")
     print(f"  position error after {SETTLE_TIME_S:g} s: rms {_fmt(m['rms_position_error_m'], 'm')}, "
           f"max {_fmt(m['max_position_error_m'], 'm')}")
+    if args.odometry != "ideal":
+        print(f"  in the odom frame ({args.odometry}): rms {_fmt(m['rms_position_error_odom_m'], 'm')}, "
+              f"max {_fmt(m['max_position_error_odom_m'], 'm')}; drift from the truth at the end "
+              f"{_fmt(m['odometry_drift_final_m'], 'm')}")
     print(f"  max |theta error|: {_fmt(m['max_abs_theta_error_rad'], 'rad')}")
     within = "within" if m["current_within_nominal"] else "ABOVE"
     print(f"  peak current {m['peak_current_a']:.3g} A ({within} nominal {m['nominal_current_a']:g} A), "

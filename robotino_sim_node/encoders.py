@@ -1,0 +1,173 @@
+"""Wheel-encoder odometry, as a Robotino measures it: counts, wheel speeds from count differences, dead reckoning.
+
+No rclpy here. The plant integrates each wheel's angle (rim distance / r,
+`RobotinoPlant.wheel_angles`); the motor shaft turns `gear_ratio` times as
+far and its encoder counts ``floor(gear * angle * counts_per_rev / (2 pi))``
+(`encoder_counts`). Each measurement turns the count differences since the
+previous one into wheel speeds (`wheel_speeds_from_counts`), those into the
+body twist by the forward kinematics of the three omni wheels
+(`body_twist`: the inverse of `core.model.wheel_rim_speeds` at heading 0,
+i.e. in the robot frame), and integrates the pose with that twist held over
+the interval (`integrate_pose`, exact for a constant twist). The pose so
+drifts from the truth (quantisation, optional wheel slip) and the controller
+tracks in this odom frame while ``ground_truth/odom`` stays the true state.
+
+Wheel slip (``slip_std`` > 0): over each interval the angle the encoder sees
+gains, beyond the true one, a Gaussian slip with standard deviation
+``slip_std`` times the wheel's true angle change (a fraction of its speed).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from robotino_geom_mpc.core.errors import RobotinoError
+from robotino_geom_mpc.core.model import wheel_directions
+from robotino_geom_mpc.core.params import RobotinoParams
+
+__all__ = [
+    "ODOMETRY_MODELS",
+    "DEFAULT_COUNTS_PER_REV",
+    "EncoderError",
+    "encoder_counts",
+    "wheel_speeds_from_counts",
+    "body_twist",
+    "integrate_pose",
+    "EncoderOdometry",
+    "odometry_source",
+]
+
+ODOMETRY_MODELS = ("ideal", "encoders")
+DEFAULT_COUNTS_PER_REV = 2048  # the public Robotino drivers' motor encoders (gear 16: 32768 counts a wheel turn)
+
+Pose = tuple[float, float, float]
+
+
+class EncoderError(RobotinoError, ValueError):
+    """A bad encoder setting (counts per revolution, slip, odometry model), named in the message."""
+
+
+def encoder_counts(wheel_angles: np.ndarray, gear_ratio: float, counts_per_rev: int) -> np.ndarray:
+    """Counts of the motor encoders: floor(gear * wheel angle * counts_per_rev / (2 pi)), as integers."""
+    return np.floor(np.asarray(wheel_angles, dtype=float) * (gear_ratio * counts_per_rev / (2.0 * math.pi))).astype(
+        np.int64)
+
+
+def wheel_speeds_from_counts(
+    delta_counts: np.ndarray, dt: float, gear_ratio: float, counts_per_rev: int
+) -> np.ndarray:
+    """Mean wheel angular speeds [rad/s] over dt [s] from the count differences of the motor encoders."""
+    return np.asarray(delta_counts, dtype=float) * (2.0 * math.pi / (gear_ratio * counts_per_rev * dt))
+
+
+def body_twist(wheel_speeds: np.ndarray, p: RobotinoParams) -> np.ndarray:
+    """(v_x, v_y, omega) in the robot frame from the wheel speeds [rad/s]: the inverse of `wheel_rim_speeds`.
+
+    The rim speed of wheel i is v_i = d_i(0) . (v_x, v_y) + l omega (`core.model`); the 3x3 matrix of those
+    rows is invertible (the wheels are 120 degrees apart).
+    """
+    kinematics = np.column_stack((wheel_directions(0.0), np.full(3, p.l)))
+    return np.linalg.solve(kinematics, p.r * np.asarray(wheel_speeds, dtype=float))
+
+
+def integrate_pose(pose: Pose, twist_body: tuple[float, float, float], dt: float) -> Pose:
+    """The pose after dt [s] at the constant body twist (v_x, v_y, omega): the exact SE(2) exponential."""
+    x, y, theta = pose
+    vx, vy, w = twist_body
+    a = w * dt
+    if abs(a) < 1e-6:  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
+        s, c = 1.0 - a * a / 6.0, 0.5 * a
+    else:
+        s, c = math.sin(a) / a, (1.0 - math.cos(a)) / a
+    dx, dy = (s * vx - c * vy) * dt, (c * vx + s * vy) * dt  # in the frame at the interval's start
+    ct, st = math.cos(theta), math.sin(theta)
+    return (x + ct * dx - st * dy, y + st * dx + ct * dy, theta + a)
+
+
+class EncoderOdometry:
+    """Dead reckoning of a `RobotinoPlant` from its motor encoders (see the module docstring).
+
+    Parameters
+    ----------
+    plant
+        The simulated robot (`RobotinoPlant`); its wheel angles and time are read at each measurement.
+    counts_per_rev
+        Encoder counts per motor revolution.
+    slip_std
+        Wheel slip: standard deviation as a fraction of each wheel's angle change (0: no slip).
+    seed
+        Seed of the slip generator.
+    pose
+        Odometry pose at the start; the plant's pose if None.
+    """
+
+    def __init__(self, plant, counts_per_rev: int = DEFAULT_COUNTS_PER_REV, slip_std: float = 0.0,
+                 seed: int = 0, pose: Pose | None = None) -> None:
+        if isinstance(counts_per_rev, bool) or not isinstance(counts_per_rev, (int, np.integer)) or counts_per_rev < 1:
+            raise EncoderError(f"counts_per_rev must be a positive integer, got {counts_per_rev!r}")
+        if not (isinstance(slip_std, (int, float)) and 0.0 <= slip_std <= 1.0):
+            raise EncoderError(f"slip_std must be a number in [0, 1], got {slip_std!r}")
+        self.plant, self.counts_per_rev, self.slip_std = plant, int(counts_per_rev), float(slip_std)
+        self._rng = np.random.default_rng((int(seed), 1))  # apart from the pose noise stream default_rng(seed)
+        self.pose: Pose = tuple(plant.pose.tolist()) if pose is None else tuple(float(v) for v in pose)
+        self.twist: tuple[float, float, float] = (0.0, 0.0, 0.0)  # no count difference yet
+        self._angles = plant.wheel_angles  # true wheel angles at the last measurement
+        self._seen = self._angles.copy()  # the angles the encoders saw (true + slip)
+        self._counts = self._encoder_counts()
+        self._time_s = plant.time_s
+
+    def _encoder_counts(self) -> np.ndarray:
+        return encoder_counts(self._seen, self.plant.params.gear_ratio, self.counts_per_rev)
+
+    def update(self) -> tuple[Pose, tuple[float, float, float]]:
+        """Read the encoders, integrate the pose over the time since the last update; (pose, body twist).
+
+        A second update at the same plant time changes nothing.
+        """
+        dt = self.plant.time_s - self._time_s
+        if dt > 0.0:
+            angles = self.plant.wheel_angles
+            change = angles - self._angles
+            if self.slip_std:
+                change = change * (1.0 + self.slip_std * self._rng.standard_normal(3))
+            self._seen += change
+            self._angles = angles
+            counts = self._encoder_counts()
+            p = self.plant.params
+            speeds = wheel_speeds_from_counts(counts - self._counts, dt, p.gear_ratio, self.counts_per_rev)
+            self.twist = tuple(body_twist(speeds, p).tolist())
+            self.pose = integrate_pose(self.pose, self.twist, dt)
+            self._counts, self._time_s = counts, self.plant.time_s
+        return self.pose, self.twist
+
+    def odometry_floats(
+        self, rng: np.random.Generator | None = None, noise_std: tuple[float, float] = (0.0, 0.0)
+    ) -> tuple[Pose, tuple[float, float, float]]:
+        """As `RobotinoPlant.odometry_floats`, from the encoders: the integrated pose plus the same Gaussian
+        pose noise (same draws from the generator) and the encoder-derived body twist."""
+        noise = self.plant.pose_noise(rng, noise_std)
+        pose, twist = self.update()
+        if noise is None:
+            return pose, twist
+        return (pose[0] + noise[0], pose[1] + noise[1], pose[2] + noise[2]), twist
+
+
+def odometry_source(plant, model: str = "ideal", counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
+                    slip_std: float = 0.0, seed: int = 0, pose: Pose | None = None):
+    """What a measurement of `plant` reads: the plant itself (``ideal``) or an `EncoderOdometry` (``encoders``).
+
+    Either has ``odometry_floats(rng, noise_std) -> (pose, body twist)``. `seed` seeds the slip (a stream of
+    its own: the pose noise keeps the draws of the ideal model).
+
+    Raises
+    ------
+    EncoderError
+        For an unknown model or a bad encoder setting.
+    """
+    if model == "ideal":
+        return plant
+    if model == "encoders":
+        return EncoderOdometry(plant, counts_per_rev, slip_std, seed, pose)
+    raise EncoderError(f"odometry model must be one of {', '.join(ODOMETRY_MODELS)}, got {model!r}")

@@ -38,7 +38,7 @@ class ControlOutput(NamedTuple):
     currents
         Commanded wheel currents i = F r / (gear Km) [A], F = T(theta) u.
     u
-        Commanded accelerations (u_x, u_y, u_theta) of the MPCs (eq. 48).
+        Commanded accelerations (u_x, u_y, u_theta) of the MPCs (eq. 48), scaled when the current limit binds.
     saturated
         True when a voltage was clipped to the supply.
     infeasible
@@ -91,6 +91,14 @@ class MotionController:
        u - (k/M) v, clipped to the supply. When clipped, u(k) is replaced by
        the acceleration the clipped voltages give (anti-windup), so the next
        Delta u starts from what the robot really receives.
+
+    With ``control.current_limit_a`` = I_max > 0 (closed-form mode), step 3
+    first scales u(k), hence F and i (linear in u), by one factor s in (0, 1]
+    when a wheel's period-average or end-of-period current would exceed I_max
+    or its voltage the supply (`drive.InverseDrive.limited_step`): the
+    acceleration keeps its direction, the largest wheel sits at its limit, and
+    u(k-1) of the next step is s u(k), what was applied (anti-windup). The
+    constrained mode keeps its own limits (the QP) and ignores I_max.
     """
 
     def __init__(self, robot: RobotinoParams, control: ControlParams) -> None:
@@ -107,6 +115,7 @@ class MotionController:
         tau = float(control.odometry_filter_time_constant_s)
         self.estimator = OdometryFilter(self.period_s, tau) if tau > 0.0 else None
         self.constrained = ConstrainedMPC(robot, control, self.mpc) if control.mode == "constrained" else None
+        self.current_limit_a = float(control.current_limit_a) if self.constrained is None else 0.0
         self.reset()
 
     def reset(self) -> None:
@@ -209,12 +218,22 @@ class MotionController:
         ux, uy, uw = u
         dx, dy, dw = self._damping_rates
         omega, omega_rate = self.kinematics.speeds_and_rates_floats(theta, (vx, vy, w), (ux - dx * vx, uy - dy * vy, uw - dw * w))
-        voltages, saturated, mean_current = self.drive.step(
-            currents,
-            omega,
-            omega_rate,
-            lambda i: self._rate_of_current(theta, theta_m, np.array((vx, vy, w)), i),
-        )
+        rate_of_current = lambda i: self._rate_of_current(theta, theta_m, np.array((vx, vy, w)), i)  # noqa: E731
+        if self.current_limit_a > 0.0:
+            rest = (-dx * vx, -dy * vy, -dw * w)
+            voltages, saturated, mean_current, scale = self.drive.limited_step(
+                currents,
+                omega,
+                omega_rate,
+                lambda: self.kinematics.speeds_and_rates_floats(theta, (vx, vy, w), rest)[1],
+                self.current_limit_a,
+                rate_of_current,
+            )
+            if scale < 1.0:
+                u = [scale * ux, scale * uy, scale * uw]
+                currents = [scale * i for i in currents]
+        else:
+            voltages, saturated, mean_current = self.drive.step(currents, omega, omega_rate, rate_of_current)
         self._u_prev = self._acceleration_of_current(theta_m, mean_current).tolist() if saturated else u
         return ControlOutput(
             tuple(voltages), tuple(currents), tuple(u), saturated, infeasible, time.perf_counter() - start

@@ -209,6 +209,69 @@ class InverseDrive:
             alpha * i + e_volt * (U - Km * w) - e_rate * r for i, U, w, r in zip(*self._last)
         ]
 
+    def limited_step(
+        self,
+        i_cmd: Sequence[float],
+        omega: Sequence[float],
+        omega_rate: Sequence[float],
+        rate_at_rest: Callable[[], Sequence[float]],
+        current_limit: float,
+        rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[Sequence[float], bool, Sequence[float], float]:
+        """`step` with the commanded currents scaled by one factor s in (0, 1] to keep the limits.
+
+        Parameters
+        ----------
+        i_cmd, omega, omega_rate, rate_of_current
+            As for `step`; `omega_rate` is the motor-speed rate under the full command.
+        rate_at_rest
+            The motor-speed rate under a zero command (friction and the turning frame only).
+            Called only when a limit binds: the rate is affine in s between the two.
+        current_limit
+            I_max [A] > 0 on the period-average and the end-of-period current of every wheel.
+
+        Returns
+        -------
+        voltages, saturated, mean_current
+            As for `step`, for the scaled command.
+        scale : float
+            s: 1 when the command keeps |i*| <= I_max, |i_end| <= I_max and |U| <= supply;
+            otherwise the largest s for which all hold, so the largest wheel sits at its limit.
+
+        Notes
+        -----
+        The period average i* is the command itself; the current relaxes from
+        i_0 towards the end value (`ZOHDrive.end_current`), so with |i_0| and
+        |i_end| at most I_max the current stays within I_max over the period
+        up to the small hump where the back-EMF rises inside it. Every bounded
+        quantity is affine in s, a + s b: the binding s is (+-I_max - a) / b.
+        A row already beyond its limit at s = 0 (e.g. a back-EMF above the
+        supply) cannot be helped by scaling and is left to the supply clip of `step`.
+        """
+        i0, last, one_period = self._i0, self._last, self._one_period
+        voltages, saturated, mean = self.step(i_cmd, omega, omega_rate, rate_of_current)
+        end = self._i0
+        if not saturated and max(abs(i_cmd[0]), abs(i_cmd[1]), abs(i_cmd[2]), abs(end[0]), abs(end[1]), abs(end[2])) <= current_limit:
+            return voltages, saturated, mean, 1.0
+        self._i0, self._last, self._one_period = i0, last, one_period
+        rest = rate_at_rest()
+        ec, es, ew, er = self._end_row
+        vc, vs, vw, vr = self._voltage_row
+        supply, scale = self.supply_voltage_v, 1.0
+        for c, s0, w, r0, r1 in zip(i_cmd, i0, omega, rest, omega_rate):
+            dr = r1 - r0
+            for a, b, bound in (
+                (0.0, c, current_limit),
+                (es * s0 + ew * w + er * r0, ec * c + er * dr, current_limit),
+                (vs * s0 + vw * w + vr * r0, vc * c + vr * dr, supply),
+            ):
+                full = a + b
+                if abs(full) > bound and abs(a) < bound:
+                    scale = min(scale, (math.copysign(bound, full) - a) / b)
+        scaled_rate = [r0 + scale * (r1 - r0) for r0, r1 in zip(rest, omega_rate)]
+        voltages, saturated, mean = self.step([scale * c for c in i_cmd], omega, scaled_rate, rate_of_current)
+        return voltages, saturated, mean, scale
+
     @staticmethod
     def _vec(value: object, name: str) -> np.ndarray:
         return checked_array(value, (3,), name, DriveError)

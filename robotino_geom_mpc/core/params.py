@@ -112,6 +112,17 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
         60.0,
         False,
     ),
+    ParamSpec(
+        "control.current_limit_a",
+        float,
+        "Wheel current limit of the closed-form mode (core.drive.InverseDrive.limit_factor): when a wheel's "
+        "period-average or end current would exceed it, or a voltage the supply, the commanded accelerations u are "
+        "scaled by one factor (direction kept); 0 = no limit, voltages clipped per wheel (the paper)",
+        "A",
+        0.0,
+        100.0,
+        False,
+    ),
 )
 
 ALL_SPECS: tuple[ParamSpec, ...] = ROBOT_SPECS + CONTROL_SPECS
@@ -231,7 +242,7 @@ class RobotinoParams:
 
 @dataclass(frozen=True)
 class ControlParams:
-    """Controller settings: control period, horizon, per-axis weights, mode and odometry filter."""
+    """Controller settings: control period, horizon, per-axis weights, mode, odometry filter and current limit."""
 
     period_s: float
     horizon: int
@@ -243,6 +254,7 @@ class ControlParams:
     r_theta: float
     mode: str
     odometry_filter_time_constant_s: float
+    current_limit_a: float
 
     @property
     def q(self) -> tuple[float, float, float]:

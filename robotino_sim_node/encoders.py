@@ -25,11 +25,13 @@ import numpy as np
 
 from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.core.model import wheel_directions
-from robotino_geom_mpc.core.params import RobotinoParams
+from robotino_geom_mpc.core.params import ParamSpec, RobotinoParams
 
 __all__ = [
     "ODOMETRY_MODELS",
     "DEFAULT_COUNTS_PER_REV",
+    "ODOMETRY_SPECS",
+    "ODOMETRY_DEFAULTS",
     "EncoderError",
     "encoder_counts",
     "wheel_speeds_from_counts",
@@ -41,6 +43,16 @@ __all__ = [
 
 ODOMETRY_MODELS = ("ideal", "encoders")
 DEFAULT_COUNTS_PER_REV = 2048  # the public Robotino drivers' motor encoders (gear 16: 32768 counts a wheel turn)
+
+# The plant node's parameters of its odometry (`odometry_source`'s settings).
+ODOMETRY_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("odometry_model", str, "ideal: the true pose plus the noise, the true twist; encoders: the pose "
+              "integrated from the wheel encoders' counts, the twist from their differences", choices=ODOMETRY_MODELS),
+    ParamSpec("encoder.counts_per_rev", int, "Encoder counts per motor revolution", "", 1, 10**6, False),
+    ParamSpec("encoder.wheel_slip_std", float, "Wheel slip: std as a fraction of the wheel speed", "", 0.0, 1.0, False),
+)
+ODOMETRY_DEFAULTS = {"odometry_model": "ideal", "encoder.counts_per_rev": DEFAULT_COUNTS_PER_REV,
+                     "encoder.wheel_slip_std": 0.0}
 
 Pose = tuple[float, float, float]
 

@@ -3,8 +3,9 @@
 Topics (relative names)
 -----------------------
 subscribes ``wheel_voltages``      std_msgs/Float64MultiArray, 3 values [V] (forward_command_controller convention)
-publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``base_link`` (REP-105), pose with
-                                   the odometry noise, twist in ``base_link`` (noise-free), covariances: x, y, yaw
+publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``base_link`` (REP-105), true pose (or
+                                   with ``odometry_model`` encoders dead-reckoned, `encoders`) plus the odometry
+                                   noise, twist in ``base_link`` (true, or from encoder counts), covariances: x, y, yaw
                                    variance from the noise settings, z/roll/pitch and twist 1e-12 (planar, exact)
            ``ground_truth/odom``   nav_msgs/Odometry, the noise-free state (for metrics)
            ``wheel_currents``      std_msgs/Float64MultiArray, 3 values [A], layout label ``wheel_current_a``: per
@@ -83,6 +84,7 @@ from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, odometr
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
+from robotino_sim_node.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source
 from robotino_sim_node.lockstep_start import StartHandshake
 from robotino_sim_node.loop_timing import LoopTiming, lockstep_line, lockstep_report, realtime_report, write_report
 from robotino_sim_node.plant import RobotinoPlant
@@ -106,15 +108,15 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
               "that the other nodes' endpoints, shown by the graph, have matched each other too", "s", 0.0, 60.0, True),
     ParamSpec("odometry_noise.position_m", float, "Standard deviation of the odometry x, y noise", "m", 0.0, 1.0, False),
     ParamSpec("odometry_noise.yaw_rad", float, "Standard deviation of the odometry yaw noise", "rad", 0.0, 1.0, False),
-    ParamSpec("seed", int, "Seed of the odometry noise", "", 0, 2**31 - 1, False),
+    ParamSpec("seed", int, "Seed of the odometry noise (and of the wheel slip)", "", 0, 2**31 - 1, False),
     ParamSpec("timing_report", str, "File the loop's timing figures go to as one JSON object at the end of a run "
               "(its folder must exist); empty: none"),
-)
+) + ODOMETRY_SPECS
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
     "lockstep_resend_s": 0.5, "lockstep_settle_s": 1.0, "odometry_noise.position_m": 0.0,
-    "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "",
+    "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "", **ODOMETRY_DEFAULTS,
 }
 
 
@@ -136,7 +138,8 @@ class PlantNode(Node):
         super().__init__("robotino_plant")
         self.params = SpecParameters(
             self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params,
-            fixed=("mode", "physics_rate_hz", "timing_report"),  # the realtime grid: steps of 1 / physics_rate_hz
+            # the realtime grid (steps of 1 / physics_rate_hz), the odometry model
+            fixed=("mode", "physics_rate_hz", "timing_report", *ODOMETRY_DEFAULTS),
         )
         report = self.params["timing_report"]
         if report and not Path(report).resolve().parent.is_dir():
@@ -144,6 +147,7 @@ class PlantNode(Node):
         self.robot, self.control = self.params.robot_control()
         self.lockstep = self.params["mode"] == "lockstep"
         self.plant = self._new_plant(self.robot)
+        self.odometry = self._new_odometry()
         self.period_ns = int(round(self.control.period_s * 1e9))
         self.rng = np.random.default_rng(self.params["seed"])  # the noise stream of `simulation.run_scenario`
         self.done = Future()
@@ -164,7 +168,7 @@ class PlantNode(Node):
 
         self.voltages = np.zeros(3)
         self.peak_currents = np.zeros(3)
-        self.measurement: tuple[np.ndarray, np.ndarray] | None = None
+        self.measurement: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         self.have_period = False  # a period has been integrated since the first measurement
         self._build_messages()
         self.command_time = -math.inf  # steady time of the last command (a refused one means zero volts)
@@ -195,6 +199,7 @@ class PlantNode(Node):
         if robot != self.robot:
             self.robot = robot
             self.plant = self._new_plant(robot, self.plant.state)
+            self.odometry = self._new_odometry(self.odometry)
         self._build_messages()
         if "seed" in changed:
             self.rng = np.random.default_rng(self.params["seed"])
@@ -207,6 +212,12 @@ class PlantNode(Node):
                 plant.step(_ZERO_VOLTS, k / self.params["physics_rate_hz"])
             plant.reset(state)
         return plant
+
+    def _new_odometry(self, previous=None):
+        """What the odometry reads (`encoders.odometry_source`); encoders continue from `previous`'s pose."""
+        p = self.params
+        return odometry_source(self.plant, p["odometry_model"], p["encoder.counts_per_rev"],
+                               p["encoder.wheel_slip_std"], p["seed"], getattr(previous, "pose", None))
 
     # lockstep -----------------------------------------------------------------------------------
     def _try_start(self) -> None:
@@ -381,17 +392,15 @@ class PlantNode(Node):
         """
         if fresh or self.measurement is None:
             noise = (self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"])
-            self.measurement = self.plant.odometry(self.rng, noise)
-        pose, twist = self.measurement
-        twist = twist.tolist()
-        publish_acknowledged(self, self.odom_pub, self.odom_cdr.pack(*stamp, *_odometry_values(pose.tolist(), twist)))
+            self.measurement = self.odometry.odometry_floats(self.rng, noise)
+        publish_acknowledged(self, self.odom_pub, self.odom_cdr.pack(*stamp, *_odometry_values(*self.measurement)))
         if clock:
             publish_acknowledged(self, self.clock_pub, self.clock_cdr.pack(*stamp))
         if fresh and self.have_period:
             self._publish_currents()
         if self.truth_pub.get_subscription_count():
             publish_acknowledged(self, self.truth_pub,
-                                 self.truth_cdr.pack(*stamp, *_odometry_values(self.plant.pose.tolist(), twist)))
+                                 self.truth_cdr.pack(*stamp, *_odometry_values(*self.plant.odometry_floats())))
         if not self.joint_pub.get_subscription_count():
             return
         plant = self.plant
@@ -418,7 +427,7 @@ def _joint_template() -> CdrTemplate:
     ))
 
 
-def _odometry_values(pose: list[float], twist_body: list[float]) -> tuple[float, ...]:
+def _odometry_values(pose: tuple[float, ...], twist_body: tuple[float, ...]) -> tuple[float, ...]:
     """The `_ODOM_FIELDS` after the stamp: x, y, yaw quaternion (z, w), body twist (vx, vy, omega)."""
     x, y, theta = pose
     return (x, y, math.sin(0.5 * theta), math.cos(0.5 * theta), *twist_body)

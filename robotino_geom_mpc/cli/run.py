@@ -28,7 +28,7 @@ from pathlib import Path
 
 from ..scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
-from .simulate import add_scenario_argument
+from .simulate import add_odometry_argument, add_scenario_argument
 
 __all__ = ["add_parser", "run"]
 
@@ -56,6 +56,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/run-<scenario>)")
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
     parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
+    add_odometry_argument(parser)
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
     parser.set_defaults(func=run)
     return parser
@@ -82,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
 
-    node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag)
+    node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
+                               odometry=args.odometry)
     mode = "lockstep" if args.lockstep else "realtime"
     print(f"run {args.scenario} over DDS ({mode}, {duration:g} s, Ts = {control.period_s:g} s); logs in {out / 'logs'}")
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
@@ -125,5 +127,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"  position error after settle: rms {metrics['rms_position_error_m']:.3g} m, "
           f"max {metrics['max_position_error_m']:.3g} m; peak current {metrics['peak_current_a']:.3g} A, "
           f"peak voltage {metrics['peak_voltage_v']:.3g} V")
+    if metrics.get("rms_position_error_odom_m") is not None:
+        print(f"  in the odom frame: rms {metrics['rms_position_error_odom_m']:.3g} m; drift from the truth at the "
+              f"end {metrics['odometry_drift_final_m']:.3g} m")
     print(f"  wrote {out / 'metrics.json'} and the figures; recording in {bag}")
     return 0

@@ -6,6 +6,8 @@ How a recording maps onto `results.RunData` (one sample per control tick k):
   message of each stamp: a lockstep tick the plant resends counts once),
   relative to the first tick;
 * pose: ``ground_truth/odom`` position and yaw (unwrapped);
+* odometry (the pose the controller measured, in the odom frame): the
+  ``odom`` message stamped t_k (its first), when every tick has one;
 * reference: point 0 of the ``reference_preview`` stamped t_k (the
   reference at t_k itself), else the ``reference_path`` pose stamped t_k
   (linear interpolation between path samples otherwise);
@@ -148,6 +150,12 @@ def _first_after(times: list[int], items: list, t: int, before: int | None = Non
     return None
 
 
+def _pose(msg: Any) -> tuple[float, float, float]:
+    """(x, y, yaw) of a nav_msgs/Odometry."""
+    pose = msg.pose.pose
+    return (pose.position.x, pose.position.y, yaw(pose.orientation))
+
+
 def controller_diagnostics(msg: Any) -> dict[str, str] | None:
     """Key-values of the controller's tracking status in a DiagnosticArray (None if it has none)."""
     for status in msg.status:
@@ -218,16 +226,16 @@ def run_data_from_bag(
             reference = None
         if current is None or voltage is None or reference is None or len(current.data) != 3 or len(voltage.data) != 3:
             continue
-        pose = msg.pose.pose
-        rows.append((stamp, (pose.position.x, pose.position.y, yaw(pose.orientation)), reference,
-                     tuple(current.data), tuple(voltage.data), diag[1] if diag else None))
+        rows.append((stamp, _pose(msg), reference, tuple(current.data), tuple(voltage.data), diag[1] if diag else None,
+                     _pose(odom[stamp][1]) if stamp in odom else None))
     if not rows:
         raise BagError(f"{bag.path}: no control tick with pose, reference, currents and voltages in the recording")
     t0 = rows[0][0]
     pose = np.array([r[1] for r in rows])
     reference = np.array([r[2] for r in rows])
-    pose[:, 2] = np.unwrap(pose[:, 2])
-    reference[:, 2] = np.unwrap(reference[:, 2])
+    odometry = np.array([r[6] for r in rows]) if all(r[6] is not None for r in rows) else None
+    for series in (pose, reference) if odometry is None else (pose, reference, odometry):
+        series[:, 2] = np.unwrap(series[:, 2])
     flags: dict[str, np.ndarray] = {}
     compute = None
     if all(r[5] is not None for r in rows):
@@ -247,6 +255,7 @@ def run_data_from_bag(
         supply_voltage_v=robot.supply_voltage_v,
         flags=flags,
         compute_time_s=compute,
+        odometry=odometry,
         meta={
             "source": "recording",
             "bag": str(bag.path),

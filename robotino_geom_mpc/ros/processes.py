@@ -45,12 +45,14 @@ def node_arguments(
     bag: str | os.PathLike | None = None,
     wait_for: list[str] | None = None,
     overrides: dict[str, dict[str, Any]] | None = None,
+    odometry: str = "ideal",
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`.
 
     Each node gets the parameter file, the scenario's overrides (`scenarios.node_parameters`) and the
-    mode; the plant the run's length, the seed and ``lockstep_wait_for`` (`wait_for`, by default the
-    subscriptions of the nodes started: `LOCKSTEP_WAIT_FOR`, or `RECORDER_WAIT_FOR` with a recorder);
+    mode; the plant the run's length, the seed, ``odometry_model`` (`odometry`: ideal or encoders) and
+    ``lockstep_wait_for`` (`wait_for`, by default the subscriptions of the nodes started:
+    `LOCKSTEP_WAIT_FOR`, or `RECORDER_WAIT_FOR` with a recorder);
     `overrides` (per executable name) come last.
     """
     from robotino_geom_mpc.core.params import load_params
@@ -75,6 +77,7 @@ def node_arguments(
         "mode": mode,
         "duration_s": float(duration_s),
         "seed": int(seed),
+        "odometry_model": odometry,
         "lockstep_wait_for": list(wait_for),
         **extra.get("plant_node", {}),
     })

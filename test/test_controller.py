@@ -88,7 +88,7 @@ def test_voltages_give_the_commanded_currents_on_the_coupled_plant(params):
 
 def test_saturation_clips_and_feeds_back_the_achieved_acceleration(params):
     robot, control = params
-    ctl = MotionController(robot, control)
+    ctl = MotionController(robot, replace(control, current_limit_a=0.0))  # the paper's per-wheel clip
     out = ctl.step(X0, _preview(X0, control, (0.2, 0.0, 0.0)))
     assert out.saturated
     assert np.max(np.abs(out.voltages)) == pytest.approx(robot.supply_voltage_v)
@@ -194,7 +194,7 @@ def test_measured_heading_jumping_by_two_pi_does_not_disturb_the_filtered_contro
         X_wrapped[4] += 2 * np.pi if k >= 4 else 0.0
         out_a, out_b = a.step(X, Y_d), b.step(X_wrapped, Y_d)
         np.testing.assert_allclose(out_b.voltages, out_a.voltages, rtol=0, atol=1e-9)
-    raw = MotionController(robot, replace(control, odometry_filter_time_constant_s=0.0))
+    raw = MotionController(robot, replace(control, odometry_filter_time_constant_s=0.0, current_limit_a=0.0))
     assert raw.step(X_wrapped, Y_d).saturated  # the raw pose would have been an error of 2 pi
 
 
@@ -203,7 +203,7 @@ def test_filter_keeps_odometry_noise_out_of_the_currents_in_closed_loop(params):
     robot, control = params
     peaks = {}
     for tau in (0.0, 0.5):
-        run = run_scenario("robustness", robot, replace(control, odometry_filter_time_constant_s=tau), duration_s=1.5)
+        run = run_scenario("robustness", robot, replace(control, odometry_filter_time_constant_s=tau, current_limit_a=0.0), duration_s=1.5)
         peaks[tau] = np.abs(run.currents).max()
         saturated = run.flags["saturated"].any()
         error = np.hypot(*(run.pose[:, :2] - run.reference[:, :2]).T)

@@ -248,13 +248,14 @@ def summarize(result: StudyResult, scenario: str) -> dict[str, Any]:
         "worst_runs": {},
     }
     for key in STATISTICS:
-        values = np.array([row[key] for row in ok], dtype=float)
-        summary[key] = None if not ok else {
+        measured = [row for row in ok if row[key] is not None]  # None: a run shorter than the settle time
+        values = np.array([row[key] for row in measured], dtype=float)
+        summary[key] = None if not measured else {
             "median": float(np.median(values)),
             "p95": float(np.percentile(values, 95)),
             "worst": float(values.max()),
         }
-        worst = ok[int(np.argmax(values))] if ok else None
+        worst = measured[int(np.argmax(values))] if measured else None
         summary["worst_runs"][key] = None if worst is None else {f: worst[f] for f in DRAW_FIELDS}
     return summary
 

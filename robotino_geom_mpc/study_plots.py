@@ -19,11 +19,11 @@ __all__ = ["write_study_plots"]
 
 # metric -> (axis label, factor to the plotted unit)
 _METRICS = {"rms_position_error_m": ("RMS position error [mm]", 1e3), "peak_current_a": ("peak current [A]", 1.0)}
-# draw -> axis label, factor to the plotted unit
+# draw -> axis label, factor to the plotted unit (friction is drawn log-uniformly: log axis)
 _DRAWS = {
     "mass": ("controller mass / true", 1.0),
     "inertia": ("controller yaw inertia / true", 1.0),
-    "friction": ("controller friction / true", 1.0),
+    "friction": ("controller friction / true (log)", 1.0),
     "noise_position_m": ("odometry noise [mm]", 1e3),
     "noise_yaw_rad": ("heading noise [mrad]", 1e3),
 }
@@ -56,12 +56,16 @@ def write_study_plots(rows: list[dict[str, Any]], out_dir: str | os.PathLike, no
     if not ok:
         return []
     out = Path(out_dir)
-    values = {key: np.array([row[key] for row in ok], dtype=float) for key in (*_METRICS, *_DRAWS)}
+    values = {key: np.array([np.nan if row[key] is None else row[key] for row in ok])
+              for key in (*_METRICS, *_DRAWS)}
 
     hist = _figure(10.0, 4.0)
     for ax, (key, (label, factor)) in zip(hist.subplots(1, len(_METRICS)), _METRICS.items()):
-        ax.hist(factor * values[key], bins=min(50, max(5, len(ok) // 10)), color="tab:blue")
-        ax.axvline(factor * np.percentile(values[key], 95), color="tab:red", ls=":", label="95th percentile")
+        measured = values[key][np.isfinite(values[key])]  # None: a run no longer than the settle time
+        if measured.size == 0:
+            continue
+        ax.hist(factor * measured, bins=min(50, max(5, measured.size // 10)), color="tab:blue")
+        ax.axvline(factor * np.percentile(measured, 95), color="tab:red", ls=":", label="95th percentile")
         if key == "peak_current_a":
             ax.axvline(nominal_current_a, color="k", ls="--", label=f"nominal {nominal_current_a:g} A")
         ax.set_xlabel(label)
@@ -75,7 +79,9 @@ def write_study_plots(rows: list[dict[str, Any]], out_dir: str | os.PathLike, no
     for i, (key, (label, factor)) in enumerate(_METRICS.items()):
         for j, (draw, (draw_label, draw_factor)) in enumerate(_DRAWS.items()):
             ax = axes[i, j]
-            ax.plot(draw_factor * values[draw], factor * values[key], ".", ms=3, alpha=0.6)
+            ax.plot(draw_factor * values[draw], factor * values[key], ".", ms=4, alpha=0.6)
+            if draw == "friction":
+                ax.set_xscale("log")
             if key == "peak_current_a":
                 ax.axhline(nominal_current_a, color="k", ls="--", lw=1.0)
             ax.grid(True, alpha=0.3)

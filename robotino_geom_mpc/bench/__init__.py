@@ -14,12 +14,15 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
   skipped when ROS 2 is missing).
 * `cdr`: the CDR fast path (`ros.cdr` templates and layouts) against
   rclpy's (de)serialization and rosbags' decoder, per message of the loop.
+* `study`: the aggregate real-time factor of a short Monte-Carlo study
+  (`robotino_geom_mpc.study`) on all cores, beside `offline`'s one run.
 * `host_steal` samples the hypervisor's steal beside the realtime run;
   `startup_stalls` is a script (``python -m robotino_geom_mpc.bench.startup_stalls``).
 """
 
 # registration, in the order `bench` runs them
 from robotino_geom_mpc.bench import controller_step, offline  # noqa: F401, I001
+from robotino_geom_mpc.bench import study  # noqa: F401
 from robotino_geom_mpc.bench import cdr  # noqa: F401
 from robotino_geom_mpc.bench.registry import REGISTRY, BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
 

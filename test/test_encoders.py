@@ -1,0 +1,177 @@
+"""Encoder odometry (robotino_sim_node.encoders) against analytical truths and the plant's own wheel angles."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from robotino_geom_mpc.core.model import wheel_rim_speeds
+from robotino_geom_mpc.core.params import load_params
+from robotino_sim_node.encoders import (
+    EncoderError,
+    EncoderOdometry,
+    body_twist,
+    integrate_pose,
+    odometry_source,
+)
+from robotino_sim_node.plant import RobotinoPlant
+
+ROBOT, CONTROL = load_params()
+TS = CONTROL.period_s
+CPR = 2048
+PHI = (0.0, 2.0 * math.pi / 3.0, -2.0 * math.pi / 3.0)  # the wheels' mounting angles (core.model conventions)
+
+
+class ConstantWheels:
+    """A stand-in plant whose wheels turn at constant speeds [rad/s] from pose (0, 0, 0): angles = speed * t."""
+
+    def __init__(self, speeds):
+        self.params, self.speeds, self.time_s = ROBOT, np.asarray(speeds, float), 0.0
+        self.pose = np.zeros(3)
+        self._plant = RobotinoPlant(ROBOT)  # for pose_noise only
+
+    @property
+    def wheel_angles(self):
+        return self.speeds * self.time_s
+
+    def pose_noise(self, rng, noise_std):
+        return self._plant.pose_noise(rng, noise_std)
+
+
+def _run(speeds, periods, cpr=CPR):
+    wheels = ConstantWheels(speeds)
+    odometry = EncoderOdometry(wheels, cpr)
+    counts = []
+    for k in range(1, periods + 1):
+        wheels.time_s = k * TS
+        pose, twist = odometry.update()
+        counts.append(odometry._counts.tolist())
+    return wheels, pose, twist, counts
+
+
+def test_counts_are_the_floor_of_the_motor_angle_in_counts():
+    speeds = [3.7, -1.3, 0.05]  # wheel rad/s
+    _, _, _, counts = _run(speeds, 50)
+    for k, row in enumerate(counts, start=1):
+        # motor angle = gear * wheel angle; one revolution = CPR counts
+        expected = [math.floor(ROBOT.gear_ratio * w * k * TS * CPR / (2.0 * math.pi)) for w in speeds]
+        assert row == expected
+
+
+def _count_step():
+    """Wheel angle of one count [rad]."""
+    return 2.0 * math.pi / (ROBOT.gear_ratio * CPR)
+
+
+def test_straight_line_integrates_to_the_analytical_pose():
+    v, T = 0.3, 2.0  # m/s along the robot's x axis, heading 0
+    rim = [v * math.sin(phi) for phi in PHI]  # v_i = d_i(0) . (v, 0) with d_i = (sin phi_i, cos phi_i)
+    _, pose, twist, _ = _run([s / ROBOT.r for s in rim], round(T / TS))
+    q = _count_step()
+    theta_bound = ROBOT.r * q / ROBOT.l  # one count per wheel in sum(angles) r / (3 l)
+    assert abs(pose[2]) <= theta_bound
+    assert abs(pose[0] - v * T) <= 2.0 * ROBOT.r * q + v * T * theta_bound
+    assert abs(pose[1]) <= 2.0 * ROBOT.r * q + v * T * theta_bound
+    assert twist[0] == pytest.approx(v, abs=2.0 * ROBOT.r * q / TS)
+
+
+def test_pure_rotation_integrates_to_the_analytical_heading():
+    w, T = 1.5, 3.0  # rad/s
+    speeds = [ROBOT.l * w / ROBOT.r] * 3  # v_i = l theta'
+    _, pose, twist, _ = _run(speeds, round(T / TS))
+    q = _count_step()
+    assert abs(pose[2] - w * T) <= ROBOT.r * q / ROBOT.l
+    assert math.hypot(pose[0], pose[1]) <= 2.0 * ROBOT.r * q
+    assert twist[2] == pytest.approx(w, abs=ROBOT.r * q / (ROBOT.l * TS))
+    assert pose[2] != w * T  # quantised, not the exact value
+
+
+def test_wheel_speeds_are_within_one_count_per_period_of_the_plant():
+    plant = RobotinoPlant(ROBOT)
+    odometry = EncoderOdometry(plant, CPR)
+    rng = np.random.default_rng(3)
+    bound = _count_step() / TS
+    errors = []
+    for _ in range(300):
+        before = plant.wheel_angles
+        plant.step(rng.uniform(-12.0, 12.0, 3), TS)
+        true_mean = (plant.wheel_angles - before) / TS
+        _, twist = odometry.update()
+        measured = wheel_rim_speeds(0.0, np.array(twist), ROBOT) / ROBOT.r  # back to wheel speeds
+        errors.append(measured - true_mean)
+    errors = np.abs(errors)
+    assert errors.max() < bound
+    assert errors.max() > 0.5 * bound  # quantisation is there, not zero
+    # theta' = r sum(wheel speeds) / (3 l), so the heading is the summed counts: within one count per wheel
+    # of the truth whatever the motion; the position drifts (twist held over each period)
+    assert abs(odometry.pose[2] - plant.pose[2]) <= ROBOT.r * _count_step() / ROBOT.l
+    assert np.hypot(*(np.array(odometry.pose[:2]) - plant.pose[:2])) > 1e-4
+
+
+def test_body_twist_inverts_the_rim_speeds():
+    rng = np.random.default_rng(0)
+    for twist in rng.normal(size=(20, 3)):
+        speeds = wheel_rim_speeds(0.0, twist, ROBOT) / ROBOT.r
+        assert np.allclose(body_twist(speeds, ROBOT), twist, atol=1e-12)
+
+
+@pytest.mark.parametrize("twist", [(0.4, -0.2, 2.0), (0.3, 0.1, 0.0), (0.0, 0.0, -1.0)])
+def test_integrate_pose_matches_a_numerical_integration(twist):
+    start, dt = (0.5, -0.2, 0.7), 0.3
+    vx, vy, w = twist
+
+    def rhs(_, s):
+        c, si = math.cos(s[2]), math.sin(s[2])
+        return [c * vx - si * vy, si * vx + c * vy, w]
+
+    ref = solve_ivp(rhs, (0.0, dt), start, rtol=1e-12, atol=1e-14).y[:, -1]
+    assert np.allclose(integrate_pose(start, twist, dt), ref, atol=1e-11)
+
+
+def test_slip_scatters_the_measured_wheel_speeds_by_the_fraction():
+    wheels = ConstantWheels([10.0, -10.0, 5.0])
+    odometry = EncoderOdometry(wheels, 2**30, slip_std=0.05, seed=4)  # quantisation negligible
+    ratios = []
+    for k in range(1, 801):
+        wheels.time_s = k * TS
+        _, twist = odometry.update()
+        ratios.append(wheel_rim_speeds(0.0, np.array(twist), ROBOT) / ROBOT.r / wheels.speeds)
+    scatter = np.std(np.array(ratios) - 1.0, axis=0)
+    assert np.all(np.abs(scatter - 0.05) < 0.01)
+
+
+def test_pose_noise_is_the_ideal_models_draws():
+    plant = RobotinoPlant(ROBOT)
+    plant.step(np.array([5.0, -3.0, 1.0]), TS)
+    encoders = EncoderOdometry(RobotinoPlant(ROBOT), CPR)
+    clean, _ = encoders.odometry_floats()
+    noisy, _ = encoders.odometry_floats(np.random.default_rng(9), (0.01, 0.02))
+    ideal, _ = plant.odometry_floats(np.random.default_rng(9), (0.01, 0.02))
+    assert np.allclose(np.subtract(noisy, clean), np.subtract(ideal, plant.pose), atol=1e-15)
+
+
+def test_a_second_update_at_the_same_time_changes_nothing_and_the_start_is_the_plant_pose():
+    plant = RobotinoPlant(ROBOT, state0=np.array([1.0, 0, 2.0, 0, 0.5, 0, 0, 0, 0]))
+    odometry = EncoderOdometry(plant, CPR)
+    assert odometry.update() == ((1.0, 2.0, 0.5), (0.0, 0.0, 0.0))
+    plant.step(np.array([6.0, 6.0, 6.0]), TS)
+    first = odometry.update()
+    assert odometry.update() == first
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"model": "lidar"}, "odometry model"),
+    ({"model": "encoders", "counts_per_rev": 0}, "counts_per_rev"),
+    ({"model": "encoders", "counts_per_rev": 2.5}, "counts_per_rev"),
+    ({"model": "encoders", "slip_std": -0.1}, "slip_std"),
+    ({"model": "encoders", "slip_std": math.nan}, "slip_std"),
+])
+def test_bad_settings_are_refused(kwargs, message):
+    with pytest.raises(EncoderError, match=message):
+        odometry_source(RobotinoPlant(ROBOT), **kwargs)
+
+
+def test_ideal_source_is_the_plant():
+    plant = RobotinoPlant(ROBOT)
+    assert odometry_source(plant, "ideal") is plant

@@ -12,6 +12,9 @@ A scenario is the one place that says, for a name given to ``simulate``,
   yaw [rad] (the plant's Gaussian noise);
 * the default run length: the reference's own duration.
 
+``paper-circle-step`` is the circle as the paper ran it: at full speed from
+rest (no ramp-in), the start transient of its Fig. 6.
+
 ``robustness`` runs paper-circle with a controller whose model is off:
 mass +20 %, yaw inertia -20 % (the two errors push the translational and
 rotational loops in opposite directions), body friction twice the true one,
@@ -112,6 +115,9 @@ SCENARIOS: dict[str, Scenario] = {
     for s in (
         Scenario("paper-circle", "the paper's circle (Figs. 4-6): radius 0.5 m, 10 s a lap, theta_d = 0",
                  "paper-circle"),
+        Scenario("paper-circle-step", "the paper's start: paper-circle at full speed (0.31 m/s) from rest, no "
+                 "ramp-in (2 laps, 21 s): the start current transient of its Fig. 6", "paper-circle",
+                 reference_options=(("ramp_in", False),)),
         Scenario("lemniscate", "a figure-eight 1 m wide, 20 s a lap, theta_d along the path", "lemniscate"),
         Scenario("point-to-point", "rest-to-rest moves through waypoints (x, y, theta)", "point-to-point"),
         Scenario("robustness", "paper-circle with the controller's model off (mass x1.2, yaw inertia x0.8, "

@@ -3,6 +3,7 @@
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 import yaml
 
@@ -20,7 +21,7 @@ def robot():
 
 
 def test_the_registry_holds_the_four_scenarios_with_todays_numbers():
-    assert list(SCENARIOS) == ["paper-circle", "lemniscate", "point-to-point", "robustness"]
+    assert list(SCENARIOS) == ["paper-circle", "paper-circle-step", "lemniscate", "point-to-point", "robustness"]
     for name, scenario in SCENARIOS.items():
         assert scenario.name == name and scenario.description and scenario.reference in REFERENCES
     assert all(SCENARIOS[n].mismatch is None and SCENARIOS[n].noise.position_m == SCENARIOS[n].noise.yaw_rad == 0.0
@@ -37,7 +38,24 @@ def test_default_duration_is_the_references_length():
     # the paper's circle: 2 laps of 10 s plus the 2 s of its ramps (CircleReference)
     assert SCENARIOS["paper-circle"].duration_s == SCENARIOS["robustness"].duration_s == pytest.approx(22.0)
     for scenario in SCENARIOS.values():
-        assert scenario.duration_s == make_reference(scenario.reference).duration_s
+        assert scenario.duration_s == make_reference(scenario.reference, **dict(scenario.reference_options)).duration_s
+    # no ramp-in: 2 laps plus half the ramp (the ramp-out)
+    assert SCENARIOS["paper-circle-step"].duration_s == pytest.approx(21.0)
+
+
+def test_paper_circle_step_starts_at_full_speed_from_rest():
+    """The paper's start: the reference's velocity is 2 pi r / T at t = 0 (rest before); the ramped circle's is 0."""
+    step, ramped = SCENARIOS["paper-circle-step"].make_reference(), SCENARIOS["paper-circle"].make_reference()
+    assert "paper's start" in SCENARIOS["paper-circle-step"].description
+    np.testing.assert_allclose(step.sample(0.0)[1], (2 * np.pi * 0.5 / 10.0, 0.0, 0.0), atol=1e-12)
+    np.testing.assert_allclose(step.sample(-0.01)[1], 0.0, atol=0.0)
+    np.testing.assert_allclose(ramped.sample(0.0)[1], 0.0, atol=1e-12)
+    np.testing.assert_allclose(step.position(np.array([0.0, step.duration_s])), 0.0, atol=1e-12)
+    np.testing.assert_allclose(step.sample(step.duration_s)[1], 0.0, atol=1e-12)  # at rest at the end
+    # the velocity is the derivative of the position (an independent central difference)
+    t, h = np.linspace(0.5, step.duration_s - 0.5, 41), 1e-6
+    diff = (step.position(t + h) - step.position(t - h)) / (2 * h)
+    np.testing.assert_allclose(diff, step.sample(t)[1], atol=1e-7)
 
 
 def test_a_scenarios_reference_takes_options():
@@ -50,7 +68,7 @@ def test_a_scenarios_reference_takes_options():
 @pytest.mark.parametrize("name, match", [
     ("robustnes", r"did you mean 'robustness'\?"),
     ("paper_circle", r"did you mean 'paper-circle'\?"),
-    ("spiral", r"unknown scenario 'spiral' \(valid: paper-circle, lemniscate, point-to-point, robustness\)"),
+    ("spiral", r"unknown scenario 'spiral' \(valid: paper-circle, paper-circle-step, lemniscate, point-to-point, robustness\)"),
     (None, "unknown scenario None"),
 ])
 def test_unknown_names_are_refused_with_the_closest_one(name, match):

@@ -10,7 +10,8 @@ never numerical differences.
 References (`REFERENCES`, ../shared/ROBOTINO_NOTES.md, "Reference scenarios"):
 
 * ``paper-circle``: the circle of Figs. 4-6, radius 0.5 m, period 10 s,
-  theta_d = 0, starting and ending at rest at the origin;
+  theta_d = 0, starting and ending at rest at the origin (with ``ramp_in=False``
+  at full speed from t = 0, as the paper ran it: not C^3 at its start);
 * ``lemniscate``: a figure-eight (lemniscate of Gerono) 1 m wide, period
   20 s, theta_d along the path;
 * ``point-to-point``: rest-to-rest moves through waypoints (x, y, theta) with
@@ -30,7 +31,17 @@ from collections.abc import Sequence
 import numpy as np
 
 from .errors import checked_array
-from .time_law import TrajectoryError, _Backend, _compose, _RampedPhase, _Scalar, _septic, _Vector, septic
+from .time_law import (
+    TrajectoryError,
+    _Backend,
+    _compose,
+    _ramp_deficit,
+    _RampedPhase,
+    _Scalar,
+    _septic,
+    _Vector,
+    septic,
+)
 
 __all__ = [
     "REFERENCES",
@@ -121,6 +132,33 @@ class Reference(ABC):
         return self._evaluate(t, False)[0]
 
 
+class _SteppedPhase:
+    """Phase phi(t) advancing by `total` [rad] at its full `rate` from t = 0 (no ramp-in), ramped out as `_RampedPhase`.
+
+    phi'(t) = rate h((D - t) / T_r) on [0, D], h the septic smoothstep, so
+    phi(t) = rate (t - T_r E((D - t) / T_r)) with E the ramp deficit and
+    D = total / rate + T_r / 2; phi' steps from 0 to `rate` at t = 0 (rest before).
+    """
+
+    def __init__(self, rate: float, ramp_s: float, total: float, name: str) -> None:
+        if total / rate < 0.5 * ramp_s:
+            raise TrajectoryError(f"{name}: ramp_s = {ramp_s:g} s is too long for the run (at most {2 * total / rate:g} s)")
+        self.rate, self.ramp_s = rate, ramp_s
+        self.duration_s = total / rate + 0.5 * ramp_s
+
+    def evaluate(self, t, xp: _Backend, derivatives: bool):  # noqa: ANN001, ANN201
+        """(phi,) or (phi and its first three derivatives) at t."""
+        started = 1.0 * (t >= 0.0)
+        t = xp.clip(t, 0.0, self.duration_s)
+        tr, rate = self.ramp_s, self.rate
+        tau_out = (self.duration_s - t) / tr
+        phi = rate * (t - tr * _ramp_deficit(tau_out, xp))
+        if not derivatives:
+            return (phi,)
+        h = _septic(tau_out, xp)
+        return (phi, started * rate * h[0], -started * rate / tr * h[1], started * rate / tr**2 * h[2])
+
+
 class CircleReference(Reference):
     """The paper's circle (Section V, Figs. 4-6) with theta_d = 0, starting at rest at the origin.
 
@@ -135,18 +173,27 @@ class CircleReference(Reference):
     The ramp's peak tangential acceleration is radius (2 pi / period_s)
     (35/16) / ramp_s (0.34 m/s^2 for the defaults), next to the centripetal
     radius (2 pi / period_s)^2 (0.2 m/s^2).
+
+    ``ramp_in=False`` is the paper's start: phi' = 2 pi / period_s from t = 0,
+    so the reference's velocity jumps from rest to radius 2 pi / period_s
+    (0.31 m/s) at the start (not C^3 there); the ramp-out is kept and the run
+    lasts laps * period_s + ramp_s / 2.
     """
 
     def __init__(
-        self, radius_m: float = 0.5, period_s: float = 10.0, laps: float = 2.0, ramp_s: float = 2.0
+        self,
+        radius_m: float = 0.5,
+        period_s: float = 10.0,
+        laps: float = 2.0,
+        ramp_s: float = 2.0,
+        ramp_in: bool = True,
     ) -> None:
         self.name = "paper-circle"
         self.radius_m = _positive(radius_m, "radius_m")
         self.period_s = _positive(period_s, "period_s")
         laps = _positive(laps, "laps")
-        self._phase = _RampedPhase(
-            2.0 * math.pi / self.period_s, _positive(ramp_s, "ramp_s"), 2.0 * math.pi * laps, self.name
-        )
+        phase = _RampedPhase if ramp_in else _SteppedPhase
+        self._phase = phase(2.0 * math.pi / self.period_s, _positive(ramp_s, "ramp_s"), 2.0 * math.pi * laps, self.name)
         self.duration_s = self._phase.duration_s
         self.centre = np.array([0.0, self.radius_m])
 

@@ -230,6 +230,7 @@ def test_reset_and_accessors():
         (lambda p: p.reset(np.full(9, np.inf)), "state0"),
         (lambda p: p.odometry(noise_std=(-1.0, 0.0)), "noise_std"),
         (lambda p: p.odometry(noise_std=(1.0,)), "noise_std"),
+        (lambda p: p.pose_noise(None, (0.0, -1e-3)), "noise_std"),
         (lambda p: RobotinoPlant(ROBOT, substeps=0), "substeps"),
     ],
 )
@@ -282,3 +283,12 @@ def test_generator_is_coupled_rhs_in_the_heading_frame(anisotropic):
         expected = np.concatenate((coupled_rhs(state, U, p), wheel_rim_speeds(theta, state[[1, 3, 5]], p) / p.r))
         np.testing.assert_allclose(derivative[:12], expected, rtol=1e-12, atol=1e-9)
         np.testing.assert_array_equal(derivative[12:], 0.0)  # the voltages are held
+
+
+def test_pose_noise_is_the_odometrys_draws_and_none_without_noise():
+    plant = RobotinoPlant(ROBOT, np.array([0.3, 0.1, -0.2, 0.0, 0.4, 0.5, 0.0, 0.0, 0.0]))
+    assert plant.pose_noise(np.random.default_rng(1), (0.0, 0.0)) is None
+    noise = plant.pose_noise(np.random.default_rng(5), (1e-3, 2e-3))
+    assert noise == tuple(np.random.default_rng(5).normal(0.0, (1e-3, 1e-3, 2e-3)).tolist())
+    pose, _ = plant.odometry_floats(np.random.default_rng(5), (1e-3, 2e-3))
+    assert np.allclose(np.subtract(pose, plant.pose), noise, atol=1e-16)

@@ -208,9 +208,10 @@ def test_run_npz_round_trip(tmp_path):
         flags={"saturated": rng.random(301) < 0.1},
         compute_time_s=rng.random(301) * 1e-4,
         meta={"seed": 7, "params": "robotino3.yaml"},
+        odometry=make_run().reference + rng.normal(0, 1e-3, (301, 3)),
     )
     back = load_run(save_run(run, tmp_path / "run.npz"))
-    for name in ("t", "pose", "reference", "currents", "voltages", "compute_time_s"):
+    for name in ("t", "pose", "reference", "currents", "voltages", "compute_time_s", "odometry"):
         np.testing.assert_array_equal(getattr(back, name), getattr(run, name))
     np.testing.assert_array_equal(back.flags["saturated"], run.flags["saturated"])
     assert (back.scenario, back.horizon, back.meta) == (run.scenario, run.horizon, run.meta)
@@ -225,3 +226,24 @@ def test_corrupt_run_file_rejected(tmp_path):
     np.savez(path, t=np.arange(3.0))
     with pytest.raises(RunDataError, match="missing"):
         load_run(path)
+
+
+def test_odometry_frame_metrics_beside_the_ground_truth_ones():
+    run = make_run()
+    truth, odometry = run.reference.copy(), run.reference.copy()
+    truth[:, 1] += 2e-3  # the true robot 2 mm off in y
+    odometry[:, 0] += 3e-4  # the controller believes itself 0.3 mm off in x
+    odometry[:, 2] += 1e-3
+    odometry[-1, 1] += 4e-3
+    m = compute_metrics(make_run(pose=truth, odometry=odometry), settle_time_s=1.0)
+    assert m["rms_position_error_m"] == pytest.approx(2e-3, rel=1e-9)  # unchanged meaning: the truth
+    after = int(np.sum(run.t >= 1.0 - 1e-12))
+    assert m["rms_position_error_odom_m"] == pytest.approx(
+        math.sqrt(((after - 1) * 3e-4**2 + (3e-4**2 + 4e-3**2)) / after), rel=1e-9)
+    assert m["max_position_error_odom_m"] == pytest.approx(math.hypot(3e-4, 4e-3), rel=1e-9)
+    assert m["rms_theta_error_odom_rad"] == pytest.approx(1e-3, rel=1e-9)
+    assert m["odometry_drift_final_m"] == pytest.approx(math.hypot(3e-4, 2e-3), rel=1e-9)
+    assert m["odometry_drift_max_m"] == pytest.approx(math.hypot(3e-4, 2e-3), rel=1e-9)
+    assert "rms_position_error_odom_m" not in compute_metrics(run)  # no odometry recorded: no such keys
+    with pytest.raises(RunDataError, match="odometry"):
+        make_run(odometry=np.zeros((5, 3)))

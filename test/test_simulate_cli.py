@@ -78,7 +78,7 @@ def test_robustness_runs_the_registrys_mismatch_and_noise(tmp_path, capsys):
     assert run.meta["controller_mismatch"] == {"mass": 1.2, "inertia": 0.8, "friction": 2.0}
 
 
-@pytest.mark.parametrize("name, hint", [("square", "paper-circle, lemniscate"),
+@pytest.mark.parametrize("name, hint", [("square", "(valid: paper-circle"),
                                         ("robustnes", "did you mean 'robustness'")])
 def test_unknown_scenario_exits_2_without_traceback(tmp_path, name, hint):
     proc = _cli("simulate", "--scenario", name, "--out", str(tmp_path / "x"), "--no-progress")
@@ -98,6 +98,7 @@ def test_unknown_scenario_exits_2_without_traceback(tmp_path, name, hint):
         (["--scenario", "paper-circle", "--duration", "inf"], "--duration"),
         (["--scenario", "paper-circle", "--duration", "abc"], "--duration"),
         (["--scenario", "paper-circle", "--seed", "-3"], "--seed"),
+        (["--scenario", "paper-circle", "--odometry", "lidar"], "--odometry"),
         ([], "--scenario"),
     ],
 )
@@ -115,3 +116,17 @@ def test_missing_params_file_exits_2(tmp_path, capsys):
     assert status == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nope.yaml" in err[0]
+
+
+def test_encoder_odometry_reports_both_frames(tmp_path):
+    out = tmp_path / "enc"
+    proc = _cli("simulate", "--scenario", "paper-circle", "--duration", "3", "--odometry", "encoders", "--out",
+                str(out), "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    metrics, run = read_metrics(out / "metrics.json"), load_run(out / "run.npz")
+    assert run.meta["odometry"] == "encoders"
+    assert metrics == pytest.approx({**compute_metrics(run, settle_time_s=1.0), **{
+        k: metrics[k] for k in ("wall_time_s", "realtime_factor")}})
+    assert 0.0 < metrics["odometry_drift_max_m"] < 1e-3
+    assert metrics["rms_position_error_odom_m"] != metrics["rms_position_error_m"]
+    assert "in the odom frame (encoders)" in proc.stdout

@@ -81,6 +81,9 @@ def test_plant_robot_and_noise_options(params):
         ({"scenario": "robustnes"}, ScenarioError, "did you mean 'robustness'"),
         ({"duration_s": -1.0}, SimulationError, "duration_s"),
         ({"odometry_noise": (-1e-3, 0.0)}, SimulationError, "odometry_noise"),
+        ({"odometry": "lidar"}, SimulationError, "odometry model"),
+        ({"odometry": "encoders", "encoder_counts_per_rev": 0}, SimulationError, "counts_per_rev"),
+        ({"odometry": "encoders", "wheel_slip_std": 2.0}, SimulationError, "slip_std"),
     ],
 )
 def test_bad_settings_raise(params, kwargs, error, match):
@@ -110,3 +113,34 @@ def test_each_tick_measures_then_previews_then_steps(params, monkeypatch):
     for k, (X, Y_d) in enumerate(seen):
         np.testing.assert_allclose(Y_d, preview(reference, run.t[k], control.period_s, control.horizon), atol=1e-12)
         np.testing.assert_allclose(X[0::2], run.pose[k], atol=1e-15)
+
+
+def test_encoder_odometry_is_what_the_controller_tracks(params, monkeypatch):
+    """With encoders the controller sees the dead-reckoned pose (recorded as `odometry`), not the truth."""
+    robot, control = params
+    from robotino_geom_mpc.core import controller as controller_module
+    from robotino_sim_node.encoders import integrate_pose
+
+    seen = []
+    original = controller_module.MotionController.step
+
+    def spy(self, X, Y_d):
+        seen.append(np.array(X))
+        return original(self, X, Y_d)
+
+    monkeypatch.setattr(controller_module.MotionController, "step", spy)
+    run = run_scenario("paper-circle", robot, control, duration_s=2.0, odometry="encoders")
+    X = np.array(seen)
+    np.testing.assert_array_equal(X[:, 0::2], run.odometry)
+    assert run.meta["odometry"] == "encoders" and run.meta["encoder_counts_per_rev"] == 2048
+    np.testing.assert_array_equal(run.odometry[0], run.pose[0])  # starts at the true pose, at rest
+    drift = np.hypot(*(run.odometry[:, :2] - run.pose[:, :2]).T)
+    assert 0.0 < drift.max() < 1e-3
+    # each pose is the previous one carried by the measured twist over one period (dead reckoning)
+    c, s = np.cos(X[:, 4]), np.sin(X[:, 4])
+    twist = np.c_[c * X[:, 1] + s * X[:, 3], -s * X[:, 1] + c * X[:, 3], X[:, 5]]
+    for k in range(1, len(X)):
+        np.testing.assert_allclose(integrate_pose(run.odometry[k - 1], twist[k], control.period_s), run.odometry[k],
+                                   atol=1e-12)
+    ideal = run_scenario("paper-circle", robot, control, duration_s=2.0)
+    np.testing.assert_array_equal(ideal.odometry, ideal.pose)  # noise-free ideal odometry is the truth

@@ -9,7 +9,10 @@ Each run is `simulation.run_scenario` with
   ``INERTIA_RANGE`` (+-20 %) and log-uniformly from ``FRICTION_RANGE``
   (x0.5 .. x2, so halving and doubling are equally likely),
 * odometry noise (position [m], heading [rad]) drawn uniformly from
-  0 .. ``NOISE_MAX``, and its own noise seed.
+  0 .. ``NOISE_MAX``, and its own noise seed,
+* the odometry model drawn with equal odds from the allowed ones
+  (`robotino_sim_node.encoders.ODOMETRY_MODELS`: the true pose plus the
+  noise, or dead reckoning from 2048-count wheel encoders plus the noise).
 
 `draw_runs` makes the draws from one seed (same seed, same draws), `run_study`
 spreads the runs over processes (`concurrent.futures.ProcessPoolExecutor`)
@@ -33,6 +36,8 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from robotino_sim_node.encoders import ODOMETRY_MODELS
+
 from .core.errors import RobotinoError
 from .core.params import ControlParams, RobotinoParams
 from .results import compute_metrics
@@ -52,7 +57,7 @@ NOISE_MAX = (2e-3, 2e-3)  # odometry noise std: position [m], heading [rad]
 METRICS = (  # the keys of `results.compute_metrics` a row keeps
     "rms_position_error_m", "max_position_error_m", "rms_theta_error_rad", "max_abs_theta_error_rad",
     "final_position_error_m", "peak_current_a", "peak_current_after_settle_a", "samples_above_nominal_current",
-    "peak_voltage_v", "saturated_steps", "infeasible_steps",
+    "peak_voltage_v", "saturated_steps", "infeasible_steps", "rms_position_error_odom_m", "odometry_drift_max_m",
 )
 STATISTICS = ("rms_position_error_m", "peak_current_a")  # summarised as median, p95, worst
 
@@ -75,6 +80,8 @@ class Draw:
         Factors of the controller's model over the true robot (`RobotinoParams.scaled`).
     noise_position_m, noise_yaw_rad
         Odometry noise standard deviations.
+    odometry
+        The odometry model, a name of `robotino_sim_node.encoders.ODOMETRY_MODELS`.
     """
 
     index: int
@@ -84,6 +91,7 @@ class Draw:
     friction: float
     noise_position_m: float
     noise_yaw_rad: float
+    odometry: str
 
 
 DRAW_FIELDS = tuple(f.name for f in fields(Draw))
@@ -98,27 +106,32 @@ class StudyResult:
     wall_s: float
 
 
-def draw_runs(samples: int, seed: int) -> list[Draw]:
+def draw_runs(samples: int, seed: int, odometry: tuple[str, ...] = ODOMETRY_MODELS) -> list[Draw]:
     """`samples` draws from a generator seeded with `seed` (same arguments, same draws).
+
+    `odometry` lists the odometry models to draw from, with equal odds.
 
     Raises
     ------
     StudyError
-        If `samples` < 1 or `seed` < 0.
+        If `samples` < 1, `seed` < 0, or `odometry` is empty or names an unknown model.
     """
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
         raise StudyError(f"samples must be a positive integer, got {samples!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise StudyError(f"seed must be a non-negative integer, got {seed!r}")
+    if not odometry or any(model not in ODOMETRY_MODELS for model in odometry):
+        raise StudyError(f"odometry must name models of {', '.join(ODOMETRY_MODELS)}, got {odometry!r}")
     rng = np.random.default_rng(seed)
     mass = rng.uniform(*MASS_RANGE, samples)
     inertia = rng.uniform(*INERTIA_RANGE, samples)
     friction = np.exp(rng.uniform(*np.log(FRICTION_RANGE), samples))
     noise = rng.uniform(0.0, 1.0, (samples, 2)) * np.array(NOISE_MAX)
     seeds = rng.integers(0, 2**31, samples)
+    models = rng.integers(0, len(odometry), samples)
     return [
         Draw(k, int(seeds[k]), float(mass[k]), float(inertia[k]), float(friction[k]),
-             float(noise[k, 0]), float(noise[k, 1]))
+             float(noise[k, 0]), float(noise[k, 1]), odometry[models[k]])
         for k in range(samples)
     ]
 
@@ -133,7 +146,7 @@ def run_draw(
     return run_scenario(
         scenario, robot.scaled(mass=draw.mass, inertia=draw.inertia, friction=draw.friction), control,
         duration_s=duration_s, seed=draw.seed, plant_robot=robot,
-        odometry_noise=(draw.noise_position_m, draw.noise_yaw_rad),
+        odometry_noise=(draw.noise_position_m, draw.noise_yaw_rad), odometry=draw.odometry,
     )
 
 
@@ -298,13 +311,13 @@ def write_study(
 
 
 def read_rows(path: str | os.PathLike) -> list[dict[str, Any]]:
-    """The rows of a runs.csv: numbers as float (``index``, ``seed`` as int), empty cells as None."""
+    """The rows of a runs.csv: numbers as float (``index``, ``seed`` as int), empty cells as None, text as text."""
     rows = []
     with open(path, newline="", encoding="utf-8") as stream:
         for raw in csv.DictReader(stream):
             row: dict[str, Any] = {}
             for key, text in raw.items():
-                if key == "error":
+                if key in ("error", "odometry"):
                     row[key] = text
                 elif text == "":
                     row[key] = None

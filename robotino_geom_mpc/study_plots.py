@@ -13,6 +13,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from robotino_sim_node.encoders import ODOMETRY_MODELS as _ODOMETRY
+
 from .plots import DPI
 
 __all__ = ["write_study_plots"]
@@ -56,6 +58,7 @@ def write_study_plots(rows: list[dict[str, Any]], out_dir: str | os.PathLike, no
     if not ok:
         return []
     out = Path(out_dir)
+    odometry = np.array([row["odometry"] for row in ok])
     values = {key: np.array([np.nan if row[key] is None else row[key] for row in ok])
               for key in (*_METRICS, *_DRAWS)}
 
@@ -79,7 +82,11 @@ def write_study_plots(rows: list[dict[str, Any]], out_dir: str | os.PathLike, no
     for i, (key, (label, factor)) in enumerate(_METRICS.items()):
         for j, (draw, (draw_label, draw_factor)) in enumerate(_DRAWS.items()):
             ax = axes[i, j]
-            ax.plot(draw_factor * values[draw], factor * values[key], ".", ms=4, alpha=0.6)
+            for model, colour in zip(_ODOMETRY, ("tab:blue", "tab:orange")):
+                of_model = odometry == model
+                if of_model.any():
+                    ax.plot(draw_factor * values[draw][of_model], factor * values[key][of_model], ".", ms=4,
+                            alpha=0.6, color=colour, label=f"{model} odometry")
             if draw == "friction":
                 ax.set_xscale("log")
             if key == "peak_current_a":
@@ -89,6 +96,7 @@ def write_study_plots(rows: list[dict[str, Any]], out_dir: str | os.PathLike, no
                 ax.set_xlabel(draw_label)
             if j == 0:
                 ax.set_ylabel(label)
+                ax.legend(loc="best", fontsize="small")
     scatter.suptitle("each run's metrics against its draws")
 
     paths = []

@@ -59,7 +59,7 @@ def _direct(robot, control, row, scenario="paper-circle"):
         body_friction_theta_n_m_s=robot.body_friction_theta_n_m_s * row["friction"],
     )
     data = run_scenario(scenario, model, control, duration_s=DURATION_S, seed=row["seed"], plant_robot=robot,
-                        odometry_noise=(row["noise_position_m"], row["noise_yaw_rad"]))
+                        odometry_noise=(row["noise_position_m"], row["noise_yaw_rad"]), odometry=row["odometry"])
     return compute_metrics(data, settle_time_s=1.0)
 
 
@@ -82,6 +82,7 @@ def test_rows_are_the_draws_run_directly(study_dir, params):
     nominal = _direct(robot, control, {**rows[0], "mass": 1.0, "inertia": 1.0, "friction": 1.0})
     assert nominal["peak_voltage_v"] != pytest.approx(rows[0]["peak_voltage_v"], rel=1e-6)
     assert len({row["seed"] for row in rows}) == SAMPLES
+    assert {row["odometry"] for row in rows} == {"ideal", "encoders"}
 
 
 def test_summary_is_numpy_of_the_rows(study_dir):
@@ -107,7 +108,8 @@ def test_summary_is_numpy_of_the_rows(study_dir):
 
 def test_a_failing_run_is_a_row_with_its_error(params, tmp_path):
     robot, control = params
-    bad = Draw(index=2, seed=0, mass=1.0, inertia=1.0, friction=1.0, noise_position_m=-1.0, noise_yaw_rad=0.0)
+    bad = Draw(index=2, seed=0, mass=1.0, inertia=1.0, friction=1.0, noise_position_m=-1.0, noise_yaw_rad=0.0,
+               odometry="ideal")
     result = run_study("paper-circle", robot, control, draw_runs(2, 3) + [bad], duration_s=1.0, workers=2,
                        progress=False)
     assert [row["index"] for row in result.rows] == [0, 1, 2]
@@ -132,6 +134,7 @@ def test_same_seed_same_rows(params):
     robot, control = params
     assert draw_runs(5, 11) == draw_runs(5, 11)
     assert draw_runs(5, 11) != draw_runs(5, 12)
+    assert {d.odometry for d in draw_runs(5, 11, ("encoders",))} == {"encoders"}
 
     def rows(workers):
         result = run_study("robustness", robot, control, draw_runs(3, 11), duration_s=1.0, workers=workers,
@@ -150,6 +153,8 @@ def test_bad_settings_are_refused(params, capsys):
     assert "--samples" in capsys.readouterr().err
     with pytest.raises(StudyError, match="samples"):
         draw_runs(0, 1)
+    with pytest.raises(StudyError, match="odometry"):
+        draw_runs(2, 1, ("wheels",))
     with pytest.raises(StudyError, match="workers"):
         run_study("paper-circle", robot, control, draw_runs(1, 1), workers=0)
     with pytest.raises(StudyError, match="draw"):

@@ -32,7 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=VERBS["study"],
         description="Monte-Carlo runs of a scenario in the offline closed loop with the controller's model "
         "drawn off the true robot (mass and yaw inertia +-20 %%, body friction x0.5-x2), odometry noise up to "
-        "2 mm / 2 mrad and random noise seeds, on all cores. Writes DIR/runs.csv (draws and metrics, one row "
+        "2 mm / 2 mrad, ideal or encoder odometry and random noise seeds, on all cores. Writes DIR/runs.csv (draws and metrics, one row "
         "per run), DIR/summary.json and the figures.",
     )
     add_scenario_argument(parser)
@@ -40,6 +40,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--workers", type=_positive_int, default=None, metavar="K",
                         help="processes (default: the number of cores)")
     parser.add_argument("--seed", type=seed_value, default=0, metavar="S", help="seed of the draws (default 0)")
+    parser.add_argument("--odometry", choices=("both", "ideal", "encoders"), default="both",
+                        help="odometry model of the runs: ideal (true pose plus noise), encoders (dead reckoning "
+                        "from the wheel encoders plus noise) or both, drawn with equal odds (default both)")
     parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
                         help="simulated time of each run [s] (default: the scenario's length)")
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file of the true robot "
@@ -52,6 +55,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the study, write its outputs, print the summary; returns the exit status."""
+    from robotino_sim_node.encoders import ODOMETRY_MODELS
+
     from ..core.params import load_params
     from ..study import draw_runs, run_study, write_study
 
@@ -60,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UsageError(f"cannot create output folder {args.out}: {exc.strerror or exc}") from None
-    draws = draw_runs(args.samples, args.seed)
+    draws = draw_runs(args.samples, args.seed, ODOMETRY_MODELS if args.odometry == "both" else (args.odometry,))
     result = run_study(args.scenario, robot, control, draws, duration_s=args.duration, workers=args.workers,
                        settle_time_s=SETTLE_TIME_S, progress=not args.no_progress)
     s = write_study(args.out, args.scenario, robot, control, result, duration_s=args.duration,

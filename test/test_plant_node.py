@@ -149,12 +149,48 @@ def test_ends_after_the_last_tick_cleanly(plant_run):
     ({"odometry_noise.position_m": -0.1}, "odometry_noise.position_m"),
     ({"robot.mass_kg": 0.0}, "robot.mass_kg"),
     ({"mode": "fast"}, "mode"),
+    ({"odometry_model": "lidar"}, "odometry_model"),
+    ({"encoder.counts_per_rev": 0}, "encoder.counts_per_rev"),
+    ({"encoder.wheel_slip_std": 1.5}, "encoder.wheel_slip_std"),
 ])
 def test_refuses_to_start_with_a_bad_parameter(override, name):
     proc = subprocess.run([sys.executable, "-m", "robotino_sim_node.plant_node", *ros_args(None, override)],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert name in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_encoder_odometry_is_published_and_drifts_from_the_ground_truth(tmp_path):
+    """A lockstep plant with ``odometry_model: encoders``: odom is the offline dead reckoning, the truth is not."""
+    from robotino_sim_node.encoders import EncoderOdometry
+
+    robot, control = load_params()
+    Ts, ticks = control.period_s, 30
+    with NodeGroup(log_dir=tmp_path) as group, Harness("plant_encoders") as h:
+        odom = h.collect("odom", Odometry)
+        truth = h.collect("ground_truth/odom", Odometry)
+        pub = h.node.create_publisher(Float64MultiArray, "wheel_voltages", PUBLISH_QOS)
+        plant = group.start("plant_node", ros_args(None, {
+            "mode": "lockstep", "duration_s": ticks * Ts, "lockstep_wait_for": ["odom:1", "ground_truth/odom:1"],
+            "odometry_model": "encoders", "encoder.counts_per_rev": 512, "lockstep_resend_s": 5.0,
+        }))
+        for k in range(ticks):
+            assert h.spin_until(lambda: len(odom) >= k + 1 and len(truth) >= k + 1, 30.0), plant.stderr_tail()
+            pub.publish(Float64MultiArray(data=[6.0 + 0.2 * k, -4.0, 3.0 - 0.3 * k]))
+        assert group.wait(plant, 10.0) and plant.popen.returncode == 0, plant.stderr_tail()
+    offline = RobotinoPlant(robot)
+    encoders = EncoderOdometry(offline, 512)
+    for k in range(ticks):
+        pose, twist = encoders.update()
+        tw = odom[k].twist.twist
+        assert np.allclose(_pose(odom[k]), pose, rtol=0, atol=1e-12)
+        assert np.allclose((tw.linear.x, tw.linear.y, tw.angular.z), twist, rtol=0, atol=1e-12)
+        assert np.allclose(_pose(truth[k]), offline.pose, rtol=0, atol=1e-12)
+        true_twist = truth[k].twist.twist
+        assert np.allclose((true_twist.linear.x, true_twist.linear.y, true_twist.angular.z),
+                           offline.odometry()[1], rtol=0, atol=1e-12)
+        offline.step(np.array([6.0 + 0.2 * k, -4.0, 3.0 - 0.3 * k]), Ts)
+    assert np.abs(_pose(odom[-1]) - _pose(truth[-1])).max() > 1e-6  # 512 counts: visibly off the truth
 
 
 def _full_state(truth: Odometry, joints: JointState, effort_per_a: float) -> np.ndarray:

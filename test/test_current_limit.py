@@ -62,8 +62,9 @@ def test_scaled_u_keeps_its_direction_and_the_largest_wheel_sits_at_the_limit(pa
     # wheel's average or end current is at the limit, the peak within a hair of it
     trace = _period_on_plant(robot, X0, np.array(out.voltages), control.period_s)
     np.testing.assert_allclose(trace.mean(axis=0), out.currents, atol=5e-3 * limit)  # the plant has the back-EMF the controller predicted to 0.3 %
-    extreme = max(np.abs(out.currents).max(), np.abs(trace[-1]).max())
-    assert extreme == pytest.approx(limit, rel=1e-3)
+    predicted = max(np.abs(out.currents).max(), np.abs(ctl.drive.current_estimate).max())
+    assert predicted == pytest.approx(limit, rel=1e-9)  # the controller's own eq. (10)
+    assert max(np.abs(out.currents).max(), np.abs(trace[-1]).max()) == pytest.approx(limit, rel=5e-3)
     assert np.abs(trace).max() <= TOLERANCE * limit
     assert np.abs(free.currents).max() > 1.5 * limit  # the unlimited controller would have exceeded it
     assert not out.saturated and np.abs(out.voltages).max() <= robot.supply_voltage_v

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from robotino_sim_node.encoders import ODOMETRY_MODELS
@@ -35,9 +36,23 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         help="simulated time [s] (default: the scenario's length)")
     parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
     add_odometry_argument(parser)
+    parser.add_argument("--current-limit", type=_current_limit, default=None, metavar="A",
+                        help="wheel current limit of the closed-form mode [A] (control.current_limit_a; "
+                        "0 = none, the paper's controller; default: the parameter file's)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.set_defaults(func=run)
     return parser
+
+
+def _current_limit(text: str) -> float:
+    """argparse type: a value of control.current_limit_a, checked against its spec."""
+    from ..core.params import CONTROL_SPECS, ParamError, validate_value
+
+    spec = next(s for s in CONTROL_SPECS if s.name == "control.current_limit_a")
+    try:
+        return validate_value(spec, float(text))
+    except (ValueError, ParamError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _scenario_name(text: str) -> str:
@@ -73,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
     from ..simulation import run_scenario
 
     robot, control = load_params(args.params)
+    if args.current_limit is not None:
+        control = replace(control, current_limit_a=args.current_limit)
     out = args.out if args.out is not None else Path("out") / args.scenario
     try:
         out.mkdir(parents=True, exist_ok=True)

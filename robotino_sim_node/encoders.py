@@ -20,12 +20,16 @@ gains, beyond the true one, a Gaussian slip with standard deviation
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.core.model import wheel_directions
 from robotino_geom_mpc.core.params import ParamSpec, RobotinoParams
+
+if TYPE_CHECKING:
+    from robotino_sim_node.plant import RobotinoPlant
 
 __all__ = [
     "ODOMETRY_MODELS",
@@ -115,7 +119,7 @@ class EncoderOdometry:
         Odometry pose at the start; the plant's pose if None.
     """
 
-    def __init__(self, plant, counts_per_rev: int = DEFAULT_COUNTS_PER_REV, slip_std: float = 0.0,
+    def __init__(self, plant: RobotinoPlant, counts_per_rev: int = DEFAULT_COUNTS_PER_REV, slip_std: float = 0.0,
                  seed: int = 0, pose: Pose | None = None) -> None:
         if isinstance(counts_per_rev, bool) or not isinstance(counts_per_rev, (int, np.integer)) or counts_per_rev < 1:
             raise EncoderError(f"counts_per_rev must be a positive integer, got {counts_per_rev!r}")
@@ -166,8 +170,8 @@ class EncoderOdometry:
         return (pose[0] + noise[0], pose[1] + noise[1], pose[2] + noise[2]), twist
 
 
-def odometry_source(plant, model: str = "ideal", counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
-                    slip_std: float = 0.0, seed: int = 0, pose: Pose | None = None):
+def odometry_source(plant: RobotinoPlant, model: str = "ideal", counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
+                    slip_std: float = 0.0, seed: int = 0, pose: Pose | None = None) -> RobotinoPlant | EncoderOdometry:
     """What a measurement of `plant` reads: the plant itself (``ideal``) or an `EncoderOdometry` (``encoders``).
 
     Either has ``odometry_floats(rng, noise_std) -> (pose, body twist)``. `seed` seeds the slip (a stream of

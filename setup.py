@@ -34,6 +34,7 @@ setup(
         "matplotlib>=3.8,<4",
         "tqdm>=4.66,<5",
         "osqp>=1.0,<2",
+        "daqp>=0.11,<1",  # the constrained mode's QP (Model with active-set warm start)
         "mcap>=1.2,<2",
         "mcap-ros2-support>=0.5,<1",
         "zstandard>=0.22,<1",
@@ -50,7 +51,6 @@ setup(
             "pytest>=8,<10",
             "hypothesis>=6.100,<7",
             "colcon-common-extensions==0.3.0",
-            "daqp>=0.5,<1",
             "quadprog>=0.1.11,<0.2",
         ],
     },

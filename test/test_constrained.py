@@ -44,8 +44,8 @@ def test_qp_equals_closed_form_when_limits_are_inactive(setup):
     assert not infeasible
     np.testing.assert_allclose(dU, closed, rtol=0, atol=1e-9)
     # and the limits are indeed inactive there
-    *_, rows = qp.constraint_rows(X, u_prev, Y_d, np.zeros(3))
-    assert np.max(np.abs(rows[:, 0] + rows[:, 1:] @ closed.ravel())) < 0.9
+    h, G = qp.constraint_rows(X, u_prev, Y_d, np.zeros(3))
+    assert np.max(np.abs(h + G @ closed.ravel())) < 0.9
 
 
 def test_active_limits_hold_and_the_optimum_matches_quadprog(setup):
@@ -91,8 +91,7 @@ def test_active_limits_hold_and_the_optimum_matches_quadprog(setup):
     g = np.zeros(12)
     for a in range(3):
         g[a::3] = mpc.q[a] * mpc.F_1p[a].T @ e[:, a]
-    *_, rows = qp.constraint_rows(X, u_prev, Y_d, np.zeros(3))
-    h, G = rows[:, 0], rows[:, 1:]
+    h, G = qp.constraint_rows(X, u_prev, Y_d, np.zeros(3))
     C = np.vstack((-G, G)).T  # quadprog: C^T z >= b
     b = np.concatenate((h - 1.0, -1.0 - h))
     ref = quadprog.solve_qp(P, g, C, b)[0]
@@ -119,8 +118,7 @@ def test_infeasible_state_is_flagged_with_least_violation(setup):
     dU, infeasible = qp.solve_increments(X, np.zeros(3), Y_d, np.zeros(3))
     assert infeasible
     assert np.all(np.isfinite(dU))
-    *_, rows = qp.constraint_rows(X, np.zeros(3), Y_d, np.zeros(3))
-    h, G = rows[:, 0], rows[:, 1:]
+    h, G = qp.constraint_rows(X, np.zeros(3), Y_d, np.zeros(3))
     violation = np.sum(np.maximum(np.abs(G @ dU.ravel() + h) - 1.0, 0.0))
     best = _min_total_violation(G, h)
     assert best > 1e-3

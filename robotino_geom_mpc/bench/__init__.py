@@ -24,6 +24,7 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
 from robotino_geom_mpc.bench import controller_step, offline  # noqa: F401, I001
 from robotino_geom_mpc.bench import study  # noqa: F401
 from robotino_geom_mpc.bench import cdr  # noqa: F401
+from robotino_geom_mpc.bench import constrained  # noqa: F401
 from robotino_geom_mpc.bench.registry import REGISTRY, BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
 
 __all__ = ["REGISTRY", "BenchmarkError", "BenchmarkSkipped", "benchmark", "run_benchmarks"]

@@ -4,34 +4,36 @@ The three axes share the wheels: currents i = (r / (gear Km)) T(theta) u
 and voltages U = R i + L_d (i - i_0)/Ts + Km (omega + t_e omega') (see
 `drive`) mix u_x, u_y, u_theta, so the limits |i| <= i_nom and |U| <= U_supply
 couple the three per-axis problems into one QP over
-Delta U = (Delta u(k), ..., Delta u(k+N-1)) for all axes (3N variables).
+z = Delta U = (Delta u(k), ..., Delta u(k+N-1)) for all axes (3N variables).
 
-Over the horizon every quantity is affine in Delta U: the inputs (eq. 48),
-the velocities of the discrete model (eq. 49), the motor speeds and their
-rates (for a fixed heading), the currents, the voltages and the drive's
-predicted start currents (`drive.ZOHDrive`, whose relations are linear).
-The heading is the measured one for the first period (at mid-period, as the
-controller applies it) and the reference's for the later ones.
+Over the horizon every quantity is affine in z: the inputs (eq. 48), the
+velocities of the discrete model (eq. 49), the motor speeds and their rates
+(for fixed headings), the currents, the voltages and the drive's predicted
+start currents (`drive.ZOHDrive`, whose relations are linear). The heading is
+the measured one for the first period (at mid-period, as the controller
+applies it) and the reference's for the later ones. Only the headings enter
+non-linearly, through planar rotations: so the per-axis signals (u, v and
+the body-frame motor-speed rate u - (k/M) v + theta' (-v_y, v_x, 0)) are
+fixed matrices times (preview, state, u(k-1), z), rotated by the headings,
+and a fixed matrix maps the rotated signals and the start currents to the
+constraint rows. A step costs a few small matrix products.
 
-When the closed form (56) already meets every limit it is the QP's optimum
-and is returned as is. Otherwise the solver is OSQP: the package's runtime
-dependency already, well maintained, warm-started from the previous period's
-solution, with tight tolerances (it matches the closed form to 1e-9 when no
-limit is active) and solution polishing on the active set, and with
-infeasibility certificates. When the limits cannot all hold, the least total
-violation is found by a linear programme (scipy's HiGHS), the limits are
-relaxed by exactly that much and the QP solved again: the output stays
-finite, the violation is the smallest possible, and the step reports
+The step first evaluates the unconstrained optimum, the closed form (56),
+and checks its rows: a convex QP whose unconstrained minimiser is feasible is
+solved by it, so then u(k) is the closed form's, bit for bit. Only when a
+limit binds is the QP solved, by DAQP (a dual active-set solver for small
+dense QPs: exact on its active set, two-sided rows natively), warm-started
+from the previous QP's active set. When the limits cannot all hold, the
+least total violation is found by a linear programme (scipy's HiGHS), the
+limits are relaxed by exactly that much and the QP solved again: the output
+stays finite, the violation is the smallest possible, and the step reports
 `infeasible`.
 """
 
 from __future__ import annotations
 
-import math
-
+import daqp
 import numpy as np
-import osqp
-import scipy.sparse as sp
 from scipy.optimize import linprog
 
 from .decoupling import DecouplingField
@@ -41,13 +43,11 @@ from .params import ControlParams, RobotinoParams
 
 __all__ = ["ConstrainedMPC"]
 
-_SOLVED = int(osqp.SolverStatus.OSQP_SOLVED)
 _VIOLATION_TOL = 1e-6  # relative to the limit: larger slack means infeasible
-
-
-def _rotation(theta: float) -> np.ndarray:
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+_DAQP_OPTIMAL = 1  # DAQP exitflag of an optimal solution
+_max = np.maximum.reduce  # ndarray.max without its Python wrapper
+_ONE = np.ones(1)  # the constant entry of the parameter vector
+_PRIMAL_TOL = 1e-11  # DAQP primal feasibility tolerance on the scaled rows (its default 1e-6 moves u by ~1e-5)
 
 
 class ConstrainedMPC:
@@ -65,113 +65,181 @@ class ConstrainedMPC:
     Notes
     -----
     Decision vector z with z[3 j + a] = Delta u_a(k + j). Constraint rows,
-    scaled by their limits, for the wheels w and j = 0..N-1: the period
-    averages -1 <= i_w(k+j) / i_nom <= 1 (what moves the robot), the same for
-    the currents at the period ends (the current relaxes exponentially from
-    one end value towards the next, so with the averages this bounds it along
-    the whole period up to a hump of about 1 % where the back-EMF rises
-    within the period) and -1 <= U_w(k+j) / U_supply <= 1.
+    scaled by their limits, for the wheels w and j = 0..N-1 (row 9 j + 3 kind + w,
+    kind 0, 1, 2): the period averages -1 <= i_w(k+j) / i_nom <= 1 (what moves
+    the robot), the same for the currents at the period ends (the current
+    relaxes exponentially from one end value towards the next, so with the
+    averages this bounds it along the whole period up to a hump of about 1 %
+    where the back-EMF rises within the period) and -1 <= U_w(k+j) / U_supply <= 1.
+
+    Signals, one 3-vector per column: u(k+j) (rotated by the mid-period
+    heading), v(k+j) and the body-frame rate (both rotated by the heading at
+    the period's start), columns kind * N + j. With p = (Y_d row by row, X,
+    u(k-1), i_0, 1) all of a step's numbers are a few products: the signals
+    ``(F0 + theta' F1) p + (Fz0 + theta' Fz1) z`` as rows (s_x, s_y, -s_y, s_x,
+    s_theta, i_0), the factors ``cos(A p)`` (cos and sin of the headings, ones),
+    and the scaled rows ``B (cos(A p) * signals)``: the rotation of each signal
+    by its heading, then the drive relations.
     """
 
     def __init__(self, robot: RobotinoParams, control: ControlParams, mpc: DecoupledMPC) -> None:
         self.mpc = mpc
-        self.N = int(control.horizon)
-        self.period_s = float(control.period_s)
-        self.zoh = ZOHDrive(robot.resistance_ohm, robot.inductance_h, robot.torque_constant_n_m_per_a, self.period_s)
-        self.kinematics = MotorKinematics(robot)
-        self._T0 = DecouplingField(robot).T0
-        self._force_to_current = robot.r / (robot.gear_ratio * robot.torque_constant_n_m_per_a)
-        self._damping = axis_dampings(robot)
+        self.N = N = int(control.horizon)
+        self.period_s = Ts = float(control.period_s)
         self.nominal_current_a = robot.nominal_current_a
         self.supply_voltage_v = robot.supply_voltage_v
-        N, nz = self.N, 3 * self.N
+        self._damping = axis_dampings(robot)
+        nz, n_p, n_s = 3 * N, 3 * N + 13, 3 * N
         P = np.zeros((nz, nz))
         for a in range(3):
             P[a::3, a::3] = mpc.hessian[a]
         self._scale = 1.0 / float(np.max(np.diag(P)))
         self._P = P * self._scale
-        self._nrows = 9 * N
-        self._solver: osqp.OSQP | None = None
+        eye_p, eye_z = np.eye(n_p), np.eye(nz)
+        # closed form (56) and the QP's linear cost as matrices on p
+        K = np.column_stack([self._closed_form(e) for e in eye_p])
+        self._cost = -self._P @ K  # the gradient P z + f vanishes at the unconstrained optimum z* = K p
+        # signals, linear in (p, z): the recursion of eq. (49) on unit vectors
+        S0, C0 = (np.stack(m, axis=-1) for m in zip(*(self._signals(e, np.zeros(nz)) for e in eye_p)))
+        Sz, Cz = (np.stack(m, axis=-1) for m in zip(*(self._signals(np.zeros(n_p), e) for e in eye_z)))
+        i0 = np.zeros((3, n_p))
+        i0[:, 3 * N + 9 : 3 * N + 12] = np.eye(3)
+        # signal rows, the part without theta' over its factor's: (F0; F1), (Fz0; Fz1)
+        self._F = np.concatenate((self._layout(S0, i0), self._layout(C0, 0 * i0)))
+        self._Fz = np.concatenate((self._layout(Sz, np.zeros((3, nz))), self._layout(Cz, np.zeros((3, nz)))))
+        # headings: mid-period for u, period start for v and the rate
+        H = np.zeros((n_s, n_p))
+        H[0, 3 * N + 4], H[0, 3 * N + 5] = 1.0, 0.5 * Ts
+        H[N, 3 * N + 4] = H[2 * N, 3 * N + 4] = 1.0
+        for j in range(1, N):
+            H[j, 3 * (j - 1) + 2] = H[j, 3 * j + 2] = 0.5
+            H[N + j, 3 * (j - 1) + 2] = H[2 * N + j, 3 * (j - 1) + 2] = 1.0
+        quarter = np.zeros((n_s, n_p))
+        quarter[:, -1] = -0.5 * np.pi  # sin(a) = cos(a - pi/2)
+        A = np.concatenate((H, H, H + quarter, H + quarter, np.zeros((n_s + 3, n_p))))
+        self._A = np.concatenate((A, A))  # factors for both halves; the second is multiplied by theta'
+        self._n_sig = 15 * N + 3
+        # one product for a step's factors' angles and the signals at the closed form z* = K p
+        self._closed_form_map = np.concatenate((self._A, self._F + self._Fz @ K))
+        zoh = ZOHDrive(robot.resistance_ohm, robot.inductance_h, robot.torque_constant_n_m_per_a, Ts)
+        B = self._rows_matrix(robot, zoh)  # on (rotated x, y, theta components, i_0)
+        x, y, t = (np.arange(k * n_s, (k + 1) * n_s) for k in range(3))
+        B = B[:, np.concatenate((x, y, x, y, t, np.arange(9 * N, 9 * N + 3)))]
+        self._B = np.concatenate((B, B), axis=1)
+        self._B_both = np.concatenate((self._B, -self._B))  # max over both signs in one call
+        self.reset()
+
+    @staticmethod
+    def _layout(S: np.ndarray, i0: np.ndarray) -> np.ndarray:
+        """Signal rows (s_x, s_y, -s_y, s_x, s_theta, i_0) from (3, 3N, n) components and (3, n) start currents."""
+        return np.concatenate((S[0], S[1], -S[1], S[0], S[2], i0))
+
+    def _closed_form(self, p: np.ndarray) -> np.ndarray:
+        """z* of eq. (56) for the parameter vector p."""
+        N = self.N
+        return self.mpc.solve(p[3 * N : 3 * N + 6].reshape(3, 2), p[3 * N + 6 : 3 * N + 9], p[: 3 * N].reshape(N, 3)).ravel()
+
+    def _signals(self, p: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Un-rotated signals (3, 3N) of (p, z): the part without theta' and the factor of theta'."""
+        N, A_d, B_d = self.N, self.mpc.A_d, self.mpc.B_d
+        u, v = p[3 * N + 6 : 3 * N + 9].copy(), p[3 * N + 1 : 3 * N + 6 : 2].copy()
+        S, C = np.zeros((3, 3 * N)), np.zeros((3, 3 * N))
+        for j in range(N):
+            u = u + z[3 * j : 3 * j + 3]
+            S[:, j], S[:, N + j], S[:, 2 * N + j] = u, v, u - self._damping * v
+            C[:2, 2 * N + j] = -v[1], v[0]
+            v = A_d[:, 1, 1] * v + B_d[:, 1] * u
+        return S, C
+
+    def _rows_matrix(self, robot: RobotinoParams, zoh: ZOHDrive) -> np.ndarray:
+        """B, shape (9N, 9N + 3): scaled rows of the rotated signals (x, y, theta components) and i_0."""
+        N = self.N
+        T0 = DecouplingField(robot).T0 * (robot.r / (robot.gear_ratio * robot.torque_constant_n_m_per_a))
+        W0 = MotorKinematics(robot).W0
+        n_in = 9 * N + 3
+        B = np.zeros((9 * N, n_in))
+        for col in range(n_in):
+            e = np.eye(n_in)[col]
+            sig, i0 = e[: 9 * N].reshape(3, 3 * N), e[9 * N :]
+            for j in range(N):
+                current = T0 @ sig[:, j]
+                omega, rate = W0 @ sig[:, N + j], W0 @ sig[:, 2 * N + j]
+                voltage = zoh.voltage(current, i0, omega, rate)
+                end = zoh.end_current(i0, voltage, omega, rate)
+                B[9 * j : 9 * j + 9, col] = np.concatenate(
+                    (current / self.nominal_current_a, end / self.nominal_current_a, voltage / self.supply_voltage_v)
+                )
+                i0 = end
+        return B
 
     def reset(self) -> None:
-        """Drop the warm start."""
-        self._solver = None
+        """Drop the warm start (the last active set)."""
+        self._daqp: daqp.Model | None = None
 
-    def _linear_cost(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray) -> np.ndarray:
-        e = self.mpc.free_error(X.reshape(3, 2), u_prev, Y_d)  # (N, 3)
-        f = np.empty(3 * self.N)
-        for a in range(3):
-            f[a::3] = -self.mpc.q[a] * self.mpc.F_1p[a].T @ e[:, a]
-        return f * self._scale
+    def _parameters(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> np.ndarray:
+        """p = (Y_d row by row, X, u(k-1), i_0, 1)."""
+        return np.concatenate((Y_d.ravel(), X, u_prev, i_start, _ONE))
+
+    def _factors(self, angles: np.ndarray, w: float) -> np.ndarray:
+        """cos of the angles, the second half (theta' terms) times theta'."""
+        factors = np.cos(angles)
+        factors[self._n_sig :] *= w
+        return factors
+
+    def _closed_form_signals(self, p: np.ndarray, w: float) -> tuple[np.ndarray, np.ndarray]:
+        """The factors and the factors times the signals at the closed form (56)."""
+        both, n = self._closed_form_map @ p, 2 * self._n_sig
+        factors = self._factors(both[:n], w)
+        return factors, factors * both[n:]
+
+    def closed_form_rows(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> np.ndarray:
+        """The scaled constraint rows (9N,) at the closed form (56); feasible iff all lie in [-1, 1]."""
+        return self._B @ self._closed_form_signals(self._parameters(X, u_prev, Y_d, i_start), X[5])[1]
 
     def constraint_rows(
         self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Currents and voltages over the horizon as affine functions of z.
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The scaled constraint rows as affine functions h + G z (|h + G z| <= 1 row-wise).
+
+        Parameters
+        ----------
+        X, u_prev, Y_d, i_start
+            As for `solve_increments`.
 
         Returns
         -------
-        currents, end_currents, voltages : ndarray, shape (N, 3, 1 + 3N)
-            Period-average currents, currents at the end of each period and
-            voltages; column 0 the constant part, the rest the coefficients of z.
-        scaled : ndarray, shape (9N, 1 + 3N)
-            All rows divided by their limits.
+        h : ndarray, shape (9N,)
+        G : ndarray, shape (9N, 3N)
         """
-        N, nz, Ts = self.N, 3 * self.N, self.period_s
-        A_d, B_d = self.mpc.A_d, self.mpc.B_d
-        theta, w = float(X[4]), float(X[5])
-        u = np.zeros((3, 1 + nz))
-        u[:, 0] = u_prev
-        v = np.zeros((3, 1 + nz))
-        v[:, 0] = X[1::2]
-        i0 = np.zeros((3, 1 + nz))
-        i0[:, 0] = i_start
-        currents = np.empty((N, 3, 1 + nz))
-        ends = np.empty((N, 3, 1 + nz))
-        voltages = np.empty((N, 3, 1 + nz))
-        for j in range(N):
-            u[np.arange(3), 1 + 3 * j + np.arange(3)] += 1.0
-            if j == 0:
-                heading, heading_mid = theta, theta + 0.5 * Ts * w
-            else:
-                heading, heading_mid = Y_d[j - 1, 2], 0.5 * (Y_d[j - 1, 2] + Y_d[j, 2])
-            acc = u - self._damping[:, None] * v
-            rate_body = acc.copy()
-            rate_body[0] -= w * v[1]
-            rate_body[1] += w * v[0]
-            W = self.kinematics.matrix(heading)
-            omega, omega_rate = W @ v, W @ rate_body
-            currents[j] = self._force_to_current * (self._T0 @ _rotation(heading_mid) @ u)
-            voltages[j] = self.zoh.voltage(currents[j], i0, omega, omega_rate)
-            i0 = ends[j] = self.zoh.end_current(i0, voltages[j], omega, omega_rate)
-            v = A_d[:, 1, 1][:, None] * v + B_d[:, 1][:, None] * u
-        scaled = np.concatenate(
-            (currents / self.nominal_current_a, ends / self.nominal_current_a, voltages / self.supply_voltage_v),
-            axis=1,
-        ).reshape(self._nrows, 1 + nz)
-        return currents, ends, voltages, scaled
+        p = self._parameters(X, u_prev, Y_d, i_start)
+        return self._rows(p, self._factors(self._A @ p, X[5]))
+
+    def qp_problem(
+        self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The QP min 1/2 z'Pz + f'z subject to |h + G z| <= 1 (row-wise), as (P, f, h, G); P is scaled."""
+        p = self._parameters(X, u_prev, Y_d, i_start)
+        return (self._P, self._cost @ p, *self._rows(p, self._factors(self._A @ p, X[5])))
+
+    def _rows(self, p: np.ndarray, factors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """h and G for p and the step's factors."""
+        return self._B @ (factors * (self._F @ p)), self._B @ (factors[:, None] * self._Fz)
 
     def _qp(self, f: np.ndarray, G: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[bool, np.ndarray]:
-        if self._solver is None:
-            self._solver = osqp.OSQP()
-            self._solver.setup(
-                P=sp.csc_matrix(np.triu(self._P)),
-                q=f,
-                A=sp.csc_matrix(np.ones_like(G)),  # dense pattern, values set below
-                l=lower,
-                u=upper,
-                verbose=False,
-                polishing=True,
-                eps_abs=1e-12,
-                eps_rel=1e-12,
-                eps_prim_inf=1e-7,
-                max_iter=20000,
-            )
-            self._solver.update(Ax=G.ravel(order="F"))
-        else:
-            self._solver.update(q=f, l=lower, u=upper, Ax=G.ravel(order="F"))
-        res = self._solver.solve(raise_error=False)
-        return res.info.status_val == _SOLVED, res.x
+        """DAQP on min 1/2 z'Pz + f'z, lower <= G z <= upper, from the last active set; keeps the new one."""
+        data = (np.ascontiguousarray(f), np.ascontiguousarray(G), upper, lower)
+        if self._daqp is None:
+            self._daqp = daqp.Model()
+            self._daqp.setup(self._P, *data, np.zeros(len(upper), dtype=np.int32))
+            self._daqp.settings = {"primal_tol": _PRIMAL_TOL}
+        else:  # without `sense`, DAQP starts from the active set of its last solve
+            self._daqp.update(f=data[0], A=data[1], bupper=upper, blower=lower)
+        self._daqp_data = data  # DAQP keeps pointers to the arrays: keep them alive until the next update
+        z, _, exitflag, _ = self._daqp.solve()
+        ok = exitflag == _DAQP_OPTIMAL
+        if not ok:  # start the next QP cold
+            self._daqp = None
+        return ok, np.asarray(z)
 
     def solve_increments(
         self,
@@ -204,14 +272,15 @@ class ConstrainedMPC:
             True when the limits could not all hold; delta_U then has the
             least total (scaled) violation and, among those, the least cost.
         """
-        *_, rows = self.constraint_rows(X, u_prev, Y_d, i_start)
-        h, G = rows[:, 0], rows[:, 1:]
-        # A convex QP whose unconstrained minimiser (the closed form 56) is feasible is solved by it.
-        if use_closed_form:
-            z = self.mpc.solve(X.reshape(3, 2), u_prev, Y_d).ravel()
-            if np.max(np.abs(G @ z + h)) <= 1.0:
-                return z.reshape(self.N, 3), False
-        f = self._linear_cost(X, u_prev, Y_d)
+        p = self._parameters(X, u_prev, Y_d, i_start)
+        factors, signals = self._closed_form_signals(p, X[5])
+        if use_closed_form and (self._B_both @ signals).max() <= 1.0:
+            return self.mpc.solve(X.reshape(3, 2), u_prev, Y_d), False
+        return self._solve_qp(p, factors)
+
+    def _solve_qp(self, p: np.ndarray, factors: np.ndarray) -> tuple[np.ndarray, bool]:
+        h, G = self._rows(p, factors)
+        f = self._cost @ p
         ok, z = self._qp(f, G, -1.0 - h, 1.0 - h)
         infeasible = False
         if not ok:
@@ -241,6 +310,17 @@ class ConstrainedMPC:
         return res.x[:nz], res.x[nz:]
 
     def solve(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> tuple[np.ndarray, bool]:
-        """u(k) = u(k-1) + Delta u(k) of the constrained optimum, and the infeasible flag."""
-        delta_U, infeasible = self.solve_increments(X, u_prev, Y_d, i_start)
+        """u(k) = u(k-1) + Delta u(k) of the constrained optimum, and the infeasible flag.
+
+        Where no limit binds, u(k) is the closed-form mode's, bit for bit
+        (`DecoupledMPC.delta_u_floats`, the same floating-point operations).
+        """
+        # the per-tick path: `_closed_form_signals` inlined (each numpy call costs about a microsecond)
+        p = np.concatenate((Y_d.ravel(), X, u_prev, i_start, _ONE))
+        both, n = self._closed_form_map @ p, 2 * self._n_sig
+        factors = np.cos(both[:n])
+        factors[self._n_sig :] *= X[5]
+        if _max(self._B_both @ (factors * both[n:])) <= 1.0:
+            return u_prev + np.array(self.mpc.delta_u_floats(X.tolist(), u_prev.tolist(), Y_d.tolist())), False
+        delta_U, infeasible = self._solve_qp(p, factors)
         return u_prev + delta_U[0], infeasible

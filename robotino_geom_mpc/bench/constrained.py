@@ -1,0 +1,229 @@
+"""Benchmark ``constrained``: the constrained mode's step against the closed-form step and OSQP on the same QP.
+
+Inputs (`constrained_inputs`), each a sequence of measured states and
+previews the controller sees one after the other:
+
+* ``paper-circle``: `controller_step.step_inputs` (the reference's states
+  plus 10 um / 0.1 mm/s noise), the controller on the true model;
+* ``robustness``: the same states with the robustness scenario's odometry
+  noise (1 mm / 1 mrad on the pose) and its mismatched controller model;
+* ``circle-step`` and ``position-step`` (limits bind): from rest, the
+  paper's circle at full speed with no ramp-in (the paper's start, Fig. 6)
+  and a step of (0.3 m, -0.2 m, 0.5 rad), the state moved by the MPC's own
+  discrete model (eq. 49) under the commanded u, so the QP is solved at
+  every tick of the transient.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from typing import NamedTuple
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+from robotino_geom_mpc.bench.controller_step import step_inputs
+from robotino_geom_mpc.bench.registry import BenchmarkError, benchmark
+from robotino_geom_mpc.core.constrained import ConstrainedMPC
+from robotino_geom_mpc.core.controller import MotionController
+from robotino_geom_mpc.core.params import ControlParams, RobotinoParams
+from robotino_geom_mpc.core.trajectory import CircleReference, preview
+from robotino_geom_mpc.scenarios import get_scenario
+
+__all__ = ["InputSet", "OsqpConstrainedQP", "QPCall", "bench_constrained", "constrained_inputs", "qp_calls"]
+
+NOMINAL_SETS = ("paper-circle", "robustness")
+
+
+class InputSet(NamedTuple):
+    """Measured states (n, 6) and previews (n, N, 3) seen in order by a controller on `model`."""
+
+    X: np.ndarray
+    previews: np.ndarray
+    model: RobotinoParams
+
+
+def _model_run(model: RobotinoParams, control: ControlParams, previews: np.ndarray) -> InputSet:
+    """States from rest moved by the MPC's discrete model (eq. 49) under the constrained controller's u."""
+    controller = MotionController(model, replace(control, mode="constrained"))
+    A_d, B_d = controller.mpc.A_d, controller.mpc.B_d
+    x = np.zeros((3, 2))
+    states = np.empty((len(previews), 6))
+    for k, Y_d in enumerate(previews):
+        states[k] = x.ravel()
+        u = np.array(controller.step(states[k], Y_d).u)
+        x = np.einsum("aij,aj->ai", A_d, x) + B_d * u[:, None]
+    return InputSet(states, previews, model)
+
+
+def constrained_inputs(steps: int, transient_steps: int = 100) -> dict[str, InputSet]:
+    """The benchmark's input sets (see the module notes), `steps` ticks each for the nominal ones."""
+    X, previews, robot, control = step_inputs(steps)
+    spec = get_scenario("robustness")
+    rng = np.random.default_rng(1)
+    noisy = X.copy()
+    noisy[:, 0::2] += rng.normal(0.0, [spec.noise.position_m, spec.noise.position_m, spec.noise.yaw_rad], (steps, 3))
+    Ts, N = control.period_s, control.horizon
+    circle = CircleReference(ramp_s=1e-3)  # full speed from the first tick, as the paper started
+    start = circle.position(np.zeros(1))[0]
+    circle_previews = np.stack([preview(circle, k * Ts, Ts, N) - start for k in range(transient_steps)])
+    step_previews = np.tile(np.array([0.3, -0.2, 0.5]), (transient_steps, N, 1))
+    return {
+        "paper-circle": InputSet(X, previews, robot),
+        "robustness": InputSet(noisy, previews, spec.controller_model(robot)),
+        "circle-step": _model_run(robot, control, circle_previews),
+        "position-step": _model_run(robot, control, step_previews),
+    }
+
+
+class QPCall(NamedTuple):
+    """The arguments of one `ConstrainedMPC.solve` call, its u and whether its closed form met the limits."""
+
+    X: np.ndarray
+    u_prev: np.ndarray
+    Y_d: np.ndarray
+    i_start: np.ndarray
+    u: np.ndarray
+    closed_form: bool
+
+
+class _RecordingQP(ConstrainedMPC):
+    """`ConstrainedMPC` keeping the arguments and result of every `solve`."""
+
+    def __init__(self, *args) -> None:
+        super().__init__(*args)
+        self.calls: list[QPCall] = []
+
+    def solve(self, X, u_prev, Y_d, i_start):  # noqa: D102 (as the base class)
+        u, infeasible = super().solve(X, u_prev, Y_d, i_start)
+        closed = bool(np.max(np.abs(self.closed_form_rows(X, u_prev, Y_d, i_start))) <= 1.0)
+        self.calls.append(QPCall(X.copy(), u_prev.copy(), Y_d.copy(), i_start.copy(), u.copy(), closed))
+        return u, infeasible
+
+
+def qp_calls(inputs: InputSet, control: ControlParams) -> list[QPCall]:
+    """The constrained controller's QP calls over `inputs` (its own u(k-1), pose estimate and currents)."""
+    controller = MotionController(inputs.model, replace(control, mode="constrained"))
+    controller.constrained = recorder = _RecordingQP(inputs.model, controller.control, controller.mpc)
+    for X, Y_d in zip(inputs.X, inputs.previews):
+        controller.step(X, Y_d)
+    return recorder.calls
+
+
+class OsqpConstrainedQP:
+    """The constrained mode's QP (`ConstrainedMPC.constraint_rows`, its cost) for OSQP: warm-started, tight tolerances."""
+
+    def __init__(self, qp: ConstrainedMPC) -> None:
+        self.qp = qp
+        self._solver: osqp.OSQP | None = None
+
+    def problem(self, call: QPCall) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(f, G, h) of a call, built outside the timed solve."""
+        _, f, h, G = self.qp.qp_problem(call.X, call.u_prev, call.Y_d, call.i_start)
+        return f, G, h
+
+    def solve(self, f: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """Delta U of the QP min 1/2 z'Pz + f'z, |h + G z| <= 1; BenchmarkError unless solved."""
+        if self._solver is None:
+            self._solver = osqp.OSQP()
+            self._solver.setup(
+                P=sp.csc_matrix(np.triu(self.qp._P)), q=f, A=sp.csc_matrix(np.ones_like(G)), l=-1.0 - h, u=1.0 - h,
+                verbose=False, polishing=False, eps_abs=1e-12, eps_rel=1e-12, max_iter=20000,
+            )
+            self._solver.update(Ax=G.ravel(order="F"))
+        else:
+            self._solver.update(q=f, l=-1.0 - h, u=1.0 - h, Ax=G.ravel(order="F"))
+        result = self._solver.solve(raise_error=False)
+        if result.info.status_val != osqp.SolverStatus.OSQP_SOLVED:
+            raise BenchmarkError(f"OSQP did not solve the constrained QP: {result.info.status}")
+        return result.x
+
+
+def _step_times(inputs: InputSet, control: ControlParams) -> np.ndarray:
+    """Each tick's `MotionController.step` time [s] (its compute_time_s) over `inputs`, from reset."""
+    controller = MotionController(inputs.model, control)
+    return np.array([controller.step(X, Y_d).compute_time_s for X, Y_d in zip(inputs.X, inputs.previews)])
+
+
+def _call_times(calls: list[QPCall], solve) -> np.ndarray:
+    """Per-call wall times [s] of `solve(call)` over the calls, in order (warm starts carry over)."""
+    times = np.empty(len(calls))
+    for k, call in enumerate(calls):
+        start = time.perf_counter()
+        solve(call)
+        times[k] = time.perf_counter() - start
+    return times
+
+
+@benchmark("constrained", "constrained-mode step (closed form first, DAQP when a limit binds) vs closed form and OSQP")
+def bench_constrained(quick: bool) -> dict[str, float]:
+    """Time the constrained mode's step against the closed-form step and against OSQP on the same QPs.
+
+    ``constrained_step_us`` and ``constrained_over_closed_form`` are medians
+    over the ticks of the paper-circle and robustness inputs (each tick's
+    time the median over interleaved repeats), the closed-form mode's
+    `MotionController.step` on the same inputs beside it;
+    ``constrained_step_worst_us`` is the slowest tick of all input sets, the
+    binding ones included. OSQP (warm-started, tolerances 1e-12) solves the
+    QP of every tick the constrained controller saw, built outside its
+    timing; ``constrained_step_speedup_vs_osqp`` is its median per QP over
+    the ticks where a limit binds (where the constrained step runs DAQP)
+    divided by `ConstrainedMPC.solve`'s median on the same ticks, rows
+    included, and ``constrained_worst_speedup_vs_osqp`` the ratio of their
+    slowest ticks over all inputs.
+
+    Raises
+    ------
+    BenchmarkError
+        If OSQP's u differs from the constrained step's by more than 1e-6 (relative to max |u|, at least 1).
+    """
+    steps, repeats = (200, 3) if quick else (1000, 7)
+    sets = constrained_inputs(steps, transient_steps=50 if quick else 100)
+    control = step_inputs(1)[3]
+    constrained, closed = replace(control, mode="constrained"), replace(control, mode="closed_form")
+    calls = {name: qp_calls(inputs, control) for name, inputs in sets.items()}
+    solvers = {name: ConstrainedMPC(inputs.model, constrained, MotionController(inputs.model, constrained).mpc)
+               for name, inputs in sets.items()}
+    osqp_qps = {name: OsqpConstrainedQP(solvers[name]) for name in sets}
+    problems = {name: [osqp_qps[name].problem(call) for call in calls[name]] for name in sets}
+    diff, scale = 0.0, 1.0
+    for name in sets:
+        for call, problem in zip(calls[name], problems[name]):
+            diff = max(diff, float(np.abs(call.u_prev + osqp_qps[name].solve(*problem)[:3] - call.u).max()))
+            scale = max(scale, float(np.abs(call.u).max()))
+    if not diff <= 1e-6 * scale:
+        raise BenchmarkError(f"OSQP and the constrained step disagree on u by {diff:.3g} (scale {scale:.3g})")
+
+    samples: dict[str, list[np.ndarray]] = {key: [] for key in ("constrained", "closed", "daqp", "osqp")}
+    for _ in range(repeats):
+        samples["constrained"].append(np.concatenate([_step_times(sets[n], constrained) for n in sets]))
+        samples["closed"].append(np.concatenate([_step_times(sets[n], closed) for n in NOMINAL_SETS]))
+        daqp_times, osqp_times = [], []
+        for name in sets:
+            qp, problem_iter = solvers[name], iter(problems[name])
+            qp.reset()
+            daqp_times.append(_call_times(calls[name], lambda c, qp=qp: qp.solve(c.X, c.u_prev, c.Y_d, c.i_start)))
+            osqp_qps[name]._solver = None
+            osqp_times.append(_call_times(calls[name], lambda c, name=name, it=problem_iter: osqp_qps[name].solve(*next(it))))
+        samples["daqp"].append(np.concatenate(daqp_times))
+        samples["osqp"].append(np.concatenate(osqp_times))
+    per_tick = {key: np.median(np.stack(value), axis=0) for key, value in samples.items()}
+    n_nominal = sum(len(sets[n].X) for n in NOMINAL_SETS)
+    nominal = per_tick["constrained"][:n_nominal]
+    binding = ~np.concatenate([[c.closed_form for c in calls[n]] for n in sets])
+    return {
+        "constrained_step_us": float(np.median(nominal)) * 1e6,
+        "constrained_step_worst_us": float(per_tick["constrained"].max()) * 1e6,
+        "constrained_closed_form_step_us": float(np.median(per_tick["closed"])) * 1e6,
+        "constrained_over_closed_form": float(np.median(nominal / per_tick["closed"])),
+        "constrained_qp_step_us": float(np.median(per_tick["daqp"][binding])) * 1e6,
+        "constrained_osqp_qp_us": float(np.median(per_tick["osqp"][binding])) * 1e6,
+        "constrained_step_speedup_vs_osqp": float(
+            np.median(per_tick["osqp"][binding]) / np.median(per_tick["daqp"][binding])
+        ),
+        "constrained_worst_speedup_vs_osqp": float(per_tick["osqp"].max() / per_tick["daqp"].max()),
+        "constrained_binding_ticks": float(binding.sum()),
+        "constrained_osqp_max_u_difference": diff,
+    }

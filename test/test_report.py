@@ -114,6 +114,7 @@ def synthetic(tmp_path_factory):
         voltages=voltages[:n], control_period_s=TS, horizon=HORIZON, nominal_current_a=0.9,
         supply_voltage_v=values["motor.supply_voltage_v"],
         flags={"saturated": saturated[:n], "infeasible": np.zeros(n, bool)}, compute_time_s=compute_ms[:n] * 1e-3,
+        odometry=pose[:n] + 1e-4,  # the odom messages written above
     )
     return path, expected
 
@@ -193,6 +194,7 @@ def test_report_on_a_truncated_recording_names_the_damage_and_covers_what_was_re
     assert err.count("\n") == 1 and "warning" in err and "is damaged" in err and "reindex" in err
     assert f"recovered {recovered} messages (" in err
     part = dataclasses.replace(expected, **{f: getattr(expected, f)[:ticks] for f in
-                                            ("t", "pose", "reference", "currents", "voltages", "compute_time_s")},
+                                            ("t", "pose", "reference", "currents", "voltages", "compute_time_s",
+                                             "odometry")},
                                flags={k: v[:ticks] for k, v in expected.flags.items()})
     _assert_same_metrics(read_metrics(tmp_path / "o" / "metrics.json"), compute_metrics(part))

@@ -14,6 +14,7 @@ from robotino_geom_mpc.core.decoupling import DecouplingField
 from robotino_geom_mpc.core.drive import MotorKinematics, ZOHDrive
 from robotino_geom_mpc.core.mpc import DecoupledMPC, axis_dampings
 from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.scenarios import get_scenario
 
 
 @pytest.fixture(scope="module")
@@ -135,3 +136,79 @@ def test_controller_in_constrained_mode_reports_infeasible_and_stays_in_supply(s
     # a feasible state afterwards clears the flag
     out = ctl.step(np.zeros(6), np.zeros((4, 3)))
     assert not out.infeasible
+
+
+# --- the fast formulation against the direct one, and against OSQP on the benchmark's inputs ---
+
+
+def _reference_rows(robot, control, mpc, X, u_prev, Y_d, i_start):
+    """The constraint rows built period by period (the former implementation): h (9N,), G (9N, 3N)."""
+    N, Ts = control.horizon, control.period_s
+    zoh = ZOHDrive(robot.resistance_ohm, robot.inductance_h, robot.torque_constant_n_m_per_a, Ts)
+    T0 = DecouplingField(robot).T0 * robot.r / (robot.gear_ratio * robot.torque_constant_n_m_per_a)
+    kin, damping = MotorKinematics(robot), axis_dampings(robot)
+    theta, w = X[4], X[5]
+    u, v, i0 = np.zeros((3, 1 + 3 * N)), np.zeros((3, 1 + 3 * N)), np.zeros((3, 1 + 3 * N))
+    u[:, 0], v[:, 0], i0[:, 0] = u_prev, X[1::2], i_start
+    rows = []
+    for j in range(N):
+        u[np.arange(3), 1 + 3 * j + np.arange(3)] += 1.0
+        heading, mid = (theta, theta + 0.5 * Ts * w) if j == 0 else (Y_d[j - 1, 2], 0.5 * (Y_d[j - 1, 2] + Y_d[j, 2]))
+        rate = u - damping[:, None] * v
+        rate[0] -= w * v[1]
+        rate[1] += w * v[0]
+        W = kin.matrix(heading)
+        c, s = np.cos(mid), np.sin(mid)
+        current = T0 @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ u
+        voltage = zoh.voltage(current, i0, W @ v, W @ rate)
+        end = zoh.end_current(i0, voltage, W @ v, W @ rate)
+        rows += [current / robot.nominal_current_a, end / robot.nominal_current_a, voltage / robot.supply_voltage_v]
+        i0 = end
+        v = mpc.A_d[:, 1, 1][:, None] * v + mpc.B_d[:, 1][:, None] * u
+    rows = np.concatenate(rows)
+    return rows[:, 0], rows[:, 1:]
+
+
+def test_rows_equal_the_period_by_period_construction(setup):
+    robot, control, mpc, qp = setup
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        X = rng.normal(0.0, [0.5, 0.5, 0.5, 0.5, 3.0, 2.0])
+        u_prev, i_start = rng.normal(0.0, 1.0, 3), rng.normal(0.0, 0.5, 3)
+        Y_d = X[0::2] + rng.normal(0.0, 0.1, (control.horizon, 3))
+        h_ref, G_ref = _reference_rows(robot, control, mpc, X, u_prev, Y_d, i_start)
+        h, G = qp.constraint_rows(X, u_prev, Y_d, i_start)
+        np.testing.assert_allclose(h, h_ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(G, G_ref, rtol=0, atol=1e-12)
+        z = mpc.solve(X.reshape(3, 2), u_prev, Y_d).ravel()
+        np.testing.assert_allclose(qp.closed_form_rows(X, u_prev, Y_d, i_start), h_ref + G_ref @ z, rtol=0, atol=1e-10)
+
+
+@pytest.fixture(scope="module")
+def bench_calls():
+    from robotino_geom_mpc.bench.constrained import constrained_inputs, qp_calls
+
+    _, control = load_params()
+    return {name: qp_calls(inputs, control) for name, inputs in constrained_inputs(400, 60).items()}
+
+
+def test_solve_equals_osqp_on_the_same_qp_and_the_closed_form_where_no_limit_binds(setup, bench_calls):
+    """Every tick of paper-circle, robustness and the binding transients: u to 1e-6 of OSQP (tight)."""
+    from robotino_geom_mpc.bench.constrained import OsqpConstrainedQP
+
+    robot, control, mpc, _ = setup
+    binding = {}
+    for name, calls in bench_calls.items():
+        model = get_scenario("robustness").controller_model(robot) if name == "robustness" else robot
+        qp = ConstrainedMPC(model, control, DecoupledMPC(model, control))
+        reference = OsqpConstrainedQP(qp)
+        for call in calls:
+            u_osqp = call.u_prev + reference.solve(*reference.problem(call))[:3]
+            np.testing.assert_allclose(call.u, u_osqp, rtol=0, atol=1e-6 * max(1.0, np.abs(u_osqp).max()))
+            if call.closed_form:  # bit for bit the closed-form mode's u
+                du = qp.mpc.delta_u_floats(call.X.tolist(), call.u_prev.tolist(), call.Y_d.tolist())
+                assert call.u.tolist() == [a + b for a, b in zip(call.u_prev.tolist(), du)]
+        binding[name] = sum(not call.closed_form for call in calls)
+    # the limits bind through the transients (the QP is exercised) and hardly on the nominal runs
+    assert binding["circle-step"] >= 5 and binding["position-step"] >= 5
+    assert binding["paper-circle"] == 0

@@ -163,16 +163,17 @@ def bench_constrained(quick: bool) -> dict[str, float]:
 
     ``constrained_step_us`` and ``constrained_over_closed_form`` are medians
     over the ticks of the paper-circle and robustness inputs (each tick's
-    time the median over interleaved repeats), the closed-form mode's
-    `MotionController.step` on the same inputs beside it;
+    time the median over interleaved repeats) of `MotionController.step`,
+    the closed-form mode's step on the same inputs beside it;
     ``constrained_step_worst_us`` is the slowest tick of all input sets, the
-    binding ones included. OSQP (warm-started, tolerances 1e-12) solves the
-    QP of every tick the constrained controller saw, built outside its
-    timing; ``constrained_step_speedup_vs_osqp`` is its median per QP over
-    the ticks where a limit binds (where the constrained step runs DAQP)
-    divided by `ConstrainedMPC.solve`'s median on the same ticks, rows
-    included, and ``constrained_worst_speedup_vs_osqp`` the ratio of their
-    slowest ticks over all inputs.
+    binding ones included. Side by side on every tick the constrained
+    controller saw: its `ConstrainedMPC.solve`, and a constrained step built
+    on OSQP (the same rows and cost, `qp_problem`, then OSQP warm-started
+    with tolerances 1e-12); ``constrained_step_speedup_vs_osqp`` is the
+    median of their per-tick ratio over the ticks where a limit binds (where
+    the step runs the QP: its worst case), ``constrained_worst_speedup_vs_osqp``
+    the ratio of their slowest ticks, and ``constrained_daqp_qp_us`` /
+    ``constrained_osqp_qp_us`` the two solvers alone on the built QPs.
 
     Raises
     ------
@@ -196,34 +197,48 @@ def bench_constrained(quick: bool) -> dict[str, float]:
     if not diff <= 1e-6 * scale:
         raise BenchmarkError(f"OSQP and the constrained step disagree on u by {diff:.3g} (scale {scale:.3g})")
 
-    samples: dict[str, list[np.ndarray]] = {key: [] for key in ("constrained", "closed", "daqp", "osqp")}
+    def side_by_side(name: str) -> dict[str, np.ndarray]:
+        """Per-call times of the constrained step's solve, an OSQP-based one and the two QP solvers alone."""
+        qp, reference, pending = solvers[name], osqp_qps[name], calls[name]
+        qp.reset()
+        times = {"step": _call_times(pending, lambda c: qp.solve(c.X, c.u_prev, c.Y_d, c.i_start))}
+        reference._solver = None  # the same rows and cost, OSQP instead of DAQP: a constrained step built on OSQP
+        times["osqp_step"] = _call_times(pending, lambda c: reference.solve(*reference.problem(c)))
+        qp.reset()
+        dense = iter(problems[name])
+        times["daqp"] = _call_times(pending, lambda c: _daqp_solve(qp, *next(dense)))
+        reference._solver = None
+        dense = iter(problems[name])
+        times["osqp"] = _call_times(pending, lambda c: reference.solve(*next(dense)))
+        return times
+
+    samples: dict[str, list[np.ndarray]] = {}
     for _ in range(repeats):
-        samples["constrained"].append(np.concatenate([_step_times(sets[n], constrained) for n in sets]))
-        samples["closed"].append(np.concatenate([_step_times(sets[n], closed) for n in NOMINAL_SETS]))
-        daqp_times, osqp_times = [], []
-        for name in sets:
-            qp, problem_iter = solvers[name], iter(problems[name])
-            qp.reset()
-            daqp_times.append(_call_times(calls[name], lambda c, qp=qp: qp.solve(c.X, c.u_prev, c.Y_d, c.i_start)))
-            osqp_qps[name]._solver = None
-            osqp_times.append(_call_times(calls[name], lambda c, name=name, it=problem_iter: osqp_qps[name].solve(*next(it))))
-        samples["daqp"].append(np.concatenate(daqp_times))
-        samples["osqp"].append(np.concatenate(osqp_times))
-    per_tick = {key: np.median(np.stack(value), axis=0) for key, value in samples.items()}
-    n_nominal = sum(len(sets[n].X) for n in NOMINAL_SETS)
-    nominal = per_tick["constrained"][:n_nominal]
+        rounds = {"constrained": np.concatenate([_step_times(sets[n], constrained) for n in sets]),
+                  "closed": np.concatenate([_step_times(sets[n], closed) for n in NOMINAL_SETS])}
+        solves = [side_by_side(name) for name in sets]
+        rounds.update({key: np.concatenate([t[key] for t in solves]) for key in solves[0]})
+        for key, value in rounds.items():
+            samples.setdefault(key, []).append(value)
+    tick = {key: np.median(np.stack(value), axis=0) for key, value in samples.items()}  # per tick over repeats
+    nominal = tick["constrained"][: sum(len(sets[n].X) for n in NOMINAL_SETS)]
     binding = ~np.concatenate([[c.closed_form for c in calls[n]] for n in sets])
     return {
         "constrained_step_us": float(np.median(nominal)) * 1e6,
-        "constrained_step_worst_us": float(per_tick["constrained"].max()) * 1e6,
-        "constrained_closed_form_step_us": float(np.median(per_tick["closed"])) * 1e6,
-        "constrained_over_closed_form": float(np.median(nominal / per_tick["closed"])),
-        "constrained_qp_step_us": float(np.median(per_tick["daqp"][binding])) * 1e6,
-        "constrained_osqp_qp_us": float(np.median(per_tick["osqp"][binding])) * 1e6,
-        "constrained_step_speedup_vs_osqp": float(
-            np.median(per_tick["osqp"][binding]) / np.median(per_tick["daqp"][binding])
-        ),
-        "constrained_worst_speedup_vs_osqp": float(per_tick["osqp"].max() / per_tick["daqp"].max()),
+        "constrained_step_worst_us": float(tick["constrained"].max()) * 1e6,
+        "constrained_closed_form_step_us": float(np.median(tick["closed"])) * 1e6,
+        "constrained_over_closed_form": float(np.median(nominal / tick["closed"])),
+        "constrained_binding_step_us": float(np.median(tick["step"][binding])) * 1e6,
+        "constrained_osqp_binding_step_us": float(np.median(tick["osqp_step"][binding])) * 1e6,
+        "constrained_step_speedup_vs_osqp": float(np.median(tick["osqp_step"][binding] / tick["step"][binding])),
+        "constrained_worst_speedup_vs_osqp": float(tick["osqp_step"].max() / tick["step"].max()),
+        "constrained_daqp_qp_us": float(np.median(tick["daqp"][binding])) * 1e6,
+        "constrained_osqp_qp_us": float(np.median(tick["osqp"][binding])) * 1e6,
         "constrained_binding_ticks": float(binding.sum()),
         "constrained_osqp_max_u_difference": diff,
     }
+
+
+def _daqp_solve(qp: ConstrainedMPC, f: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The constrained mode's DAQP call alone (warm-started) on a built QP."""
+    return qp._qp(f, G, -1.0 - h, 1.0 - h)[1]

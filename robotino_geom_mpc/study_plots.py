@@ -86,9 +86,11 @@ def write_study_plots(rows: list[dict[str, Any]], out_dir: str | os.PathLike, no
                 of_model = odometry == model
                 if of_model.any():
                     ax.plot(draw_factor * values[draw][of_model], factor * values[key][of_model], ".", ms=4,
-                            alpha=0.6, color=colour, label=f"{model} odometry")
+                            alpha=0.6, color=colour, label=f"odometry: {model}")
             if draw == "friction":
                 ax.set_xscale("log")
+                ax.set_xticks([0.5, 0.7, 1.0, 1.4, 2.0], ["0.5", "0.7", "1", "1.4", "2"])
+                ax.minorticks_off()
             if key == "peak_current_a":
                 ax.axhline(nominal_current_a, color="k", ls="--", lw=1.0)
             ax.grid(True, alpha=0.3)
@@ -96,7 +98,7 @@ def write_study_plots(rows: list[dict[str, Any]], out_dir: str | os.PathLike, no
                 ax.set_xlabel(draw_label)
             if j == 0:
                 ax.set_ylabel(label)
-                ax.legend(loc="best", fontsize="small")
+    axes[0, 0].legend(loc="best", fontsize="small")
     scatter.suptitle("each run's metrics against its draws")
 
     paths = []

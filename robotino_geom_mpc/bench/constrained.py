@@ -96,7 +96,10 @@ class _RecordingQP(ConstrainedMPC):
         super().__init__(*args)
         self.calls: list[QPCall] = []
 
-    def solve(self, X, u_prev, Y_d, i_start):  # noqa: D102 (as the base class)
+    def solve(
+        self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray
+    ) -> tuple[np.ndarray, bool]:
+        """`ConstrainedMPC.solve`, recorded."""
         u, infeasible = super().solve(X, u_prev, Y_d, i_start)
         closed = bool(np.max(np.abs(self.closed_form_rows(X, u_prev, Y_d, i_start))) <= 1.0)
         self.calls.append(QPCall(X.copy(), u_prev.copy(), Y_d.copy(), i_start.copy(), u.copy(), closed))
@@ -113,10 +116,14 @@ def qp_calls(inputs: InputSet, control: ControlParams) -> list[QPCall]:
 
 
 class OsqpConstrainedQP:
-    """The constrained mode's QP (`ConstrainedMPC.constraint_rows`, its cost) for OSQP: warm-started, tight tolerances."""
+    """The constrained mode's QP (`ConstrainedMPC.qp_problem`) for OSQP: warm-started, tight tolerances."""
 
     def __init__(self, qp: ConstrainedMPC) -> None:
         self.qp = qp
+        self.reset()
+
+    def reset(self) -> None:
+        """Drop the warm start (the next solve sets OSQP up anew)."""
         self._solver: osqp.OSQP | None = None
 
     def problem(self, call: QPCall) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -202,12 +209,12 @@ def bench_constrained(quick: bool) -> dict[str, float]:
         qp, reference, pending = solvers[name], osqp_qps[name], calls[name]
         qp.reset()
         times = {"step": _call_times(pending, lambda c: qp.solve(c.X, c.u_prev, c.Y_d, c.i_start))}
-        reference._solver = None  # the same rows and cost, OSQP instead of DAQP: a constrained step built on OSQP
+        reference.reset()  # the same rows and cost, OSQP instead of DAQP: a constrained step built on OSQP
         times["osqp_step"] = _call_times(pending, lambda c: reference.solve(*reference.problem(c)))
         qp.reset()
         dense = iter(problems[name])
         times["daqp"] = _call_times(pending, lambda c: _daqp_solve(qp, *next(dense)))
-        reference._solver = None
+        reference.reset()
         dense = iter(problems[name])
         times["osqp"] = _call_times(pending, lambda c: reference.solve(*next(dense)))
         return times

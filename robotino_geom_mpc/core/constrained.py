@@ -136,8 +136,8 @@ class ConstrainedMPC:
 
     def _closed_form(self, p: np.ndarray) -> np.ndarray:
         """z* of eq. (56) for the parameter vector p."""
-        N = self.N
-        return self.mpc.solve(p[3 * N : 3 * N + 6].reshape(3, 2), p[3 * N + 6 : 3 * N + 9], p[: 3 * N].reshape(N, 3)).ravel()
+        n = 3 * self.N
+        return self.mpc.solve(p[n : n + 6].reshape(3, 2), p[n + 6 : n + 9], p[:n].reshape(self.N, 3)).ravel()
 
     def _signals(self, p: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Un-rotated signals (3, 3N) of (p, z): the part without theta' and the factor of theta'."""

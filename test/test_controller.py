@@ -210,3 +210,13 @@ def test_filter_keeps_odometry_noise_out_of_the_currents_in_closed_loop(params):
     assert peaks[0.0] > robot.nominal_current_a
     assert peaks[0.5] <= robot.nominal_current_a and not saturated
     assert error.max() < 1e-3
+
+
+def test_step_interval_is_one_period_unless_the_stamps_say_otherwise():
+    from robotino_geom_mpc.core.controller import step_interval
+
+    period = 10_000_000
+    assert step_interval(5 * period, None, period) is None  # the first measurement
+    assert step_interval(5 * period, 4 * period, period) is None  # on time
+    assert step_interval(5 * period, 3 * period, period) == pytest.approx(0.02)  # a lost tick
+    assert step_interval(5 * period + 11_000_000, 4 * period, period) == pytest.approx(0.021)  # a late one

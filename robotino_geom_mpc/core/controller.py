@@ -21,7 +21,8 @@ from .model import acceleration_block, wheel_forces
 from .mpc import DecoupledMPC, axis_dampings
 from .params import ControlParams, RobotinoParams
 
-__all__ = ["ControllerInputError", "ControlOutput", "MotionController", "odometry_state_floats", "state_from_odometry"]
+__all__ = ["ControllerInputError", "ControlOutput", "MotionController", "odometry_state_floats", "state_from_odometry",
+           "step_interval"]
 
 
 class ControllerInputError(RobotinoError, ValueError):
@@ -264,6 +265,16 @@ def state_from_odometry(pose: object, twist_body: object) -> np.ndarray:
     pose = checked_array(pose, (3,), "pose", ControllerInputError, finite=False)
     twist = checked_array(twist_body, (3,), "twist_body", ControllerInputError, finite=False)
     return np.array(odometry_state_floats(pose.tolist(), twist.tolist()))
+
+
+def step_interval(stamp_ns: int, last_ns: int | None, period_ns: int) -> float | None:
+    """The `dt_s` of `MotionController.step` for a measurement stamped `stamp_ns` after one stamped `last_ns`.
+
+    None (one period) for the first measurement and for an interval of exactly one period; else the
+    interval in seconds. The controller node and `regress` use it, so a replay steps as the node did.
+    """
+    dt_ns = period_ns if last_ns is None else stamp_ns - last_ns
+    return None if dt_ns == period_ns else dt_ns * 1e-9
 
 
 def odometry_state_floats(

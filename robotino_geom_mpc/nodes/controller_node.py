@@ -95,7 +95,7 @@ from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.core.blend import BlendEngagement
-from robotino_geom_mpc.core.controller import ControllerInputError, MotionController
+from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, step_interval
 from robotino_geom_mpc.core.params import ALL_SPECS
 from robotino_geom_mpc.core.trajectory import shift_preview
 from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
@@ -348,8 +348,7 @@ class ControllerNode(Node):
             self._engage(stamp, X, positions[0], velocities[0], accelerations[0], reason)
             dt_s = None  # the controller starts over
         else:  # None: one period exactly, or the first tick
-            dt_ns = self.period_ns if self.last_odom_ns is None else stamp - self.last_odom_ns
-            dt_s = None if dt_ns == self.period_ns else dt_ns * 1e-9
+            dt_s = step_interval(stamp, self.last_odom_ns, self.period_ns)
         preview = positions[1:]
         offsets = self.blend.offsets(stamp)
         if offsets is not None:

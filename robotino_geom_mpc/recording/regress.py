@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from robotino_geom_mpc.core.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2, BlendEngagement
-from robotino_geom_mpc.core.controller import ControllerInputError, MotionController
+from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, step_interval
 from robotino_geom_mpc.core.trajectory import shift_preview
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
 from robotino_geom_mpc.recording.bag import BagError, BagReader
@@ -189,8 +189,7 @@ def regress_bag(
                              ANGULAR_LIMIT_RADPS2)
                 dt_s = None
             else:
-                dt_ns = period_ns if last_used is None else stamp - last_used
-                dt_s = None if dt_ns == period_ns else dt_ns * 1e-9
+                dt_s = step_interval(stamp, last_used, period_ns)
             offsets = blend.offsets(stamp)
             Y_d = positions[1:] if offsets is None else positions[1:] + offsets
             try:

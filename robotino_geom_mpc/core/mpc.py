@@ -48,7 +48,7 @@ class MPCError(RobotinoError, ValueError):
     """An MPC input or setting with the wrong shape, a non-finite value or out of range."""
 
 
-class UnstableClosedLoopError(ParamError, RobotinoError):
+class UnstableClosedLoopError(ParamError):
     """Control parameters whose nominal closed loop (eqs. 49 and 56) has a pole on or outside the unit circle."""
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from robotino_geom_mpc.core.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2
 from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.core.mpc import check_closed_loop
-from robotino_geom_mpc.core.params import ParamError, ParamSpec, params_from_values
+from robotino_geom_mpc.core.params import ParamSpec, params_from_values
 from robotino_geom_mpc.core.trajectory import shift_preview
 from robotino_geom_mpc.ros.decode import QUATERNION_NORM_TOLERANCE, TILT_TOLERANCE_RAD
 
@@ -56,7 +56,7 @@ def closed_loop_problem(values: dict[str, Any]) -> str | None:
     """Why the candidate parameter values cannot run (an unstable nominal closed loop, ...), or None."""
     try:
         check_closed_loop(*params_from_values(values, "parameters of the controller"))
-    except (RobotinoError, ParamError) as exc:
+    except RobotinoError as exc:  # UnstableClosedLoopError, ParamError
         return str(exc)
     return None
 

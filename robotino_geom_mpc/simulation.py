@@ -23,7 +23,7 @@ costs about as much as a dozen float operations): it collects the ticks'
 values and turns them into arrays once, at the end.
 
 A scenario (`scenarios.SCENARIOS`) names the reference, the controller's
-model (`controller_model`: the robot, or a mismatched one in ``robustness``)
+model (`scenarios.Scenario.controller_model`: the robot, or a mismatched one in ``robustness``)
 and the odometry noise.
 """
 
@@ -44,22 +44,11 @@ from .core.params import ControlParams, RobotinoParams
 from .results import RunData
 from .scenarios import get_scenario
 
-__all__ = ["SimulationError", "controller_model", "run_scenario"]
+__all__ = ["SimulationError", "run_scenario"]
 
 
 class SimulationError(RobotinoError, ValueError):
     """A bad run setting, named in the message."""
-
-
-def controller_model(scenario: str, robot: RobotinoParams) -> RobotinoParams:
-    """The robot model `run_scenario` gives the controller in a scenario when `robot` is the truth.
-
-    Raises
-    ------
-    scenarios.ScenarioError
-        For an unknown scenario.
-    """
-    return get_scenario(scenario).controller_model(robot)
 
 
 def run_scenario(

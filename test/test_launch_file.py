@@ -17,8 +17,8 @@ import pytest
 from robotino_geom_mpc.core.params import ALL_SPECS, default_params_file, load_params, params_from_values, \
     read_parameter_file
 from robotino_geom_mpc.ros.processes import RECORDER_WAIT_FOR
-from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, node_parameters
-from robotino_geom_mpc.simulation import controller_model, run_scenario
+from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
+from robotino_geom_mpc.simulation import run_scenario
 
 LAUNCH_FILE = Path(__file__).resolve().parents[1] / "launch" / "robotino_geom_mpc.launch.py"
 PARAMS = str(default_params_file())
@@ -133,7 +133,7 @@ def test_each_node_gets_its_scenarios_parameters(description, scenario):
     # model the offline loop gives its controller, and the plant's noise is the offline run's
     values = {**read_parameter_file(PARAMS), **by_node["controller_node"]}
     launched, _ = params_from_values({s.name: values[s.name] for s in ALL_SPECS}, "launch")
-    assert launched == controller_model(scenario, robot)
+    assert launched == get_scenario(scenario).controller_model(robot)
     offline = run_scenario(scenario, robot, control, duration_s=0.05)
     assert [plant["odometry_noise.position_m"], plant["odometry_noise.yaw_rad"]] == offline.meta["odometry_noise"]
     assert (launched != robot) == (offline.meta["controller_mismatch"] is not None)

@@ -8,8 +8,8 @@ from robotino_geom_mpc.core.decoupling import DecouplingField
 from robotino_geom_mpc.core.mpc import axis_dampings
 from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.core.trajectory import make_reference
-from robotino_geom_mpc.scenarios import ScenarioError
-from robotino_geom_mpc.simulation import SimulationError, controller_model, run_scenario
+from robotino_geom_mpc.scenarios import ScenarioError, get_scenario
+from robotino_geom_mpc.simulation import SimulationError, run_scenario
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +62,7 @@ def test_robustness_scenario_stays_bounded_and_is_reproducible(params):
     assert np.sqrt(np.mean(error[a.t >= 1.0] ** 2)) < 5e-3
     assert np.all(np.isfinite(a.currents)) and np.abs(a.voltages).max() <= robot.supply_voltage_v
     assert a.meta["odometry_noise"] == [1e-3, 1e-3]
-    ctl = controller_model("robustness", robot)
+    ctl = get_scenario("robustness").controller_model(robot)
     assert ctl.M == pytest.approx(1.2 * robot.mass_kg + 1.5 * robot.rotor_mass_equivalent_kg)
     assert ctl.k_x == pytest.approx(2.0 * robot.k_x)
 

@@ -10,10 +10,11 @@ DEMO_OUT ?= out/demo
 
 setup: $(STAMP)
 
-$(STAMP): setup.py setup.cfg package.xml Makefile
+$(STAMP): setup.py setup.cfg package.xml Makefile tools/build_interfaces.sh
 	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install --quiet --upgrade "pip>=24"
 	$(VENV)/bin/python -m pip install --quiet --editable ".[ros,test]"
+	tools/build_interfaces.sh $(VENV)  # tf2_msgs where the wheels have none
 	touch $(STAMP)
 
 demo: setup

@@ -7,7 +7,8 @@ chord length in the metric sqrt(dx^2 + dy^2 + (l dtheta)^2), l the wheel
 distance: a pure rotation in place has the length its wheels roll, so poses
 that differ in heading only are distinct knots. Heading: the poses' own
 (absolute, already unwrapped by the caller), interpolated like x and y.
-A quintic spline is C^4 in u, so X(u(t)) is C^3 in t for a C^3 time law.
+A quintic spline is C^4 in u, so X(u(t)) is C^3 in t for a C^3 time law; between
+poses it may overshoot a little (a few % of a turn in place that reverses).
 
 Time law: u(t) = U s(t / T_s), s the septic smoothstep (`core.time_law.septic`):
 at rest at both ends with zero acceleration and jerk, derivatives of X(u(t))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -20,8 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NODE_MODULES", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR", "NodeFailed", "NodeProcess", "NodeGroup",
-           "dds_environment", "node_arguments", "ros_args"]
+__all__ = ["NODE_MODULES", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR", "NamespaceError", "NodeFailed", "NodeProcess",
+           "NodeGroup", "dds_environment", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.ros.signals import NODE_MODULES  # executable name -> module run with `python -m`
@@ -35,6 +36,43 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/
 
+_NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+class NamespaceError(RobotinoError, ValueError):
+    """A robot namespace that is not a valid ROS namespace."""
+
+
+def ros_namespace(namespace: str) -> str:
+    """`namespace` as an absolute ROS namespace (``robot1`` -> ``/robot1``; ``""`` or ``/`` -> ``""``: none).
+
+    Raises
+    ------
+    NamespaceError
+        If a token is not a valid ROS name (letters, digits, underscores; not starting with a digit).
+    """
+    tokens = namespace.strip().strip("/").split("/")
+    if tokens == [""]:
+        return ""
+    bad = [t for t in tokens if not _NAMESPACE_TOKEN.fullmatch(t)]
+    if bad:
+        raise NamespaceError(f"namespace {namespace!r}: {bad[0]!r} is not a valid ROS name "
+                             "(letters, digits and underscores, not starting with a digit)")
+    return "/" + "/".join(tokens)
+
+
+def namespace_remaps(namespace: str, lockstep: bool) -> dict[str, str]:
+    """The remappings (``from -> to``) that put a run's nodes in `namespace` (`ros_namespace`; none for ``""``).
+
+    Every topic of the nodes is relative and moves with ``__ns``. The lockstep plant's ``/clock`` is global
+    by convention; with a namespace it becomes ``<namespace>/clock``, so robots in lockstep in one domain
+    each keep their own time.
+    """
+    namespace = ros_namespace(namespace)
+    if not namespace:
+        return {}
+    return {"__ns": namespace, **({"/clock": f"{namespace}/clock"} if lockstep else {})}
+
 
 def node_arguments(
     scenario: str,
@@ -46,14 +84,16 @@ def node_arguments(
     wait_for: list[str] | None = None,
     overrides: dict[str, dict[str, Any]] | None = None,
     odometry: str = "ideal",
+    namespace: str = "",
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`.
 
     Each node gets the parameter file, the scenario's overrides (`scenarios.node_parameters`) and the
-    mode; the plant the run's length, the seed, ``odometry_model`` (`odometry`: ideal or encoders) and
+    mode; the plant the run's length, the seed, ``odometry_model`` (`odometry`: ideal or encoders; with
+    encoders the controller ``control.odometry_twist: period_mean``) and
     ``lockstep_wait_for`` (`wait_for`, by default the subscriptions of the nodes started:
     `LOCKSTEP_WAIT_FOR`, or `RECORDER_WAIT_FOR` with a recorder);
-    `overrides` (per executable name) come last.
+    `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`).
     """
     from robotino_geom_mpc.core.params import load_params
     from robotino_geom_mpc.scenarios import node_parameters
@@ -64,14 +104,18 @@ def node_arguments(
     extra = overrides or {}
     if wait_for is None:
         wait_for = list(LOCKSTEP_WAIT_FOR if bag is None else RECORDER_WAIT_FOR)
+    remaps = namespace_remaps(namespace, lockstep)
     args = {}
     if bag is not None:
         args["recorder_node"] = ros_args(params_file, {"output": str(bag), "scenario": scenario,
-                                                       **extra.get("recorder_node", {})})
+                                                       **extra.get("recorder_node", {})}, remaps)
     # no use_sim_time: in lockstep the trajectory's time is the /clock messages and the controller's the
     # odometry stamps; the time source's /clock reader would cost each a wake-up a tick
+    # encoder odometry's twist is the mean over the period: the controller's pose filter predicts accordingly
+    twist = {"controller_node": {"control.odometry_twist": "period_mean"}} if odometry == "encoders" else {}
     for name in ("trajectory_node", "controller_node"):
-        args[name] = ros_args(params_file, {**scenario_overrides[name], "mode": mode, **extra.get(name, {})})
+        args[name] = ros_args(params_file, {**scenario_overrides[name], "mode": mode, **twist.get(name, {}),
+                                            **extra.get(name, {})})
     args["plant_node"] = ros_args(params_file, {
         **scenario_overrides["plant_node"],
         "mode": mode,
@@ -80,7 +124,7 @@ def node_arguments(
         "odometry_model": odometry,
         "lockstep_wait_for": list(wait_for),
         **extra.get("plant_node", {}),
-    })
+    }, remaps)
     return args
 
 
@@ -112,13 +156,16 @@ def _format(value: Any) -> str:
     return str(value)
 
 
-def ros_args(params_file: str | os.PathLike | None = None, overrides: dict[str, Any] | None = None) -> list[str]:
-    """``--ros-args [--params-file F] -p name:=value ...`` (overrides win over the file, as in rcl)."""
+def ros_args(params_file: str | os.PathLike | None = None, overrides: dict[str, Any] | None = None,
+             remaps: dict[str, str] | None = None) -> list[str]:
+    """``--ros-args [--params-file F] -p name:=value ... -r from:=to ...`` (overrides win over the file, as in rcl)."""
     args = ["--ros-args"]
     if params_file is not None:
         args += ["--params-file", str(params_file)]
     for name, value in (overrides or {}).items():
         args += ["-p", f"{name}:={_format(value)}"]
+    for source, target in (remaps or {}).items():
+        args += ["-r", f"{source}:={target}"]
     return args
 
 
@@ -152,10 +199,14 @@ class NodeGroup:
         Where each node's stdout/stderr go (a temporary directory if None).
     env
         Extra environment variables for the nodes.
+    prefix
+        A command the nodes run under (e.g. ``("ip", "netns", "exec", "ns1")``: in a network namespace); it must
+        exec the node, so that signals reach it.
     """
 
     log_dir: Path | None = None
     env: dict[str, str] = field(default_factory=dict)
+    prefix: tuple[str, ...] = ()
     nodes: list[NodeProcess] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -179,7 +230,7 @@ class NodeGroup:
         env.update(dds_environment(env))
         with open(out, "wb") as fout, open(err, "wb") as ferr:
             popen = subprocess.Popen(
-                [sys.executable, "-m", module or NODE_MODULES[executable], *args],
+                [*self.prefix, sys.executable, "-m", module or NODE_MODULES[executable], *args],
                 stdout=fout,
                 stderr=ferr,
                 stdin=subprocess.DEVNULL,

@@ -22,7 +22,7 @@ Scheme
    plane is described in a frame turning at the constant rate eps_k / h,
    eps_k the exact heading change over the substep, offset so that the
    heading minus the frame angle averages to zero over the substep. Because
-   d_i(theta) = R(-theta) d_i(0), in that frame the drive directions are
+   d_i(theta) = R(theta) d_i(0) (REP-103), in that frame the drive directions are
    d_i(0) up to the (zero-mean, O(h^2 theta'')) deviation, and the frame's
    rotation adds the constant Coriolis term rate * S. The frozen system is
    linear time-invariant; its exact transition matrix expm(A h + eps K)
@@ -70,10 +70,11 @@ _CURRENTS = slice(5, 8)  # of the loop vector
 _N_LOOP = len(_COLS)
 # Rows appended to a substep map so that it also passes the held voltages on: (3, 14) [0 | I].
 _PASS = np.eye(_N_LOOP)[len(_ROWS) :]
-# Generator of a frame rotation acting on (x, y) and (x', y'): d/d(angle) of R(angle) per pair.
+# Generator of a turn of the frame on the coordinates of (x, y) and (x', y') in it: d/d(angle) of
+# R(angle)^T per pair (a frame turned by angle sees a vector turned by -angle).
 _TURN = np.zeros((_N_AUG, _N_AUG))
-_TURN[[2, 3], [0, 1]] = 1.0
-_TURN[[0, 1], [2, 3]] = -1.0
+_TURN[[2, 3], [0, 1]] = -1.0
+_TURN[[0, 1], [2, 3]] = 1.0
 _FLOAT64 = np.dtype(np.float64)
 _FIT_RATE_RAD_S = 20.0
 _FIT_DEGREE = 6
@@ -109,12 +110,12 @@ class _StepCache:
 
 
 def _turn(angle: float) -> np.ndarray:
-    """(11, 11) rotation of the planar pairs of the loop vector's first 11 entries by angle."""
+    """(11, 11): the loop vector's first 11 entries in a frame turned by angle (planar pairs by R(angle)^T)."""
     c, s = math.cos(angle), math.sin(angle)
     out = np.eye(len(_ROWS))
     out[0, 0] = out[1, 1] = out[2, 2] = out[3, 3] = c
-    out[2, 0] = out[3, 1] = s
-    out[0, 2] = out[1, 3] = -s
+    out[2, 0] = out[3, 1] = -s
+    out[0, 2] = out[1, 3] = s
     return out
 
 
@@ -205,7 +206,7 @@ class RobotinoPlant:
         A[0:6, 0:6] = A_matrix(p)
         if not self.isotropic:
             c, s = math.cos(frame_angle), math.sin(frame_angle)
-            turn = np.array([[c, -s], [s, c]])
+            turn = np.array([[c, s], [-s, c]])  # odom -> frame coordinates
             A[np.ix_([1, 3], [1, 3])] = -turn @ np.diag([p.k_x, p.k_y]) @ turn.T / p.M
         A[0:6, 6:9] = k_wheel * g_theta(0.0, p)
         A[6:9, :N_PLANT] = -k_wheel / p.inductance_h * rim
@@ -312,12 +313,12 @@ class RobotinoPlant:
             ]
         # Into the start frame (loop vector: rotated planar pairs, then w[5:]), through the substeps, back.
         x, vx, y, vy, _, *rest = w
-        cos, sin = math.cos(start_angle), math.sin(start_angle)
+        cos, sin = math.cos(-start_angle), math.sin(-start_angle)
         c.before[0][:] = (cos * x - sin * y, cos * vx - sin * vy, sin * x + cos * y, sin * vx + cos * vy, *rest)
         for substep_map, before, after in zip(maps, c.before, c.after):
             substep_map.dot(before, after)
         x, vx, y, vy, *rest = c.after[-1].tolist()[: len(_ROWS)]
-        cos, sin = math.cos(-end_angle), math.sin(-end_angle)
+        cos, sin = math.cos(end_angle), math.sin(end_angle)
         self._w = [cos * x - sin * y, cos * vx - sin * vy, sin * x + cos * y, sin * vx + cos * vy, theta_end, *rest]
         self._trace = c.trace
         self._time_s += dt

@@ -145,7 +145,7 @@ def _reference_rows(robot, control, mpc, X, u_prev, Y_d, i_start):
     """The constraint rows built period by period (the former implementation): h (9N,), G (9N, 3N)."""
     N, Ts = control.horizon, control.period_s
     zoh = ZOHDrive(robot.resistance_ohm, robot.inductance_h, robot.torque_constant_n_m_per_a, Ts)
-    T0 = DecouplingField(robot).T0 * robot.r / (robot.gear_ratio * robot.torque_constant_n_m_per_a)
+    field, amperes_per_newton = DecouplingField(robot), robot.r / (robot.gear_ratio * robot.torque_constant_n_m_per_a)
     kin, damping = MotorKinematics(robot), axis_dampings(robot)
     theta, w = X[4], X[5]
     u, v, i0 = np.zeros((3, 1 + 3 * N)), np.zeros((3, 1 + 3 * N)), np.zeros((3, 1 + 3 * N))
@@ -154,12 +154,12 @@ def _reference_rows(robot, control, mpc, X, u_prev, Y_d, i_start):
     for j in range(N):
         u[np.arange(3), 1 + 3 * j + np.arange(3)] += 1.0
         heading, mid = (theta, theta + 0.5 * Ts * w) if j == 0 else (Y_d[j - 1, 2], 0.5 * (Y_d[j - 1, 2] + Y_d[j, 2]))
+        # omega = W(theta) v with W(theta) = W(0) diag(R(theta)^T, 1): omega' = W (a + theta' (v_y, -v_x, 0))
         rate = u - damping[:, None] * v
-        rate[0] -= w * v[1]
-        rate[1] += w * v[0]
+        rate[0] += w * v[1]
+        rate[1] -= w * v[0]
         W = kin.matrix(heading)
-        c, s = np.cos(mid), np.sin(mid)
-        current = T0 @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ u
+        current = amperes_per_newton * field.field(mid) @ u
         voltage = zoh.voltage(current, i0, W @ v, W @ rate)
         end = zoh.end_current(i0, voltage, W @ v, W @ rate)
         rows += [current / robot.nominal_current_a, end / robot.nominal_current_a, voltage / robot.supply_voltage_v]

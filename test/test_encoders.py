@@ -104,9 +104,11 @@ def test_wheel_speeds_are_within_one_count_per_period_of_the_plant():
     assert errors.max() < bound
     assert errors.max() > 0.5 * bound  # quantisation is there, not zero
     # theta' = r sum(wheel speeds) / (3 l), so the heading is the summed counts: within one count per wheel
-    # of the truth whatever the motion; the position drifts (twist held over each period)
+    # of the truth whatever the motion; the position drifts (quantisation, twist held over each period), but
+    # only slightly: the body-frame kinematics and the plant agree on the handedness (REP-103, erratum 6; with
+    # the printed g(theta) the wheel directions turned against the yaw and the drift here was 1.7e-2 m)
     assert abs(odometry.pose[2] - plant.pose[2]) <= ROBOT.r * _count_step() / ROBOT.l
-    assert np.hypot(*(np.array(odometry.pose[:2]) - plant.pose[:2])) > 1e-4
+    assert 0.0 < np.hypot(*(np.array(odometry.pose[:2]) - plant.pose[:2])) < 2e-5
 
 
 def test_body_twist_inverts_the_rim_speeds():

@@ -15,13 +15,14 @@ def robot(request):
 THETAS = np.linspace(-np.pi, np.pi, 37)
 
 
-def test_g_rows_follow_the_printed_translation_rows_and_the_corrected_angular_row(robot):
+def test_g_rows_are_the_printed_translation_rows_at_minus_theta_and_the_corrected_angular_row(robot):
     M, J, l, a = robot.M, robot.J, robot.l, 2 * np.pi / 3
     for th in THETAS:
         g = model.g_theta(th, robot)
-        # rows 2 and 4 of eq. (9) as printed
-        assert np.allclose(g[1], [np.sin(th) / M, np.sin(a + th) / M, -np.sin(a - th) / M], atol=1e-15)
-        assert np.allclose(g[3], [np.cos(th) / M, np.cos(a + th) / M, np.cos(a - th) / M], atol=1e-15)
+        # rows 2 and 4 of eq. (9) as printed, (sin th, sin(a + th), -sin(a - th)) and (cos th, cos(a + th),
+        # cos(a - th)), with the heading's sign corrected (erratum 6: the directions turn with the yaw)
+        assert np.allclose(g[1], [-np.sin(th) / M, np.sin(a - th) / M, -np.sin(a + th) / M], atol=1e-15)
+        assert np.allclose(g[3], [np.cos(th) / M, np.cos(a - th) / M, np.cos(a + th) / M], atol=1e-15)
         # erratum 1: every wheel gives torque l F_i
         assert np.allclose(g[5], l / J, atol=0.0)
         assert np.all(g[[0, 2, 4]] == 0.0)

@@ -112,8 +112,10 @@ def test_convergence_with_substeps():
 def steady_state(p, U, theta):
     """Solve i' = 0, X'' = 0 for (v_x, v_y, theta', i_1, i_2, i_3) with the heading fixed."""
     k_wheel = p.gear_ratio * p.torque_constant_n_m_per_a / p.r
-    phi = theta + np.array([0.0, 2.0 * np.pi / 3.0, -2.0 * np.pi / 3.0])
-    d = np.column_stack((np.sin(phi), np.cos(phi)))  # drive directions, (3, 2)
+    phi = np.array([0.0, 2.0 * np.pi / 3.0, -2.0 * np.pi / 3.0])
+    c, s = np.cos(theta), np.sin(theta)
+    # drive directions, (3, 2): the body-frame ones (sin phi_i, cos phi_i) turned with the robot, R(theta) d_i(0)
+    d = np.column_stack((np.sin(phi), np.cos(phi))) @ np.array([[c, s], [-s, c]])
     A = np.zeros((6, 6))
     A[0, 0], A[0, 3:] = p.k_x, -k_wheel * d[:, 0]
     A[1, 1], A[1, 3:] = p.k_y, -k_wheel * d[:, 1]
@@ -265,8 +267,8 @@ def test_substep_currents_and_float_accessors():
 def test_generator_is_coupled_rhs_in_the_heading_frame(anisotropic):
     """The matrices the plant integrates exactly are model.coupled_rhs (and the wheel-angle rates), state by state.
 
-    In the frame at the heading (planar pairs rotated by theta) the drive directions are
-    d_i(0); the frame's matrix at rest, applied there and rotated back, must give coupled_rhs.
+    In the frame at the heading (planar pairs in the body frame, R(theta)^T times the odom pair) the drive
+    directions are d_i(0); the frame's matrix at rest, applied there and rotated back, must give coupled_rhs.
     """
     p = replace(ROBOT, body_friction_y_n_s_per_m=3.0 * ROBOT.k_y) if anisotropic else ROBOT
     plant = RobotinoPlant(p)
@@ -275,7 +277,7 @@ def test_generator_is_coupled_rhs_in_the_heading_frame(anisotropic):
         state, U = rng.normal(0.0, 1.0, 9) * [1, 0.5, 1, 0.5, 3, 2, 0.5, 0.5, 0.5], rng.uniform(-24, 24, 3)
         theta = state[4]
         c, s = np.cos(theta), np.sin(theta)
-        turn, back = np.array([[c, -s], [s, c]]), np.array([[c, s], [-s, c]])
+        turn, back = np.array([[c, s], [-s, c]]), np.array([[c, -s], [s, c]])  # R(theta)^T, R(theta)
         w = np.concatenate((state, rng.normal(0.0, 1.0, 3), U))
         w[[0, 2]], w[[1, 3]] = turn @ state[[0, 2]], turn @ state[[1, 3]]
         derivative = plant._frame_matrix(0.0, theta) @ w

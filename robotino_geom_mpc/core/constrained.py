@@ -76,10 +76,10 @@ class ConstrainedMPC:
     heading), v(k+j) and the body-frame rate (both rotated by the heading at
     the period's start), columns kind * N + j. With p = (Y_d row by row, X,
     u(k-1), i_0, 1) all of a step's numbers are a few products: the signals
-    ``(F0 + theta' F1) p + (Fz0 + theta' Fz1) z`` as rows (s_x, s_y, -s_y, s_x,
+    ``(F0 + theta' F1) p + (Fz0 + theta' Fz1) z`` as rows (s_x, s_y, s_y, -s_x,
     s_theta, i_0), the factors ``cos(A p)`` (cos and sin of the headings, ones),
     and the scaled rows ``B (cos(A p) * signals)``: the rotation of each signal
-    by its heading, then the drive relations.
+    into the body frame by R(heading)^T, then the drive relations.
     """
 
     def __init__(self, robot: RobotinoParams, control: ControlParams, mpc: DecoupledMPC) -> None:
@@ -131,8 +131,8 @@ class ConstrainedMPC:
 
     @staticmethod
     def _layout(S: np.ndarray, i0: np.ndarray) -> np.ndarray:
-        """Signal rows (s_x, s_y, -s_y, s_x, s_theta, i_0) from (3, 3N, n) components and (3, n) start currents."""
-        return np.concatenate((S[0], S[1], -S[1], S[0], S[2], i0))
+        """Signal rows (s_x, s_y, s_y, -s_x, s_theta, i_0) from (3, 3N, n) components and (3, n) start currents."""
+        return np.concatenate((S[0], S[1], S[1], -S[0], S[2], i0))
 
     def _closed_form(self, p: np.ndarray) -> np.ndarray:
         """z* of eq. (56) for the parameter vector p."""
@@ -147,7 +147,7 @@ class ConstrainedMPC:
         for j in range(N):
             u = u + z[3 * j : 3 * j + 3]
             S[:, j], S[:, N + j], S[:, 2 * N + j] = u, v, u - self._damping * v
-            C[:2, 2 * N + j] = -v[1], v[0]
+            C[:2, 2 * N + j] = v[1], -v[0]
             v = A_d[:, 1, 1] * v + B_d[:, 1] * u
         return S, C
 

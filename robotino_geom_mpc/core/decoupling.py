@@ -2,7 +2,7 @@
 
 `decoupling_field_toolbox` builds T_x, T_y, T_theta with the geometric toolbox;
 `DecouplingField` is the fast path of the control loop, T(theta) =
-T(0) diag(R(theta), 1) with T(0) from the toolbox; `check_decoupling`
+T(0) diag(R(theta)^T, 1) with T(0) from the toolbox; `check_decoupling`
 verifies both on a theta grid that contains the points pi/2 + k pi where the
 paper places singularities (erratum 2: there are none).
 """
@@ -122,7 +122,7 @@ def _toolbox_from_g(g: np.ndarray, p: RobotinoParams, rtol: float | None) -> np.
 
 
 class DecouplingField:
-    """Fast T(theta) for the control loop: T(theta) = T(0) diag(R(theta), 1).
+    """Fast T(theta) for the control loop: T(theta) = T(0) diag(R(theta)^T, 1).
 
     Parameters
     ----------
@@ -131,12 +131,13 @@ class DecouplingField:
 
     Notes
     -----
-    The wheel directions satisfy d_i(theta) = (sin(phi_i + theta), cos(phi_i + theta))
-    = R(-theta) d_i(0) with R the planar rotation, and the torque row l/J is
-    constant (erratum 1), so the acceleration block of g is
-    G3(theta) = diag(R(-theta), 1) G3(0). Since G3(theta) T(theta) = I,
-    T(theta) = G3(theta)^{-1} = G3(0)^{-1} diag(R(-theta), 1)^{-1}
-    = T(0) diag(R(theta), 1), defined for every theta.
+    The wheel directions satisfy d_i(theta) = (sin(phi_i - theta), cos(phi_i - theta))
+    = R(theta) d_i(0) with R the planar rotation (REP-103, erratum 6), and the
+    torque row l/J is constant (erratum 1), so the acceleration block of g is
+    G3(theta) = diag(R(theta), 1) G3(0). Since G3(theta) T(theta) = I,
+    T(theta) = G3(theta)^{-1} = G3(0)^{-1} diag(R(theta), 1)^{-1}
+    = T(0) diag(R(theta)^T, 1), defined for every theta: the odom-frame
+    accelerations u are turned into the body frame, then distributed.
     """
 
     def __init__(self, p: RobotinoParams) -> None:
@@ -149,7 +150,7 @@ class DecouplingField:
         th = _thetas(theta)
         c, s = np.cos(th), np.sin(th)
         rot = np.zeros(th.shape + (3, 3))
-        rot[..., 0, 0], rot[..., 0, 1], rot[..., 1, 0], rot[..., 1, 1] = c, -s, s, c
+        rot[..., 0, 0], rot[..., 0, 1], rot[..., 1, 0], rot[..., 1, 1] = c, s, -s, c
         rot[..., 2, 2] = 1.0
         return self.T0 @ rot
 
@@ -165,7 +166,7 @@ class DecouplingField:
         """
         ux, uy, ut = u
         c, s = math.cos(theta), math.sin(theta)
-        rx, ry = c * ux - s * uy, s * ux + c * uy
+        rx, ry = c * ux + s * uy, c * uy - s * ux
         (a0, b0, e0), (a1, b1, e1), (a2, b2, e2) = self._T0_rows
         return [a0 * rx + b0 * ry + e0 * ut, a1 * rx + b1 * ry + e1 * ut, a2 * rx + b2 * ry + e2 * ut]
 

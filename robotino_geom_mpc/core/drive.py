@@ -341,9 +341,10 @@ class InverseDrive:
 class MotorKinematics:
     """Motor speeds omega = W(theta) v and their rate, the per-tick form of `model.motor_speeds`.
 
-    W(theta) = (gear / r) [d_i(theta), l] with d_i(theta) = R(theta)^T d_i(0)
-    (R the planar rotation), so W(theta) = W(0) diag(R(theta), 1): one small
-    product per tick instead of rebuilding the wheel directions.
+    W(theta) = (gear / r) [d_i(theta), l] with d_i(theta) = R(theta) d_i(0)
+    (R the planar rotation), so W(theta) = W(0) diag(R(theta)^T, 1): the
+    odom-frame velocity turned into the body frame, one small product per
+    tick instead of rebuilding the wheel directions.
 
     Parameters
     ----------
@@ -358,7 +359,7 @@ class MotorKinematics:
     def matrix(self, theta: float) -> np.ndarray:
         """W(theta), shape (3, 3): omega = W(theta) (x', y', theta')."""
         c, s = math.cos(theta), math.sin(theta)
-        return self.W0 @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return self.W0 @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
 
     def speeds_and_rates(
         self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
@@ -375,7 +376,7 @@ class MotorKinematics:
         Returns
         -------
         omega, omega_rate : ndarray, shape (3,)
-            omega' = W(theta) a + theta' W'(theta) v, where W'(theta) v = W(theta) (-y', x', 0).
+            omega' = W(theta) a + theta' W'(theta) v, where W'(theta) v = W(theta) (y', -x', 0).
         """
         omega, rate = self.speeds_and_rates_floats(theta, velocity, acceleration)
         return np.array(omega), np.array(rate)
@@ -387,9 +388,9 @@ class MotorKinematics:
         vx, vy, w = velocity[0], velocity[1], velocity[2]
         ax, ay, aw = acceleration[0], acceleration[1], acceleration[2]
         c, s = math.cos(theta), math.sin(theta)
-        bx, by = ax - w * vy, ay + w * vx
-        px, py = c * vx - s * vy, s * vx + c * vy
-        qx, qy = c * bx - s * by, s * bx + c * by
+        bx, by = ax + w * vy, ay - w * vx
+        px, py = c * vx + s * vy, c * vy - s * vx
+        qx, qy = c * bx + s * by, c * by - s * bx
         (a0, b0, e0), (a1, b1, e1), (a2, b2, e2) = self._W0
         return (
             [a0 * px + b0 * py + e0 * w, a1 * px + b1 * py + e1 * w, a2 * px + b2 * py + e2 * w],

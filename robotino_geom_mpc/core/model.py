@@ -6,8 +6,13 @@ State of the body (eq. 2): X = (x, x', y, y', theta, theta'), outputs
 
 Conventions and corrections (../shared/ROBOTINO_NOTES.md):
 
-* wheel i pushes along d_i(theta) = (sin(phi_i + theta), cos(phi_i + theta)),
-  phi = (0, 2 pi/3, -2 pi/3), as rows 2 and 4 of eq. (9) print;
+* wheel i pushes along d_i(theta) = (sin(phi_i - theta), cos(phi_i - theta))
+  = R(theta) d_i(0) in the odom frame, phi = (0, 2 pi/3, -2 pi/3): the
+  wheel directions turn with the robot in REP-103 frames (x forward, y left,
+  yaw counter-clockwise), where rows 2 and 4 of eq. (9) print phi_i + theta,
+  directions turning against the yaw (erratum 6). In base_link wheel i sits
+  at l (cos beta_i, sin beta_i), beta_i = -phi_i, and rolls along
+  d_i(0) = (-sin beta_i, cos beta_i), the counter-clockwise tangent;
 * every wheel gives torque l F_i, so the angular row of g(theta) is
   (l/J, l/J, l/J) (erratum 1); the 3x3 acceleration block then has a
   constant determinant and there is no singularity at pi/2 + k pi (erratum 2);
@@ -37,6 +42,8 @@ __all__ = [
     "C_y",
     "C_theta",
     "wheel_directions",
+    "wheel_rolling_directions",
+    "wheel_positions",
     "g_theta",
     "acceleration_block",
     "wheel_rim_speeds",
@@ -94,9 +101,28 @@ def C_theta() -> np.ndarray:
 
 
 def wheel_directions(theta: float) -> np.ndarray:
-    """Drive directions d_i(theta) of the three wheels in the odom frame, shape (3, 2)."""
-    angles = WHEEL_ANGLES_RAD + theta
+    """Drive directions d_i(theta) = R(theta) d_i(0) of the three wheels in the odom frame, shape (3, 2).
+
+    Rows 2 and 4 of eq. (9) with the heading's sign corrected (erratum 6):
+    d_i(theta) = (sin(phi_i - theta), cos(phi_i - theta)).
+    """
+    angles = WHEEL_ANGLES_RAD - theta
     return np.column_stack((np.sin(angles), np.cos(angles)))
+
+
+def wheel_rolling_directions() -> np.ndarray:
+    """Rolling directions d_i(0) of the wheels in base_link (unit vectors), shape (3, 2).
+
+    The counter-clockwise tangent at each wheel's position (`wheel_positions`),
+    so a positive wheel force gives the torque +l F_i.
+    """
+    return wheel_directions(0.0)
+
+
+def wheel_positions(p: RobotinoParams) -> np.ndarray:
+    """Contact points of the wheels in base_link [m], shape (3, 2): l (cos beta_i, sin beta_i), beta_i = -phi_i."""
+    beta = -WHEEL_ANGLES_RAD
+    return p.l * np.column_stack((np.cos(beta), np.sin(beta)))
 
 
 def acceleration_block(theta: float, p: RobotinoParams) -> np.ndarray:

@@ -3,7 +3,8 @@
 Topics (relative names)
 -----------------------
 subscribes ``wheel_voltages``      std_msgs/Float64MultiArray, 3 values [V] (forward_command_controller convention)
-publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``base_link`` (REP-105), true pose (or
+publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``base_link`` (REP-105; both with
+                                   ``frame_prefix``, `outputs`), true pose (or
                                    with ``odometry_model`` encoders dead-reckoned, `encoders`) plus the odometry
                                    noise, twist in ``base_link`` (true, or from encoder counts), covariances: x, y, yaw
                                    variance from the noise settings, z/roll/pitch and twist 1e-12 (planar, exact)
@@ -13,8 +14,9 @@ publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``
                                    previous measurement, signed like the current at its end (what
                                    `simulation.run_scenario` records); published after the next tick's odom and
                                    before its ground truth (and once more after the last period)
-           ``joint_states``        sensor_msgs/JointState, joints ``wheel0_joint``..``wheel2_joint``: angle [rad],
-                                   angular velocity [rad/s], effort = wheel torque gear Km i [N m]
+           ``joint_states``        sensor_msgs/JointState of the wheels (`outputs`)
+           ``/tf``                 tf2_msgs/TFMessage: odom -> base_link, the odometry's pose (``publish_tf``,
+                                   `outputs`); frames ``<frame_prefix>odom``, ``<frame_prefix>base_link``
            ``/clock``              rosgraph_msgs/Clock (lockstep only)
 
 The publishers use `publish_qos(lockstep)` (lockstep: keep-all, a slow recorder holds the loop back instead of
@@ -73,13 +75,12 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from robotino_geom_mpc.core.params import ParamSpec
+from robotino_geom_mpc.description.urdf import JOINT_NAMES, DescriptionError, check_frame_prefix
 from robotino_geom_mpc.ros.cdr import CdrTemplate, MalformedMessage, cdr_reader
-from robotino_geom_mpc.ros.decode import STAMP_FIELDS
-from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, odometry_message, three_values_layout, \
+from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, three_values_layout, \
     three_values_template
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
@@ -88,12 +89,13 @@ from robotino_sim_node.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odomet
 from robotino_sim_node.lockstep_start import StartHandshake
 from robotino_sim_node.loop_timing import LoopTiming, lockstep_line, lockstep_report, realtime_report, write_report
 from robotino_sim_node.plant import RobotinoPlant
+from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, StateOutputs, odometry_template
+# the names test_cdr_template reads (the templates live in `outputs`)
+from robotino_sim_node.outputs import ODOM_FIELDS as _ODOM_FIELDS, joint_template as _joint_template, \
+    odometry_values as _odometry_values, plant_odometry as _odometry_template  # noqa: F401
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
 
-JOINT_NAMES = ("wheel0_joint", "wheel1_joint", "wheel2_joint")
-# variance for the planar-motion axes (z, roll, pitch known to be 0) and for noise-free quantities
-_CERTAIN = 1e-12
 
 PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("mode", str, "realtime: wall timers; lockstep: advance one control period per command, publish /clock",
@@ -111,12 +113,12 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("seed", int, "Seed of the odometry noise (and of the wheel slip)", "", 0, 2**31 - 1, False),
     ParamSpec("timing_report", str, "File the loop's timing figures go to as one JSON object at the end of a run "
               "(its folder must exist); empty: none"),
-) + ODOMETRY_SPECS
+) + ODOMETRY_SPECS + TF_SPECS
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
     "lockstep_resend_s": 0.5, "lockstep_settle_s": 1.0, "odometry_noise.position_m": 0.0,
-    "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "", **ODOMETRY_DEFAULTS,
+    "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "", **ODOMETRY_DEFAULTS, **TF_DEFAULTS,
 }
 
 
@@ -124,11 +126,6 @@ _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray") 
 _MAX_CHUNK = 10  # realtime: grid steps per plant step
 _MAX_BEHIND_S = 1.0  # realtime: a longer stall is skipped, not integrated
 _ZERO_VOLTS = np.zeros(3)
-
-_ODOM_FIELDS = STAMP_FIELDS + (
-    "pose.pose.position.x", "pose.pose.position.y", "pose.pose.orientation.z", "pose.pose.orientation.w",
-    "twist.twist.linear.x", "twist.twist.linear.y", "twist.twist.angular.z",
-)
 
 
 class PlantNode(Node):
@@ -139,8 +136,12 @@ class PlantNode(Node):
         self.params = SpecParameters(
             self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params,
             # the realtime grid (steps of 1 / physics_rate_hz), the odometry model
-            fixed=("mode", "physics_rate_hz", "timing_report", *ODOMETRY_DEFAULTS),
+            fixed=("mode", "physics_rate_hz", "timing_report", *ODOMETRY_DEFAULTS, *TF_DEFAULTS),
         )
+        try:
+            self.frame_prefix = check_frame_prefix(self.params["frame_prefix"])
+        except DescriptionError as exc:
+            raise NodeStartError(f"parameter 'frame_prefix': {exc}") from None
         report = self.params["timing_report"]
         if report and not Path(report).resolve().parent.is_dir():
             raise NodeStartError(f"parameter 'timing_report': folder of {report!r} does not exist")
@@ -157,14 +158,15 @@ class PlantNode(Node):
         self.odom_pub = self.create_publisher(Odometry, "odom", qos)
         self.truth_pub = self.create_publisher(Odometry, "ground_truth/odom", qos)
         self.current_pub = self.create_publisher(Float64MultiArray, "wheel_currents", qos)
-        self.joint_pub = self.create_publisher(JointState, "joint_states", qos)
+        self.state_out = StateOutputs(self, qos, self.params["publish_tf"], self.frame_prefix)
         self.clock_pub = self.create_publisher(ClockMsg, "/clock", qos) if self.lockstep else None
         self.command_layout = three_values_layout(VOLTAGE_LABEL)
         self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command, CONTROL_QOS,
                                                     raw=True)
         self.handshake = StartHandshake(self, self.command_sub, {
             "odom": self.odom_pub, "ground_truth/odom": self.truth_pub, "wheel_currents": self.current_pub,
-            "joint_states": self.joint_pub, "/clock": self.clock_pub, "clock": self.clock_pub})
+            "joint_states": self.state_out.joint_pub, "/tf": self.state_out.tf_pub, "/clock": self.clock_pub,
+            "clock": self.clock_pub})
 
         self.voltages = np.zeros(3)
         self.peak_currents = np.zeros(3)
@@ -366,12 +368,9 @@ class PlantNode(Node):
     def _build_messages(self) -> None:
         """Serialized templates (frames, names, covariances set once) patched each tick (`CdrTemplate`)."""
         sp, sy = self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"]
-        self.odom_cdr = CdrTemplate(_odometry_template(sp, sy), _ODOM_FIELDS)
-        self.truth_cdr = (
-            self.odom_cdr if sp == sy == 0.0 else CdrTemplate(_odometry_template(0.0, 0.0), _ODOM_FIELDS)
-        )
+        self.odom_cdr = odometry_template(sp, sy, self.frame_prefix)
+        self.truth_cdr = self.odom_cdr if sp == sy == 0.0 else odometry_template(0.0, 0.0, self.frame_prefix)
         self.current_cdr = three_values_template(CURRENT_LABEL)
-        self.joint_cdr = _joint_template()
         self.clock_cdr = CdrTemplate(ClockMsg(), ("clock.sec", "clock.nanosec"))
         self.effort_per_a = self.robot.gear_ratio * self.robot.torque_constant_n_m_per_a
 
@@ -401,36 +400,9 @@ class PlantNode(Node):
         if self.truth_pub.get_subscription_count():
             publish_acknowledged(self, self.truth_pub,
                                  self.truth_cdr.pack(*stamp, *_odometry_values(*self.plant.odometry_floats())))
-        if not self.joint_pub.get_subscription_count():
-            return
         plant = self.plant
-        publish_acknowledged(self, self.joint_pub, self.joint_cdr.pack(
-            *stamp, *plant.wheel_angles.tolist(), *plant.wheel_speeds.tolist(),
-            *(self.effort_per_a * plant.currents).tolist(),
-        ))
-
-
-def _odometry_template(sigma_position: float, sigma_yaw: float) -> Odometry:
-    """An Odometry with frames and covariances set: pose variance from the noise, z/roll/pitch certain (planar)."""
-    msg = odometry_message()
-    pose_var = (max(sigma_position**2, _CERTAIN),) * 2 + (_CERTAIN,) * 3 + (max(sigma_yaw**2, _CERTAIN),)
-    msg.pose.covariance = np.diag(pose_var).ravel()
-    msg.twist.covariance = np.diag([_CERTAIN] * 6).ravel()  # twist from noise-free wheel speeds
-    return msg
-
-
-def _joint_template() -> CdrTemplate:
-    """JointState of the three wheels: stamp, then position, velocity and effort of wheels 0..2."""
-    joints = JointState(name=list(JOINT_NAMES), position=[0.0] * 3, velocity=[0.0] * 3, effort=[0.0] * 3)
-    return CdrTemplate(joints, STAMP_FIELDS + tuple(
-        f"{field}[{j}]" for field in ("position", "velocity", "effort") for j in range(3)
-    ))
-
-
-def _odometry_values(pose: tuple[float, ...], twist_body: tuple[float, ...]) -> tuple[float, ...]:
-    """The `_ODOM_FIELDS` after the stamp: x, y, yaw quaternion (z, w), body twist (vx, vy, omega)."""
-    x, y, theta = pose
-    return (x, y, math.sin(0.5 * theta), math.cos(0.5 * theta), *twist_body)
+        self.state_out.publish(stamp, self.measurement[0], plant.wheel_angles.tolist(), plant.wheel_speeds.tolist(),
+                               (self.effort_per_a * plant.currents).tolist())
 
 
 def _all_specs() -> tuple[ParamSpec, ...]:

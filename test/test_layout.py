@@ -16,7 +16,8 @@ ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 450
 # the modules that may import rclpy when imported: the nodes, the recorder node and the ROS plumbing subpackage
 ALLOWED_PREFIXES = ("robotino_geom_mpc.nodes.", "robotino_geom_mpc.ros.", "robotino_geom_mpc.recording.recorder_node",
-                    "robotino_sim_node.plant_node", "robotino_sim_node.lockstep_start")
+                    "robotino_sim_node.plant_node", "robotino_sim_node.lockstep_start",
+                    "robotino_sim_node.outputs")
 # modules of ros/ that need no ROS at all (decoders of message values, the process launcher)
 PLAIN_ROS_MODULES = ("robotino_geom_mpc.ros.decode", "robotino_geom_mpc.ros.processes")
 

@@ -47,7 +47,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "robotino_plant": _ROBOT_CONTROL + (
         "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s", "lockstep_settle_s",
         "odometry_noise.position_m", "odometry_noise.yaw_rad", "seed", "timing_report", "lockstep_wait_for",
-        "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std",
+        "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std", "publish_tf", "frame_prefix",
     ),
     "robotino_trajectory": _CONTROL + ("scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints"),
     "recorder": _ROBOT_CONTROL + (

@@ -51,7 +51,7 @@ def test_errata_figures(analysis):
     path, report = analysis
     robot, control = load_params(REPO / path)
     errata = {e["id"]: e for e in report["errata"]}
-    assert sorted(errata) == [1, 2, 3, 4, 5]
+    assert sorted(errata) == [1, 2, 3, 4, 5, 6]
     # 1: the printed angular row (l/J, l sin(5pi/6 + 2 theta)/J, -l/J) makes the block singular at the root
     M, J, l = robot.M, robot.J, robot.l
 
@@ -69,6 +69,14 @@ def test_errata_figures(analysis):
     assert len(errata[3]["f2p_simulated"]) == control.horizon
     # 4: the gear multiplies the force per ampere
     assert errata[4]["force_per_ampere_n"] == pytest.approx(robot.gear_ratio * errata[4]["force_per_ampere_paper_n"])
+    # 6: with the printed rows the body-frame acceleration of fixed forces turns by -2 theta, a rigid body's by 0;
+    # a rotation command accelerates the yaw counter-clockwise, through equal positive wheel forces
+    theta = errata[6]["theta_rad"]
+    assert errata[6]["body_acceleration_turn_printed_rad"] == pytest.approx(-2.0 * theta, abs=1e-12)
+    assert abs(errata[6]["body_acceleration_turn_corrected_rad"]) < 1e-12
+    np.testing.assert_allclose(errata[6]["rotation_command_acceleration"], [0.0, 0.0, 1.0], atol=1e-12)
+    forces = np.array(errata[6]["rotation_pattern_forces_n"])
+    assert np.all(forces > 0.0) and np.ptp(forces) < 1e-12 * forces.max()
 
 
 def test_text_report(capsys):

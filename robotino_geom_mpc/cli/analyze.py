@@ -17,7 +17,7 @@ from robotino_geom_mpc.core.functional import functional_controllability
 from robotino_geom_mpc.core.model import acceleration_block, g_theta
 from robotino_geom_mpc.core.params import ControlParams, RobotinoParams, default_params_file, load_params
 
-__all__ = ["add_parser", "run", "printed_acceleration_block", "errata", "build_report"]
+__all__ = ["add_parser", "run", "printed_acceleration_block", "body_frame_turn", "errata", "build_report"]
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -55,6 +55,30 @@ def printed_acceleration_block(theta: float, p: RobotinoParams) -> np.ndarray:
     )
 
 
+def body_frame_turn(block, theta: float, forces: np.ndarray) -> float:
+    """Angle [rad] by which the body-frame acceleration of fixed wheel forces turns from heading 0 to theta.
+
+    Parameters
+    ----------
+    block
+        theta -> the (3, 3) acceleration block (rows 2, 4, 6 of g(theta), eq. 9) of a model.
+    forces
+        Wheel forces F [N], held.
+
+    Notes
+    -----
+    The odom-frame acceleration (x'', y'') is turned into base_link by R(theta)^T
+    (REP-103: yaw counter-clockwise); a rigid robot's is the same at every heading.
+    """
+
+    def body(t: float) -> np.ndarray:
+        a, c, s = block(t)[:2] @ forces, np.cos(t), np.sin(t)
+        return np.array([c * a[0] + s * a[1], c * a[1] - s * a[0]])
+
+    b0, b = body(0.0), body(theta)
+    return float(np.arctan2(b0[0] * b[1] - b0[1] * b[0], b0 @ b))
+
+
 def _sign_changes(f, grid: np.ndarray) -> list[float]:
     values = np.array([f(t) for t in grid])
     roots = []
@@ -72,7 +96,7 @@ def _x_axis_discrete(p: RobotinoParams, period_s: float) -> tuple[np.ndarray, np
 
 
 def errata(p: RobotinoParams, control: ControlParams) -> list[dict]:
-    """Errata 1-5 of ROBOTINO_NOTES.md, each with a figure computed from the parameters."""
+    """Errata 1-5 of ROBOTINO_NOTES.md and 6 (handedness), each with a figure computed from the parameters."""
     grid = np.linspace(-np.pi, np.pi, 721)
     printed_det = lambda t: float(np.linalg.det(printed_acceleration_block(t, p)))  # noqa: E731
     dets = np.array([np.linalg.det(acceleration_block(t, p)) for t in grid])
@@ -96,6 +120,11 @@ def errata(p: RobotinoParams, control: ControlParams) -> list[dict]:
     sim_a = np.array(sim)
     rel = lambda v: float(np.max(np.abs(np.array(v) - sim_a)) / np.max(np.abs(sim_a)))  # noqa: E731
 
+    # 6: fixed forces of a forward push (T(0) (1, 0, 0)), the heading turned by 0.5 rad
+    forward, spin, theta6 = field.field(0.0)[:, 0], field.field(0.0)[:, 2], 0.5
+    turn_printed = body_frame_turn(lambda t: printed_acceleration_block(t, p), theta6, forward)
+    turn_corrected = body_frame_turn(lambda t: acceleration_block(t, p), theta6, forward)
+    spin_acc = acceleration_block(theta6, p) @ field.field(theta6)[:, 2]  # u = (0, 0, +1 rad/s^2)
     k_F_paper = p.torque_constant_n_m_per_a / p.r
     k_F = p.gear_ratio * k_F_paper
     return [
@@ -154,6 +183,23 @@ def errata(p: RobotinoParams, control: ControlParams) -> list[dict]:
             "summary": (
                 f"of the {N} decision moves Delta u(k) ... Delta u(k+{N - 1}), the printed index penalises "
                 f"{N - 1}, leaves the applied move Delta u(k) free and penalises Delta u(k+{N}), not a decision variable"
+            ),
+        },
+        {
+            "id": 6,
+            "title": "handedness of g(theta), rows 2 and 4 of eq. (9)",
+            "theta_rad": theta6,
+            "body_acceleration_turn_printed_rad": turn_printed,
+            "body_acceleration_turn_corrected_rad": turn_corrected,
+            "rotation_command_acceleration": spin_acc.tolist(),
+            "rotation_pattern_forces_n": spin.tolist(),
+            "summary": (
+                f"fixed wheel forces at theta = {theta6:g} rad: the body-frame acceleration turns by "
+                f"{turn_printed:+.4f} rad with d_i(theta) = R(-theta) d_i(0) as printed (-2 theta: the wheels turn "
+                f"clockwise while the yaw turns counter-clockwise), by {turn_corrected:+.1e} rad with "
+                f"R(theta) d_i(0) (REP-103); a rotation command u_theta = +1 rad/s^2 gives theta'' = "
+                f"{spin_acc[2]:+.4f} rad/s^2 and no translation ({np.hypot(*spin_acc[:2]):.0e} m/s^2): "
+                "the yaw increases, counter-clockwise in RViz"
             ),
         },
     ]

@@ -30,7 +30,7 @@ and the odometry noise.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 from tqdm import tqdm
@@ -87,7 +87,8 @@ def run_scenario(
         (position [m], heading [rad]) noise std; None means the scenario's.
     odometry
         ``ideal`` (the true pose plus the noise, the true twist) or ``encoders``
-        (`robotino_sim_node.encoders`: dead reckoning from the wheel encoders).
+        (`robotino_sim_node.encoders`: dead reckoning from the wheel encoders; the
+        controller then gets ``control.odometry_twist = period_mean``).
     encoder_counts_per_rev, wheel_slip_std
         The encoders' counts per motor revolution and the wheel slip (std as
         a fraction of the wheel speed; its generator is seeded by `seed`).
@@ -123,6 +124,8 @@ def run_scenario(
         source = odometry_source(plant, odometry, encoder_counts_per_rev, wheel_slip_std, seed)
     except EncoderError as exc:
         raise SimulationError(str(exc)) from None
+    if odometry == "encoders":  # its twist is the mean over the period: the pose filter's matching predictor
+        control = replace(control, odometry_twist="period_mean")
     controller = MotionController(spec.controller_model(robot), control)
     rng = np.random.default_rng(seed)
 

@@ -114,7 +114,7 @@ class MotionController:
         self._damping = axis_dampings(robot)
         self._damping_rates = tuple(self._damping.tolist())
         tau = float(control.odometry_filter_time_constant_s)
-        self.estimator = OdometryFilter(self.period_s, tau) if tau > 0.0 else None
+        self.estimator = OdometryFilter(self.period_s, tau, control.odometry_twist) if tau > 0.0 else None
         self.constrained = ConstrainedMPC(robot, control, self.mpc) if control.mode == "constrained" else None
         self.current_limit_a = float(control.current_limit_a) if self.constrained is None else 0.0
         self.reset()

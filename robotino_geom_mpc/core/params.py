@@ -17,6 +17,7 @@ from typing import Any
 import yaml
 
 from robotino_geom_mpc.core.errors import RobotinoError
+from robotino_geom_mpc.core.estimator import TWIST_MODELS
 
 __all__ = [
     "ParamSpec",
@@ -111,6 +112,14 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
         0.0,
         60.0,
         False,
+    ),
+    ParamSpec(
+        "control.odometry_twist",
+        str,
+        "How the odometry's twist is measured, hence the pose filter's predictor (core.estimator): "
+        "instantaneous (velocity at the stamp: trapezoid) or period_mean (mean since the previous message, "
+        "as wheel-encoder odometry: the pose advance that built the measured pose)",
+        choices=TWIST_MODELS,
     ),
     ParamSpec(
         "control.current_limit_a",
@@ -242,7 +251,7 @@ class RobotinoParams:
 
 @dataclass(frozen=True)
 class ControlParams:
-    """Controller settings: control period, horizon, per-axis weights, mode, odometry filter and current limit."""
+    """Controller settings: control period, horizon, per-axis weights, mode, odometry filter and twist, current limit."""
 
     period_s: float
     horizon: int
@@ -254,6 +263,7 @@ class ControlParams:
     r_theta: float
     mode: str
     odometry_filter_time_constant_s: float
+    odometry_twist: str
     current_limit_a: float
 
     @property

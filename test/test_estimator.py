@@ -200,3 +200,69 @@ def test_bad_interval_is_rejected_without_touching_the_state(dt):
     with pytest.raises(EstimatorError, match="dt_s"):
         filt.update(0.1, 0.2, 0.3, 0.0, 0.0, 0.0, dt)
     assert filt.estimate == before
+
+
+def _se2_step(pose, twist_body, dt):
+    """The pose after dt at a constant body twist, by the matrix exponential of se(2) (independent of the filter)."""
+    from scipy.linalg import expm
+
+    x, y, theta = pose
+    vx, vy, w = twist_body
+    g = np.array([[math.cos(theta), -math.sin(theta), x], [math.sin(theta), math.cos(theta), y], [0.0, 0.0, 1.0]])
+    g = g @ expm(np.array([[0.0, -w, vx], [w, 0.0, vy], [0.0, 0.0, 0.0]]) * dt)
+    return g[0, 2], g[1, 2], theta + w * dt
+
+
+def _period_mean_rows(pose0, twists, dts):
+    """Odometry as an encoder gives it: the pose at each time and the body twist held over the last interval
+    (zero before the first), rotated into the odom frame with the pose's heading (eq. 2); and the true poses."""
+    poses, twist = [tuple(pose0)], (0.0, 0.0, 0.0)
+    rows = []
+    for k in range(len(dts) + 1):
+        if k:
+            twist = tuple(twists[k - 1])
+            poses.append(_se2_step(poses[-1], twist, dts[k - 1]))
+        x, y, theta = poses[-1]
+        c, s = math.cos(theta), math.sin(theta)
+        rows.append((x, c * twist[0] - s * twist[1], y, s * twist[0] + c * twist[1], theta, twist[2]))
+    return np.array(rows), np.array(poses)
+
+
+@pytest.mark.parametrize("vel, acc", [((0.4, -0.3, 0.0), (0.5, -0.2, 0.0)), ((0.0, 0.0, 0.8), (0.0, 0.0, -0.7))],
+                         ids=["translation", "turn_in_place"])
+def test_period_mean_twist_of_a_constant_acceleration_track_is_predicted_exactly(vel, acc):
+    """Constant acceleration, the twist the mean over each period: the period-mean predictor tracks the pose to
+    1e-12; the trapezoid on the same twists lags by its per-period error a Ts^2 / 2, to the fixed point
+    e = -(a Ts^2 / 2) (1 - L) / L of e = (1 - L)(e + prediction error)."""
+    tau, n = 0.5, 3000
+    states, truth = _track(n, (1.0, -2.0, 0.3), vel, acc)
+    exact = states.copy()  # instantaneous samples
+    states[1:, 1::2] = np.diff(truth, axis=0) / TS  # the mean over the last period
+    np.testing.assert_allclose(_run(OdometryFilter(TS, tau, "period_mean"), states), truth, rtol=0, atol=1e-12)
+    L = 1.0 - math.exp(-TS / tau)
+    lag = _run(OdometryFilter(TS, tau, "instantaneous"), states)[-1] - truth[-1]
+    np.testing.assert_allclose(lag, -0.5 * np.array(acc) * TS**2 * (1.0 - L) / L, rtol=1e-6, atol=1e-15)
+    # and the other way round: instantaneous samples, where the trapezoid is the exact one
+    np.testing.assert_allclose(_run(OdometryFilter(TS, tau), exact), truth, rtol=0, atol=1e-12)
+    assert np.abs(_run(OdometryFilter(TS, tau, "period_mean"), exact)[-1] - truth[-1]).max() > 1e-5
+
+
+def test_period_mean_twist_while_turning_reproduces_the_dead_reckoned_pose():
+    """Body twists held over irregular intervals while the robot turns (SE(2) exponential by expm): the
+    period-mean predictor is that dead reckoning, so the estimate is the pose to 1e-12; the trapezoid is not."""
+    rng = np.random.default_rng(11)
+    n = 800
+    twists = np.column_stack((rng.uniform(-0.5, 0.5, n), rng.uniform(-0.5, 0.5, n), rng.uniform(-3.0, 3.0, n)))
+    dts = rng.choice([1e-9, 0.004, TS, 0.021], n)
+    states, truth = _period_mean_rows((0.2, -0.1, 3.0), twists, dts)
+    filt = OdometryFilter(TS, 0.5, "period_mean")
+    est = [filt.update(*row, dt) for row, dt in zip(states.tolist(), [None, *dts.tolist()])]
+    np.testing.assert_allclose(est, truth, rtol=0, atol=1e-12)
+    trapezoid = OdometryFilter(TS, 0.5)
+    est = [trapezoid.update(*row, dt) for row, dt in zip(states.tolist(), [None, *dts.tolist()])]
+    assert np.abs(np.array(est)[:, :2] - truth[:, :2]).max() > 1e-4
+
+
+def test_unknown_twist_model_is_refused():
+    with pytest.raises(EstimatorError, match="twist must be one of instantaneous, period_mean"):
+        OdometryFilter(TS, 0.5, "average")

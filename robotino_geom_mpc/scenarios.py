@@ -15,6 +15,11 @@ A scenario is the one place that says, for a name given to ``simulate``,
 ``paper-circle-step`` is the circle as the paper ran it: at full speed from
 rest (no ramp-in), the start transient of its Fig. 6.
 
+``goals`` holds the start pose until goals (geometry_msgs/PoseStamped on
+``goal_pose``) and planner paths (nav_msgs/Path on ``plan``) arrive at the
+trajectory node (`core.goal_reference.GoalReference`; offline, without goals,
+it holds for its 10 s).
+
 ``robustness`` runs paper-circle with a controller whose model is off:
 mass +20 %, yaw inertia -20 % (the two errors push the translational and
 rotational loops in opposite directions), body friction twice the true one,
@@ -33,6 +38,7 @@ from typing import Any
 
 from .core.errors import RobotinoError
 from .core.params import ROBOT_SPECS, RobotinoParams
+from .core.goal_reference import GoalReference
 from .core.trajectory import Reference, make_reference
 
 __all__ = [
@@ -78,7 +84,7 @@ class Scenario:
     description
         One line for help texts.
     reference
-        The tracked reference: a key of `core.trajectory.REFERENCES`.
+        The tracked reference: a key of `core.trajectory.REFERENCES`, or ``goals`` (`GoalReference`).
     reference_options
         (option, value) pairs for that reference's class; empty: its defaults.
     mismatch
@@ -96,6 +102,8 @@ class Scenario:
 
     def make_reference(self, **options: Any) -> Reference:
         """The scenario's reference; `options` (e.g. point-to-point ``waypoints``) override its own."""
+        if self.reference == "goals":
+            return GoalReference(**{**dict(self.reference_options), **options})
         return make_reference(self.reference, **{**dict(self.reference_options), **options})
 
     @property
@@ -123,6 +131,8 @@ SCENARIOS: dict[str, Scenario] = {
         Scenario("robustness", "paper-circle with the controller's model off (mass x1.2, yaw inertia x0.8, "
                  "body friction x2) and odometry noise 1 mm / 1 mrad", "paper-circle",
                  mismatch=_MISMATCH, noise=OdometryNoise(position_m=1e-3, yaw_rad=1e-3)),
+        Scenario("goals", "hold the pose until goals (goal_pose) and planner paths (plan) arrive; C^3 motions "
+                 "within velocity, acceleration, jerk and rim-speed limits", "goals"),
     )
 }
 

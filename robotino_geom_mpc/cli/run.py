@@ -12,7 +12,8 @@ DIR/metrics.json and the figures from the recording (DIR/bag) through
 In ``--lockstep`` (the default) the plant owns /clock and waits, before tick
 0, for every subscription of the loop and of the recorder, so the recording
 holds the whole run; the metrics then equal those of ``simulate`` on the same
-scenario and parameters. Each node gets its scenario's overrides
+scenario and parameters. With ``--goals FILE`` (scenario ``goals``) a goal sender
+(`nodes.goal_sender`) publishes the file's goals and paths over DDS. Each node gets its scenario's overrides
 (`scenarios.node_parameters`): e.g. in ``robustness`` the controller a
 mismatched model and the plant odometry noise.
 """
@@ -35,6 +36,8 @@ __all__ = ["add_parser", "run"]
 GRACE_S = 5.0
 # after the plant's last tick: time for the controller's last answer to reach the recorder
 LINGER_S = 0.5
+GOALS_SETTLE_S = 3.0  # --goals: the run goes on this long after the last motion ends (the loop settles)
+REALTIME_START_S = 2.0  # realtime: the reference starts this much after the first odometry (start_settle_s + discovery)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -58,6 +61,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
     add_odometry_argument(parser)
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
+    parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
+                        help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
+                        "and paths a sender publishes on goal_pose and plan; the run lasts until they end + 3 s")
     parser.set_defaults(func=run)
     return parser
 
@@ -66,14 +72,32 @@ def _raise_interrupt(*_: object) -> None:
     raise KeyboardInterrupt
 
 
+def _goals_duration(args: argparse.Namespace, params_file: Path) -> float:
+    """The run length for a goal file: its motions planned offline with the trajectory node's limits, + 3 s."""
+    from ..core.goal_file import LIMIT_DEFAULTS, load_goal_file, motion_limits, planned_end_s
+    from ..core.goal_motion import GoalError
+    from ..core.params import ParamError, read_parameter_file
+
+    if args.scenario != "goals":
+        raise UsageError(f"--goals needs --scenario goals, not {args.scenario!r}")
+    try:
+        values = {**LIMIT_DEFAULTS, **read_parameter_file(params_file, "robotino_trajectory")}
+        end = planned_end_s(load_goal_file(args.goals), motion_limits(values))
+    except (GoalError, ParamError) as exc:
+        raise UsageError(str(exc)) from None
+    return end + GOALS_SETTLE_S + (0.0 if args.lockstep else REALTIME_START_S)
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
     from ..core.params import default_params_file, load_params
-    from ..ros.processes import NodeFailed, NodeGroup, node_arguments
+    from ..ros.processes import GOAL_SENDER_MODULE, NodeFailed, NodeGroup, node_arguments
 
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)
     duration = args.duration if args.duration is not None else SCENARIOS[args.scenario].duration_s
+    if args.goals is not None:
+        duration = _goals_duration(args, params_file) if args.duration is None else duration
     out = args.out if args.out is not None else Path("out") / f"run-{args.scenario}"
     bag = None if args.no_record else out.resolve() / "bag"
     try:
@@ -84,14 +108,15 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
 
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
-                               odometry=args.odometry)
+                               odometry=args.odometry, goals_file=None if args.goals is None else args.goals.resolve())
     mode = "lockstep" if args.lockstep else "realtime"
     print(f"run {args.scenario} over DDS ({mode}, {duration:g} s, Ts = {control.period_s:g} s); logs in {out / 'logs'}")
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     group = NodeGroup(log_dir=out / "logs")
     start = time.monotonic()
     try:
-        nodes = {name: group.start(name, argv) for name, argv in node_args.items()}
+        nodes = {name: group.start(name, argv, GOAL_SENDER_MODULE if name == "goal_sender" else None)
+                 for name, argv in node_args.items()}
         # the plant ends the run; lockstep may be slower than real time on a loaded machine
         limit = duration + 60.0 if not args.lockstep else 60.0 + 20.0 * duration
         if not group.wait(nodes["plant_node"], limit):

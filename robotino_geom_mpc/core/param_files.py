@@ -28,12 +28,11 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from robotino_geom_mpc.core.params import ALL_SPECS, CONTROL_SPECS, ParamError, parse_parameter_file, validate_value
+from robotino_geom_mpc.core.params import ALL_SPECS, ParamError, parse_parameter_file, validate_value
 
 __all__ = ["NODE_PARAMETERS", "RCLPY_PARAMETERS", "check_parameter_files"]
 
 _ROBOT_CONTROL = tuple(s.name for s in ALL_SPECS)
-_CONTROL = tuple(s.name for s in CONTROL_SPECS)
 
 RCLPY_PARAMETERS: tuple[str, ...] = ("use_sim_time", "start_type_description_service")
 """Parameters rclpy declares in every node (and ``qos_overrides.<topic>...`` for overridable QoS)."""
@@ -49,7 +48,12 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "odometry_noise.position_m", "odometry_noise.yaw_rad", "seed", "timing_report", "lockstep_wait_for",
         "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std", "publish_tf", "frame_prefix",
     ),
-    "robotino_trajectory": _CONTROL + ("scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints"),
+    "robotino_trajectory": _ROBOT_CONTROL + (
+        "scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints", "goals.max_velocity_mps",
+        "goals.max_acceleration_mps2", "goals.max_jerk_mps3", "goals.max_angular_velocity_radps",
+        "goals.max_angular_acceleration_radps2", "goals.max_angular_jerk_radps3", "goals.max_rim_speed_mps",
+        "frame_prefix",
+    ),
     "recorder": _ROBOT_CONTROL + (
         "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",
         "scenario",

@@ -13,6 +13,16 @@ publishes  ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory, `publ
            ``reference_path``     nav_msgs/Path, `LATCHED_QOS` (transient local), the whole reference
                                   sampled every control period, published once.
 subscribes ``/clock``             rosgraph_msgs/Clock (lockstep only, reliable).
+           ``goal_pose``, ``plan``  geometry_msgs/PoseStamped, nav_msgs/Path (scenario ``goals`` only:
+                                  `nodes.goal_inputs`, which checks them and replans the reference).
+
+Goals
+-----
+In scenario ``goals`` the reference is a `core.goal_reference.GoalReference`: it holds the start pose
+(the origin) until a goal or path arrives, which starts a C^3 motion at the current reference time
+(realtime: node clock minus the start, 0 before the start; lockstep: the latest tick published) from
+the reference's state there. The reference_path is published again after each, the lockstep table
+(`_grid_values`) is rebuilt; the limits (``goals.*``) and ``frame_prefix`` may change while running.
 
 Timing
 ------
@@ -50,7 +60,8 @@ stalled or ended) the node logs, throttled, what it waits for.
 
 Parameters: ``control.period_s`` and ``control.horizon`` of config/*.yaml
 (``/**`` section; fixed while the node runs, as are ``mode`` and
-``clock_timeout_s``) plus `TRAJECTORY_SPECS` and ``waypoints`` (a flat list
+``clock_timeout_s``), the robot's (the wheel kinematics and the motor's nominal speed bound the
+goal motions), `TRAJECTORY_SPECS`, `nodes.goal_inputs.GOAL_SPECS` and ``waypoints`` (a flat list
 x1, y1, theta1, x2, ... for point-to-point; empty: the scenario's default).
 ``scenario`` is a name of `robotino_geom_mpc.scenarios.SCENARIOS`; the node
 tracks its reference (``robustness``: paper-circle; the mismatch and the
@@ -70,7 +81,9 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.params import CONTROL_SPECS, ParamSpec
+from robotino_geom_mpc.core.goal_reference import GoalReference
+from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
+from robotino_geom_mpc.nodes.goal_inputs import GOAL_DEFAULTS, GOAL_SPECS, GoalInputs, goal_params_problem
 from robotino_geom_mpc.core.trajectory import Reference, TrajectoryError
 from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, ns_to_stamp, point_values, preview_template, preview_values, \
@@ -103,9 +116,10 @@ class TrajectoryNode(Node):
 
     def __init__(self) -> None:
         super().__init__("robotino_trajectory")
-        specs = CONTROL_SPECS + TRAJECTORY_SPECS
+        specs = ALL_SPECS + TRAJECTORY_SPECS + GOAL_SPECS
         self.params = SpecParameters(
-            self, specs, {**spec_defaults(CONTROL_SPECS), **_DEFAULTS}, self._on_params, fixed=_FIXED
+            self, specs, {**spec_defaults(ALL_SPECS), **_DEFAULTS, **GOAL_DEFAULTS}, self._on_params, fixed=_FIXED,
+            check=goal_params_problem,
         )
         self.declare_parameter(
             "waypoints",
@@ -125,6 +139,8 @@ class TrajectoryNode(Node):
         except TrajectoryError as exc:
             raise NodeStartError(str(exc)) from None
         self.lockstep = self.params["mode"] == "lockstep"
+        self.goals = GoalInputs(self, self.params.values, self._reference_time, self._replanned)
+        self.goals.attach(self.reference)
         self.preview_pub = self.create_publisher(
             MultiDOFJointTrajectory, "reference_preview", publish_qos(self.lockstep),
             event_callbacks=PublisherEventCallbacks(matched=self._on_preview_matched),
@@ -185,8 +201,23 @@ class TrajectoryNode(Node):
         return SetParametersResult(successful=True)
 
     def _on_params(self, changed: dict) -> None:
-        self.grid = None
+        if changed and set(changed) <= set(GOAL_DEFAULTS):
+            return  # new limits or frame prefix: read at the next goal; the goals so far stay
         self.reference = self._make_reference(self.params["scenario"], self._waypoints())
+        self.goals.attach(self.reference)
+        self._replanned(self.reference)
+
+    def _reference_time(self) -> float:
+        """The reference time [s] a goal starts at: the latest tick published (lockstep), now (realtime)."""
+        if self.lockstep:
+            return (self.last_published_ns or 0) * 1e-9
+        if self.start_ns is None:
+            return 0.0
+        return (self.get_clock().now().nanoseconds - self.start_ns) * 1e-9
+
+    def _replanned(self, reference: GoalReference | Reference) -> None:
+        """The reference changed: rebuild the lockstep table, publish the path again."""
+        self.grid = None
         if self.start_ns is not None:
             self._publish_path()
 

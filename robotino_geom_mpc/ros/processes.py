@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NODE_MODULES", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR", "NamespaceError", "NodeFailed", "NodeProcess",
+__all__ = ["NODE_MODULES", "GOAL_SENDER_MODULE", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR", "NamespaceError", "NodeFailed", "NodeProcess",
            "NodeGroup", "dds_environment", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.core.errors import RobotinoError
@@ -35,6 +35,7 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
                      "wheel_currents:1", "joint_states:1", "diagnostics:1")
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/
+GOAL_SENDER_MODULE = "robotino_geom_mpc.nodes.goal_sender"  # `node_arguments`' goal_sender (no console script)
 
 _NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
@@ -85,6 +86,7 @@ def node_arguments(
     overrides: dict[str, dict[str, Any]] | None = None,
     odometry: str = "ideal",
     namespace: str = "",
+    goals_file: str | os.PathLike | None = None,
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`.
 
@@ -94,6 +96,8 @@ def node_arguments(
     ``lockstep_wait_for`` (`wait_for`, by default the subscriptions of the nodes started:
     `LOCKSTEP_WAIT_FOR`, or `RECORDER_WAIT_FOR` with a recorder);
     `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`).
+    With `goals_file` (scenario ``goals``) a ``goal_sender`` (module `GOAL_SENDER_MODULE`) sends the file's
+    goals and paths.
     """
     from robotino_geom_mpc.core.params import load_params
     from robotino_geom_mpc.scenarios import node_parameters
@@ -125,6 +129,8 @@ def node_arguments(
         "lockstep_wait_for": list(wait_for),
         **extra.get("plant_node", {}),
     }, remaps)
+    if goals_file is not None:
+        args["goal_sender"] = ros_args(None, {"goals_file": str(goals_file), "mode": mode}, remaps)
     return args
 
 

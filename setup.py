@@ -12,6 +12,7 @@ setup(
     packages=[
         PACKAGE,
         f"{PACKAGE}.core",
+        f"{PACKAGE}.description",
         f"{PACKAGE}.cli",
         f"{PACKAGE}.nodes",
         f"{PACKAGE}.recording",
@@ -24,6 +25,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
         (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.xml")),
+        (f"share/{PACKAGE}/urdf", glob("urdf/*.urdf")),
     ],
     python_requires=">=3.10",
     install_requires=[
@@ -66,6 +68,7 @@ setup(
             "controller_node = robotino_geom_mpc.nodes.controller_node:main",
             "trajectory_node = robotino_geom_mpc.nodes.trajectory_node:main",
             "recorder_node = robotino_geom_mpc.recording.recorder_node:main",
+            "robot_description_publisher = robotino_geom_mpc.nodes.robot_description_node:main",
         ],
     },
 )

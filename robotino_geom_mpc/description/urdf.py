@@ -28,7 +28,7 @@ from robotino_geom_mpc.core.params import RobotinoParams
 
 __all__ = [
     "BASE_LINK", "BASE_RADIUS_M", "JOINT_NAMES", "WHEEL_LINKS", "DescriptionError", "UrdfJoint",
-    "check_frame_prefix", "robotino_urdf", "urdf_joints",
+    "check_frame_prefix", "joint_transform", "robotino_urdf", "urdf_joints",
 ]
 
 BASE_LINK = "base_link"
@@ -147,3 +147,32 @@ def _numbers(text: str, joint: str) -> tuple[float, float, float]:
     if len(values) != 3 or not all(map(math.isfinite, values)):
         raise DescriptionError(f"URDF joint {joint!r}: need three finite numbers, got {text!r}")
     return values
+
+
+def _quaternion_product(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float, float, float]:
+    """Hamilton product a b of quaternions (x, y, z, w)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+
+
+def _axis_angle(axis: tuple[float, float, float], angle: float) -> tuple[float, float, float, float]:
+    s = math.sin(0.5 * angle)
+    return (axis[0] * s, axis[1] * s, axis[2] * s, math.cos(0.5 * angle))
+
+
+def joint_transform(joint: UrdfJoint, position: float = 0.0) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Parent -> child transform of `joint` at `position` [rad] as (translation xyz, quaternion xyzw).
+
+    The URDF's convention (as robot_state_publisher computes it): the origin (xyz, then the fixed-axis
+    roll-pitch-yaw R = Rz(yaw) Ry(pitch) Rx(roll)) followed by the rotation about the joint axis by
+    `position` (revolute and continuous joints; a fixed joint ignores `position`).
+    """
+    roll, pitch, yaw = joint.rpy
+    rotation = _quaternion_product(_quaternion_product(_axis_angle((0.0, 0.0, 1.0), yaw),
+                                                       _axis_angle((0.0, 1.0, 0.0), pitch)),
+                                   _axis_angle((1.0, 0.0, 0.0), roll))
+    if joint.type in ("revolute", "continuous"):
+        rotation = _quaternion_product(rotation, _axis_angle(joint.axis, position))
+    return joint.xyz, rotation

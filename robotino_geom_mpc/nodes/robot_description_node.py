@@ -1,0 +1,123 @@
+"""Robot description publisher: the Robotino's URDF and its wheels' TF (a minimal robot_state_publisher).
+
+Where robot_state_publisher is not installed (``robotino-geom-mpc run``, pip installs) this node does its
+job for the package's robot; the launch file uses robot_state_publisher where it is.
+
+Topics (relative names)
+-----------------------
+publishes  ``robot_description``  std_msgs/String, the URDF generated from the robot parameters
+                                  (`description.urdf.robotino_urdf`; ``urdf/robotino.urdf`` for the default
+                                  preset), reliable, transient local, depth 1: a late subscriber (RViz,
+                                  a recorder) gets it; again after a robot parameter changes
+           ``/tf``                tf2_msgs/TFMessage: per ``joint_states`` message, parent -> child of every
+                                  revolute/continuous joint it names (`description.urdf.joint_transform`),
+                                  with its stamp
+           ``/tf_static``         the fixed joints, once (transient local; the Robotino has none)
+subscribes ``joint_states``       sensor_msgs/JointState (the plant's wheels)
+
+Frame ids are the URDF's links with ``frame_prefix`` (as robot_state_publisher's parameter of that name).
+A joint_states message whose names and positions do not pair up, or with a non-finite position, is
+skipped with a throttled warning; names the URDF does not have are ignored.
+
+Parameters: the robot/control parameters of config/*.yaml (``/**`` section) plus ``frame_prefix``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+
+from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
+from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix, joint_transform, \
+    robotino_urdf, urdf_joints
+from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
+from robotino_geom_mpc.ros.qos import LATCHED_QOS, PUBLISH_QOS
+from robotino_geom_mpc.ros.spin import run_node
+
+__all__ = ["DESCRIPTION_SPECS", "RobotDescriptionNode", "main"]
+
+DESCRIPTION_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("frame_prefix", str, "Prefix of the frame ids (the URDF's links), e.g. 'robot1/'; empty: none"),
+)
+_MOVING = ("revolute", "continuous")
+
+
+def _prefix_problem(values: dict[str, Any]) -> str | None:
+    try:
+        check_frame_prefix(values["frame_prefix"])
+    except DescriptionError as exc:
+        return f"parameter 'frame_prefix': {exc}"
+    return None
+
+
+class RobotDescriptionNode(Node):
+    """The robot description publisher (see the module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__("robot_description_publisher")
+        from geometry_msgs.msg import TransformStamped
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            raise NodeStartError("tf2_msgs is not installed (in a venv, 'make setup' builds it)") from None
+
+        self._transform, self._tf_message = TransformStamped, TFMessage
+        self.params = SpecParameters(self, ALL_SPECS + DESCRIPTION_SPECS, {**spec_defaults(), "frame_prefix": ""},
+                                     self._on_params, check=_prefix_problem)
+        self.description_pub = self.create_publisher(String, "robot_description", LATCHED_QOS)
+        self.tf_pub = self.create_publisher(TFMessage, "/tf", PUBLISH_QOS)
+        self.static_pub = self.create_publisher(TFMessage, "/tf_static", LATCHED_QOS)  # as tf2's static broadcaster
+        self.skipped = 0
+        self._describe()
+        self.create_subscription(JointState, "joint_states", self._on_joints, PUBLISH_QOS)
+        self.get_logger().info(f"robot description published ({len(self.moving)} moving joints)")
+
+    def _on_params(self, changed: dict) -> None:
+        self._describe()
+
+    def _describe(self) -> None:
+        """Generate the URDF of the current parameters; publish it and the fixed joints."""
+        robot, _ = self.params.robot_control()
+        self.urdf = robotino_urdf(robot)
+        joints = urdf_joints(self.urdf)
+        self.moving = {j.name: j for j in joints if j.type in _MOVING}
+        self.description_pub.publish(String(data=self.urdf))
+        fixed = [j for j in joints if j.type == "fixed"]
+        if fixed:
+            stamp = self.get_clock().now().to_msg()
+            self.static_pub.publish(self._tf_message(transforms=[self._stamped(j, 0.0, stamp) for j in fixed]))
+
+    def _stamped(self, joint, position: float, stamp) -> Any:
+        """The TransformStamped parent -> child of `joint` at `position`, frames prefixed."""
+        prefix = self.params["frame_prefix"]
+        (x, y, z), (qx, qy, qz, qw) = joint_transform(joint, position)
+        msg = self._transform(child_frame_id=prefix + joint.child)
+        msg.header.stamp, msg.header.frame_id = stamp, prefix + joint.parent
+        t, r = msg.transform.translation, msg.transform.rotation
+        t.x, t.y, t.z, r.x, r.y, r.z, r.w = x, y, z, qx, qy, qz, qw
+        return msg
+
+    def _on_joints(self, msg: JointState) -> None:
+        if len(msg.name) != len(msg.position) or not all(map(math.isfinite, msg.position)):
+            self.skipped += 1
+            self.get_logger().warn(
+                f"joint_states with {len(msg.name)} names, {len(msg.position)} positions or a non-finite "
+                f"position: skipped ({self.skipped} so far)", throttle_duration_sec=2.0)
+            return
+        transforms = [self._stamped(self.moving[name], position, msg.header.stamp)
+                      for name, position in zip(msg.name, msg.position) if name in self.moving]
+        if transforms:
+            self.tf_pub.publish(self._tf_message(transforms=transforms))
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run robotino_geom_mpc robot_description_publisher``."""
+    return run_node(RobotDescriptionNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

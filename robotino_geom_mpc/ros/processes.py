@@ -21,8 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NODE_MODULES", "GOAL_SENDER_MODULE", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR", "NamespaceError", "NodeFailed", "NodeProcess",
-           "NodeGroup", "dds_environment", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
+__all__ = ["NODE_MODULES", "GOAL_SENDER_MODULE", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR",
+           "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment", "frame_prefix",
+           "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.ros.signals import NODE_MODULES  # executable name -> module run with `python -m`
@@ -37,6 +38,8 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/
 GOAL_SENDER_MODULE = "robotino_geom_mpc.nodes.goal_sender"  # `node_arguments`' goal_sender (no console script)
 
+# the nodes that declare ``frame_prefix`` (their frame ids: odometry, /tf, paths)
+FRAME_PREFIX_NODES = ("plant_node",)
 _NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
@@ -60,6 +63,15 @@ def ros_namespace(namespace: str) -> str:
         raise NamespaceError(f"namespace {namespace!r}: {bad[0]!r} is not a valid ROS name "
                              "(letters, digits and underscores, not starting with a digit)")
     return "/" + "/".join(tokens)
+
+
+def frame_prefix(namespace: str) -> str:
+    """The frame prefix of a robot in `namespace` (`ros_namespace`): ``/robot1`` -> ``robot1/``; none -> ``""``.
+
+    Frames stay apart on the global ``/tf`` this way, as robot_state_publisher's ``frame_prefix`` does it.
+    """
+    namespace = ros_namespace(namespace)
+    return namespace[1:] + "/" if namespace else ""
 
 
 def namespace_remaps(namespace: str, lockstep: bool) -> dict[str, str]:
@@ -95,7 +107,8 @@ def node_arguments(
     encoders the controller ``control.odometry_twist: period_mean``) and
     ``lockstep_wait_for`` (`wait_for`, by default the subscriptions of the nodes started:
     `LOCKSTEP_WAIT_FOR`, or `RECORDER_WAIT_FOR` with a recorder);
-    `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`).
+    `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`)
+    and gives the nodes of `FRAME_PREFIX_NODES` its `frame_prefix`.
     With `goals_file` (scenario ``goals``) a ``goal_sender`` (module `GOAL_SENDER_MODULE`) sends the file's
     goals and paths.
     """
@@ -109,6 +122,7 @@ def node_arguments(
     if wait_for is None:
         wait_for = list(LOCKSTEP_WAIT_FOR if bag is None else RECORDER_WAIT_FOR)
     remaps = namespace_remaps(namespace, lockstep)
+    frames = {name: {"frame_prefix": frame_prefix(namespace)} for name in FRAME_PREFIX_NODES} if namespace else {}
     args = {}
     if bag is not None:
         args["recorder_node"] = ros_args(params_file, {"output": str(bag), "scenario": scenario,
@@ -119,7 +133,7 @@ def node_arguments(
     twist = {"controller_node": {"control.odometry_twist": "period_mean"}} if odometry == "encoders" else {}
     for name in ("trajectory_node", "controller_node"):
         args[name] = ros_args(params_file, {**scenario_overrides[name], "mode": mode, **twist.get(name, {}),
-                                            **extra.get(name, {})})
+                                            **frames.get(name, {}), **extra.get(name, {})}, remaps)
     args["plant_node"] = ros_args(params_file, {
         **scenario_overrides["plant_node"],
         "mode": mode,
@@ -127,6 +141,7 @@ def node_arguments(
         "seed": int(seed),
         "odometry_model": odometry,
         "lockstep_wait_for": list(wait_for),
+        **frames.get("plant_node", {}),
         **extra.get("plant_node", {}),
     }, remaps)
     if goals_file is not None:

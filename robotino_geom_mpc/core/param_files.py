@@ -54,7 +54,6 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "goals.max_angular_acceleration_radps2", "goals.max_angular_jerk_radps3", "goals.max_rim_speed_mps",
         "frame_prefix",
     ),
-    "robot_description_publisher": _ROBOT_CONTROL + ("frame_prefix",),
     "recorder": _ROBOT_CONTROL + (
         "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",
         "scenario",

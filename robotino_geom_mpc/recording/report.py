@@ -43,6 +43,7 @@ import numpy as np
 from robotino_geom_mpc.core.params import ParamError, load_params, params_from_values
 from robotino_geom_mpc.plots import write_plots
 from robotino_geom_mpc.recording.bag import RUN_METADATA, BagError, BagReader
+from robotino_geom_mpc.recording.definitions import _typestore
 from robotino_geom_mpc.results import RunData, compute_metrics, write_metrics
 
 __all__ = [
@@ -128,10 +129,24 @@ def resolve_parameters(bag: BagReader, params_file: str | os.PathLike | None):
 
 
 def by_publish_time(bag: BagReader, topic: str | None) -> list[tuple[int, Any]]:
-    """(publish time [ns], deserialised message) of a topic, in publish-time order ([] for None)."""
+    """(publish time [ns], deserialised message) of a topic, in publish-time order ([] for None).
+
+    rosbags' CDR decoder (its ROS 2 Jazzy types) builds the messages: 2-3 times faster than rclpy's
+    `deserialize_message` and without importing rclpy (a 20 s run's report decodes ~12 000 messages).
+
+    Raises
+    ------
+    BagError
+        If a message of `topic` does not decode as its type.
+    """
     if topic is None:
         return []
-    items = [(m.publish_time_ns, msg) for m, msg in bag.decoded([topic])]
+    store, items = _typestore(), []
+    for m in bag.messages([topic]):
+        try:
+            items.append((m.publish_time_ns, store.deserialize_cdr(m.data, m.type)))
+        except Exception as exc:  # SerdeError, struct.error, IndexError, KeyError (unknown type)
+            raise BagError(f"{bag.path}: a {m.type} message on {topic} does not decode: {exc!r}") from None
     items.sort(key=lambda item: item[0])
     return items
 

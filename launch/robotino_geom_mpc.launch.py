@@ -1,6 +1,8 @@
-"""Launch the Robotino loop: plant simulator, trajectory, controller and (optionally) the recorder.
+"""Launch the Robotino loop: plant simulator, trajectory, controller, robot description, optionally the recorder.
 
+    ros2 launch robotino_geom_mpc robotino_geom_mpc.launch.py                  # paper-circle in real time
     ros2 launch robotino_geom_mpc robotino_geom_mpc.launch.py scenario:=robustness lockstep:=true
+    ros2 launch robotino_geom_mpc robotino_geom_mpc.launch.py namespace:=robot1   # a second robot beside it
 
 Launch arguments
 ----------------
@@ -12,18 +14,32 @@ params_file    ROS 2 parameter file, ``/**`` section read by every node (default
                the controller's mismatched model is scaled from its robot
 plant_params   parameter file of the plant alone (default: params_file); a different one gives a
                plant-robot mismatch
-lockstep       true: the plant owns time: it publishes /clock and advances one control period per
-               command (deterministic, faster than real time). No node uses sim time: the trajectory is
-               driven by the /clock messages, the controller by the odometry stamps (a time source would
-               cost each a /clock wake-up a tick). false: wall-clock timers
+lockstep       false (default): wall-clock timers, what someone watching in RViz expects. true: the
+               plant owns time: it publishes /clock and advances one control period per command
+               (deterministic, faster than real time). No node uses sim time: the trajectory is driven
+               by the /clock messages, the controller by the odometry stamps (a time source would cost
+               each a /clock wake-up a tick)
+namespace      ROS namespace of every node (``robot1``; default none): the topics are relative and move
+               with it; in lockstep the plant's /clock becomes <namespace>/clock, so several robots run in
+               one domain (`processes.namespace_remaps`)
+frame_prefix   prefix of the frame ids (odometry, /tf, the URDF's links), given to the nodes that declare
+               it (`processes.FRAME_PREFIX_NODES`) and to the description publisher; ``auto`` (default):
+               ``<namespace>/`` with a namespace, else none, so robots keep their frames apart on /tf
+fastdds_profile  Fast DDS profile file of the nodes (FASTRTPS_DEFAULT_PROFILES_FILE; default:
+               config/fastdds_localhost.xml, quick announcements; config/fastdds_udp.xml across hosts);
+               empty: the environment's
 duration       run length [s]; 0 runs until stopped
 seed           seed of the plant's odometry noise
 record         true: also start the MCAP recorder (bag in ``bag``)
 bag            recording directory (default: rosbag2_<date> in the working directory)
 
-The scenario is resolved when the launch runs (an ``OpaqueFunction``): an unknown name stops the launch
-with the closest valid one. With ``record:=true`` the lockstep plant also waits for the recorder's
-subscriptions (``lockstep_wait_for``), so the recording holds tick 0. Without ``ros2 launch``,
+The robot description (the URDF from the plant's parameters, `description.urdf.robotino_urdf`) is
+published by robot_state_publisher where it is installed, else by the package's
+``robot_description_publisher``. Every node gets ``OPENBLAS_NUM_THREADS=1`` (as `processes.NodeGroup`).
+
+The scenario is resolved when the launch runs (an ``OpaqueFunction``): an unknown name, a bad namespace
+or frame prefix stops the launch with a clear error. With ``record:=true`` the lockstep plant also waits for
+the recorder's subscriptions (``lockstep_wait_for``), so the recording holds tick 0. Without ``ros2 launch``,
 ``robotino-geom-mpc run`` starts the same processes and also writes metrics.json and the figures
 from the recording.
 """
@@ -37,7 +53,9 @@ from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
 from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.ros.processes import RECORDER_WAIT_FOR
+from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
+from robotino_geom_mpc.ros.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, frame_prefix, namespace_remaps, \
+    ros_namespace
 from robotino_geom_mpc.scenarios import node_parameters
 
 PACKAGE = "robotino_geom_mpc"
@@ -62,40 +80,84 @@ def _number(config: dict, name: str, kind: type = float) -> float:
     return value
 
 
+def _has_robot_state_publisher() -> bool:
+    """Whether robot_state_publisher is installed (in the ament index)."""
+    from ament_index_python.packages import get_package_share_directory
+
+    try:
+        get_package_share_directory("robot_state_publisher")
+    except (LookupError, OSError):  # not in the index (PackageNotFoundError), or no index at all
+        return False
+    return True
+
+
+def _description(plant_params: str, prefix: str, **common) -> Node:
+    """The robot description publisher: robot_state_publisher if installed, else the package's own."""
+    if _has_robot_state_publisher():
+        robot, _ = load_params(plant_params)
+        return Node(package="robot_state_publisher", executable="robot_state_publisher",
+                    parameters=[{"robot_description": robotino_urdf(robot), "frame_prefix": prefix}], **common)
+    return Node(package=PACKAGE, executable="robot_description_publisher",
+                parameters=[plant_params, {"frame_prefix": prefix}], **common)
+
+
 def _nodes(context) -> list:
     """The nodes of the run, each with its scenario's overrides (`scenarios.node_parameters`)."""
     config = context.launch_configurations
     scenario, params_file = config["scenario"], config["params_file"]
     robot, _ = load_params(params_file)
     overrides = node_parameters(scenario, robot)
-    mode = "lockstep" if _flag(config, "lockstep") else "realtime"
+    lockstep = _flag(config, "lockstep")
+    mode = "lockstep" if lockstep else "realtime"
     record = _flag(config, "record")
+    namespace = ros_namespace(config["namespace"])
+    prefix = frame_prefix(namespace) if config["frame_prefix"] == "auto" else check_frame_prefix(config["frame_prefix"])
+    frames = {"frame_prefix": prefix}
+    env = {"OPENBLAS_NUM_THREADS": "1"}
+    if config["fastdds_profile"]:
+        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = config["fastdds_profile"]
+    remappings = [(old, new) for old, new in namespace_remaps(namespace, lockstep).items() if old != "__ns"]
+    common = {"namespace": namespace, "remappings": remappings, "additional_env": env, "output": "screen"}
+
+    def own(name: str) -> dict:  # the frame prefix for the nodes that declare it
+        return frames if name in FRAME_PREFIX_NODES else {}
+
     plant = {**overrides["plant_node"], "mode": mode, "duration_s": _number(config, "duration"),
-             "seed": _number(config, "seed", int)}
+             "seed": _number(config, "seed", int), **own("plant_node")}
     if record:  # the lockstep plant also waits for the recorder's subscriptions
         plant["lockstep_wait_for"] = list(RECORDER_WAIT_FOR)
     nodes = [
-        Node(package=PACKAGE, executable="trajectory_node", name="robotino_trajectory", output="screen",
-             parameters=[params_file, {**overrides["trajectory_node"], "mode": mode}]),
-        Node(package=PACKAGE, executable="controller_node", name="robotino_controller", output="screen",
-             parameters=[params_file, {**overrides["controller_node"], "mode": mode}]),
-        Node(package=PACKAGE, executable="plant_node", name="robotino_plant", output="screen",
-             parameters=[config["plant_params"], plant]),
+        Node(package=PACKAGE, executable="trajectory_node", name="robotino_trajectory",
+             parameters=[params_file, {**overrides["trajectory_node"], "mode": mode, **own("trajectory_node")}],
+             **common),
+        Node(package=PACKAGE, executable="controller_node", name="robotino_controller",
+             parameters=[params_file, {**overrides["controller_node"], "mode": mode, **own("controller_node")}],
+             **common),
+        Node(package=PACKAGE, executable="plant_node", name="robotino_plant",
+             parameters=[config["plant_params"], plant], **common),
+        _description(config["plant_params"], prefix, **common),
     ]
     if record:
-        nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder", output="screen",
-                          parameters=[params_file, {"output": config["bag"], "scenario": scenario}]))
+        nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
+                          parameters=[params_file, {"output": config["bag"], "scenario": scenario}], **common))
     return nodes
 
 
 def generate_launch_description() -> LaunchDescription:
     default_params = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "robotino3.yaml"])
+    default_profile = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "fastdds_localhost.xml"])
     return LaunchDescription([
         DeclareLaunchArgument("scenario", default_value="paper-circle", description="scenario (scenarios.py)"),
         DeclareLaunchArgument("params_file", default_value=default_params, description="parameter file (/** section)"),
         DeclareLaunchArgument("plant_params", default_value=LaunchConfiguration("params_file"),
                               description="parameter file of the plant"),
-        DeclareLaunchArgument("lockstep", default_value="true", description="the plant drives /clock (true/false)"),
+        DeclareLaunchArgument("lockstep", default_value="false",
+                              description="true: the plant drives /clock; false: real time (default)"),
+        DeclareLaunchArgument("namespace", default_value="", description="ROS namespace of the robot's nodes"),
+        DeclareLaunchArgument("frame_prefix", default_value="auto",
+                              description="frame id prefix; auto: '<namespace>/' with a namespace, else none"),
+        DeclareLaunchArgument("fastdds_profile", default_value=default_profile,
+                              description="Fast DDS profile of the nodes; empty: the environment's"),
         DeclareLaunchArgument("duration", default_value="0.0", description="run length [s], 0: until stopped"),
         DeclareLaunchArgument("seed", default_value="0", description="seed of the odometry noise"),
         DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),

@@ -3,8 +3,10 @@
 The stand-ins record what the file passes to each action, and its `OpaqueFunction` is evaluated with a
 context whose launch configurations the test sets, so the test checks the file's own logic: which nodes
 start, with which parameters for each scenario (against `scenarios.node_parameters` and against the
-models `simulation.run_scenario` uses offline), and that every launch configuration it reads is a
-declared argument. (That it compiles and names installed files: test_colcon_build.)
+models `simulation.run_scenario` uses offline), the namespace, remappings and frame prefix of every node
+(against `processes.node_arguments`, the arguments `run` gives its processes), the nodes' environment
+(Fast DDS profile, one BLAS thread), the robot description publisher, and that every launch configuration
+it reads is a declared argument. (That it compiles and names installed files: test_colcon_build.)
 """
 
 import importlib.util
@@ -14,14 +16,20 @@ from pathlib import Path
 
 import pytest
 
-from robotino_geom_mpc.core.params import ALL_SPECS, default_params_file, load_params, params_from_values, \
-    read_parameter_file
-from robotino_geom_mpc.ros.processes import RECORDER_WAIT_FOR
+import ament_index_python.packages
+
+from robotino_geom_mpc.core.params import ALL_SPECS, config_file, default_params_file, load_params, \
+    params_from_values, read_parameter_file
+from robotino_geom_mpc.description.urdf import DescriptionError, robotino_urdf
+from robotino_geom_mpc.ros.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, NamespaceError, node_arguments
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
 from robotino_geom_mpc.simulation import run_scenario
 
 LAUNCH_FILE = Path(__file__).resolve().parents[1] / "launch" / "robotino_geom_mpc.launch.py"
 PARAMS = str(default_params_file())
+PROFILE = str(config_file("fastdds_localhost.xml"))
+LOOP = {"trajectory_node", "controller_node", "plant_node"}
+DESCRIPTION = "robot_description_publisher"  # the package's own, where robot_state_publisher is not installed
 
 
 class Recorded:
@@ -70,6 +78,8 @@ class Context:
 
 @pytest.fixture
 def description(monkeypatch):
+    """The launch description, with robot_state_publisher not installed (see `with_rsp`)."""
+    monkeypatch.setattr(ament_index_python.packages, "get_package_share_directory", _not_installed)
     for name, attrs in STAND_INS.items():
         module = types.ModuleType(name)
         module.__dict__.update(attrs)
@@ -81,15 +91,20 @@ def description(monkeypatch):
     return module.generate_launch_description().args[0]
 
 
+def _not_installed(package: str) -> str:
+    raise ament_index_python.packages.PackageNotFoundError(package)
+
+
 def _of(kind: str, items) -> list[Recorded]:
     return [a for a in items if type(a).__name__ == kind]
 
 
 def _defaults(description) -> dict[str, str]:
     """The declared arguments' defaults, as launch would perform them (the file paths set here)."""
+    files = {"params_file": PARAMS, "plant_params": PARAMS, "fastdds_profile": PROFILE}
     values = {a.args[0]: a.kwargs["default_value"] for a in _of("DeclareLaunchArgument", description)}
-    assert all(isinstance(v, str) for k, v in values.items() if k not in ("params_file", "plant_params"))
-    return {**values, "params_file": PARAMS, "plant_params": PARAMS}
+    assert all(isinstance(v, str) for k, v in values.items() if k not in files)
+    return {**values, **files}
 
 
 def _launch(description, **arguments: str) -> tuple[dict[str, Recorded], Context]:
@@ -112,20 +127,22 @@ def test_every_launch_configuration_read_is_a_declared_argument(description):
     declared = {a.args[0] for a in _of("DeclareLaunchArgument", description)}
     _, context = _launch(description, record="true")
     read = {c.args[0] for c in _of("LaunchConfiguration", Recorded.made)} | context.launch_configurations.read
-    assert read <= declared and {"scenario", "lockstep", "record", "bag", "seed", "duration"} <= read
+    assert read <= declared and {"scenario", "lockstep", "record", "bag", "seed", "duration", "namespace",
+                                 "frame_prefix", "fastdds_profile"} <= read
 
 
 @pytest.mark.parametrize("scenario", list(SCENARIOS))
 def test_each_node_gets_its_scenarios_parameters(description, scenario):
     robot, control = load_params(PARAMS)
-    nodes, _ = _launch(description, scenario=scenario, duration="2.5", seed="7")
-    assert set(nodes) == {"trajectory_node", "controller_node", "plant_node"}
-    by_node = {name: _overrides(node) for name, node in nodes.items()}
+    nodes, _ = _launch(description, scenario=scenario, duration="2.5", seed="7", lockstep="true")
+    assert set(nodes) == LOOP | {DESCRIPTION}
+    by_node = {name: _overrides(nodes[name]) for name in LOOP}
     want = node_parameters(scenario, robot)
     for name, node_overrides in by_node.items():
         assert node_overrides["mode"] == "lockstep"
         assert {k: v for k, v in node_overrides.items() if k in want[name]} == want[name]
-    assert by_node["trajectory_node"] == {"scenario": scenario, "mode": "lockstep"}
+    assert {k: v for k, v in by_node["trajectory_node"].items() if k != "frame_prefix"} == \
+        {"scenario": scenario, "mode": "lockstep"}
     plant = by_node["plant_node"]
     assert plant["duration_s"] == 2.5 and plant["seed"] == 7 and "lockstep_wait_for" not in plant
 
@@ -149,7 +166,8 @@ def test_robustness_gives_the_controller_a_mismatched_model_and_the_plant_noise(
     assert controller["robot.body_friction_x_n_s_per_m"] == pytest.approx(2.0 * robot.body_friction_x_n_s_per_m)
     assert plant["odometry_noise.position_m"] == 1e-3 and plant["odometry_noise.yaw_rad"] == 1e-3
     nominal, _ = _launch(description, scenario="paper-circle")
-    assert _overrides(nominal["controller_node"]) == {"mode": "lockstep"}
+    assert {k: v for k, v in _overrides(nominal["controller_node"]).items() if k != "frame_prefix"} == \
+        {"mode": "realtime"}
     assert _overrides(nominal["plant_node"])["odometry_noise.position_m"] == 0.0
 
 
@@ -170,7 +188,70 @@ def test_with_record_the_recorder_starts_and_the_plant_waits_for_its_subscriptio
     ({"lockstep": "yes"}, ValueError, "lockstep"),
     ({"duration": "-1"}, ValueError, "duration"),
     ({"seed": "1.5"}, ValueError, "seed"),
+    ({"namespace": "robot-1"}, NamespaceError, "robot-1"),
+    ({"frame_prefix": "/robot1"}, DescriptionError, "/robot1"),
 ])
 def test_bad_arguments_stop_the_launch_with_a_clear_error(description, arguments, error, match):
     with pytest.raises(error, match=match):
         _launch(description, **arguments)
+
+
+def _ros_args_remaps(argv: list[str]) -> dict[str, str]:
+    """The ``-r from:=to`` pairs of a node's ``--ros-args``."""
+    return dict(argv[i + 1].split(":=", 1) for i, a in enumerate(argv) if a == "-r")
+
+
+def _ros_args_frame_prefix(argv: list[str]) -> str | None:
+    values = [argv[i + 1].split(":=", 1)[1] for i, a in enumerate(argv) if a == "-p"
+              and argv[i + 1].startswith("frame_prefix:=")]
+    return values[-1] if values else None
+
+
+def test_people_get_realtime_the_fast_dds_profile_and_one_blas_thread_by_default(description):
+    nodes, _ = _launch(description)
+    assert _overrides(nodes["plant_node"])["mode"] == "realtime"
+    for name, node in nodes.items():
+        assert node.kwargs["additional_env"] == {"OPENBLAS_NUM_THREADS": "1", "FASTRTPS_DEFAULT_PROFILES_FILE": PROFILE}
+        assert node.kwargs["namespace"] == "" and node.kwargs["remappings"] == [], name
+    assert _overrides(nodes["plant_node"])["frame_prefix"] == ""
+    custom, _ = _launch(description, fastdds_profile="/etc/robotino/udp.xml")
+    assert custom["plant_node"].kwargs["additional_env"]["FASTRTPS_DEFAULT_PROFILES_FILE"] == "/etc/robotino/udp.xml"
+    inherited, _ = _launch(description, fastdds_profile="")  # the environment's profile, if any
+    assert all(n.kwargs["additional_env"] == {"OPENBLAS_NUM_THREADS": "1"} for n in inherited.values())
+
+
+@pytest.mark.parametrize("lockstep", ["true", "false"])
+def test_namespace_moves_every_node_as_run_does(description, lockstep):
+    """Namespace, remappings and frame prefix of each node equal those of `node_arguments` (what `run` starts)."""
+    nodes, _ = _launch(description, namespace="robot1", lockstep=lockstep, record="true", bag="/tmp/b")
+    args = node_arguments("paper-circle", PARAMS, 0.0, lockstep == "true", bag="/tmp/b", namespace="robot1")
+    for name, node in nodes.items():
+        assert node.kwargs["namespace"] == "/robot1", name
+        launched = {"__ns": node.kwargs["namespace"], **dict(node.kwargs["remappings"])}
+        want = {"__ns": "/robot1", **({"/clock": "/robot1/clock"} if lockstep == "true" else {})}
+        assert launched == want, name
+        if name in args:
+            assert _ros_args_remaps(args[name]) == launched, name
+    for name in LOOP | {"recorder_node"}:
+        got = _overrides(nodes[name]).get("frame_prefix")
+        assert got == _ros_args_frame_prefix(args[name]) == ("robot1/" if name in FRAME_PREFIX_NODES else None), name
+    files, description_overrides = nodes[DESCRIPTION].kwargs["parameters"]
+    assert files == PARAMS and description_overrides == {"frame_prefix": "robot1/"}
+
+
+def test_an_explicit_frame_prefix_wins(description):
+    nodes, _ = _launch(description, namespace="robot1", frame_prefix="left/")
+    assert _overrides(nodes["plant_node"])["frame_prefix"] == "left/"
+    assert nodes[DESCRIPTION].kwargs["parameters"][1] == {"frame_prefix": "left/"}
+    none, _ = _launch(description, namespace="robot1", frame_prefix="")
+    assert _overrides(none["plant_node"])["frame_prefix"] == ""
+
+
+def test_robot_state_publisher_publishes_the_plants_urdf_where_installed(description, monkeypatch, tmp_path):
+    monkeypatch.setattr(ament_index_python.packages, "get_package_share_directory", lambda package: str(tmp_path))
+    nodes, _ = _launch(description, namespace="robot2")
+    assert DESCRIPTION not in nodes
+    rsp = nodes["robot_state_publisher"]
+    assert rsp.kwargs["package"] == "robot_state_publisher" and rsp.kwargs["namespace"] == "/robot2"
+    robot, _ = load_params(PARAMS)
+    assert rsp.kwargs["parameters"] == [{"robot_description": robotino_urdf(robot), "frame_prefix": "robot2/"}]

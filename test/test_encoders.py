@@ -1,6 +1,7 @@
 """Encoder odometry (robotino_sim_node.encoders) against analytical truths and the plant's own wheel angles."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -177,3 +178,87 @@ def test_bad_settings_are_refused(kwargs, message):
 def test_ideal_source_is_the_plant():
     plant = RobotinoPlant(ROBOT)
     assert odometry_source(plant, "ideal") is plant
+
+
+def test_period_mean_filter_reproduces_the_encoder_pose_and_the_trapezoid_lags():
+    """Noise-free encoder odometry of a plant under varying voltages: the pose filter with the period_mean
+    predictor predicts each dead-reckoned pose exactly (estimate = measured pose to 1e-12), the trapezoid not."""
+    from robotino_geom_mpc.core.controller import odometry_state_floats
+    from robotino_geom_mpc.core.estimator import OdometryFilter
+
+    plant = RobotinoPlant(ROBOT)
+    odometry = EncoderOdometry(plant, CPR)
+    filters = {twist: OdometryFilter(TS, 0.5, twist) for twist in ("period_mean", "instantaneous")}
+    errors = {twist: 0.0 for twist in filters}
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        pose, twist = odometry.update()
+        X = odometry_state_floats(pose, twist)
+        for name, filt in filters.items():
+            errors[name] = max(errors[name], np.abs(np.subtract(filt.update(*X), pose)).max())
+        plant.step(rng.uniform(-8.0, 8.0, 3), TS)
+    assert errors["period_mean"] < 1e-12
+    assert errors["instantaneous"] > 1e-5
+
+
+def test_paper_circle_with_encoder_odometry_meets_the_issue_16_target():
+    """Issue 16, item 3: odom-frame RMS tracking error <= 0.3 mm, peak current <= nominal + 2 % (0.877 A)."""
+    from robotino_geom_mpc.results import compute_metrics
+    from robotino_geom_mpc.simulation import run_scenario
+
+    m = compute_metrics(run_scenario("paper-circle", ROBOT, CONTROL, odometry="encoders"))
+    assert m["rms_position_error_odom_m"] <= 0.3e-3
+    assert m["peak_current_a"] <= 1.02 * ROBOT.nominal_current_a
+
+
+def test_encoder_odometry_gives_the_controller_the_period_mean_predictor(monkeypatch):
+    """run_scenario and node_arguments set control.odometry_twist = period_mean with encoders, and only then."""
+    import robotino_geom_mpc.simulation as simulation
+    from robotino_geom_mpc.core.params import default_params_file
+    from robotino_geom_mpc.ros.processes import node_arguments
+
+    seen = []
+    real = simulation.MotionController
+    spy = lambda robot, control: seen.append(control) or real(robot, control)  # noqa: E731
+    monkeypatch.setattr(simulation, "MotionController", spy)
+    for odometry in ("encoders", "ideal"):
+        simulation.run_scenario("paper-circle", ROBOT, CONTROL, duration_s=0.05, odometry=odometry)
+    assert CONTROL.odometry_twist == "instantaneous"  # the preset's
+    assert [c.odometry_twist for c in seen] == ["period_mean", "instantaneous"]
+    assert seen[0] == replace(CONTROL, odometry_twist="period_mean")
+    setting = "control.odometry_twist:=period_mean"
+    for odometry, wanted in (("encoders", True), ("ideal", False)):
+        args = node_arguments("paper-circle", default_params_file(), 1.0, True, odometry=odometry)
+        assert (setting in args["controller_node"]) is wanted
+        assert not any(setting in argv for name, argv in args.items() if name != "controller_node")
+        assert f"odometry_model:={odometry}" in args["plant_node"]
+
+
+def test_lockstep_loop_with_encoder_odometry_equals_the_offline_loop(tmp_path):
+    """The three node processes started with node_arguments(odometry="encoders") reproduce
+    run_scenario(odometry="encoders") to 1e-6: the plant's dead reckoning and the controller's predictor."""
+    import time
+
+    from probe import PROBE_WAIT_FOR, ProbeSpinner
+    from robotino_geom_mpc.core.params import default_params_file
+    from robotino_geom_mpc.ros.processes import NodeGroup, node_arguments
+    from robotino_geom_mpc.simulation import run_scenario
+
+    duration = 3.0
+    probe = ProbeSpinner()
+    try:
+        with NodeGroup(log_dir=tmp_path) as group:
+            args = node_arguments("paper-circle", default_params_file(), duration, True,
+                                  wait_for=list(PROBE_WAIT_FOR), odometry="encoders")
+            loop = ("trajectory_node", "controller_node", "plant_node")
+            nodes = {name: group.start(name, args[name]) for name in loop}
+            assert group.wait(nodes["plant_node"], 240.0), nodes["plant_node"].stderr_tail()
+            assert nodes["plant_node"].popen.returncode == 0
+        time.sleep(0.3)  # the probe takes the last samples
+        dds = probe.probe.run_data("paper-circle")
+    finally:
+        probe.close()
+    offline = run_scenario("paper-circle", ROBOT, CONTROL, duration_s=duration, odometry="encoders")
+    assert dds.n == offline.n == round(duration / TS)
+    for name in ("pose", "reference", "currents", "voltages"):
+        np.testing.assert_allclose(getattr(dds, name), getattr(offline, name), rtol=1e-6, atol=1e-9, err_msg=name)

@@ -251,7 +251,7 @@ class RobotinoParams:
 
 @dataclass(frozen=True)
 class ControlParams:
-    """Controller settings: control period, horizon, per-axis weights, mode, odometry filter and twist, current limit."""
+    """Controller settings: period, horizon, per-axis weights, mode, odometry filter and twist, current limit."""
 
     period_s: float
     horizon: int

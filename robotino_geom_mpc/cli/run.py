@@ -1,8 +1,9 @@
 """`robotino-geom-mpc run`: the closed loop over DDS, one process per node, recorded, with metrics and figures.
 
-Starts the recorder (unless ``--no-record``), the trajectory, the controller
-and the plant simulator as separate processes (``python -m MODULE --ros-args
-...``, each in its own process group, output in DIR/logs/), waits for the
+Starts the recorder (unless ``--no-record``), the trajectory, the controller,
+the plant simulator and the robot description publisher (URDF, wheels' TF)
+as separate processes (``python -m MODULE --ros-args ...``, each in its own
+process group, output in DIR/logs/), waits for the
 plant to end the run (it knows the duration), stops every node (SIGINT, then
 SIGTERM and SIGKILL after a grace period; also on Ctrl-C or when a node
 fails, which is reported with its stderr tail and exit status 1), and writes
@@ -21,9 +22,11 @@ mismatched model and the plant odometry noise.
 from __future__ import annotations
 
 import argparse
+import importlib
 import shutil
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -34,8 +37,9 @@ from .simulate import add_odometry_argument, add_scenario_argument
 __all__ = ["add_parser", "run"]
 
 GRACE_S = 5.0
-# after the plant's last tick: time for the controller's last answer to reach the recorder
-LINGER_S = 0.5
+# imported in a thread while the nodes start and run (the cores idle during discovery and the settle)
+REPORT_MODULES = ("robotino_geom_mpc.recording.bag", "robotino_geom_mpc.recording.report",
+                  "robotino_geom_mpc.cli.reindex")
 GOALS_SETTLE_S = 3.0  # --goals: the run goes on this long after the last motion ends (the loop settles)
 REALTIME_START_S = 2.0  # realtime: the reference starts this much after the first odometry (start_settle_s + discovery)
 
@@ -70,6 +74,21 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def _raise_interrupt(*_: object) -> None:
     raise KeyboardInterrupt
+
+
+def _import_in_background(modules: tuple[str, ...]) -> threading.Thread:
+    """Import `modules` in a daemon thread (matplotlib, rosbags: ~1 s of CPU the report would wait for)."""
+
+    def load() -> None:
+        for name in modules:
+            try:
+                importlib.import_module(name)
+            except Exception:  # noqa: BLE001 - the report's own import raises it again, in the main thread
+                return
+
+    thread = threading.Thread(target=load, name="report-imports", daemon=True)
+    thread.start()
+    return thread
 
 
 def _goals_duration(args: argparse.Namespace, params_file: Path) -> float:
@@ -117,14 +136,21 @@ def run(args: argparse.Namespace) -> int:
     try:
         nodes = {name: group.start(name, argv, GOAL_SENDER_MODULE if name == "goal_sender" else None)
                  for name, argv in node_args.items()}
+        if bag is not None:
+            _import_in_background(REPORT_MODULES)
         # the plant ends the run; lockstep may be slower than real time on a loaded machine
         limit = duration + 60.0 if not args.lockstep else 60.0 + 20.0 * duration
         if not group.wait(nodes["plant_node"], limit):
             print(f"robotino-geom-mpc run: error: the run did not end within {limit:g} s", file=sys.stderr)
             return 1
-        time.sleep(LINGER_S)
+        ended = time.monotonic()
         group.check()
-        for name in ("controller_node", "trajectory_node", "recorder_node"):
+        # the plant exited once every reader had acknowledged its samples, and each other node does so on
+        # SIGINT before it exits (`ros.spin.run_node`): once they are gone, the recorder holds every message
+        others = [name for name in ("controller_node", "trajectory_node") if name in nodes]
+        for name in others:
+            nodes[name].popen.send_signal(signal.SIGINT)  # all at once; `stop_node` escalates per node
+        for name in [*others, "recorder_node"]:
             if name in nodes and group.stop_node(nodes[name], GRACE_S) not in (0, -signal.SIGINT):
                 raise NodeFailed(f"{name} did not stop cleanly:\n{nodes[name].stderr_tail()}")
     except NodeFailed as exc:
@@ -133,8 +159,9 @@ def run(args: argparse.Namespace) -> int:
     finally:
         group.stop(GRACE_S)
         signal.signal(signal.SIGTERM, previous)
-    wall = time.monotonic() - start
-    print(f"  {duration:g} s run in {wall:.1f} s wall (with startup)")
+    stopped = time.monotonic()
+    print(f"  {duration:g} s run in {stopped - start:.1f} s wall: {ended - start:.1f} s until the plant ended "
+          f"(startup, discovery, the loop), {stopped - ended:.1f} s to stop the nodes and close the recording")
     if bag is None:
         print("  not recorded (--no-record): no metrics or figures")
         return 0
@@ -155,5 +182,5 @@ def run(args: argparse.Namespace) -> int:
     if metrics.get("rms_position_error_odom_m") is not None:
         print(f"  in the odom frame: rms {metrics['rms_position_error_odom_m']:.3g} m; drift from the truth at the "
               f"end {metrics['odometry_drift_final_m']:.3g} m")
-    print(f"  wrote {out / 'metrics.json'} and the figures; recording in {bag}")
+    print(f"  wrote {out / 'metrics.json'} and the figures in {time.monotonic() - stopped:.1f} s; recording in {bag}")
     return 0

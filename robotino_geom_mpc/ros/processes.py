@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NODE_MODULES", "GOAL_SENDER_MODULE", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "RECORDER_WAIT_FOR",
-           "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment", "frame_prefix",
-           "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
+__all__ = ["NODE_MODULES", "GOAL_SENDER_MODULE", "DESCRIPTION_MODULE", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR",
+           "RECORDER_WAIT_FOR", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment",
+           "frame_prefix", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.ros.signals import NODE_MODULES  # executable name -> module run with `python -m`
@@ -37,6 +37,9 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/
 GOAL_SENDER_MODULE = "robotino_geom_mpc.nodes.goal_sender"  # `node_arguments`' goal_sender (no console script)
+DESCRIPTION_MODULE = "robotino_geom_mpc.nodes.robot_description_node"  # robot_description_publisher
+# `NodeGroup.start`'s modules of the executables `NODE_MODULES` (`signals`) does not name
+_MORE_MODULES = {"robot_description_publisher": DESCRIPTION_MODULE}
 
 # the nodes that declare ``frame_prefix`` (their frame ids: odometry, /tf, paths)
 FRAME_PREFIX_NODES = ("plant_node",)
@@ -109,6 +112,7 @@ def node_arguments(
     `LOCKSTEP_WAIT_FOR`, or `RECORDER_WAIT_FOR` with a recorder);
     `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`)
     and gives the nodes of `FRAME_PREFIX_NODES` its `frame_prefix`.
+    A ``robot_description_publisher`` publishes the URDF and the wheels' TF.
     With `goals_file` (scenario ``goals``) a ``goal_sender`` (module `GOAL_SENDER_MODULE`) sends the file's
     goals and paths.
     """
@@ -144,6 +148,10 @@ def node_arguments(
         **frames.get("plant_node", {}),
         **extra.get("plant_node", {}),
     }, remaps)
+    # the URDF on robot_description and the wheels' TF, from the same robot parameters as the plant
+    args["robot_description_publisher"] = ros_args(params_file, {
+        **({"frame_prefix": frame_prefix(namespace)} if namespace else {}),
+        **extra.get("robot_description_publisher", {})}, remaps)
     if goals_file is not None:
         args["goal_sender"] = ros_args(None, {"goals_file": str(goals_file), "mode": mode}, remaps)
     return args
@@ -238,7 +246,8 @@ class NodeGroup:
         self.log_dir.mkdir(parents=True, exist_ok=True)
 
     def start(self, executable: str, args: list[str], module: str | None = None) -> NodeProcess:
-        """Start `executable` (a key of `NODE_MODULES`, or any name with the `module` to run) in its own process group.
+        """Start `executable` (a key of `NODE_MODULES` or ``robot_description_publisher``, or any name with the
+        `module` to run) in its own process group.
 
         The nodes get one BLAS thread (``OPENBLAS_NUM_THREADS=1`` unless set): their matrices are 3x3 to
         9x9, where OpenBLAS's threads only add wake-ups (a 3x3 `expm` took 20 ms instead of 0.12 ms on a
@@ -251,7 +260,8 @@ class NodeGroup:
         env.update(dds_environment(env))
         with open(out, "wb") as fout, open(err, "wb") as ferr:
             popen = subprocess.Popen(
-                [*self.prefix, sys.executable, "-m", module or NODE_MODULES[executable], *args],
+                [*self.prefix, sys.executable, "-m",
+                 module or NODE_MODULES.get(executable) or _MORE_MODULES[executable], *args],
                 stdout=fout,
                 stderr=ferr,
                 stdin=subprocess.DEVNULL,

@@ -32,6 +32,9 @@ stays finite, the violation is the smallest possible, and the step reports
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from itertools import chain
+
 import daqp
 import numpy as np
 from scipy.optimize import linprog
@@ -105,8 +108,8 @@ class ConstrainedMPC:
         i0 = np.zeros((3, n_p))
         i0[:, 3 * N + 9 : 3 * N + 12] = np.eye(3)
         # signal rows, the part without theta' over its factor's: (F0; F1), (Fz0; Fz1)
-        self._F = np.concatenate((self._layout(S0, i0), self._layout(C0, 0 * i0)))
-        self._Fz = np.concatenate((self._layout(Sz, np.zeros((3, nz))), self._layout(Cz, np.zeros((3, nz)))))
+        F = np.concatenate((self._layout(S0, i0), self._layout(C0, 0 * i0)))
+        Fz = np.concatenate((self._layout(Sz, np.zeros((3, nz))), self._layout(Cz, np.zeros((3, nz)))))
         # headings: mid-period for u, period start for v and the rate
         H = np.zeros((n_s, n_p))
         H[0, 3 * N + 4], H[0, 3 * N + 5] = 1.0, 0.5 * Ts
@@ -117,16 +120,28 @@ class ConstrainedMPC:
         quarter = np.zeros((n_s, n_p))
         quarter[:, -1] = -0.5 * np.pi  # sin(a) = cos(a - pi/2)
         A = np.concatenate((H, H, H + quarter, H + quarter, np.zeros((n_s + 3, n_p))))
-        self._A = np.concatenate((A, A))  # factors for both halves; the second is multiplied by theta'
-        self._n_sig = 15 * N + 3
-        # one product for a step's factors' angles and the signals at the closed form z* = K p
-        self._closed_form_map = np.concatenate((self._A, self._F + self._Fz @ K))
         zoh = ZOHDrive(robot.resistance_ohm, robot.inductance_h, robot.torque_constant_n_m_per_a, Ts)
         B = self._rows_matrix(robot, zoh)  # on (rotated x, y, theta components, i_0)
         x, y, t = (np.arange(k * n_s, (k + 1) * n_s) for k in range(3))
         B = B[:, np.concatenate((x, y, x, y, t, np.arange(9 * N, 9 * N + 3)))]
-        self._B = np.concatenate((B, B), axis=1)
-        self._B_both = np.concatenate((self._B, -self._B))  # max over both signs in one call
+        # theta' enters only the x, y rows of the rate (blocks s_x, s_y, s_y, -s_x): put them last, and
+        # extend the signals by their theta' parts, whose factors are theta' times the rate rows' factors
+        n_sig = 15 * N + 3
+        rate = np.concatenate([np.arange(b * n_s + 2 * N, (b + 1) * n_s) for b in range(4)])
+        order = np.concatenate((np.setdiff1d(np.arange(n_sig), rate), rate))
+        self._n_sig, self._n_rate = n_sig, len(rate)
+        F_ext = np.concatenate((F[:n_sig][order], F[n_sig:][rate]))  # (n_sig + 4N, n_p)
+        Fz_ext = np.concatenate((Fz[:n_sig][order], Fz[n_sig:][rate]))
+        B = B[:, order]
+        B_ext = np.concatenate((B, B[:, n_sig - self._n_rate :]), axis=1)
+        self._A = A[order]  # the angles of the factors
+        self._F_ext, self._B_ext = F_ext, B_ext
+        # one product for the factors' angles and the extended signals at the closed form z* = K p
+        self._closed_form_map = np.concatenate((self._A, F_ext + Fz_ext @ K))
+        self._B_both = np.concatenate((B_ext, -B_ext))  # max over both signs in one call
+        # G = B_ext diag(factors) Fz_ext, flattened: the factors times one fixed matrix
+        self._G_map = np.einsum("rk,kz->krz", B_ext, Fz_ext).reshape(len(Fz_ext), -1)
+        self._buffers(n_p, nz)
         self.reset()
 
     @staticmethod
@@ -172,29 +187,57 @@ class ConstrainedMPC:
                 i0 = end
         return B
 
+    def _buffers(self, n_p: int, nz: int) -> None:
+        """Arrays every step writes into (no per-tick allocation); views of them named once."""
+        n_ext, m = len(self._B_ext[0]), 9 * self.N
+        self._p = np.empty(n_p)
+        self._map_out = np.empty(len(self._closed_form_map))
+        self._angles, self._signals_z = self._map_out[: self._n_sig], self._map_out[self._n_sig :]
+        self._ext_factors, self._ext_product = np.empty(n_ext), np.empty(n_ext)
+        self._factors = self._ext_factors[: self._n_sig]  # cos of the angles
+        self._rate_factors = self._ext_factors[self._n_sig - self._n_rate : self._n_sig]
+        self._theta_factors = self._ext_factors[self._n_sig :]  # theta' times the rate rows' factors
+        self._rows_both = np.empty(2 * m)
+        self._h, self._G_flat, self._f = np.empty(m), np.empty(m * nz), np.empty(nz)
+        self._G = self._G_flat.reshape(m, nz)
+        self._upper, self._lower = np.empty(m), np.empty(m)
+
     def reset(self) -> None:
         """Drop the warm start (the last active set)."""
         self._daqp: daqp.Model | None = None
 
-    def _parameters(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> np.ndarray:
-        """p = (Y_d row by row, X, u(k-1), i_0, 1)."""
-        return np.concatenate((Y_d.ravel(), X, u_prev, i_start, _ONE))
+    def _closed_form_check(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> bool:
+        """Whether the closed form (56) meets every limit; leaves p and the step's factors in the buffers."""
+        np.concatenate((Y_d.ravel(), X, u_prev, i_start, _ONE), out=self._p)
+        return self._check(X[5])
 
-    def _factors(self, angles: np.ndarray, w: float) -> np.ndarray:
-        """cos of the angles, the second half (theta' terms) times theta'."""
-        factors = np.cos(angles)
-        factors[self._n_sig :] *= w
-        return factors
+    def _check(self, w: float) -> bool:
+        """`_closed_form_check` for the p in its buffer and theta' = w.
 
-    def _closed_form_signals(self, p: np.ndarray, w: float) -> tuple[np.ndarray, np.ndarray]:
-        """The factors and the factors times the signals at the closed form (56)."""
-        both, n = self._closed_form_map @ p, 2 * self._n_sig
-        factors = self._factors(both[:n], w)
-        return factors, factors * both[n:]
+        Five calls on fixed buffers: the factors' angles and the extended
+        signals at z* = K p in one product; the cos of the angles; theta' times
+        the rate rows' factors; their products with the signals; the rows of
+        both signs (B_ext and -B_ext); then their largest.
+        """
+        np.dot(self._closed_form_map, self._p, self._map_out)
+        np.cos(self._angles, out=self._factors)
+        np.multiply(self._rate_factors, w, out=self._theta_factors)
+        np.multiply(self._ext_factors, self._signals_z, out=self._ext_product)
+        np.dot(self._B_both, self._ext_product, self._rows_both)
+        return bool(_max(self._rows_both) <= 1.0)
+
+    def _qp_data(self) -> None:
+        """h, G and f of the QP for the p and factors in the buffers (`_closed_form_check` first)."""
+        np.dot(self._F_ext, self._p, self._ext_product)
+        np.multiply(self._ext_factors, self._ext_product, out=self._ext_product)
+        np.dot(self._B_ext, self._ext_product, self._h)
+        np.dot(self._ext_factors, self._G_map, self._G_flat)
+        np.dot(self._cost, self._p, self._f)
 
     def closed_form_rows(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> np.ndarray:
         """The scaled constraint rows (9N,) at the closed form (56); feasible iff all lie in [-1, 1]."""
-        return self._B @ self._closed_form_signals(self._parameters(X, u_prev, Y_d, i_start), X[5])[1]
+        self._closed_form_check(X, u_prev, Y_d, i_start)
+        return self._rows_both[: 9 * self.N].copy()
 
     def constraint_rows(
         self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray
@@ -211,30 +254,25 @@ class ConstrainedMPC:
         h : ndarray, shape (9N,)
         G : ndarray, shape (9N, 3N)
         """
-        p = self._parameters(X, u_prev, Y_d, i_start)
-        return self._rows(p, self._factors(self._A @ p, X[5]))
+        return self.qp_problem(X, u_prev, Y_d, i_start)[2:]
 
     def qp_problem(
         self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The QP min 1/2 z'Pz + f'z subject to |h + G z| <= 1 (row-wise), as (P, f, h, G); P is scaled."""
-        p = self._parameters(X, u_prev, Y_d, i_start)
-        return (self._P, self._cost @ p, *self._rows(p, self._factors(self._A @ p, X[5])))
-
-    def _rows(self, p: np.ndarray, factors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """h and G for p and the step's factors."""
-        return self._B @ (factors * (self._F @ p)), self._B @ (factors[:, None] * self._Fz)
+        self._closed_form_check(X, u_prev, Y_d, i_start)
+        self._qp_data()
+        return self._P, self._f.copy(), self._h.copy(), self._G.copy()
 
     def _qp(self, f: np.ndarray, G: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[bool, np.ndarray]:
         """DAQP on min 1/2 z'Pz + f'z, lower <= G z <= upper, from the last active set; keeps the new one."""
-        data = (np.ascontiguousarray(f), np.ascontiguousarray(G), upper, lower)
         if self._daqp is None:
             self._daqp = daqp.Model()
-            self._daqp.setup(self._P, *data, np.zeros(len(upper), dtype=np.int32))
+            self._daqp.setup(self._P, f, G, upper, lower, np.zeros(len(upper), dtype=np.int32))
             self._daqp.settings = {"primal_tol": _PRIMAL_TOL}
         else:  # without `sense`, DAQP starts from the active set of its last solve
-            self._daqp.update(f=data[0], A=data[1], bupper=upper, blower=lower)
-        self._daqp_data = data  # DAQP keeps pointers to the arrays: keep them alive until the next update
+            self._daqp.update(f=f, A=G, bupper=upper, blower=lower)
+        self._daqp_data = (f, G, upper, lower)  # DAQP keeps pointers to the arrays: keep them alive
         z, _, exitflag, _ = self._daqp.solve()
         ok = exitflag == _DAQP_OPTIMAL
         if not ok:  # start the next QP cold
@@ -272,16 +310,17 @@ class ConstrainedMPC:
             True when the limits could not all hold; delta_U then has the
             least total (scaled) violation and, among those, the least cost.
         """
-        p = self._parameters(X, u_prev, Y_d, i_start)
-        factors, signals = self._closed_form_signals(p, X[5])
-        if use_closed_form and (self._B_both @ signals).max() <= 1.0:
+        if self._closed_form_check(X, u_prev, Y_d, i_start) and use_closed_form:
             return self.mpc.solve(X.reshape(3, 2), u_prev, Y_d), False
-        return self._solve_qp(p, factors)
+        return self._solve_qp()
 
-    def _solve_qp(self, p: np.ndarray, factors: np.ndarray) -> tuple[np.ndarray, bool]:
-        h, G = self._rows(p, factors)
-        f = self._cost @ p
-        ok, z = self._qp(f, G, -1.0 - h, 1.0 - h)
+    def _solve_qp(self) -> tuple[np.ndarray, bool]:
+        """The QP for the p and factors in the buffers (`_closed_form_check` first)."""
+        self._qp_data()
+        h, G, f = self._h, self._G, self._f
+        np.subtract(1.0, h, out=self._upper)
+        np.subtract(-1.0, h, out=self._lower)
+        ok, z = self._qp(f, G, self._lower, self._upper)
         infeasible = False
         if not ok:
             z_lp, slack = self._least_violation(G, h)
@@ -314,13 +353,24 @@ class ConstrainedMPC:
 
         Where no limit binds, u(k) is the closed-form mode's, bit for bit
         (`DecoupledMPC.delta_u_floats`, the same floating-point operations).
+        Not re-entrant: the step works in the instance's buffers.
         """
-        # the per-tick path: `_closed_form_signals` inlined (each numpy call costs about a microsecond)
-        p = np.concatenate((Y_d.ravel(), X, u_prev, i_start, _ONE))
-        both, n = self._closed_form_map @ p, 2 * self._n_sig
-        factors = np.cos(both[:n])
-        factors[self._n_sig :] *= X[5]
-        if _max(self._B_both @ (factors * both[n:])) <= 1.0:
+        if self._closed_form_check(X, u_prev, Y_d, i_start):
             return u_prev + np.array(self.mpc.delta_u_floats(X.tolist(), u_prev.tolist(), Y_d.tolist())), False
-        delta_U, infeasible = self._solve_qp(p, factors)
+        delta_U, infeasible = self._solve_qp()
         return u_prev + delta_U[0], infeasible
+
+    def solve_floats(
+        self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]], i_start: Sequence[float]
+    ) -> tuple[list[float], bool]:
+        """`solve` on Python floats (the controller's per-tick path): u(k) as 3 floats, and the infeasible flag.
+
+        The same numbers as `solve`, bit for bit: p is filled from the floats
+        instead of concatenated from arrays.
+        """
+        self._p[:] = [*chain.from_iterable(Y_d), *X, *u_prev, *i_start, 1.0]
+        if self._check(X[5]):
+            du_x, du_y, du_theta = self.mpc.delta_u_floats(X, u_prev, Y_d)
+            return [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta], False
+        delta_U, infeasible = self._solve_qp()
+        return (delta_U[0] + u_prev).tolist(), infeasible

@@ -266,3 +266,29 @@ def test_period_mean_twist_while_turning_reproduces_the_dead_reckoned_pose():
 def test_unknown_twist_model_is_refused():
     with pytest.raises(EstimatorError, match="twist must be one of instantaneous, period_mean"):
         OdometryFilter(TS, 0.5, "average")
+
+
+@pytest.mark.parametrize("twist", ["instantaneous", "period_mean"])
+def test_start_at_a_known_pose_is_a_filter_that_had_been_running_at_rest_there(twist):
+    """start_at(s) then noisy measurements = a filter that first saw the robot at rest at s for a while: the first
+    measurement's noise enters as L n(0), not n(0) (the start kick the MPCs' position gain would make of it)."""
+    start, n0 = (0.3, -0.2, 3.1), np.array([2e-3, -3e-3, 1e-3])
+    states, _ = _track(200, start, (0.0, 0.0, 0.0), (0.4, -0.3, 0.5))
+    states[:, 0::2] += np.random.default_rng(8).normal(0.0, 1e-3, (200, 3))
+    states[0, 0::2] = np.array(start) + n0
+    started = OdometryFilter(TS, 0.5, twist)
+    started.start_at(*start)
+    warm = OdometryFilter(TS, 0.5, twist)
+    _run(warm, np.tile([start[0], 0.0, start[1], 0.0, start[2], 0.0], (50, 1)))
+    est = _run(started, states)
+    np.testing.assert_allclose(est, _run(warm, states), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(est[0], np.array(start) + started.gain * n0, rtol=0, atol=1e-15)
+    started.reset()  # forgets the start: the first measurement initialises again
+    np.testing.assert_array_equal(_run(started, states[:1])[0], states[0, 0::2])
+
+
+def test_non_finite_start_is_refused_without_touching_the_state():
+    filt = OdometryFilter(TS, 0.5)
+    with pytest.raises(EstimatorError, match="start pose must be finite"):
+        filt.start_at(0.0, math.nan, 0.0)
+    assert not filt.initialized

@@ -137,7 +137,8 @@ class OdometryFilter:
     wrap() maps the heading innovation into [-pi, pi]: a measured angle that
     jumps by 2 pi (an odometry theta wrapped to (-pi, pi]) leaves the estimate
     on its continuous branch. The first measurement after construction or
-    `reset` initialises the estimate (its noise then decays with tau).
+    `reset` initialises the estimate (its noise then decays with tau), unless
+    `start_at` gave a known start pose.
     """
 
     def __init__(self, period_s: float, time_constant_s: float, twist: str = "instantaneous") -> None:
@@ -156,6 +157,25 @@ class OdometryFilter:
     def reset(self) -> None:
         """Forget the estimate: the next measurement initialises it."""
         self._last: tuple[float, float, float, float, float, float] | None = None
+
+    def start_at(self, x: float, y: float, theta: float) -> None:
+        """Take a known start pose [m, m, rad] of the robot at rest as the estimate before the first measurement.
+
+        The next measurement z(0) is then predicted from it (zero velocity before it) and corrected as any
+        other, p(0) = s + L (z(0) - s) for a start s: its pose noise n(0) reaches the estimate as L n(0)
+        (0.02 n(0) for tau = 0.5 s, Ts = 10 ms), as in the steady state, instead of n(0) when z(0)
+        initialises it, which the MPCs' position gain turns into a start kick (volts for 1 mm at tick 0).
+        For a start where robot and reference are known to coincide (the offline loop, tick 0 of a
+        lockstep run); anywhere else the first measurement must initialise (`reset`).
+
+        Raises
+        ------
+        EstimatorError
+            If a value is not finite; the filter's state is then unchanged.
+        """
+        if not math.isfinite(x + y + theta):
+            raise EstimatorError(f"start pose must be finite, got {(x, y, theta)}")
+        self._last = (float(x), 0.0, float(y), 0.0, float(theta), 0.0)
 
     @property
     def initialized(self) -> bool:

@@ -20,9 +20,15 @@ import time
 from dataclasses import replace
 from typing import NamedTuple
 
+import daqp
 import numpy as np
 import osqp
 import scipy.sparse as sp
+
+try:  # a test extra: the benchmark sets quadprog beside DAQP where it is installed
+    import quadprog
+except ImportError:  # pragma: no cover - depends on the installation
+    quadprog = None
 
 from robotino_geom_mpc.bench.controller_step import step_inputs
 from robotino_geom_mpc.bench.registry import BenchmarkError, benchmark
@@ -204,16 +210,23 @@ def bench_constrained(quick: bool) -> dict[str, float]:
     if not diff <= 1e-6 * scale:
         raise BenchmarkError(f"OSQP and the constrained step disagree on u by {diff:.3g} (scale {scale:.3g})")
 
+    floats = {name: [(c.X.tolist(), c.u_prev.tolist(), c.Y_d.tolist(), c.i_start.tolist()) for c in calls[name]]
+              for name in sets}
+
     def side_by_side(name: str) -> dict[str, np.ndarray]:
-        """Per-call times of the constrained step's solve, an OSQP-based one and the two QP solvers alone."""
+        """Per-call times of the constrained step's solve, an OSQP-based one and three QP solvers alone."""
         qp, reference, pending = solvers[name], osqp_qps[name], calls[name]
         qp.reset()
-        times = {"step": _call_times(pending, lambda c: qp.solve(c.X, c.u_prev, c.Y_d, c.i_start))}
+        args = iter(floats[name])
+        times = {"step": _call_times(pending, lambda c: qp.solve_floats(*next(args)))}
         reference.reset()  # the same rows and cost, OSQP instead of DAQP: a constrained step built on OSQP
         times["osqp_step"] = _call_times(pending, lambda c: reference.solve(*reference.problem(c)))
-        qp.reset()
+        alone = _DenseDaqp(qp._P)
         dense = iter(problems[name])
-        times["daqp"] = _call_times(pending, lambda c: _daqp_solve(qp, *next(dense)))
+        times["daqp"] = _call_times(pending, lambda c: alone.solve(*next(dense)))
+        if quadprog is not None:
+            dense = iter(problems[name])
+            times["quadprog"] = _call_times(pending, lambda c: _quadprog_solve(qp._P, *next(dense)))
         reference.reset()
         dense = iter(problems[name])
         times["osqp"] = _call_times(pending, lambda c: reference.solve(*next(dense)))
@@ -230,22 +243,44 @@ def bench_constrained(quick: bool) -> dict[str, float]:
     tick = {key: np.median(np.stack(value), axis=0) for key, value in samples.items()}  # per tick over repeats
     nominal = tick["constrained"][: sum(len(sets[n].X) for n in NOMINAL_SETS)]
     binding = ~np.concatenate([[c.closed_form for c in calls[n]] for n in sets])
-    return {
+    speedup = tick["osqp_step"][binding] / tick["step"][binding]
+    figures = {
         "constrained_step_us": float(np.median(nominal)) * 1e6,
         "constrained_step_worst_us": float(tick["constrained"].max()) * 1e6,
         "constrained_closed_form_step_us": float(np.median(tick["closed"])) * 1e6,
         "constrained_over_closed_form": float(np.median(nominal / tick["closed"])),
         "constrained_binding_step_us": float(np.median(tick["step"][binding])) * 1e6,
         "constrained_osqp_binding_step_us": float(np.median(tick["osqp_step"][binding])) * 1e6,
-        "constrained_step_speedup_vs_osqp": float(np.median(tick["osqp_step"][binding] / tick["step"][binding])),
+        "constrained_step_speedup_vs_osqp": float(np.median(speedup)),
+        "constrained_step_speedup_vs_osqp_worst": float(np.min(speedup)),
         "constrained_worst_speedup_vs_osqp": float(tick["osqp_step"].max() / tick["step"].max()),
         "constrained_daqp_qp_us": float(np.median(tick["daqp"][binding])) * 1e6,
         "constrained_osqp_qp_us": float(np.median(tick["osqp"][binding])) * 1e6,
         "constrained_binding_ticks": float(binding.sum()),
         "constrained_osqp_max_u_difference": diff,
     }
+    if "quadprog" in tick:
+        figures["constrained_quadprog_qp_us"] = float(np.median(tick["quadprog"][binding])) * 1e6
+    return figures
 
 
-def _daqp_solve(qp: ConstrainedMPC, f: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """The constrained mode's DAQP call alone (warm-started) on a built QP."""
-    return qp._qp(f, G, -1.0 - h, 1.0 - h)[1]
+class _DenseDaqp:
+    """DAQP alone on the built QPs min 1/2 z'Pz + f'z, |h + G z| <= 1, warm-started from its last active set."""
+
+    def __init__(self, P: np.ndarray) -> None:
+        self.P, self.model, self.data = P, None, None
+
+    def solve(self, f: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """z of the QP."""
+        self.data = upper, lower = 1.0 - h, -1.0 - h  # DAQP keeps pointers: keep the arrays alive
+        if self.model is None:
+            self.model = daqp.Model()
+            self.model.setup(self.P, f, G, upper, lower, np.zeros(len(h), dtype=np.int32))
+        else:
+            self.model.update(f=f, A=G, bupper=upper, blower=lower)
+        return self.model.solve()[0]
+
+
+def _quadprog_solve(P: np.ndarray, f: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """quadprog (Goldfarb-Idnani dual active set, no warm start) on the same QP."""
+    return quadprog.solve_qp(P, -f, np.vstack((-G, G)).T, np.concatenate((h - 1.0, -1.0 - h)))[0]

@@ -101,7 +101,6 @@ class ConstrainedMPC:
         eye_p, eye_z = np.eye(n_p), np.eye(nz)
         # closed form (56) and the QP's linear cost as matrices on p
         K = np.column_stack([self._closed_form(e) for e in eye_p])
-        self._cost = -self._P @ K  # the gradient P z + f vanishes at the unconstrained optimum z* = K p
         # signals, linear in (p, z): the recursion of eq. (49) on unit vectors
         S0, C0 = (np.stack(m, axis=-1) for m in zip(*(self._signals(e, np.zeros(nz)) for e in eye_p)))
         Sz, Cz = (np.stack(m, axis=-1) for m in zip(*(self._signals(np.zeros(n_p), e) for e in eye_z)))
@@ -134,14 +133,18 @@ class ConstrainedMPC:
         Fz_ext = np.concatenate((Fz[:n_sig][order], Fz[n_sig:][rate]))
         B = B[:, order]
         B_ext = np.concatenate((B, B[:, n_sig - self._n_rate :]), axis=1)
-        self._A = A[order]  # the angles of the factors
-        self._F_ext, self._B_ext = F_ext, B_ext
-        # one product for the factors' angles and the extended signals at the closed form z* = K p
-        self._closed_form_map = np.concatenate((self._A, F_ext + Fz_ext @ K))
+        A = A[order]  # the angles of the factors
+        # one product for the factors' angles, the extended signals at the closed form z* = K p, and z*
+        self._closed_form_map = np.concatenate((A, F_ext + Fz_ext @ K, K))
         self._B_both = np.concatenate((B_ext, -B_ext))  # max over both signs in one call
-        # G = B_ext diag(factors) Fz_ext, flattened: the factors times one fixed matrix
-        self._G_map = np.einsum("rk,kz->krz", B_ext, Fz_ext).reshape(len(Fz_ext), -1)
-        self._buffers(n_p, nz)
+        # G = B_ext diag(factors) Fz_ext = sum over the distinct factors (4N + 1 cos, 2N theta' cos) of
+        # the factor times a fixed matrix: rows of equal angle (and theta' or not) share a factor
+        theta = np.arange(len(F_ext)) >= n_sig
+        keys = np.column_stack((np.concatenate((A, A[n_sig - self._n_rate :])), theta))
+        _, self._distinct, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        self._G_map = np.zeros((len(self._distinct), B_ext.size // len(F_ext) * nz))
+        np.add.at(self._G_map, group.ravel(), np.einsum("rk,kz->krz", B_ext, Fz_ext).reshape(len(F_ext), -1))
+        self._buffers(n_p, nz, len(F_ext))
         self.reset()
 
     @staticmethod
@@ -187,20 +190,22 @@ class ConstrainedMPC:
                 i0 = end
         return B
 
-    def _buffers(self, n_p: int, nz: int) -> None:
+    def _buffers(self, n_p: int, nz: int, n_ext: int) -> None:
         """Arrays every step writes into (no per-tick allocation); views of them named once."""
-        n_ext, m = len(self._B_ext[0]), 9 * self.N
+        m, n_sig = 9 * self.N, self._n_sig
         self._p = np.empty(n_p)
         self._map_out = np.empty(len(self._closed_form_map))
-        self._angles, self._signals_z = self._map_out[: self._n_sig], self._map_out[self._n_sig :]
+        self._angles, self._signals_z = self._map_out[:n_sig], self._map_out[n_sig : n_sig + n_ext]
+        self._z_star = self._map_out[n_sig + n_ext :]
         self._ext_factors, self._ext_product = np.empty(n_ext), np.empty(n_ext)
         self._factors = self._ext_factors[: self._n_sig]  # cos of the angles
         self._rate_factors = self._ext_factors[self._n_sig - self._n_rate : self._n_sig]
         self._theta_factors = self._ext_factors[self._n_sig :]  # theta' times the rate rows' factors
         self._rows_both = np.empty(2 * m)
-        self._h, self._G_flat, self._f = np.empty(m), np.empty(m * nz), np.empty(nz)
+        self._rows = self._rows_both[:m]  # at z*
+        self._distinct_factors, self._G_flat = np.empty(len(self._distinct)), np.empty(m * nz)
         self._G = self._G_flat.reshape(m, nz)
-        self._upper, self._lower = np.empty(m), np.empty(m)
+        self._upper, self._lower, self._no_cost = np.empty(m), np.empty(m), np.zeros(nz)
 
     def reset(self) -> None:
         """Drop the warm start (the last active set)."""
@@ -226,13 +231,10 @@ class ConstrainedMPC:
         np.dot(self._B_both, self._ext_product, self._rows_both)
         return bool(_max(self._rows_both) <= 1.0)
 
-    def _qp_data(self) -> None:
-        """h, G and f of the QP for the p and factors in the buffers (`_closed_form_check` first)."""
-        np.dot(self._F_ext, self._p, self._ext_product)
-        np.multiply(self._ext_factors, self._ext_product, out=self._ext_product)
-        np.dot(self._B_ext, self._ext_product, self._h)
-        np.dot(self._ext_factors, self._G_map, self._G_flat)
-        np.dot(self._cost, self._p, self._f)
+    def _constraint_matrix(self) -> None:
+        """G for the factors in the buffers (`_closed_form_check` first): the distinct factors times one matrix."""
+        np.take(self._ext_factors, self._distinct, out=self._distinct_factors)
+        np.dot(self._distinct_factors, self._G_map, self._G_flat)
 
     def closed_form_rows(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> np.ndarray:
         """The scaled constraint rows (9N,) at the closed form (56); feasible iff all lie in [-1, 1]."""
@@ -261,23 +263,24 @@ class ConstrainedMPC:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The QP min 1/2 z'Pz + f'z subject to |h + G z| <= 1 (row-wise), as (P, f, h, G); P is scaled."""
         self._closed_form_check(X, u_prev, Y_d, i_start)
-        self._qp_data()
-        return self._P, self._f.copy(), self._h.copy(), self._G.copy()
+        self._constraint_matrix()
+        G, z = self._G.copy(), self._z_star
+        return self._P, -(self._P @ z), self._rows - G @ z, G
 
-    def _qp(self, f: np.ndarray, G: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[bool, np.ndarray]:
-        """DAQP on min 1/2 z'Pz + f'z, lower <= G z <= upper, from the last active set; keeps the new one."""
+    def _qp(self, G: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[bool, np.ndarray]:
+        """DAQP on min 1/2 d'Pd, lower <= G d <= upper, from the last active set; keeps the new one."""
         if self._daqp is None:
             self._daqp = daqp.Model()
-            self._daqp.setup(self._P, f, G, upper, lower, np.zeros(len(upper), dtype=np.int32))
+            self._daqp.setup(self._P, self._no_cost, G, upper, lower, np.zeros(len(upper), dtype=np.int32))
             self._daqp.settings = {"primal_tol": _PRIMAL_TOL}
         else:  # without `sense`, DAQP starts from the active set of its last solve
-            self._daqp.update(f=f, A=G, bupper=upper, blower=lower)
-        self._daqp_data = (f, G, upper, lower)  # DAQP keeps pointers to the arrays: keep them alive
-        z, _, exitflag, _ = self._daqp.solve()
+            self._daqp.update(A=G, bupper=upper, blower=lower)
+        self._daqp_data = (G, upper, lower)  # DAQP keeps pointers to the arrays: keep them alive
+        d, _, exitflag, _ = self._daqp.solve()
         ok = exitflag == _DAQP_OPTIMAL
         if not ok:  # start the next QP cold
             self._daqp = None
-        return ok, np.asarray(z)
+        return ok, np.asarray(d)
 
     def solve_increments(
         self,
@@ -315,20 +318,25 @@ class ConstrainedMPC:
         return self._solve_qp()
 
     def _solve_qp(self) -> tuple[np.ndarray, bool]:
-        """The QP for the p and factors in the buffers (`_closed_form_check` first)."""
-        self._qp_data()
-        h, G, f = self._h, self._G, self._f
-        np.subtract(1.0, h, out=self._upper)
-        np.subtract(-1.0, h, out=self._lower)
-        ok, z = self._qp(f, G, self._lower, self._upper)
+        """The QP for the p and factors in the buffers (`_closed_form_check` first), from the closed form.
+
+        With z = z* + d the cost (54) is 1/2 d'Pd plus a constant (its gradient
+        vanishes at z*) and the rows are r* + G d, r* those at z*: the QP has
+        no linear cost, and its bounds are 1 -/+ r*.
+        """
+        self._constraint_matrix()
+        G, rows = self._G, self._rows
+        np.subtract(1.0, rows, out=self._upper)
+        np.subtract(-1.0, rows, out=self._lower)
+        ok, d = self._qp(G, self._lower, self._upper)
         infeasible = False
         if not ok:
-            z_lp, slack = self._least_violation(G, h)
+            d_lp, slack = self._least_violation(G, rows)
             infeasible = bool(slack.max() > _VIOLATION_TOL)
-            ok, z = self._qp(f, G, -1.0 - h - slack - 1e-9, 1.0 - h + slack + 1e-9)
+            ok, d = self._qp(G, self._lower - slack - 1e-9, self._upper + slack + 1e-9)
             if not ok:  # numerically stuck: the LP's point itself has the least violation
-                z = z_lp
-        return z.reshape(self.N, 3), infeasible
+                d = d_lp
+        return (self._z_star + d).reshape(self.N, 3), infeasible
 
     @staticmethod
     def _least_violation(G: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -35,8 +35,8 @@ from .time_law import _compose, _septic, _Vector
 
 __all__ = ["PathMotion"]
 
-GRID_PER_KNOT = 60  # samples per path pose on which the limits are checked (at least `MIN_GRID`)
-MIN_GRID = 400
+GRID_PER_KNOT = 30  # samples per path pose on which the limits are checked (at least `MIN_GRID`)
+MIN_GRID = 250
 _DUPLICATE = 1e-9  # poses closer than this (in the chord metric) are one knot
 
 

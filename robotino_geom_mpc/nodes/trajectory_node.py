@@ -21,7 +21,8 @@ Goals
 In scenario ``goals`` the reference is a `core.goal_reference.GoalReference`: it holds the start pose
 (the origin) until a goal or path arrives, which starts a C^3 motion at the current reference time
 (realtime: node clock minus the start, 0 before the start; lockstep: the latest tick published) from
-the reference's state there. The reference_path is published again after each, the lockstep table
+the reference's state there. The reference_path is published again after each (the new motion only, a
+pose every `_GOAL_PATH_STEP` periods), the lockstep table
 (`_grid_values`) is rebuilt; the limits (``goals.*``) and ``frame_prefix`` may change while running.
 
 Timing
@@ -108,6 +109,7 @@ TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
 )
 _DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1.0, "clock_timeout_s": 5.0}
 _FIXED = ("mode", "control.period_s", "control.horizon", "clock_timeout_s")
+_GOAL_PATH_STEP = 5  # after a goal, reference_path has a pose every this many control periods
 _WAIT_LOG_PERIOD_S = 5.0  # at most one "waiting for /clock" line per this long (or per clock_timeout_s if longer)
 
 
@@ -216,9 +218,17 @@ class TrajectoryNode(Node):
         return (self.get_clock().now().nanoseconds - self.start_ns) * 1e-9
 
     def _replanned(self, reference: GoalReference | Reference) -> None:
-        """The reference changed: rebuild the lockstep table, publish the path again."""
+        """The reference changed: rebuild the lockstep table, publish the path again.
+
+        After a goal or path only the new motion is published, every `_GOAL_PATH_STEP` periods: a path
+        of the whole run would stall the previews for as long as its thousands of poses take to build.
+        """
         self.grid = None
-        if self.start_ns is not None:
+        if self.start_ns is None:
+            return
+        if isinstance(reference, GoalReference) and reference.pieces:
+            self._publish_path(reference.starts[-1], _GOAL_PATH_STEP)
+        else:
             self._publish_path()
 
     # publishing ---------------------------------------------------------------------------------
@@ -297,9 +307,9 @@ class TrajectoryNode(Node):
             self._publish_path()
         self._publish_preview(now, now - self.start_ns)
 
-    def _publish_path(self) -> None:
-        period = self.params["control.period_s"]
-        times = np.arange(0.0, self.reference.duration_s + 0.5 * period, period)
+    def _publish_path(self, from_s: float = 0.0, step: int = 1) -> None:
+        period = self.params["control.period_s"] * step
+        times = np.arange(from_s, self.reference.duration_s + 0.5 * period, period)
         pos = self.reference.position(times)
         path = Path()
         path.header.frame_id = ODOM_FRAME

@@ -181,7 +181,11 @@ def test_rows_equal_the_period_by_period_construction(setup):
         np.testing.assert_allclose(h, h_ref, rtol=0, atol=1e-12)
         np.testing.assert_allclose(G, G_ref, rtol=0, atol=1e-12)
         z = mpc.solve(X.reshape(3, 2), u_prev, Y_d).ravel()
-        np.testing.assert_allclose(qp.closed_form_rows(X, u_prev, Y_d, i_start), h_ref + G_ref @ z, rtol=0, atol=1e-10)
+        # the per-tick check (one product, cos, two multiplies, one product on fixed buffers) to 1e-12
+        np.testing.assert_allclose(qp.closed_form_rows(X, u_prev, Y_d, i_start), h_ref + G_ref @ z, rtol=0, atol=1e-12)
+        # and the QP's data: no linear cost at the closed form (its gradient P z* + f vanishes there)
+        P, f, h, G = qp.qp_problem(X, u_prev, Y_d, i_start)
+        np.testing.assert_allclose(P @ z + f, 0.0, rtol=0, atol=1e-12)
 
 
 @pytest.fixture(scope="module")
@@ -208,6 +212,11 @@ def test_solve_equals_osqp_on_the_same_qp_and_the_closed_form_where_no_limit_bin
             if call.closed_form:  # bit for bit the closed-form mode's u
                 du = qp.mpc.delta_u_floats(call.X.tolist(), call.u_prev.tolist(), call.Y_d.tolist())
                 assert call.u.tolist() == [a + b for a, b in zip(call.u_prev.tolist(), du)]
+        # the float path (fresh solver, the same sequence: the same warm starts) bit for bit the array path
+        qp.reset()
+        for call in calls:
+            u, _ = qp.solve_floats(call.X.tolist(), call.u_prev.tolist(), call.Y_d.tolist(), call.i_start.tolist())
+            assert u == call.u.tolist()
         binding[name] = sum(not call.closed_form for call in calls)
     # the limits bind through the transients (the QP is exercised) and hardly on the nominal runs
     assert binding["circle-step"] >= 5 and binding["position-step"] >= 5

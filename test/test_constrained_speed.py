@@ -94,5 +94,6 @@ def test_benchmark_reports_its_figures_with_osqp_agreeing():
                 "constrained_over_closed_form"):
         assert np.isfinite(figures[key]) and figures[key] > 0.0
     assert figures["constrained_step_worst_us"] >= figures["constrained_step_us"]
+    assert 0.0 < figures["constrained_step_speedup_vs_osqp_worst"] <= figures["constrained_step_speedup_vs_osqp"]
     assert figures["constrained_osqp_max_u_difference"] <= 1e-6 * 10.0  # |u| reaches ~10 m/s^2 in the position step
     assert figures["constrained_binding_ticks"] >= 10

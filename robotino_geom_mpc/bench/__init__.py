@@ -16,6 +16,9 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
   rclpy's (de)serialization and rosbags' decoder, per message of the loop.
 * `study`: the aggregate real-time factor of a short Monte-Carlo study
   (`robotino_geom_mpc.study`) on all cores, beside `offline`'s one run.
+* `end_to_end`: ``robotino-geom-mpc run`` on 20 s of paper-circle as a
+  user starts it (``run_end_to_end_s``) and its loop with the recorder,
+  beside the loop without it and a bare rclpy process start.
 * `host_steal` samples the hypervisor's steal beside the realtime run;
   `startup_stalls` is a script (``python -m robotino_geom_mpc.bench.startup_stalls``).
 """
@@ -25,6 +28,7 @@ from robotino_geom_mpc.bench import controller_step, offline  # noqa: F401, I001
 from robotino_geom_mpc.bench import study  # noqa: F401
 from robotino_geom_mpc.bench import cdr  # noqa: F401
 from robotino_geom_mpc.bench import constrained  # noqa: F401
+from robotino_geom_mpc.bench import end_to_end  # noqa: F401
 from robotino_geom_mpc.bench.registry import REGISTRY, BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
 
 __all__ = ["REGISTRY", "BenchmarkError", "BenchmarkSkipped", "benchmark", "run_benchmarks"]

@@ -37,6 +37,7 @@ from .simulate import add_odometry_argument, add_scenario_argument
 __all__ = ["add_parser", "run"]
 
 GRACE_S = 5.0
+TIMING_REPORT = "plant_timing.json"  # in DIR/logs: the plant's timing report (loop_timing), e.g. for bench
 # imported in a thread while the nodes start and run (the cores idle during discovery and the settle)
 REPORT_MODULES = ("robotino_geom_mpc.recording.bag", "robotino_geom_mpc.recording.report",
                   "robotino_geom_mpc.cli.reindex")
@@ -127,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
 
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
-                               odometry=args.odometry, goals_file=None if args.goals is None else args.goals.resolve())
+                               odometry=args.odometry, goals_file=None if args.goals is None else args.goals.resolve(),
+                               overrides={"plant_node": {"timing_report": str(out.resolve() / "logs" / TIMING_REPORT)}})
     mode = "lockstep" if args.lockstep else "realtime"
     print(f"run {args.scenario} over DDS ({mode}, {duration:g} s, Ts = {control.period_s:g} s); logs in {out / 'logs'}")
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)

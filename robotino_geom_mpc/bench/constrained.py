@@ -174,19 +174,29 @@ def _call_times(calls: list[QPCall], solve) -> np.ndarray:
 def bench_constrained(quick: bool) -> dict[str, float]:
     """Time the constrained mode's step against the closed-form step and against OSQP on the same QPs.
 
-    ``constrained_step_us`` and ``constrained_over_closed_form`` are medians
-    over the ticks of the paper-circle and robustness inputs (each tick's
-    time the median over interleaved repeats) of `MotionController.step`,
-    the closed-form mode's step on the same inputs beside it;
-    ``constrained_step_worst_us`` is the slowest tick of all input sets, the
-    binding ones included. Side by side on every tick the constrained
-    controller saw: its `ConstrainedMPC.solve`, and a constrained step built
-    on OSQP (the same rows and cost, `qp_problem`, then OSQP warm-started
-    with tolerances 1e-12); ``constrained_step_speedup_vs_osqp`` is the
-    median of their per-tick ratio over the ticks where a limit binds (where
-    the step runs the QP: its worst case), ``constrained_worst_speedup_vs_osqp``
-    the ratio of their slowest ticks, and ``constrained_daqp_qp_us`` /
-    ``constrained_osqp_qp_us`` the two solvers alone on the built QPs.
+    Each tick's time is the median over interleaved repeats; then:
+
+    * ``constrained_step_us``: median over the ticks of the paper-circle and
+      robustness inputs of `MotionController.step` in constrained mode (its
+      compute_time_s: the closed form's check, and the QP where a limit binds);
+    * ``constrained_step_worst_us``: its slowest tick over all four input
+      sets, the binding transients included;
+    * ``constrained_over_closed_form``: median over the same nominal ticks of
+      the per-tick ratio constrained step / closed-form step (the closed-form
+      mode's `MotionController.step` on the same inputs);
+    * ``constrained_step_speedup_vs_osqp``: median over the ticks where a
+      limit binds (the QP ticks, all input sets) of the per-tick ratio OSQP
+      step / our step, both on the controller's recorded calls: ours is
+      `ConstrainedMPC.solve_floats`, the OSQP step builds the same rows and
+      cost (`qp_problem`) and solves them with OSQP warm-started, tolerances
+      1e-12; their u agree to 1e-6 on every tick (checked here);
+    * ``constrained_step_speedup_vs_osqp_worst``: the smallest of those
+      per-tick ratios;
+    * ``constrained_worst_speedup_vs_osqp``: OSQP's slowest tick over ours;
+    * ``constrained_daqp_qp_us``, ``constrained_quadprog_qp_us`` (where
+      quadprog is installed), ``constrained_osqp_qp_us``: the solvers alone
+      on the built QPs of the binding ticks (DAQP and OSQP warm-started,
+      quadprog cold: it has no warm start), medians.
 
     Raises
     ------

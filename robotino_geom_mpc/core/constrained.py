@@ -20,14 +20,19 @@ constraint rows. A step costs a few small matrix products.
 
 The step first evaluates the unconstrained optimum, the closed form (56),
 and checks its rows: a convex QP whose unconstrained minimiser is feasible is
-solved by it, so then u(k) is the closed form's, bit for bit. Only when a
-limit binds is the QP solved, by DAQP (a dual active-set solver for small
-dense QPs: exact on its active set, two-sided rows natively), warm-started
-from the previous QP's active set. When the limits cannot all hold, the
-least total violation is found by a linear programme (scipy's HiGHS), the
-limits are relaxed by exactly that much and the QP solved again: the output
-stays finite, the violation is the smallest possible, and the step reports
-`infeasible`.
+solved by it, so then u(k) is the closed form's, bit for bit. The check is
+five numpy calls on buffers fixed at construction (no per-tick allocation):
+the step's angles, signals at z* and z* itself in one matrix-vector product,
+a cos, two multiplies and the rows of both signs in a second product.
+Only when a limit binds is the QP solved, shifted to the closed form
+(z = z* + d: no linear cost, bounds 1 -/+ the rows at z*), by DAQP (a dual
+active-set solver for small dense QPs: exact on its active set, two-sided
+rows natively), warm-started from the previous QP's active set; its G is the
+step's 6N + 1 distinct factors times one fixed matrix. When the limits
+cannot all hold, the least total violation is found by a linear programme
+(scipy's HiGHS), the limits are relaxed by exactly that much and the QP
+solved again: the output stays finite, the violation is the smallest
+possible, and the step reports `infeasible`.
 """
 
 from __future__ import annotations
@@ -82,7 +87,9 @@ class ConstrainedMPC:
     ``(F0 + theta' F1) p + (Fz0 + theta' Fz1) z`` as rows (s_x, s_y, s_y, -s_x,
     s_theta, i_0), the factors ``cos(A p)`` (cos and sin of the headings, ones),
     and the scaled rows ``B (cos(A p) * signals)``: the rotation of each signal
-    into the body frame by R(heading)^T, then the drive relations.
+    into the body frame by R(heading)^T, then the drive relations. Only the
+    4N rate rows of s_x, s_y carry theta': they come last, and the theta'
+    parts extend the signals (factors theta' times theirs, columns of B repeated).
     """
 
     def __init__(self, robot: RobotinoParams, control: ControlParams, mpc: DecoupledMPC) -> None:

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from robotino_geom_mpc.bench.dds import read_timing_report
 from robotino_geom_mpc.core.params import config_file, default_params_file, load_params
 from robotino_geom_mpc.recording.report import run_data_from_bag
 from robotino_geom_mpc.results import compute_metrics
@@ -32,8 +33,12 @@ pytestmark = pytest.mark.skipif(os.geteuid() != 0 or shutil.which("ip") is None,
 ADDRESSES = ("10.77.0.1", "10.77.0.2")  # the plant's host, the controller's
 LINGER_S = 0.5  # after the plant's last tick: the controller's last answer reaches the recorder
 # realtime paper-circle over the veth: RMS position error after settling (measured 8.1e-6 m, max 1.5e-5 m,
-# on 2 loaded cores); 0.1 mm leaves a margin of 12 for scheduling jitter
+# on 2 cores, none of 400 ticks missed); 0.1 mm leaves a margin of 12 for scheduling jitter
 REALTIME_RMS_LIMIT_M = 1e-4
+# the precision claim holds for a loop that keeps its deadlines: with more ticks missed (commands later
+# than the next odometry, a host overloaded by other processes: 94 of 241 at load 12 on 2 cores gave
+# 9 mm on localhost too) the test is skipped with the plant's figures
+REALTIME_MISSED_LIMIT = 0.05
 
 
 @dataclass
@@ -82,12 +87,18 @@ def hosts():
 
 
 def _run(hosts: Hosts, tmp_path, scenario: str, duration_s: float, lockstep: bool):
-    """Run the loop across the two hosts, recorded on the controller's; returns the run read from the bag."""
+    """Run the loop across the two hosts, recorded on the controller's.
+
+    Returns the run read from the bag, the bytes received on the plant's end of the veth meanwhile, and the
+    plant's timing report (`bench.dds.read_timing_report`).
+    """
     params = default_params_file()
     bag = tmp_path / "bag"
     env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "ROS_STATIC_PEERS": ";".join(ADDRESSES),
            "FASTRTPS_DEFAULT_PROFILES_FILE": str(config_file("fastdds_udp.xml"))}
-    args = node_arguments(scenario, params, duration_s, lockstep, bag=bag)
+    report = tmp_path / "timing.json"
+    args = node_arguments(scenario, params, duration_s, lockstep, bag=bag,
+                          overrides={"plant_node": {"timing_report": str(report)}})
     before = hosts.received_bytes(0)
     with NodeGroup(tmp_path / "plant_host", env, hosts.prefix(0)) as plant_host, \
             NodeGroup(tmp_path / "controller_host", env, hosts.prefix(1)) as controller_host:
@@ -102,13 +113,14 @@ def _run(hosts: Hosts, tmp_path, scenario: str, duration_s: float, lockstep: boo
         for node in others:  # SIGINT: the recorder closes the bag
             assert controller_host.stop_node(node) == 0, node.stderr_tail()
     crossed = hosts.received_bytes(0) - before
-    return run_data_from_bag(bag, params, scenario), crossed
+    timing = read_timing_report(report, "lockstep" if lockstep else "realtime")
+    return run_data_from_bag(bag, params, scenario), crossed, timing
 
 
 def test_lockstep_across_two_network_namespaces_equals_simulate(hosts, tmp_path):
     duration_s = 3.0
     robot, control = load_params()
-    dds, crossed = _run(hosts, tmp_path, "paper-circle", duration_s, lockstep=True)
+    dds, crossed, _ = _run(hosts, tmp_path, "paper-circle", duration_s, lockstep=True)
     offline = run_scenario("paper-circle", robot, control, duration_s=duration_s)
     assert dds.n == offline.n == round(duration_s / control.period_s)
     for name in ("t", "pose", "reference", "currents", "voltages"):
@@ -119,9 +131,15 @@ def test_lockstep_across_two_network_namespaces_equals_simulate(hosts, tmp_path)
 
 def test_realtime_across_two_network_namespaces_tracks_paper_circle(hosts, tmp_path):
     duration_s = 4.0
-    dds, crossed = _run(hosts, tmp_path, "paper-circle", duration_s, lockstep=False)
-    metrics = compute_metrics(dds)
-    # the recording holds a second of the loop at least (in realtime the plant does not wait for the others)
+    dds, crossed, timing = _run(hosts, tmp_path, "paper-circle", duration_s, lockstep=False)
+    # the loop ran across the veth: the recording holds a second of it at least (in realtime the plant does
+    # not wait for the others), most ticks were answered, each tick's commands crossed
     assert dds.n >= round(1.0 / dds.control_period_s)
-    assert metrics["rms_position_error_m"] < REALTIME_RMS_LIMIT_M, metrics["rms_position_error_m"]
+    assert timing["answered"] > timing["missed"] and timing["latency_ms"]["median"] < 1e3 * dds.control_period_s
     assert crossed > 100 * dds.n
+    missed = timing["missed"] / (timing["answered"] + timing["missed"])
+    if missed > REALTIME_MISSED_LIMIT:
+        pytest.skip(f"host overloaded: {timing['missed']} of {timing['answered'] + timing['missed']} ticks missed; "
+                    "the tracking precision needs a loop that keeps its deadlines")
+    rms = compute_metrics(dds)["rms_position_error_m"]
+    assert rms < REALTIME_RMS_LIMIT_M, rms

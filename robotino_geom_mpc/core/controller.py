@@ -122,6 +122,7 @@ class MotionController:
     def reset(self) -> None:
         """Forget the previous input, the drive's current estimate and the pose estimate (robot at rest, drives off)."""
         self._u_prev = [0.0, 0.0, 0.0]
+        self._last: tuple[list[float], list[float], list[list[float]]] | None = None  # x, u(k-1), preview
         self.drive.reset()
         if self.estimator is not None:
             self.estimator.reset()
@@ -206,6 +207,7 @@ class MotionController:
             x = [px, vx, py, vy, theta, w]
         theta_m = theta + 0.5 * self.period_s * w
         u_prev = self._u_prev
+        self._last = (x, u_prev, y)
         infeasible = False
         if self.constrained is None:
             du_x, du_y, du_theta = self.mpc.delta_u_floats(x, u_prev, y)
@@ -244,6 +246,48 @@ class MotionController:
     def u_prev(self) -> np.ndarray:
         """u(k-1), the accelerations applied in the last period (eq. 48)."""
         return np.array(self._u_prev)
+
+    def predicted_outputs(self) -> np.ndarray:
+        """The MPCs' prediction at the last step: y(k+1) .. y(k+N) (x, y, theta in odom), shape (N, 3).
+
+        Eq. (50), Y = G_p x(k) + F_1p Delta U + F_2p u(k-1) (F_1p, F_2p with erratum 3), under the optimal
+        increments Delta U of eq. (56) for the state (filtered pose), u(k-1) and preview of the last
+        `step`. Computed on demand (a few hundred multiply-adds), so a step does not pay for it.
+
+        Raises
+        ------
+        ControllerInputError
+            Before the first step after construction or `reset`.
+        """
+        x, u_prev, y = self._last_step()
+        x, u_prev, Y_d = np.reshape(x, (3, 2)), np.array(u_prev), np.array(y)
+        return self.mpc.predict(x, u_prev, self.mpc.solve(x, u_prev, Y_d))
+
+    def next_velocity(self) -> tuple[float, float, float]:
+        """The body velocity (v_x, v_y, theta') in base_link the model predicts at t + Ts under the applied u(k).
+
+        Per axis the velocity row of eq. (49), v(k+1) = A_d[1] x(k) + B_d[1] u(k) (u(k) as applied: scaled by
+        a current limit or the acceleration of clipped voltages), rotated by the predicted heading theta(k+1):
+        v_body = R(theta)^T v_odom (REP-103). The command of a velocity interface (cmd_vel).
+
+        Raises
+        ------
+        ControllerInputError
+            Before the first step after construction or `reset`.
+        """
+        x = self._last_step()[0]
+        u = self._u_prev
+        A, B = self.mpc.A_d, self.mpc.B_d
+        vx, vy, w = (float(A[a, 1] @ x[2 * a: 2 * a + 2] + B[a, 1] * u[a]) for a in range(3))
+        theta = float(A[2, 0] @ x[4:6] + B[2, 0] * u[2])
+        c, s = math.cos(theta), math.sin(theta)
+        return (c * vx + s * vy, -s * vx + c * vy, w)
+
+    def _last_step(self) -> tuple[list[float], list[float], list[list[float]]]:
+        """(x, u(k-1), preview) of the last step, or ControllerInputError before one."""
+        if self._last is None:
+            raise ControllerInputError("no step since the controller was built or reset: nothing predicted yet")
+        return self._last
 
 
 def state_from_odometry(pose: object, twist_body: object) -> np.ndarray:

@@ -16,8 +16,13 @@ publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layo
                                   ``last_refusal`` (its reason key, ``none``), ``dropped_duplicate``,
                                   ``dropped_old``, ``blend_remaining_s``, ``blend_engagements``. Built and
                                   sent only while a subscription is matched.
+           ``predicted_path``     nav_msgs/Path in ``<frame_prefix>odom``: the MPCs' y(k+1) .. y(k+N) (eq. 50
+                                  under the optimal increments of eq. 56), pose j stamped t_k + j Ts; computed
+                                  and sent only while a subscription is matched.
+services   ``~/enable``           std_srvs/SetBool. Disabled: zero output every tick (diagnostic message
+                                  ``disabled``), the controller holds its state; enabled again: bumpless restart.
 
-Publishers: `ros.qos.publish_qos` (keep-all in lockstep). Inputs are read in
+Publishers: `controller_outputs.ControllerOutputs`. Inputs are read in
 place by a `ros.cdr.CdrLayout` (any other layout: `ros.cdr.cdr_reader`).
 
 Each odometry message is one control tick: the node computes on its arrival.
@@ -65,7 +70,7 @@ logs what it waits for (every 5 s).
 Bumpless (re)start (`core.blend.BlendEngagement`): at
 the first tick (except tick t = 0 of a lockstep run, where robot and
 reference start together as in `simulate`), at the first tick after the
-watchdog saw stale data, at the tick using a preview whose reference jumped
+watchdog saw stale data or ``~/enable`` turned the controller on again, at the tick using a preview whose reference jumped
 (more than ``reference_jump_m`` / ``reference_jump_rad`` from the previous
 preview moved to its stamp, e.g. a restarted trajectory node starting over
 at the origin), and after a parameter change, the controller is reset
@@ -86,12 +91,11 @@ controller with a bumpless restart.
 from __future__ import annotations
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
-from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import SetBool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.core.blend import BlendEngagement
@@ -100,33 +104,24 @@ from robotino_geom_mpc.core.params import ALL_SPECS
 from robotino_geom_mpc.core.trajectory import shift_preview
 from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
     InputCounters, closed_loop_problem, reference_jump
+from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
     stamp_problem, state_of_odometry
-from robotino_geom_mpc.ros.messages import VOLTAGE_LABEL, odometry_layout, preview_layout, three_values_template
+from robotino_geom_mpc.ros.messages import odometry_layout, preview_layout
 from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
+from robotino_geom_mpc.ros.qos import CONTROL_QOS
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 
 __all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
 
-STATUS_NAME = "robotino_geom_mpc: controller"
 # the general decoders (field names are all `odometry_values` and `preview_point_values` use, so either one fits)
 _read_odom = cdr_reader(Odometry, "nav_msgs/msg/Odometry")
 _read_preview = cdr_reader(MultiDOFJointTrajectory, "trajectory_msgs/msg/MultiDOFJointTrajectory")
 _WAIT_LOG_PERIOD_S = 5.0  # throttle of the "waiting for ..." log
 
-_TRACKING_KEYS = ("error_x_m", "error_y_m", "error_theta_rad", "compute_time_ms", "saturated", "infeasible",
-                  "preview_stamp_ns", "dt_s")
 _EVENT_KEYS = ("watchdog", *InputCounters.KEYS, "blend_remaining_s", "blend_engagements")
 _ROBOT_CONTROL = frozenset(s.name for s in ALL_SPECS)
-_ZERO = (0.0, 0.0, 0.0)
-
-
-def _diagnostics_message(keys: tuple[str, ...]) -> DiagnosticArray:
-    """A DiagnosticArray of one controller status with these keys (values set per publish)."""
-    status = DiagnosticStatus(name=STATUS_NAME, hardware_id="robotino", values=[KeyValue(key=k) for k in keys])
-    return DiagnosticArray(status=[status])
 
 
 class ControllerNode(Node):
@@ -142,16 +137,10 @@ class ControllerNode(Node):
         self.period_ns = int(round(self.control.period_s * 1e9))
         self._read_limits()
 
-        qos = publish_qos(self.lockstep)
-        self.voltage_pub = self.create_publisher(
-            Float64MultiArray, "wheel_voltages", qos,
-            event_callbacks=PublisherEventCallbacks(matched=self._on_voltage_matched),
-        )
-        self.voltage_cdr = three_values_template(VOLTAGE_LABEL)
-        self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", qos)
-        # built once, values rewritten per tick (a third of the cost of building the message anew)
-        self.diag_tracking = _diagnostics_message(_TRACKING_KEYS + _EVENT_KEYS)
-        self.diag_event = _diagnostics_message(_EVENT_KEYS)
+        self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS, self._event_values, self.control.horizon,
+                                         self.params["frame_prefix"])
+        self.enabled = True
+        self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.odom_layout = odometry_layout()
         self.preview_layout = preview_layout(self.control.period_s, self.control.horizon)
         self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, CONTROL_QOS, raw=True)
@@ -166,7 +155,6 @@ class ControllerNode(Node):
         self.latest_preview: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.pending: tuple[int, np.ndarray] | None = None  # lockstep: odometry waiting for its preview
         self.pending_since = 0.0
-        self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, voltages
         self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
         self.odom_time = self.preview_time = None  # steady arrival times of accepted inputs
         self.start_time = monotonic()
@@ -204,22 +192,30 @@ class ControllerNode(Node):
             self.blend.request("parameters")  # the new controller starts from u(k-1) = 0: blend from the state
             self.get_logger().info(f"parameters {sorted(changed)} changed: controller rebuilt, bumpless restart")
 
-    # inputs -------------------------------------------------------------------------------------
-    def _send(self, voltages) -> None:
-        publish_acknowledged(self, self.voltage_pub, self.voltage_cdr.pack(*voltages))
+    def _on_enable(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        """~/enable: false holds (zero output every tick, the controller untouched); true re-engages bumplessly."""
+        if request.data != self.enabled:
+            self.enabled = request.data
+            if self.enabled:
+                self.blend.request("enable")  # u(k-1) = 0 (the robot held), blend from the measured state
+            self.get_logger().info("enabled: tracking resumes bumplessly" if self.enabled else
+                                   "disabled: zero output, holding")
+        response.success, response.message = True, "enabled" if self.enabled else "disabled"
+        return response
 
+    # inputs -------------------------------------------------------------------------------------
     def _reject(self, stamp: int | None, what: str, reason: str, message: str) -> None:
         """A refused input: counted, logged, zero volts, an ERROR diagnostic naming the reason."""
         self.counters.refuse(reason)
         self.get_logger().warn(f"refused {what}: {message}; zero volts", throttle_duration_sec=1.0)
-        self._send(_ZERO)
-        self._diagnose(stamp, DiagnosticStatus.ERROR, f"refused {what} ({reason}): {message}")
+        self.outputs.send_zero()
+        self.outputs.diagnose(stamp, DiagnosticStatus.ERROR, f"refused {what} ({reason}): {message}")
 
     def _drop(self, stamp: int, what: str, reason: str) -> None:
         """A dropped input (duplicate or older stamp than the last used): counted, logged, a WARN diagnostic."""
         self.counters.drop(reason)
         self.get_logger().warn(f"dropped {what} of stamp {stamp} ns: {reason}", throttle_duration_sec=1.0)
-        self._diagnose(stamp, DiagnosticStatus.WARN, f"dropped {what} ({reason})")
+        self.outputs.diagnose(stamp, DiagnosticStatus.WARN, f"dropped {what} ({reason})")
 
     def _now_ns(self) -> int | None:
         """The node clock (realtime), None in lockstep (stamps are simulated time there)."""
@@ -289,7 +285,7 @@ class ControllerNode(Node):
         problem = stamp_problem(stamp, self.last_odom_ns, self._now_ns(), self.odom_timeout_ns, self.future_ns)
         if problem is not None:
             if problem == "duplicate" and self.lockstep:
-                self._deliver_answer()  # the plant resent a tick: answer again only if undelivered
+                self.outputs.deliver_answer()  # the plant resent a tick: answer again only if undelivered
             if problem in ("duplicate", "old"):
                 self._drop(stamp, "odom", problem)
             else:
@@ -324,16 +320,6 @@ class ControllerNode(Node):
         self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt), velocities + dt * accelerations,
                       accelerations, preview_stamp)
 
-    def _deliver_answer(self) -> None:
-        """Lockstep: publish the last answer again if it went out before any subscription matched."""
-        if self.answered is not None and not self.answered[1] and self.voltage_pub.get_subscription_count() > 0:
-            self._send(self.answered[2])
-            self.answered = (self.answered[0], True, self.answered[2])
-
-    def _on_voltage_matched(self, info: QoSPublisherMatchedInfo) -> None:
-        if self.lockstep and info.current_count_change > 0:
-            self._deliver_answer()
-
     # control ------------------------------------------------------------------------------------
     def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
                  accelerations: np.ndarray, preview_stamp: int) -> None:
@@ -341,6 +327,11 @@ class ControllerNode(Node):
 
         `positions`, `velocities`, `accelerations` are the reference at `stamp` + j Ts, j = 0..N.
         """
+        if not self.enabled:
+            self.last_odom_ns = stamp
+            self.outputs.answer(stamp, [0.0, 0.0, 0.0])
+            self.outputs.diagnose(stamp, DiagnosticStatus.OK, "disabled")
+            return
         reason = self.blend.due(preview_stamp)
         if reason == "start" and self.lockstep and stamp == 0:
             self.blend.reason = reason = None  # t = 0 of a lockstep run: robot and reference start together
@@ -359,19 +350,18 @@ class ControllerNode(Node):
             self._reject(stamp, "input", "controller", str(exc))
             return
         self.last_odom_ns = stamp
-        voltages = list(out.voltages)
-        delivered = self.voltage_pub.get_subscription_count() > 0
-        self._send(voltages)
-        self.answered = (stamp, delivered, voltages)
-        if not self.diag_pub.get_subscription_count():
-            return  # building and serializing the array costs ~70 us a tick
+        self.outputs.answer(stamp, list(out.voltages))
+        if self.outputs.path_wanted():
+            self.outputs.publish_path(stamp, self.period_ns, self.controller.predicted_outputs())
+        if not self.outputs.diagnosing():
+            return
         error = X[0::2] - positions[0]
         flags = (out.saturated, out.infeasible)
         level = DiagnosticStatus.WARN if any(flags) else DiagnosticStatus.OK
         tracking = [f"{e:.9g}" for e in error.tolist()] + [
             f"{out.compute_time_s * 1e3:.4f}", str(flags[0]).lower(), str(flags[1]).lower(), str(preview_stamp),
             f"{self.control.period_s if dt_s is None else dt_s:.9g}"]
-        self._diagnose(stamp, level, "tracking", tracking)
+        self.outputs.diagnose(stamp, level, "tracking", tracking)
 
     def _engage(self, stamp: int, X: np.ndarray, position: np.ndarray, velocity: np.ndarray,
                 acceleration: np.ndarray, reason: str) -> None:
@@ -384,21 +374,10 @@ class ControllerNode(Node):
                 f"bumpless restart ({reason}) at stamp {stamp} ns: offset {np.round(blend.dp, 6).tolist()}, "
                 f"rate {np.round(blend.dv, 6).tolist()}, blended in over {blend.duration_s:.3f} s{limited}")
 
-    def _diagnose(self, stamp: int | None, level, message: str, tracking: list[str] | None = None) -> None:
-        """Publish the status (if a subscription is matched); without `tracking` only the event values."""
-        if not self.diag_pub.get_subscription_count():
-            return
-        if stamp is None:
-            stamp = self.get_clock().now().nanoseconds
-        msg = self.diag_tracking if tracking is not None else self.diag_event
-        status = msg.status[0]
-        status.level, status.message = level, message
-        text = (tracking or []) + [self.watchdog_state, *self.counters.values(),
-                                   f"{self.blend.remaining_s(stamp):.4f}", str(self.blend.engagements)]
-        for pair, value in zip(status.values, text):
-            pair.value = value
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-        publish_acknowledged(self, self.diag_pub, msg)
+    def _event_values(self, stamp: int) -> list[str]:
+        """The values of `_EVENT_KEYS` at `stamp` [ns] (every diagnostic carries them)."""
+        return [self.watchdog_state, *self.counters.values(), f"{self.blend.remaining_s(stamp):.4f}",
+                str(self.blend.engagements)]
 
     # watchdog -----------------------------------------------------------------------------------
     def _log_wait(self, now: float) -> None:
@@ -435,8 +414,8 @@ class ControllerNode(Node):
             return
         self.blend.request("watchdog")  # data that return restart the tracking bumplessly
         self.get_logger().warn(f"watchdog: {state.replace('_', ' ')}; zero volts", throttle_duration_sec=1.0)
-        self._send(_ZERO)
-        self._diagnose(None, DiagnosticStatus.WARN, f"watchdog: {state}")
+        self.outputs.send_zero()
+        self.outputs.diagnose(None, DiagnosticStatus.WARN, f"watchdog: {state}")
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,0 +1,145 @@
+"""The controller node's output side: the command publisher, the lockstep answer bookkeeping and the diagnostics.
+
+`controller_node` computes; this module owns what leaves the node (see the
+topics in `controller_node`'s docstring). Publishers use
+`ros.qos.publish_qos` (keep-all in lockstep).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
+from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray
+
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, three_values_template, yaw_to_quaternion
+from robotino_geom_mpc.ros.qos import publish_acknowledged, publish_qos
+
+__all__ = ["ControllerOutputs", "STATUS_NAME", "TRACKING_KEYS"]
+
+STATUS_NAME = "robotino_geom_mpc: controller"
+TRACKING_KEYS = ("error_x_m", "error_y_m", "error_theta_rad", "compute_time_ms", "saturated", "infeasible",
+                 "preview_stamp_ns", "dt_s")
+ZERO = (0.0, 0.0, 0.0)
+# the newest prediction only, kept for a late reader (a display); never blocks the loop
+PATH_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def _diagnostics_message(keys: Sequence[str]) -> DiagnosticArray:
+    """A DiagnosticArray of one controller status with these keys (values set per publish)."""
+    status = DiagnosticStatus(name=STATUS_NAME, hardware_id="robotino", values=[KeyValue(key=k) for k in keys])
+    return DiagnosticArray(status=[status])
+
+
+class ControllerOutputs:
+    """Publishers of the controller node and the last lockstep answer.
+
+    Parameters
+    ----------
+    node
+        The controller node (publishers are created on it).
+    lockstep
+        Keep-all publishers, and an answer that went out before a reader matched is sent again when one does.
+    event_keys
+        Keys of the values every diagnostic carries (after the tracking ones).
+    event_values
+        Their values at a stamp [ns], as strings.
+    horizon
+        N, the number of poses of ``predicted_path``.
+    frame_prefix
+        Prefix of the ``odom`` frame of ``predicted_path`` (a namespaced robot's ``robot1/odom``).
+    """
+
+    def __init__(self, node: Node, lockstep: bool, event_keys: Sequence[str],
+                 event_values: Callable[[int], list[str]], horizon: int, frame_prefix: str = "") -> None:
+        self.node = node
+        self.lockstep = lockstep
+        self.event_values = event_values
+        qos = publish_qos(lockstep)
+        self.voltage_pub = node.create_publisher(
+            Float64MultiArray, "wheel_voltages", qos,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_voltage_matched),
+        )
+        self.voltage_cdr = three_values_template(VOLTAGE_LABEL)
+        self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", qos)
+        # built once, values rewritten per tick (a third of the cost of building the message anew)
+        self.diag_tracking = _diagnostics_message((*TRACKING_KEYS, *event_keys))
+        self.diag_event = _diagnostics_message(event_keys)
+        self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, voltages
+        self.path_pub = node.create_publisher(Path, "predicted_path", PATH_QOS)
+        frame = frame_prefix + ODOM_FRAME
+        self.path = Path(poses=[PoseStamped() for _ in range(horizon)])
+        self.path.header.frame_id = frame
+        for pose in self.path.poses:
+            pose.header.frame_id = frame
+
+    # commands -----------------------------------------------------------------------------------
+    def send(self, voltages: Sequence[float]) -> None:
+        """Publish wheel voltages [V]."""
+        publish_acknowledged(self.node, self.voltage_pub, self.voltage_cdr.pack(*voltages))
+
+    def send_zero(self) -> None:
+        """Publish zero volts."""
+        self.send(ZERO)
+
+    def answer(self, stamp: int, voltages: list[float]) -> None:
+        """Publish the answer to the odometry of `stamp` and remember whether a reader could receive it."""
+        delivered = self.voltage_pub.get_subscription_count() > 0
+        self.send(voltages)
+        self.answered = (stamp, delivered, voltages)
+
+    def deliver_answer(self) -> None:
+        """Lockstep: publish the last answer again if it went out before any subscription matched."""
+        if self.answered is not None and not self.answered[1] and self.voltage_pub.get_subscription_count() > 0:
+            self.send(self.answered[2])
+            self.answered = (self.answered[0], True, self.answered[2])
+
+    def _on_voltage_matched(self, info: QoSPublisherMatchedInfo) -> None:
+        if self.lockstep and info.current_count_change > 0:
+            self.deliver_answer()
+
+    # prediction ---------------------------------------------------------------------------------
+    def path_wanted(self) -> bool:
+        """True while a ``predicted_path`` subscription is matched (the prediction is computed only then)."""
+        return self.path_pub.get_subscription_count() > 0
+
+    def publish_path(self, stamp: int, period_ns: int, predicted: np.ndarray) -> None:
+        """Publish the predicted poses y(k+1) .. y(k+N) (shape (N, 3), x y theta in odom) of the tick `stamp`.
+
+        The header carries `stamp`, pose j the time `stamp` + j Ts it is predicted for.
+        """
+        msg = self.path
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+        for j, (pose, (x, y, theta)) in enumerate(zip(msg.poses, predicted.tolist()), start=1):
+            pose.header.stamp.sec, pose.header.stamp.nanosec = divmod(stamp + j * period_ns, 1_000_000_000)
+            pose.pose.position.x, pose.pose.position.y = x, y
+            pose.pose.orientation = yaw_to_quaternion(theta)
+        publish_acknowledged(self.node, self.path_pub, msg)
+
+    # diagnostics --------------------------------------------------------------------------------
+    def diagnosing(self) -> bool:
+        """True while a diagnostics subscription is matched (building the array costs ~70 us a tick)."""
+        return self.diag_pub.get_subscription_count() > 0
+
+    def diagnose(self, stamp: int | None, level: bytes, message: str, tracking: list[str] | None = None) -> None:
+        """Publish the status (if a subscription is matched); without `tracking` only the event values.
+
+        `stamp` [ns] is the header stamp (None: the node clock).
+        """
+        if not self.diagnosing():
+            return
+        if stamp is None:
+            stamp = self.node.get_clock().now().nanoseconds
+        msg = self.diag_tracking if tracking is not None else self.diag_event
+        status = msg.status[0]
+        status.level, status.message = level, message
+        for pair, value in zip(status.values, (tracking or []) + self.event_values(stamp)):
+            pair.value = value
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+        publish_acknowledged(self.node, self.diag_pub, msg)

@@ -41,8 +41,9 @@ _DUPLICATE = 1e-9  # poses closer than this (in the chord metric) are one knot
 
 
 def _halved(limits: MotionLimits) -> MotionLimits:
-    fields = {k: getattr(limits, k) for k in limits.__dataclass_fields__}
-    return MotionLimits(**{k: (v * 0.5 if isinstance(v, float) else v) for k, v in fields.items()})
+    """Half of every limit (the blend's share)."""
+    halves = {k: 0.5 * getattr(limits, k) for k in limits.__dataclass_fields__ if k != "robot"}
+    return MotionLimits(**halves, robot=limits.robot)
 
 
 class PathMotion:

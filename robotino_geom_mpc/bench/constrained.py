@@ -17,6 +17,7 @@ previews the controller sees one after the other:
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import NamedTuple
 
@@ -96,7 +97,7 @@ class QPCall(NamedTuple):
 
 
 class _RecordingQP(ConstrainedMPC):
-    """`ConstrainedMPC` keeping the arguments and result of every `solve`."""
+    """`ConstrainedMPC` keeping the arguments and result of every `solve` or `solve_floats` (the controller's)."""
 
     def __init__(self, *args) -> None:
         super().__init__(*args)
@@ -107,9 +108,20 @@ class _RecordingQP(ConstrainedMPC):
     ) -> tuple[np.ndarray, bool]:
         """`ConstrainedMPC.solve`, recorded."""
         u, infeasible = super().solve(X, u_prev, Y_d, i_start)
+        self._record(X, u_prev, Y_d, i_start, u)
+        return u, infeasible
+
+    def solve_floats(
+        self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]], i_start: Sequence[float]
+    ) -> tuple[list[float], bool]:
+        """`ConstrainedMPC.solve_floats`, recorded."""
+        u, infeasible = super().solve_floats(X, u_prev, Y_d, i_start)
+        self._record(*(np.array(a, dtype=float) for a in (X, u_prev, Y_d, i_start, u)))
+        return u, infeasible
+
+    def _record(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray, u: np.ndarray) -> None:
         closed = bool(np.max(np.abs(self.closed_form_rows(X, u_prev, Y_d, i_start))) <= 1.0)
         self.calls.append(QPCall(X.copy(), u_prev.copy(), Y_d.copy(), i_start.copy(), u.copy(), closed))
-        return u, infeasible
 
 
 def qp_calls(inputs: InputSet, control: ControlParams) -> list[QPCall]:

@@ -37,6 +37,9 @@ from .simulate import add_odometry_argument, add_scenario_argument
 __all__ = ["add_parser", "run"]
 
 GRACE_S = 5.0
+# the recorder's: its drain limit (recorder_node.DRAIN_LIMIT_S, 60 s; a niced recorder drains after the loop)
+# and the bag's close, before SIGTERM (then SIGKILL, which would lose the bag's summary)
+RECORDER_GRACE_S = 70.0
 TIMING_REPORT = "plant_timing.json"  # in DIR/logs: the plant's timing report (loop_timing), e.g. for bench
 # imported in a thread while the nodes start and run (the cores idle during discovery and the settle)
 REPORT_MODULES = ("robotino_geom_mpc.recording.bag", "robotino_geom_mpc.recording.report",
@@ -153,7 +156,8 @@ def run(args: argparse.Namespace) -> int:
         for name in others:
             nodes[name].popen.send_signal(signal.SIGINT)  # all at once; `stop_node` escalates per node
         for name in [*others, "recorder_node"]:
-            if name in nodes and group.stop_node(nodes[name], GRACE_S) not in (0, -signal.SIGINT):
+            grace = RECORDER_GRACE_S if name == "recorder_node" else GRACE_S
+            if name in nodes and group.stop_node(nodes[name], grace) not in (0, -signal.SIGINT):
                 raise NodeFailed(f"{name} did not stop cleanly:\n{nodes[name].stderr_tail()}")
     except NodeFailed as exc:
         print(f"robotino-geom-mpc run: error: {exc}", file=sys.stderr)

@@ -114,7 +114,7 @@ def node_arguments(
     and gives the nodes of `FRAME_PREFIX_NODES` its `frame_prefix`.
     A ``robot_description_publisher`` publishes the URDF and the wheels' TF.
     With `goals_file` (scenario ``goals``) a ``goal_sender`` (module `GOAL_SENDER_MODULE`) sends the file's
-    goals and paths.
+    goals and paths; a lockstep plant waits for its odom subscription too, so its times count from tick 0.
     """
     from robotino_geom_mpc.core.params import load_params
     from robotino_geom_mpc.scenarios import node_parameters
@@ -125,6 +125,8 @@ def node_arguments(
     extra = overrides or {}
     if wait_for is None:
         wait_for = list(LOCKSTEP_WAIT_FOR if bag is None else RECORDER_WAIT_FOR)
+        if goals_file is not None:  # the goal sender's odom subscription (its clock) too
+            wait_for = [f"odom:{int(w.split(':')[1]) + 1}" if w.startswith("odom:") else w for w in wait_for]
     remaps = namespace_remaps(namespace, lockstep)
     frames = {name: {"frame_prefix": frame_prefix(namespace)} for name in FRAME_PREFIX_NODES} if namespace else {}
     args = {}

@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         group.check()
         # the plant exited once every reader had acknowledged its samples, and each other node does so on
         # SIGINT before it exits (`ros.spin.run_node`): once they are gone, the recorder holds every message
-        others = [name for name in ("controller_node", "trajectory_node") if name in nodes]
+        others = [name for name in nodes if name not in ("plant_node", "recorder_node")]
         for name in others:
             nodes[name].popen.send_signal(signal.SIGINT)  # all at once; `stop_node` escalates per node
         for name in [*others, "recorder_node"]:

@@ -16,7 +16,11 @@ every wheel's rim speed v_i = d_i(theta) . (x', y') + l theta'
 Short durations break the limits, long ones keep them (the motion's
 derivatives shrink like 1/T, 1/T^2, 1/T^3 apart from the initial state,
 which the previous motion kept within the limits), so T is found by a
-geometric scan and a bisection (`shortest_duration`). Plain numpy: no ROS.
+geometric scan and a bisection (`shortest_duration`). Exception: a new goal from a state at a limit
+(mid-motion, accelerating hard) may admit no continuation within it, since this polynomial's acceleration
+and jerk overshoot the initial ones by a factor that does not shrink with T; then the duration with the
+least excess is taken (at most `MAX_OVERSHOOT` times the limits, else `GoalError`). From rest (every goal
+the robot waits for) the limits always hold. Plain numpy: no ROS.
 """
 
 from __future__ import annotations

@@ -205,9 +205,9 @@ class ConstrainedMPC:
         self._angles, self._signals_z = self._map_out[:n_sig], self._map_out[n_sig : n_sig + n_ext]
         self._z_star = self._map_out[n_sig + n_ext :]
         self._ext_factors, self._ext_product = np.empty(n_ext), np.empty(n_ext)
-        self._factors = self._ext_factors[: self._n_sig]  # cos of the angles
-        self._rate_factors = self._ext_factors[self._n_sig - self._n_rate : self._n_sig]
-        self._theta_factors = self._ext_factors[self._n_sig :]  # theta' times the rate rows' factors
+        self._factors = self._ext_factors[:n_sig]  # cos of the angles
+        self._rate_factors = self._ext_factors[n_sig - self._n_rate : n_sig]
+        self._theta_factors = self._ext_factors[n_sig:]  # theta' times the rate rows' factors
         self._rows_both = np.empty(2 * m)
         self._rows = self._rows_both[:m]  # at z*
         self._distinct_factors, self._G_flat = np.empty(len(self._distinct)), np.empty(m * nz)
@@ -246,7 +246,7 @@ class ConstrainedMPC:
     def closed_form_rows(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> np.ndarray:
         """The scaled constraint rows (9N,) at the closed form (56); feasible iff all lie in [-1, 1]."""
         self._closed_form_check(X, u_prev, Y_d, i_start)
-        return self._rows_both[: 9 * self.N].copy()
+        return self._rows.copy()
 
     def constraint_rows(
         self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray

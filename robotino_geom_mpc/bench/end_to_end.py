@@ -40,11 +40,9 @@ _REPORT = re.compile(r"the figures in ([\d.]+) s")
 
 
 def run_command() -> list[str]:
-    """``robotino-geom-mpc`` as installed beside this interpreter (the console script), else through it."""
+    """``robotino-geom-mpc`` as installed beside this interpreter (the console script), else ``python -m``."""
     script = Path(sys.executable).with_name("robotino-geom-mpc")
-    if script.exists():
-        return [str(script)]
-    return [sys.executable, "-c", "import sys; from robotino_geom_mpc.cli import main; sys.exit(main())"]
+    return [str(script)] if script.exists() else [sys.executable, "-m", "robotino_geom_mpc"]
 
 
 def timed_run(out: Path, scenario: str = "paper-circle", duration_s: float = RUN_DURATION_S) -> dict[str, float]:

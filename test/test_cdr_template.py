@@ -26,7 +26,8 @@ from robotino_geom_mpc.ros import decode, messages
 from robotino_geom_mpc.ros.cdr import CdrTemplate, CdrTemplateError
 from robotino_geom_mpc.ros.messages import preview_message, preview_template, preview_values, three_values_layout, \
     three_values_template
-from robotino_sim_node import plant_node
+from robotino_geom_mpc.description.urdf import JOINT_NAMES
+from robotino_sim_node.outputs import ODOM_FIELDS, joint_template, odometry_values, plant_odometry
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 rng = np.random.default_rng(20261122)
@@ -53,17 +54,17 @@ def _floats(n: int) -> list[float]:
 
 @pytest.mark.parametrize("noise", [(0.0, 0.0), (0.002, 0.003)])
 def test_odometry_of_the_plant(noise):
-    template = CdrTemplate(plant_node._odometry_template(*noise), plant_node._ODOM_FIELDS)
+    template = CdrTemplate(plant_odometry(*noise), ODOM_FIELDS)
     for _ in range(20):
         sec, nanosec = _stamp()
         x, y, theta, vx, vy, omega = _floats(3) + _floats(3)
         theta = float(rng.uniform(-20, 20))
-        msg = plant_node._odometry_template(*noise)
+        msg = plant_odometry(*noise)
         msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
         msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
         msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(theta / 2), math.cos(theta / 2)
         msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.angular.z = vx, vy, omega
-        packed = template.pack(sec, nanosec, *plant_node._odometry_values([x, y, theta], [vx, vy, omega]))
+        packed = template.pack(sec, nanosec, *odometry_values([x, y, theta], [vx, vy, omega]))
         _same_wire(packed, msg, "nav_msgs/msg/Odometry")
         assert msg.header.frame_id == "odom" and msg.child_frame_id == "base_link"
 
@@ -81,11 +82,11 @@ def test_three_value_arrays(label):
 
 
 def test_joint_states_and_clock():
-    joints, clock = plant_node._joint_template(), CdrTemplate(Clock(), ("clock.sec", "clock.nanosec"))
+    joints, clock = joint_template(), CdrTemplate(Clock(), ("clock.sec", "clock.nanosec"))
     for _ in range(20):
         sec, nanosec = _stamp()
         values = _floats(9)
-        msg = JointState(name=list(plant_node.JOINT_NAMES), position=values[:3], velocity=values[3:6],
+        msg = JointState(name=list(JOINT_NAMES), position=values[:3], velocity=values[3:6],
                          effort=values[6:])
         msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
         _same_wire(joints.pack(sec, nanosec, *values), msg, "sensor_msgs/msg/JointState")
@@ -185,8 +186,8 @@ def test_layout_reads_the_fields_of_any_message_with_the_template_layout():
     for _ in range(20):
         msg = _random_odometry()
         assert layout.read(serialize_message(msg)) == decode.odometry_values(msg)
-    plant = CdrTemplate(plant_node._odometry_template(0.001, 0.002), plant_node._ODOM_FIELDS)
-    values = (*_stamp(), *_floats(len(plant_node._ODOM_FIELDS) - 2))
+    plant = CdrTemplate(plant_odometry(0.001, 0.002), ODOM_FIELDS)
+    values = (*_stamp(), *_floats(len(ODOM_FIELDS) - 2))
     data = plant.pack(*values)
     assert layout.read(data) == decode.odometry_values(deserialize_message(data, Odometry))
 

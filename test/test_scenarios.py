@@ -20,10 +20,10 @@ def robot():
     return load_params()[0]
 
 
-def test_the_registry_holds_the_four_scenarios_with_todays_numbers():
-    assert list(SCENARIOS) == ["paper-circle", "paper-circle-step", "lemniscate", "point-to-point", "robustness"]
+def test_the_registry_holds_the_scenarios_with_todays_numbers():
+    assert list(SCENARIOS) == ["paper-circle", "paper-circle-step", "lemniscate", "point-to-point", "robustness", "goals"]
     for name, scenario in SCENARIOS.items():
-        assert scenario.name == name and scenario.description and scenario.reference in REFERENCES
+        assert scenario.name == name and scenario.description and scenario.reference in (*REFERENCES, "goals")
     assert all(SCENARIOS[n].mismatch is None and SCENARIOS[n].noise.position_m == SCENARIOS[n].noise.yaw_rad == 0.0
                for n in ("paper-circle", "lemniscate", "point-to-point"))
     robustness = SCENARIOS["robustness"]
@@ -38,7 +38,7 @@ def test_default_duration_is_the_references_length():
     # the paper's circle: 2 laps of 10 s plus the 2 s of its ramps (CircleReference)
     assert SCENARIOS["paper-circle"].duration_s == SCENARIOS["robustness"].duration_s == pytest.approx(22.0)
     for scenario in SCENARIOS.values():
-        assert scenario.duration_s == make_reference(scenario.reference, **dict(scenario.reference_options)).duration_s
+        assert scenario.duration_s == scenario.make_reference().duration_s
     # no ramp-in: 2 laps plus half the ramp (the ramp-out)
     assert SCENARIOS["paper-circle-step"].duration_s == pytest.approx(21.0)
 
@@ -68,7 +68,7 @@ def test_a_scenarios_reference_takes_options():
 @pytest.mark.parametrize("name, match", [
     ("robustnes", r"did you mean 'robustness'\?"),
     ("paper_circle", r"did you mean 'paper-circle'\?"),
-    ("spiral", r"unknown scenario 'spiral' \(valid: paper-circle, paper-circle-step, lemniscate, point-to-point, robustness\)"),
+    ("spiral", r"unknown scenario 'spiral' \(valid: paper-circle, paper-circle-step, lemniscate, point-to-point, robustness, goals\)"),
     (None, "unknown scenario None"),
 ])
 def test_unknown_names_are_refused_with_the_closest_one(name, match):

@@ -76,10 +76,8 @@ def lockstep_nodes(
                           wait_for=list(wait_for or LOCKSTEP_WAIT_FOR),
                           overrides={"plant_node": {**report, **(plant_overrides or {})},
                                      "trajectory_node": trajectory_overrides or {}})
-    plant = None
-    for name, argv in args.items():
-        plant = group.start(name, argv)
-    return plant
+    started = {name: group.start(name, argv) for name, argv in args.items()}
+    return started["plant_node"]
 
 
 def read_timing_report(path: str | os.PathLike, mode: str) -> dict[str, Any]:

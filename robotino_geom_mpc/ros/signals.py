@@ -32,6 +32,7 @@ NODE_MODULES: dict[str, str] = {
     "controller_node": "robotino_geom_mpc.nodes.controller_node",
     "trajectory_node": "robotino_geom_mpc.nodes.trajectory_node",
     "recorder_node": "robotino_geom_mpc.recording.recorder_node",
+    "robot_description_publisher": "robotino_geom_mpc.nodes.robot_description_node",
 }
 
 STOP = threading.Event()

@@ -33,6 +33,7 @@ NODE_MODULES: dict[str, str] = {
     "trajectory_node": "robotino_geom_mpc.nodes.trajectory_node",
     "recorder_node": "robotino_geom_mpc.recording.recorder_node",
     "robot_description_publisher": "robotino_geom_mpc.nodes.robot_description_node",
+    "goal_sender": "robotino_geom_mpc.nodes.goal_sender",
 }
 
 STOP = threading.Event()

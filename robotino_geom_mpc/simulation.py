@@ -4,11 +4,12 @@ This engine is the reference the ROS 2 nodes reproduce (to 1e-6), so each
 tick k (t_k = k Ts, k = 0 .. n-1) does exactly, in this order:
 
 1. measure: ``pose, twist = plant.odometry(rng, noise)`` (pose plus Gaussian
-   noise drawn from the run's seeded generator, noise-free body-frame twist;
+   noise drawn from the run's seeded generator, all ticks' at once,
+   noise-free body-frame twist;
    with ``odometry="encoders"`` the pose integrated from the wheel-encoder
    counts plus the same noise, and the encoder twist: `encoders`),
    ``X = state_from_odometry(pose, twist)`` (both on Python floats here:
-   `RobotinoPlant.odometry_floats`, `odometry_state_floats`);
+   `RobotinoPlant.noisy_odometry_floats`, `odometry_state_floats`);
 2. ``Y_d`` = the reference positions at t_{k+1} .. t_{k+N} (eq. 54), sampled
    for the whole run at once: rows k+1 .. k+N of ``reference.position(j Ts)``,
    equal to ``preview(reference, t_k, Ts, N)`` to rounding (1e-14);
@@ -127,14 +128,17 @@ def run_scenario(
     if odometry == "encoders":  # its twist is the mean over the period: the pose filter's matching predictor
         control = replace(control, odometry_twist="period_mean")
     controller = MotionController(spec.controller_model(robot), control)
-    rng = np.random.default_rng(seed)
+    # The run's pose noise drawn at once: the same values as one `RobotinoPlant.pose_noise` draw per tick.
+    std_position, std_yaw = noise
+    draws = (np.random.default_rng(seed).normal(0.0, (std_position, std_position, std_yaw), (n, 3)).tolist()
+             if std_position or std_yaw else [None] * n)
 
     t = np.arange(n) * Ts
     targets = reference.position(np.arange(n + N + 1) * Ts)  # row j: the reference at j Ts
     # Only floats and arrays are kept per tick (no tuples): nothing for the garbage collector to scan.
     poses, measured, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], [], []
     for k in tqdm(range(n), desc=scenario, unit="tick", disable=not progress, mininterval=0.5):
-        pose_measured, twist_measured = source.odometry_floats(rng, noise)
+        pose_measured, twist_measured = source.noisy_odometry_floats(draws[k])
         X = odometry_state_floats(pose_measured, twist_measured)
         out = controller.step(X, targets[k + 1 : k + N + 1])
         poses.append(plant.pose)

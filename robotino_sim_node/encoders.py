@@ -129,13 +129,17 @@ class EncoderOdometry:
         self._rng = np.random.default_rng((int(seed), 1))  # apart from the pose noise stream default_rng(seed)
         self.pose: Pose = tuple(plant.pose.tolist()) if pose is None else tuple(float(v) for v in pose)
         self.twist: tuple[float, float, float] = (0.0, 0.0, 0.0)  # no count difference yet
-        self._angles = plant.wheel_angles  # true wheel angles at the last measurement
-        self._seen = self._angles.copy()  # the angles the encoders saw (true + slip)
-        self._counts = self._encoder_counts()
+        p = plant.params
+        # `update` runs `encoder_counts`, `wheel_speeds_from_counts` and `body_twist` on Python floats (numpy's
+        # per-call overhead dominates on 3-vectors): the counts' scale and the inverse kinematics r K^-1 by rows.
+        self._count_scale = p.gear_ratio * self.counts_per_rev / (2.0 * math.pi)
+        self._gear_counts = p.gear_ratio * self.counts_per_rev
+        kinematics = np.column_stack((wheel_directions(0.0), np.full(3, p.l)))
+        self._twist_rows = (p.r * np.linalg.inv(kinematics)).tolist()
+        self._angles = plant.wheel_angles.tolist()  # true wheel angles at the last measurement
+        self._seen = list(self._angles)  # the angles the encoders saw (true + slip)
+        self._counts = np.array([math.floor(a * self._count_scale) for a in self._seen])  # as `encoder_counts`
         self._time_s = plant.time_s
-
-    def _encoder_counts(self) -> np.ndarray:
-        return encoder_counts(self._seen, self.plant.params.gear_ratio, self.counts_per_rev)
 
     def update(self) -> tuple[Pose, tuple[float, float, float]]:
         """Read the encoders, integrate the pose over the time since the last update; (pose, body twist).
@@ -144,18 +148,19 @@ class EncoderOdometry:
         """
         dt = self.plant.time_s - self._time_s
         if dt > 0.0:
-            angles = self.plant.wheel_angles
-            change = angles - self._angles
+            angles = self.plant.wheel_angles.tolist()
+            change = [a - b for a, b in zip(angles, self._angles)]
             if self.slip_std:
-                change = change * (1.0 + self.slip_std * self._rng.standard_normal(3))
-            self._seen += change
+                slip = self._rng.standard_normal(3).tolist()
+                change = [c * (1.0 + self.slip_std * z) for c, z in zip(change, slip)]
+            self._seen = [s + c for s, c in zip(self._seen, change)]
             self._angles = angles
-            counts = self._encoder_counts()
-            p = self.plant.params
-            speeds = wheel_speeds_from_counts(counts - self._counts, dt, p.gear_ratio, self.counts_per_rev)
-            self.twist = tuple(body_twist(speeds, p).tolist())
+            counts = [math.floor(a * self._count_scale) for a in self._seen]
+            scale = 2.0 * math.pi / (self._gear_counts * dt)
+            s1, s2, s3 = [(c - c0) * scale for c, c0 in zip(counts, self._counts.tolist())]
+            self.twist = tuple(a * s1 + b * s2 + c * s3 for a, b, c in self._twist_rows)
             self.pose = integrate_pose(self.pose, self.twist, dt)
-            self._counts, self._time_s = counts, self.plant.time_s
+            self._counts, self._time_s = np.array(counts), self.plant.time_s
         return self.pose, self.twist
 
     def odometry_floats(
@@ -163,7 +168,12 @@ class EncoderOdometry:
     ) -> tuple[Pose, tuple[float, float, float]]:
         """As `RobotinoPlant.odometry_floats`, from the encoders: the integrated pose plus the same Gaussian
         pose noise (same draws from the generator) and the encoder-derived body twist."""
-        noise = self.plant.pose_noise(rng, noise_std)
+        return self.noisy_odometry_floats(self.plant.pose_noise(rng, noise_std))
+
+    def noisy_odometry_floats(
+        self, noise: tuple[float, float, float] | None
+    ) -> tuple[Pose, tuple[float, float, float]]:
+        """`odometry_floats` with the pose noise (x, y, theta) given, None: none (noise drawn ahead, unchecked)."""
         pose, twist = self.update()
         if noise is None:
             return pose, twist
@@ -174,8 +184,8 @@ def odometry_source(plant: RobotinoPlant, model: str = "ideal", counts_per_rev: 
                     slip_std: float = 0.0, seed: int = 0, pose: Pose | None = None) -> RobotinoPlant | EncoderOdometry:
     """What a measurement of `plant` reads: the plant itself (``ideal``) or an `EncoderOdometry` (``encoders``).
 
-    Either has ``odometry_floats(rng, noise_std) -> (pose, body twist)``. `seed` seeds the slip (a stream of
-    its own: the pose noise keeps the draws of the ideal model).
+    Either has ``odometry_floats(rng, noise_std) -> (pose, body twist)`` and ``noisy_odometry_floats(noise)``.
+    `seed` seeds the slip (a stream of its own: the pose noise keeps the draws of the ideal model).
 
     Raises
     ------

@@ -58,6 +58,8 @@ __all__ = ["PlantError", "RobotinoPlant", "MAX_SUBSTEP_S"]
 
 MAX_SUBSTEP_S = 2.5e-3  # automatic substeps: 4 per 10 ms control period
 _CACHE_SIZE = 16  # step sizes whose matrices are kept
+# The constant matrices of (params, substeps, dt), shared by this process's plants (a study builds one per run).
+_SHARED: dict[tuple[RobotinoParams, int | None, float], tuple] = {}
 
 # Augmented state w (15): the plant state (9), the wheel angles (3), the held voltages (3).
 _N_AUG = 15
@@ -122,15 +124,12 @@ def _turn(angle: float) -> np.ndarray:
 def _voltage_values(voltages: object) -> tuple[float, float, float]:
     """The voltages as three Python floats, or PlantError; plain tuples, lists and float arrays fast."""
     kind = type(voltages)
-    if (kind is tuple or kind is list) and len(voltages) == 3:
+    if (kind is tuple or kind is list) and len(voltages) == 3 and type(voltages[0]) is float \
+            and type(voltages[1]) is float and type(voltages[2]) is float:
         U = tuple(voltages)
-        if not (type(U[0]) is float and type(U[1]) is float and type(U[2]) is float):
-            U = None
     elif kind is np.ndarray and voltages.dtype is _FLOAT64 and voltages.shape == (3,):
         U = tuple(voltages.tolist())
     else:
-        U = None
-    if U is None:
         try:
             array = np.asarray(voltages, dtype=float)
         except (TypeError, ValueError):
@@ -171,15 +170,10 @@ class RobotinoPlant:
     """
 
     def __init__(
-        self,
-        p: RobotinoParams,
-        state0: np.ndarray | None = None,
-        substeps: int | None = None,
-        seed: int | None = 0,
+        self, p: RobotinoParams, state0: np.ndarray | None = None, substeps: int | None = None, seed: int | None = 0
     ) -> None:
-        if substeps is not None and (
-            isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1
-        ):
+        if substeps is not None and (isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer))
+                                     or substeps < 1):
             raise PlantError(f"substeps must be a positive integer or None, got {substeps!r}")
         self.params = p
         self.substeps = None if substeps is None else int(substeps)
@@ -223,6 +217,25 @@ class RobotinoPlant:
         cache = self._cache.get(dt)
         if cache is not None:
             return cache
+        key = (self.params, self.substeps, dt)
+        if key not in _SHARED:
+            if len(_SHARED) >= _CACHE_SIZE:
+                _SHARED.clear()
+            _SHARED[key] = self._constant_matrices(dt)
+        n, h, eps_max, heading_rows, coefficients = _SHARED[key]
+        trace, maps, heading = np.zeros((n + 1, _N_LOOP)), np.zeros((n, _N_LOOP * _N_LOOP)), np.zeros(len(heading_rows))
+        if len(self._cache) >= _CACHE_SIZE:
+            self._cache.clear()
+        cache = _StepCache(
+            n, h, eps_max, heading_rows, heading, heading[: n * _BASIS].reshape(n, _BASIS), coefficients,
+            np.zeros((n, _BASIS)), maps, list(maps.reshape(n, _N_LOOP, _N_LOOP)), trace, list(trace[:-1]),
+            list(trace[1:]),
+        )
+        self._cache[dt] = cache
+        return cache
+
+    def _constant_matrices(self, dt: float) -> tuple[int, float, float, np.ndarray, np.ndarray | None]:
+        """(n, h, eps_max, heading_rows, coefficients) of `_StepCache` for a step of dt: the expm calls."""
         n = self.substeps or max(1, math.ceil(dt / MAX_SUBSTEP_S - 1e-9))
         h = dt / n
         eps_max = _FIT_RATE_RAD_S * h
@@ -259,18 +272,7 @@ class RobotinoPlant:
             coefficients[:, : len(_ROWS)] = np.vstack((powers, handover)).reshape(_BASIS, len(_ROWS), _N_LOOP)
             coefficients[0, len(_ROWS) :] = _PASS
             coefficients = coefficients.reshape(_BASIS, _N_LOOP * _N_LOOP)
-        trace = np.zeros((n + 1, _N_LOOP))
-        maps = np.zeros((n, _N_LOOP * _N_LOOP))
-        heading = np.zeros(len(heading_rows))
-        if len(self._cache) >= _CACHE_SIZE:
-            self._cache.clear()
-        cache = _StepCache(
-            n, h, eps_max, heading_rows, heading, heading[: n * _BASIS].reshape(n, _BASIS), coefficients,
-            np.zeros((n, _BASIS)), maps, list(maps.reshape(n, _N_LOOP, _N_LOOP)), trace, list(trace[:-1]),
-            list(trace[1:]),
-        )
-        self._cache[dt] = cache
-        return cache
+        return n, h, eps_max, heading_rows, coefficients
 
     # ------------------------------------------------------------------ integration
 
@@ -396,11 +398,8 @@ class RobotinoPlant:
 
         Returns
         -------
-        pose
-            (x, y, theta) + noise.
-        twist_body
-            (v_x, v_y, theta') in the robot frame (as nav_msgs/Odometry's
-            twist): the odom-frame velocity rotated by -theta; noise-free.
+        pose, twist_body
+            (x, y, theta) + noise; (v_x, v_y, theta') in the robot frame (nav_msgs/Odometry's twist), noise-free.
         """
         pose, twist = self.odometry_floats(rng, noise_std)
         return np.array(pose), np.array(twist)
@@ -409,10 +408,15 @@ class RobotinoPlant:
         self, rng: np.random.Generator | None = None, noise_std: tuple[float, float] = (0.0, 0.0)
     ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """`odometry` as tuples of Python floats (same values, same draws from the generator)."""
+        return self.noisy_odometry_floats(self.pose_noise(rng, noise_std))
+
+    def noisy_odometry_floats(
+        self, noise: tuple[float, float, float] | None
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """`odometry_floats` with the pose noise (x, y, theta) given, None: none (noise drawn ahead, unchecked)."""
         x, vx, y, vy, theta, w = self._w[:6]
         c, s = math.cos(theta), math.sin(theta)
         twist = (c * vx + s * vy, -s * vx + c * vy, w)
-        noise = self.pose_noise(rng, noise_std)
         if noise is not None:
             nx, ny, ntheta = noise
             return (x + nx, y + ny, theta + ntheta), twist

@@ -25,6 +25,9 @@ __all__ = ["ControllerInputError", "ControlOutput", "MotionController", "odometr
            "step_interval"]
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
 class ControllerInputError(RobotinoError, ValueError):
     """A measured state, reference preview or interval with the wrong shape or a non-finite or out-of-range value."""
 
@@ -139,14 +142,21 @@ class MotionController:
         return self.kinematics.speeds_and_rates(theta, velocity, acc)[1]
 
     def _check(self, X: object, preview: object) -> tuple[list[float], list[list[float]]]:
-        """X and the preview as Python floats, or ControllerInputError naming the bad one."""
-        X = np.asarray(X, dtype=float)
-        Y_d = np.asarray(preview, dtype=float)
-        if X.shape != (6,):
-            raise ControllerInputError(f"X must have shape (6,), got {X.shape}")
+        """X and the preview as Python floats, or ControllerInputError naming the bad one.
+
+        A tuple of six floats and a float array of the preview's shape (the offline loop's) skip numpy's conversions.
+        """
+        if type(X) is tuple and len(X) == 6 and all(type(v) is float for v in X):
+            x = list(X)
+        else:
+            X = np.asarray(X, dtype=float)
+            if X.shape != (6,):
+                raise ControllerInputError(f"X must have shape (6,), got {X.shape}")
+            x = X.tolist()
+        Y_d = preview if type(preview) is np.ndarray and preview.dtype is _FLOAT64 else np.asarray(preview, dtype=float)
         if Y_d.shape != (self.horizon, 3):
             raise ControllerInputError(f"preview must have shape ({self.horizon}, 3), got {Y_d.shape}")
-        x, y = X.tolist(), Y_d.tolist()
+        y = Y_d.tolist()
         # A sum is finite iff its terms are, short of overflow (values near 1e308 are garbage too).
         if not math.isfinite(sum(x)):
             raise ControllerInputError(f"X must be finite and of physical magnitude, got {x}")

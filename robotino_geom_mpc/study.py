@@ -15,8 +15,8 @@ Each run is `simulation.run_scenario` with
   noise, or dead reckoning from 2048-count wheel encoders plus the noise).
 
 `draw_runs` makes the draws from one seed (same seed, same draws), `run_study`
-spreads the runs over processes (`concurrent.futures.ProcessPoolExecutor`)
-with a progress bar, and a run that raises becomes a row with its error
+spreads the runs over processes (`concurrent.futures.ProcessPoolExecutor`, forked
+after the imports, in batches of runs per task) with a progress bar, and a run that raises becomes a row with its error
 instead of ending the study. `summarize` gives the study's figures and
 `write_study` writes DIR/runs.csv, DIR/summary.json and the figures
 (`study_plots`). Plain Python and numpy: no rclpy.
@@ -25,7 +25,9 @@ instead of ending the study. `summarize` gives the study's figures and
 from __future__ import annotations
 
 import csv
+import gc
 import json
+import multiprocessing
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -60,6 +62,7 @@ METRICS = (  # the keys of `results.compute_metrics` a row keeps
     "peak_voltage_v", "saturated_steps", "infeasible_steps", "rms_position_error_odom_m", "odometry_drift_max_m",
 )
 STATISTICS = ("rms_position_error_m", "peak_current_a")  # summarised as median, p95, worst
+BATCH_MAX = 16  # runs per pool task at most
 
 
 class StudyError(RobotinoError, ValueError):
@@ -173,6 +176,19 @@ def run_one(
     return {key: row[key] for key in COLUMNS}
 
 
+def _run_batch(
+    scenario: str, robot: RobotinoParams, control: ControlParams, draws: list[Draw], duration_s: float | None,
+    settle_time_s: float,
+) -> list[dict[str, Any]]:
+    """`run_one` of each draw: one pool task, so a task's messages carry several runs."""
+    return [run_one(scenario, robot, control, draw, duration_s, settle_time_s) for draw in draws]
+
+
+def _context() -> multiprocessing.context.BaseContext:
+    """Fork where there is fork: the workers start with this process's imports done (numpy, scipy, the package)."""
+    return multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else None)
+
+
 def run_study(
     scenario: str,
     robot: RobotinoParams,
@@ -223,13 +239,19 @@ def run_study(
     workers = (os.cpu_count() or 1) if workers is None else workers
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise StudyError(f"workers must be a positive integer, got {workers!r}")
+    workers = min(workers, len(draws))
+    size = max(1, min(BATCH_MAX, len(draws) // (8 * workers)))  # >= 8 batches a worker: the last ones balance
     start = time.perf_counter()
     rows: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=min(workers, len(draws))) as pool:
-        futures = [pool.submit(run_one, scenario, robot, control, d, duration_s, settle_time_s) for d in draws]
-        for future in tqdm(as_completed(futures), total=len(futures), desc=f"study {scenario}", unit="run",
-                           disable=not progress, mininterval=0.5):
-            rows.append(future.result())
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_context(), initializer=gc.freeze) as pool:
+        futures = [pool.submit(_run_batch, scenario, robot, control, draws[k : k + size], duration_s, settle_time_s)
+                   for k in range(0, len(draws), size)]
+        with tqdm(total=len(draws), desc=f"study {scenario}", unit="run", disable=not progress,
+                  mininterval=0.5) as bar:
+            for future in as_completed(futures):
+                batch = future.result()
+                rows += batch
+                bar.update(len(batch))
     wall_s = time.perf_counter() - start
     rows.sort(key=lambda row: row["index"])
     return StudyResult(rows, wall_s)

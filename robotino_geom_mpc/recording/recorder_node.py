@@ -38,7 +38,6 @@ metadata.yaml.
 from __future__ import annotations
 
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -64,9 +63,6 @@ from robotino_geom_mpc.ros.spin import start_rclpy
 __all__ = ["DRAIN_LIMIT_S", "RecorderNode", "main"]
 
 DRAIN_LIMIT_S = 60.0  # at stop: the longest the recorder keeps taking samples its readers still hold
-# the recorder runs below the loop's nodes: its keep-all readers hold what it has not taken yet, so on a busy
-# machine it falls behind and drains after the run instead of taking the loop's CPU time
-NICENESS = 5
 
 def _hidden(topic: str) -> bool:
     return any(part.startswith("_") for part in topic.split("/") if part)
@@ -210,8 +206,7 @@ def main(args: list[str] | None = None) -> int:
         ignore_stop_signals()
         rclpy.shutdown()
         return 2
-    os.nice(NICENESS)
-    executor = SingleThreadedExecutor()  # the EventsExecutor takes no raw subscriptions
+    executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
         while not STOP.is_set():

@@ -37,7 +37,7 @@ from .simulate import add_odometry_argument, add_scenario_argument
 __all__ = ["add_parser", "run"]
 
 GRACE_S = 5.0
-# the recorder's: its drain limit (recorder_node.DRAIN_LIMIT_S, 60 s; a niced recorder drains after the loop)
+# the recorder's: its drain limit (recorder_node.DRAIN_LIMIT_S, 60 s: a recorder behind the loop drains at stop)
 # and the bag's close, before SIGTERM (then SIGKILL, which would lose the bag's summary)
 RECORDER_GRACE_S = 70.0
 TIMING_REPORT = "plant_timing.json"  # in DIR/logs: the plant's timing report (loop_timing), e.g. for bench

@@ -38,6 +38,8 @@ from tqdm import tqdm
 
 from robotino_sim_node.encoders import DEFAULT_COUNTS_PER_REV, EncoderError, odometry_source
 from robotino_sim_node.plant import RobotinoPlant
+from robotino_sim_node.wheel_speed_loop import DEFAULT_KI, DEFAULT_KP, DEFAULT_RATE_HZ, WheelSpeedLoop, \
+    WheelSpeedLoopError
 
 from .core.controller import MotionController, odometry_state_floats
 from .core.errors import RobotinoError
@@ -65,6 +67,8 @@ def run_scenario(
     odometry: str = "ideal",
     encoder_counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
     wheel_slip_std: float = 0.0,
+    command_interface: str = "voltages",
+    wheel_pi: tuple[float, float, float] | None = None,
 ) -> RunData:
     """Simulate one scenario in closed loop.
 
@@ -93,6 +97,14 @@ def run_scenario(
     encoder_counts_per_rev, wheel_slip_std
         The encoders' counts per motor revolution and the wheel slip (std as
         a fraction of the wheel speed; its generator is seeded by `seed`).
+    command_interface
+        ``voltages`` (the controller's wheel voltages drive the plant) or ``cmd_vel`` (the controller's
+        base_link velocity for the next period, `MotionController.next_velocity`, is held by the
+        wheel-speed PI loops of `robotino_sim_node.wheel_speed_loop` on the same drives; the voltages
+        kept are each period's mean of the PI's).
+    wheel_pi
+        (kp [V s/rad], ki [V/rad], rate [Hz]) of those loops; None: the plant node's defaults
+        (`wheel_speed_loop.DEFAULT_KP`, ...: `tuned_gains` of the Robotino 3 preset, 1 kHz).
 
     Returns
     -------
@@ -125,6 +137,14 @@ def run_scenario(
         source = odometry_source(plant, odometry, encoder_counts_per_rev, wheel_slip_std, seed)
     except EncoderError as exc:
         raise SimulationError(str(exc)) from None
+    if command_interface not in ("voltages", "cmd_vel"):
+        raise SimulationError(f"command_interface must be 'voltages' or 'cmd_vel', got {command_interface!r}")
+    speed_loop = None
+    if command_interface == "cmd_vel":
+        try:
+            speed_loop = WheelSpeedLoop(plant.params, *(wheel_pi or (DEFAULT_KP, DEFAULT_KI, DEFAULT_RATE_HZ)))
+        except WheelSpeedLoopError as exc:
+            raise SimulationError(str(exc)) from None
     if odometry == "encoders":  # its twist is the mean over the period: the pose filter's matching predictor
         control = replace(control, odometry_twist="period_mean")
     controller = MotionController(spec.controller_model(robot), control)
@@ -147,8 +167,13 @@ def run_scenario(
         saturated.append(out.saturated)
         infeasible.append(out.infeasible)
         compute.append(out.compute_time_s)
-        plant.step(out.voltages, Ts)
-        substep_currents.append(plant.substep_currents)
+        if speed_loop is None:
+            plant.step(out.voltages, Ts)
+            substep_currents.append(plant.substep_currents)
+        else:
+            held, trace = speed_loop.run(plant, controller.next_velocity(), Ts)
+            voltages[-3:] = held.mean(axis=0).tolist()
+            substep_currents.append(trace)
     pose = np.array(poses)
     trace = np.array(substep_currents)  # (n, substeps + 1, 3); the last row is the current at the period's end
     currents = np.copysign(np.abs(trace).max(axis=1), trace[:, -1])
@@ -172,6 +197,7 @@ def run_scenario(
             "mode": control.mode,
             "odometry_noise": list(noise),
             "odometry": odometry,
+            "command_interface": command_interface,
             **({"encoder_counts_per_rev": int(encoder_counts_per_rev), "wheel_slip_std": float(wheel_slip_std)}
                if odometry == "encoders" else {}),
             "controller_mismatch": None if spec.mismatch is None else asdict(spec.mismatch),

@@ -2,7 +2,9 @@
 
 Topics (relative names)
 -----------------------
-subscribes ``wheel_voltages``      std_msgs/Float64MultiArray, 3 values [V] (forward_command_controller convention)
+subscribes ``wheel_voltages``      std_msgs/Float64MultiArray, 3 values [V] (forward_command_controller convention),
+           or ``cmd_vel``         geometry_msgs/Twist in base_link (``command_interface`` cmd_vel: held by the
+                                  per-wheel PI speed loops of `wheel_speed_loop`, gains ``wheel_pi.*``)
 publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``base_link`` (REP-105; both with
                                    ``frame_prefix``, `outputs`), true pose (or
                                    with ``odometry_model`` encoders dead-reckoned, `encoders`) plus the odometry
@@ -75,6 +77,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
+from geometry_msgs.msg import Twist
 from std_msgs.msg import Float64MultiArray
 
 from robotino_geom_mpc.core.params import ParamSpec
@@ -89,6 +92,7 @@ from robotino_sim_node.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odomet
 from robotino_sim_node.lockstep_start import StartHandshake
 from robotino_sim_node.loop_timing import LoopTiming, lockstep_line, lockstep_report, realtime_report, write_report
 from robotino_sim_node.plant import RobotinoPlant
+from robotino_sim_node.wheel_speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
 from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, StateOutputs, odometry_template
 # the names test_cdr_template reads (the templates live in `outputs`)
 from robotino_sim_node.outputs import ODOM_FIELDS as _ODOM_FIELDS, joint_template as _joint_template, \
@@ -113,12 +117,13 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("seed", int, "Seed of the odometry noise (and of the wheel slip)", "", 0, 2**31 - 1, False),
     ParamSpec("timing_report", str, "File the loop's timing figures go to as one JSON object at the end of a run "
               "(its folder must exist); empty: none"),
-) + ODOMETRY_SPECS + TF_SPECS
+) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
     "lockstep_resend_s": 0.5, "lockstep_settle_s": 1.0, "odometry_noise.position_m": 0.0,
     "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "", **ODOMETRY_DEFAULTS, **TF_DEFAULTS,
+    **WHEEL_PI_DEFAULTS,
 }
 
 
@@ -136,7 +141,7 @@ class PlantNode(Node):
         self.params = SpecParameters(
             self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params,
             # the realtime grid (steps of 1 / physics_rate_hz), the odometry model
-            fixed=("mode", "physics_rate_hz", "timing_report", *ODOMETRY_DEFAULTS, *TF_DEFAULTS),
+            fixed=("mode", "physics_rate_hz", "timing_report", *ODOMETRY_DEFAULTS, *TF_DEFAULTS, *WHEEL_PI_DEFAULTS),
         )
         try:
             self.frame_prefix = check_frame_prefix(self.params["frame_prefix"])
@@ -161,8 +166,12 @@ class PlantNode(Node):
         self.state_out = StateOutputs(self, qos, self.params["publish_tf"], self.frame_prefix)
         self.clock_pub = self.create_publisher(ClockMsg, "/clock", qos) if self.lockstep else None
         self.command_layout = three_values_layout(VOLTAGE_LABEL)
+        p = self.params  # cmd_vel: a twist held by the wheel-speed PI loops instead of voltages
+        self.speed_loop = WheelSpeedLoop(self.robot, p["wheel_pi.kp"], p["wheel_pi.ki"], p["wheel_pi.rate_hz"]) \
+            if p["command_interface"] == "cmd_vel" else None
         self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command, CONTROL_QOS,
-                                                    raw=True)
+                                                    raw=True) if self.speed_loop is None else \
+            self.create_subscription(Twist, "cmd_vel", self._on_twist, CONTROL_QOS)
         self.handshake = StartHandshake(self, self.command_sub, {
             "odom": self.odom_pub, "ground_truth/odom": self.truth_pub, "wheel_currents": self.current_pub,
             "joint_states": self.state_out.joint_pub, "/tf": self.state_out.tf_pub, "/clock": self.clock_pub,
@@ -250,6 +259,22 @@ class PlantNode(Node):
         if fresh:
             self.tick_sent_at = self.published_at
 
+    def _drive(self, command: np.ndarray, dt: float) -> np.ndarray:
+        """Integrate `dt` under the command (voltages held, or a twist through the wheel-speed loops): peak |i|."""
+        if self.speed_loop is None:
+            self.plant.step(command, dt)
+            return self.plant.peak_abs_currents
+        return np.abs(self.speed_loop.run(self.plant, command, dt)[1]).max(axis=0)
+
+    def _on_twist(self, msg: Twist) -> None:
+        values = (msg.linear.x, msg.linear.y, msg.angular.z)
+        valid = math.isfinite(sum(values))
+        if not valid:
+            self.counts["refused_commands"] += 1
+            self.get_logger().warn(f"refused cmd_vel {values}: zero twist from now", throttle_duration_sec=1.0)
+            values = (0.0, 0.0, 0.0)
+        self._apply(values, valid)
+
     def _on_command(self, data: bytes) -> None:
         values = self.command_layout.read(data)  # the controller's layout, read in place; else decoded
         if values is None:
@@ -266,6 +291,10 @@ class PlantNode(Node):
             values = (0.0, 0.0, 0.0)
         elif max(values) > self.robot.supply_voltage_v or min(values) < -self.robot.supply_voltage_v:
             values = self._clamp(values)
+        self._apply(values, valid)
+
+    def _apply(self, values: tuple[float, ...], valid: bool) -> None:
+        """A command (voltages or twist): held from the next grid point (realtime), or the tick's period."""
         if not self.lockstep:
             begin = monotonic()
             if valid:
@@ -279,8 +308,7 @@ class PlantNode(Node):
             return
         begin = monotonic()
         self.wait_s += begin - self.published_at
-        self.plant.step(values, self.control.period_s)
-        self.peak_currents = self.plant.peak_abs_currents
+        self.peak_currents = self._drive(values, self.control.period_s)
         self.have_period = True
         if self.tick == 0:
             self.first_answer_at = begin
@@ -342,8 +370,8 @@ class PlantNode(Node):
         while self.grid < target:
             fresh = self.grid < stale
             end = min(min(target, stale) if fresh else target, self.grid + _MAX_CHUNK)
-            self.plant.step(self.voltages if fresh else _ZERO_VOLTS, (end - self.grid) * dt)
-            self.peak_currents = np.maximum(self.peak_currents, self.plant.peak_abs_currents)
+            peak = self._drive(self.voltages if fresh else _ZERO_VOLTS, (end - self.grid) * dt)
+            self.peak_currents = np.maximum(self.peak_currents, peak)
             self.grid = end
         return self.started_at + self.grid * dt
 

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from ..scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
-from .simulate import add_odometry_argument, add_scenario_argument
+from .simulate import add_command_interface_argument, add_odometry_argument, add_scenario_argument
 
 __all__ = ["add_parser", "run"]
 
@@ -68,6 +68,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
     parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
     add_odometry_argument(parser)
+    add_command_interface_argument(parser)
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
@@ -123,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
         duration = _goals_duration(args, params_file) if args.duration is None else duration
     out = args.out if args.out is not None else Path("out") / f"run-{args.scenario}"
     bag = None if args.no_record else out.resolve() / "bag"
+    if bag is not None and args.command_interface == "cmd_vel":
+        raise UsageError("--command-interface cmd_vel runs need --no-record (the report reads wheel_voltages)")
     try:
         out.mkdir(parents=True, exist_ok=True)
         if bag is not None and bag.exists():
@@ -131,7 +134,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
 
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
-                               odometry=args.odometry, goals_file=None if args.goals is None else args.goals.resolve(),
+                               odometry=args.odometry, command_interface=args.command_interface,
+                               goals_file=None if args.goals is None else args.goals.resolve(),
                                overrides={"plant_node": {"timing_report": str(out.resolve() / "logs" / TIMING_REPORT)}})
     mode = "lockstep" if args.lockstep else "realtime"
     print(f"run {args.scenario} over DDS ({mode}, {duration:g} s, Ts = {control.period_s:g} s); logs in {out / 'logs'}")

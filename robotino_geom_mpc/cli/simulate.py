@@ -40,6 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         help="wheel current limit of the closed-form mode [A] (control.current_limit_a; "
                         "0 = none, the paper's controller; default: the parameter file's)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_command_interface_argument(parser)
     parser.set_defaults(func=run)
     return parser
 
@@ -76,6 +77,13 @@ def add_odometry_argument(parser: argparse.ArgumentParser) -> None:
                         "or encoders (dead reckoning from 2048-count motor encoders: drifts from the ground truth)")
 
 
+def add_command_interface_argument(parser: argparse.ArgumentParser) -> None:
+    """The ``--command-interface {voltages,cmd_vel}`` option of `simulate` and `run`."""
+    parser.add_argument("--command-interface", choices=("voltages", "cmd_vel"), default="voltages",
+                        help="voltages: the controller's wheel voltages drive the motors (default); cmd_vel: its "
+                        "base_link velocity is held by per-wheel PI speed loops, as on a Robotino driven by cmd_vel")
+
+
 def _fmt(value: float | None, unit: str) -> str:
     return "n/a" if value is None else f"{value:.3g} {unit}"
 
@@ -99,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     data = run_scenario(
         args.scenario, robot, control, duration_s=args.duration, seed=args.seed, progress=not args.no_progress,
-        odometry=args.odometry,
+        odometry=args.odometry, command_interface=args.command_interface,
     )
     wall_s = time.perf_counter() - start
 

@@ -5,6 +5,10 @@ Topics (relative names)
 subscribes ``odom``               nav_msgs/Odometry (pose in ``odom``, twist in ``base_link``)
            ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory (N + 1 points, see trajectory_node)
 publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layout label ``wheel_voltage_v``
+                                  (``command_interface`` voltages, the default), or
+           ``cmd_vel``            geometry_msgs/Twist in base_link (``command_interface`` cmd_vel): the MPC's
+                                  velocity at the next period (`MotionController.next_velocity`); every
+                                  "zero volts" below is then a zero twist
            ``diagnostics``        diagnostic_msgs/DiagnosticArray, one status ``robotino_geom_mpc: controller``
                                   per tick and per event, header.stamp = the odometry stamp (events without
                                   one: the node clock). Per tick (message ``tracking``): ``error_x_m``,
@@ -70,7 +74,8 @@ logs what it waits for (every 5 s).
 Bumpless (re)start (`core.blend.BlendEngagement`): at
 the first tick (except tick t = 0 of a lockstep run, where robot and
 reference start together as in `simulate`), at the first tick after the
-watchdog saw stale data or ``~/enable`` turned the controller on again, at the tick using a preview whose reference jumped
+watchdog saw stale data or ``~/enable`` turned the controller on again, at the tick
+using a preview whose reference jumped
 (more than ``reference_jump_m`` / ``reference_jump_rad`` from the previous
 preview moved to its stamp, e.g. a restarted trajectory node starting over
 at the origin), and after a parameter change, the controller is reset
@@ -82,9 +87,9 @@ stays within ``blend_acceleration_mps2`` / ``blend_acceleration_radps2``.
 Parameters: the robot/control parameters of config/*.yaml (``/**`` section)
 plus `controller_inputs.CONTROLLER_SPECS`. A set is refused with the reason
 when its nominal closed loop is unstable (`core.mpc.check_closed_loop`, also
-at start: exit status 2) and for ``mode``, ``control.period_s`` and
-``control.horizon`` (they must agree with the trajectory node: restart
-instead); any other accepted change of a robot/control parameter rebuilds the
+at start: exit status 2) and for ``mode``, ``frame_prefix``, ``command_interface``,
+``control.period_s`` and ``control.horizon`` (the last two must agree with the trajectory
+node: restart instead); any other accepted change of a robot/control parameter rebuilds the
 controller with a bumpless restart.
 """
 
@@ -102,6 +107,7 @@ from robotino_geom_mpc.core.blend import BlendEngagement
 from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, step_interval
 from robotino_geom_mpc.core.params import ALL_SPECS
 from robotino_geom_mpc.core.trajectory import shift_preview
+from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix
 from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
     InputCounters, closed_loop_problem, reference_jump
 from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
@@ -109,7 +115,7 @@ from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
     stamp_problem, state_of_odometry
 from robotino_geom_mpc.ros.messages import odometry_layout, preview_layout
-from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
+from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 
@@ -137,8 +143,12 @@ class ControllerNode(Node):
         self.period_ns = int(round(self.control.period_s * 1e9))
         self._read_limits()
 
+        try:
+            prefix = check_frame_prefix(self.params["frame_prefix"])
+        except DescriptionError as exc:
+            raise NodeStartError(f"parameter 'frame_prefix': {exc}") from None
         self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS, self._event_values, self.control.horizon,
-                                         self.params["frame_prefix"])
+                                         prefix, self.params["command_interface"])
         self.enabled = True
         self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.odom_layout = odometry_layout()
@@ -350,7 +360,7 @@ class ControllerNode(Node):
             self._reject(stamp, "input", "controller", str(exc))
             return
         self.last_odom_ns = stamp
-        self.outputs.answer(stamp, list(out.voltages))
+        self.outputs.answer(stamp, list(self.controller.next_velocity() if self.outputs.cmd_vel else out.voltages))
         if self.outputs.path_wanted():
             self.outputs.publish_path(stamp, self.period_ns, self.controller.predicted_outputs())
         if not self.outputs.diagnosing():

@@ -1,4 +1,5 @@
-"""The controller node's output side: the command publisher, the lockstep answer bookkeeping and the diagnostics.
+"""The controller node's output side: the command publisher, the lockstep answer bookkeeping, the prediction and
+the diagnostics.
 
 `controller_node` computes; this module owns what leaves the node (see the
 topics in `controller_node`'s docstring). Publishers use
@@ -11,7 +12,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
 from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
@@ -54,24 +55,31 @@ class ControllerOutputs:
         N, the number of poses of ``predicted_path``.
     frame_prefix
         Prefix of the ``odom`` frame of ``predicted_path`` (a namespaced robot's ``robot1/odom``).
+    command_interface
+        ``voltages``: the command is the wheel voltages [V] on ``wheel_voltages``; ``cmd_vel``: a base_link
+        twist (v_x [m/s], v_y [m/s], theta' [rad/s]) on ``cmd_vel`` (geometry_msgs/Twist).
     """
 
     def __init__(self, node: Node, lockstep: bool, event_keys: Sequence[str],
-                 event_values: Callable[[int], list[str]], horizon: int, frame_prefix: str = "") -> None:
+                 event_values: Callable[[int], list[str]], horizon: int, frame_prefix: str = "",
+                 command_interface: str = "voltages") -> None:
         self.node = node
         self.lockstep = lockstep
         self.event_values = event_values
+        self.cmd_vel = command_interface == "cmd_vel"
         qos = publish_qos(lockstep)
-        self.voltage_pub = node.create_publisher(
-            Float64MultiArray, "wheel_voltages", qos,
-            event_callbacks=PublisherEventCallbacks(matched=self._on_voltage_matched),
-        )
-        self.voltage_cdr = three_values_template(VOLTAGE_LABEL)
+        matched = PublisherEventCallbacks(matched=self._on_command_matched)
+        if self.cmd_vel:
+            self.command_pub = node.create_publisher(Twist, "cmd_vel", qos, event_callbacks=matched)
+            self.twist = Twist()
+        else:
+            self.command_pub = node.create_publisher(Float64MultiArray, "wheel_voltages", qos, event_callbacks=matched)
+            self.voltage_cdr = three_values_template(VOLTAGE_LABEL)
         self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", qos)
         # built once, values rewritten per tick (a third of the cost of building the message anew)
         self.diag_tracking = _diagnostics_message((*TRACKING_KEYS, *event_keys))
         self.diag_event = _diagnostics_message(event_keys)
-        self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, voltages
+        self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, command
         self.path_pub = node.create_publisher(Path, "predicted_path", PATH_QOS)
         frame = frame_prefix + ODOM_FRAME
         self.path = Path(poses=[PoseStamped() for _ in range(horizon)])
@@ -80,27 +88,32 @@ class ControllerOutputs:
             pose.header.frame_id = frame
 
     # commands -----------------------------------------------------------------------------------
-    def send(self, voltages: Sequence[float]) -> None:
-        """Publish wheel voltages [V]."""
-        publish_acknowledged(self.node, self.voltage_pub, self.voltage_cdr.pack(*voltages))
+    def send(self, command: Sequence[float]) -> None:
+        """Publish a command: wheel voltages [V], or the base_link twist with ``cmd_vel``."""
+        if self.cmd_vel:
+            msg = self.twist
+            msg.linear.x, msg.linear.y, msg.angular.z = command
+        else:
+            msg = self.voltage_cdr.pack(*command)
+        publish_acknowledged(self.node, self.command_pub, msg)
 
     def send_zero(self) -> None:
-        """Publish zero volts."""
+        """Publish zero volts (zero twist)."""
         self.send(ZERO)
 
-    def answer(self, stamp: int, voltages: list[float]) -> None:
+    def answer(self, stamp: int, command: list[float]) -> None:
         """Publish the answer to the odometry of `stamp` and remember whether a reader could receive it."""
-        delivered = self.voltage_pub.get_subscription_count() > 0
-        self.send(voltages)
-        self.answered = (stamp, delivered, voltages)
+        delivered = self.command_pub.get_subscription_count() > 0
+        self.send(command)
+        self.answered = (stamp, delivered, command)
 
     def deliver_answer(self) -> None:
         """Lockstep: publish the last answer again if it went out before any subscription matched."""
-        if self.answered is not None and not self.answered[1] and self.voltage_pub.get_subscription_count() > 0:
+        if self.answered is not None and not self.answered[1] and self.command_pub.get_subscription_count() > 0:
             self.send(self.answered[2])
             self.answered = (self.answered[0], True, self.answered[2])
 
-    def _on_voltage_matched(self, info: QoSPublisherMatchedInfo) -> None:
+    def _on_command_matched(self, info: QoSPublisherMatchedInfo) -> None:
         if self.lockstep and info.current_count_change > 0:
             self.deliver_answer()
 

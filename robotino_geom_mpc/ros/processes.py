@@ -42,7 +42,7 @@ DESCRIPTION_MODULE = "robotino_geom_mpc.nodes.robot_description_node"  # robot_d
 _MORE_MODULES = {"robot_description_publisher": DESCRIPTION_MODULE}
 
 # the nodes that declare ``frame_prefix`` (their frame ids: odometry, /tf, paths)
-FRAME_PREFIX_NODES = ("plant_node",)
+FRAME_PREFIX_NODES = ("plant_node", "controller_node")
 _NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
@@ -102,6 +102,7 @@ def node_arguments(
     odometry: str = "ideal",
     namespace: str = "",
     goals_file: str | os.PathLike | None = None,
+    command_interface: str = "voltages",
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`.
 
@@ -112,7 +113,8 @@ def node_arguments(
     `LOCKSTEP_WAIT_FOR`, or `RECORDER_WAIT_FOR` with a recorder);
     `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`)
     and gives the nodes of `FRAME_PREFIX_NODES` its `frame_prefix`.
-    A ``robot_description_publisher`` publishes the URDF and the wheels' TF.
+    A ``robot_description_publisher`` publishes the URDF and the wheels' TF. `command_interface`
+    cmd_vel goes to the controller and the plant (voltages, their default, is left to them).
     With `goals_file` (scenario ``goals``) a ``goal_sender`` (module `GOAL_SENDER_MODULE`) sends the file's
     goals and paths; a lockstep plant waits for its odom subscription too, so its times count from tick 0.
     """
@@ -137,15 +139,19 @@ def node_arguments(
     # odometry stamps; the time source's /clock reader would cost each a wake-up a tick
     # encoder odometry's twist is the mean over the period: the controller's pose filter predicts accordingly
     twist = {"controller_node": {"control.odometry_twist": "period_mean"}} if odometry == "encoders" else {}
+    interface = {} if command_interface == "voltages" else {
+        name: {"command_interface": command_interface} for name in ("controller_node", "plant_node")}
     for name in ("trajectory_node", "controller_node"):
         args[name] = ros_args(params_file, {**scenario_overrides[name], "mode": mode, **twist.get(name, {}),
-                                            **frames.get(name, {}), **extra.get(name, {})}, remaps)
+                                            **interface.get(name, {}), **frames.get(name, {}), **extra.get(name, {})},
+                              remaps)
     args["plant_node"] = ros_args(params_file, {
         **scenario_overrides["plant_node"],
         "mode": mode,
         "duration_s": float(duration_s),
         "seed": int(seed),
         "odometry_model": odometry,
+        **interface.get("plant_node", {}),
         "lockstep_wait_for": list(wait_for),
         **frames.get("plant_node", {}),
         **extra.get("plant_node", {}),

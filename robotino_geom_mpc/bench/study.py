@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 
 from robotino_geom_mpc.bench.registry import benchmark
 from robotino_geom_mpc.core.params import load_params
@@ -11,24 +12,36 @@ __all__ = ["bench_study"]
 
 
 @benchmark("study", "Monte-Carlo robustness study (`study.run_study`) of paper-circle on all cores, "
-           "simulated seconds per wall second of the whole study")
+           "simulated seconds per wall second of the whole study, beside the same runs one after another here")
 def bench_study(quick: bool) -> dict[str, float]:
-    """`study.run_study` of 4 (quick: 2) runs per core of paper-circle, 22 s each (quick: 5 s).
+    """`study.run_study` of 8 (quick: 2) runs per core of paper-circle, 22 s each (quick: 5 s).
 
     The wall time counts the process pool's start and the collection of every
-    row, as `robotino-geom-mpc study` does (not the figures); the peer figure is
-    `offline_sim_realtime_factor`, one run in this process.
+    row, as `robotino-geom-mpc study` does (not the figures). Its peer, measured
+    right after on the same draws: the runs one after another in this process
+    (`study.run_one`, one core, no pool), ``study_serial_realtime_factor``;
+    ``study_speedup_vs_serial`` is the study's factor over it (at most about
+    the number of cores). ``study_run_cpu_ms`` is the mean process time of one
+    serial run (22 s: 600x on 2 cores needs about 73 ms).
     """
-    from robotino_geom_mpc.study import draw_runs, run_study, summarize
+    from robotino_geom_mpc.study import draw_runs, run_one, run_study, summarize
 
     workers = os.cpu_count() or 1
-    per_core, duration_s = (2, 5.0) if quick else (4, None)
+    per_core, duration_s = (2, 5.0) if quick else (8, None)
     robot, control = load_params()
-    result = run_study("paper-circle", robot, control, draw_runs(per_core * workers, 0), duration_s=duration_s,
-                       workers=workers, progress=False)
+    draws = draw_runs(per_core * workers, 0)
+    result = run_study("paper-circle", robot, control, draws, duration_s=duration_s, workers=workers,
+                       progress=False)
     summary = summarize(result, "paper-circle")
+    start, cpu = time.perf_counter(), time.process_time()
+    serial = [run_one("paper-circle", robot, control, draw, duration_s, 1.0) for draw in draws]
+    serial_wall_s, serial_cpu_s = time.perf_counter() - start, time.process_time() - cpu
+    serial_factor = sum(row["simulated_s"] for row in serial) / serial_wall_s
     return {
         "study_aggregate_realtime_factor": summary["aggregate_realtime_factor"],
+        "study_serial_realtime_factor": serial_factor,
+        "study_speedup_vs_serial": summary["aggregate_realtime_factor"] / serial_factor,
+        "study_run_cpu_ms": 1e3 * serial_cpu_s / len(draws),
         "study_runs": float(summary["runs"]),
         "study_failed_runs": float(summary["failed_runs"]),
         "study_workers": float(workers),

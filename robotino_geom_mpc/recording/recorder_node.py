@@ -7,7 +7,9 @@ follows the publishers' offers as rosbag2 does (reliable / transient local
 only when every publisher offers it, so the latched ``reference_path`` is
 captured), with a keep-all history (``qos_depth``, see
 `qos.adapt_request_to_offers`); hidden topics (a name component starting
-with ``_``) are skipped. Messages published before the recorder has matched
+with ``_``) are skipped. A recorder in a namespace (one robot of several)
+records by default its namespace's topics and the shared ``/tf`` and
+``/tf_static`` only, not the other robots'. Messages published before the recorder has matched
 a topic are not in the bag (as with ``ros2 bag record``): a lockstep run
 makes the plant wait for the recorder's subscriptions (``lockstep_wait_for``).
 
@@ -105,6 +107,8 @@ class RecorderNode(Node):
         if compression not in ("zstd", "lz4", "none"):
             raise BagError(f"parameter 'compression' must be zstd, lz4 or none, got {compression!r}")
         self._wanted = {self.resolve_topic_name(t) for t in p("topics").value if t} or None
+        namespace = self.get_namespace().rstrip("/")
+        self._own = (namespace + "/", ("/tf", "/tf_static")) if namespace else None
         self._depth = int(p("qos_depth").value)
         output = p("output").value or default_bag_name()
         self.writer = BagWriter(output, compression=compression, chunk_size=int(p("chunk_size_bytes").value))
@@ -126,10 +130,16 @@ class RecorderNode(Node):
         self.writer.store_run_metadata({"scenario": self.get_parameter("scenario").value,
                                         "parameters": json.dumps(values, sort_keys=True)})
 
+    def _records(self, name: str) -> bool:
+        """Whether `name` is wanted: listed in ``topics``, or else in this recorder's namespace (or /tf)."""
+        if self._wanted is not None:
+            return name in self._wanted
+        return self._own is None or name.startswith(self._own[0]) or name in self._own[1]
+
     def _discover(self) -> None:
         """Subscribe every wanted topic that has a publisher and is not recorded yet."""
         for name, types in self.get_topic_names_and_types():
-            if name in self._channels or _hidden(name) or (self._wanted is not None and name not in self._wanted):
+            if name in self._channels or _hidden(name) or not self._records(name):
                 continue
             infos = self.get_publishers_info_by_topic(name)
             if not infos:

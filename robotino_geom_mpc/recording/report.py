@@ -81,12 +81,12 @@ def find_topic(bag: BagReader, suffix: str, type_name: str, required: bool = Tru
     names = [
         n for n, t in bag.topics.items() if (n == "/" + suffix or n.endswith("/" + suffix)) and t.type == type_name
     ]
+    # the shallowest wins: /robot1/odom, not /robot1/ground_truth/odom; two robots' odom stay ambiguous
+    depth = min((n.count("/") for n in names), default=0)
+    names = [n for n in names if n.count("/") == depth]
     if len(names) == 1:
         return names[0]
     if len(names) > 1:
-        exact = [n for n in names if n == "/" + suffix]
-        if exact:
-            return exact[0]
         raise BagError(f"{bag.path}: several {suffix} topics ({', '.join(names)})")
     if required:
         raise BagError(f"{bag.path}: no '{suffix}' topic of type {type_name} in the recording")

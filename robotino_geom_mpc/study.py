@@ -25,7 +25,6 @@ instead of ending the study. `summarize` gives the study's figures and
 from __future__ import annotations
 
 import csv
-import gc
 import json
 import multiprocessing
 import os
@@ -243,7 +242,7 @@ def run_study(
     size = max(1, min(BATCH_MAX, len(draws) // (8 * workers)))  # >= 8 batches a worker: the last ones balance
     start = time.perf_counter()
     rows: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=workers, mp_context=_context(), initializer=gc.freeze) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_context()) as pool:
         futures = [pool.submit(_run_batch, scenario, robot, control, draws[k : k + size], duration_s, settle_time_s)
                    for k in range(0, len(draws), size)]
         with tqdm(total=len(draws), desc=f"study {scenario}", unit="run", disable=not progress,

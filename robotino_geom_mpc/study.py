@@ -39,6 +39,7 @@ from tqdm import tqdm
 
 from robotino_sim_node.encoders import ODOMETRY_MODELS
 
+from .blas_threads import one_blas_thread
 from .core.errors import RobotinoError
 from .core.params import ControlParams, RobotinoParams
 from .results import compute_metrics
@@ -242,7 +243,8 @@ def run_study(
     size = max(1, min(BATCH_MAX, len(draws) // (8 * workers)))  # >= 8 batches a worker: the last ones balance
     start = time.perf_counter()
     rows: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=workers, mp_context=_context()) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_context(),
+                             initializer=one_blas_thread) as pool:
         futures = [pool.submit(_run_batch, scenario, robot, control, draws[k : k + size], duration_s, settle_time_s)
                    for k in range(0, len(draws), size)]
         with tqdm(total=len(draws), desc=f"study {scenario}", unit="run", disable=not progress,

@@ -93,10 +93,7 @@ from robotino_sim_node.lockstep_start import StartHandshake
 from robotino_sim_node.loop_timing import LoopTiming, lockstep_line, lockstep_report, realtime_report, write_report
 from robotino_sim_node.plant import RobotinoPlant
 from robotino_sim_node.wheel_speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
-from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, StateOutputs, odometry_template
-# the names test_cdr_template reads (the templates live in `outputs`)
-from robotino_sim_node.outputs import ODOM_FIELDS as _ODOM_FIELDS, joint_template as _joint_template, \
-    odometry_values as _odometry_values, plant_odometry as _odometry_template  # noqa: F401
+from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, StateOutputs, odometry_template, odometry_values
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
 
@@ -420,14 +417,14 @@ class PlantNode(Node):
         if fresh or self.measurement is None:
             noise = (self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"])
             self.measurement = self.odometry.odometry_floats(self.rng, noise)
-        publish_acknowledged(self, self.odom_pub, self.odom_cdr.pack(*stamp, *_odometry_values(*self.measurement)))
+        publish_acknowledged(self, self.odom_pub, self.odom_cdr.pack(*stamp, *odometry_values(*self.measurement)))
         if clock:
             publish_acknowledged(self, self.clock_pub, self.clock_cdr.pack(*stamp))
         if fresh and self.have_period:
             self._publish_currents()
         if self.truth_pub.get_subscription_count():
             publish_acknowledged(self, self.truth_pub,
-                                 self.truth_cdr.pack(*stamp, *_odometry_values(*self.plant.odometry_floats())))
+                                 self.truth_cdr.pack(*stamp, *odometry_values(*self.plant.odometry_floats())))
         plant = self.plant
         self.state_out.publish(stamp, self.measurement[0], plant.wheel_angles.tolist(), plant.wheel_speeds.tolist(),
                                (self.effort_per_a * plant.currents).tolist())

@@ -12,7 +12,6 @@
 import math
 import os
 import signal
-import time
 
 import numpy as np
 import pytest

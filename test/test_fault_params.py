@@ -10,6 +10,7 @@ import json
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 import yaml
@@ -19,6 +20,7 @@ from robotino_geom_mpc.core.param_files import NODE_PARAMETERS, RCLPY_PARAMETERS
 from robotino_geom_mpc.core.params import preset_file
 from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
 
+GOALS_EXAMPLE = Path(__file__).resolve().parents[1] / "config" / "goals_example.yaml"
 TIMEOUT_S = 120.0  # generous: the node's imports on a loaded machine; the test waits for the exit, not the time
 
 
@@ -146,11 +148,14 @@ def test_the_registry_names_what_each_node_declares(tmp_path):
         from robotino_geom_mpc.nodes.controller_node import ControllerNode
         from robotino_geom_mpc.nodes.trajectory_node import TrajectoryNode
         from robotino_geom_mpc.recording.recorder_node import RecorderNode
+        from robotino_geom_mpc.nodes.goal_sender import GoalSender
+        from robotino_geom_mpc.nodes.robot_description_node import RobotDescriptionNode
         from robotino_sim_node.plant_node import PlantNode
         rclpy.init()
         out = {{}}
-        for make in (ControllerNode, TrajectoryNode, PlantNode,
-                     lambda: RecorderNode(parameter_overrides=[Parameter("output", value={str(tmp_path / 'bag')!r})])):
+        for make in (ControllerNode, TrajectoryNode, PlantNode, RobotDescriptionNode,
+                     lambda: RecorderNode(parameter_overrides=[Parameter("output", value={str(tmp_path / 'bag')!r})]),
+                     lambda: GoalSender(parameter_overrides=[Parameter("goals_file", value={str(GOALS_EXAMPLE)!r})])):
             node = make()
             out[node.get_name()] = node.list_parameters([], 0).names
             node.destroy_node()

@@ -115,7 +115,7 @@ def _goals_duration(args: argparse.Namespace, params_file: Path) -> float:
 def run(args: argparse.Namespace) -> int:
     """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
     from ..core.params import default_params_file, load_params
-    from ..ros.processes import GOAL_SENDER_MODULE, NodeFailed, NodeGroup, node_arguments
+    from ..ros.processes import NodeFailed, NodeGroup, node_arguments
 
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)
@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     group = NodeGroup(log_dir=out / "logs")
     start = time.monotonic()
     try:
-        nodes = {name: group.start(name, argv, GOAL_SENDER_MODULE if name == "goal_sender" else None)
+        nodes = {name: group.start(name, argv)
                  for name, argv in node_args.items()}
         if bag is not None:
             _import_in_background(REPORT_MODULES)

@@ -26,7 +26,6 @@ import fnmatch
 import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
 
 from robotino_geom_mpc.core.params import ALL_SPECS, ParamError, parse_parameter_file, validate_value
 
@@ -59,6 +58,8 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",
         "scenario",
     ),
+    "robot_description_publisher": _ROBOT_CONTROL + ("frame_prefix",),
+    "robotino_goal_sender": ("goals_file", "mode"),
 }
 """The parameters each node of the package declares (besides rclpy's), by node name; a test compares them
 with what the nodes declare."""

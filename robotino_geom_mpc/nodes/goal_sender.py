@@ -12,6 +12,8 @@ Parameters: ``goals_file`` (path of the goal file), ``mode`` (realtime or lockst
 
 from __future__ import annotations
 
+from typing import Any
+
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry, Path
 from rclpy.node import Node
@@ -46,8 +48,8 @@ def _pose(item_frame: str, stamp, x: float, y: float, yaw: float) -> PoseStamped
 class GoalSender(Node):
     """The goal sender (see the module docstring)."""
 
-    def __init__(self) -> None:
-        super().__init__("robotino_goal_sender")
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("robotino_goal_sender", **kwargs)
         self.params = SpecParameters(self, SENDER_SPECS, {"goals_file": "", "mode": "realtime"}, fixed=("goals_file",))
         try:
             self.items: list[GoalItem] = load_goal_file(self.params["goals_file"])

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NODE_MODULES", "GOAL_SENDER_MODULE", "DESCRIPTION_MODULE", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR",
+__all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR",
            "RECORDER_WAIT_FOR", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment",
            "frame_prefix", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
 
@@ -36,13 +36,9 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
                      "wheel_currents:1", "joint_states:1", "diagnostics:1")
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/
-GOAL_SENDER_MODULE = "robotino_geom_mpc.nodes.goal_sender"  # `node_arguments`' goal_sender (no console script)
-DESCRIPTION_MODULE = "robotino_geom_mpc.nodes.robot_description_node"  # robot_description_publisher
-# `NodeGroup.start`'s modules of the executables `NODE_MODULES` (`signals`) does not name
-_MORE_MODULES = {"robot_description_publisher": DESCRIPTION_MODULE}
 
 # the nodes that declare ``frame_prefix`` (their frame ids: odometry, /tf, paths)
-FRAME_PREFIX_NODES = ("plant_node", "controller_node")
+FRAME_PREFIX_NODES = ("plant_node", "controller_node", "trajectory_node", "robot_description_publisher")
 _NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
@@ -115,7 +111,7 @@ def node_arguments(
     and gives the nodes of `FRAME_PREFIX_NODES` its `frame_prefix`.
     A ``robot_description_publisher`` publishes the URDF and the wheels' TF. `command_interface`
     cmd_vel goes to the controller and the plant (voltages, their default, is left to them).
-    With `goals_file` (scenario ``goals``) a ``goal_sender`` (module `GOAL_SENDER_MODULE`) sends the file's
+    With `goals_file` (scenario ``goals``) a ``goal_sender`` sends the file's
     goals and paths; a lockstep plant waits for its odom subscription too, so its times count from tick 0.
     """
     from robotino_geom_mpc.core.params import load_params
@@ -254,7 +250,7 @@ class NodeGroup:
         self.log_dir.mkdir(parents=True, exist_ok=True)
 
     def start(self, executable: str, args: list[str], module: str | None = None) -> NodeProcess:
-        """Start `executable` (a key of `NODE_MODULES` or ``robot_description_publisher``, or any name with the
+        """Start `executable` (a key of `NODE_MODULES`, or any name with the
         `module` to run) in its own process group.
 
         The nodes get one BLAS thread (``OPENBLAS_NUM_THREADS=1`` unless set): their matrices are 3x3 to
@@ -269,7 +265,7 @@ class NodeGroup:
         with open(out, "wb") as fout, open(err, "wb") as ferr:
             popen = subprocess.Popen(
                 [*self.prefix, sys.executable, "-m",
-                 module or NODE_MODULES.get(executable) or _MORE_MODULES[executable], *args],
+                 module or NODE_MODULES[executable], *args],
                 stdout=fout,
                 stderr=ferr,
                 stdin=subprocess.DEVNULL,

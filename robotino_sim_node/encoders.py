@@ -148,18 +148,25 @@ class EncoderOdometry:
         """
         dt = self.plant.time_s - self._time_s
         if dt > 0.0:
+            # Unrolled over the three wheels: the same operations as the numpy functions, in the same order.
             angles = self.plant.wheel_angles.tolist()
-            change = [a - b for a, b in zip(angles, self._angles)]
+            (a1, a2, a3), (b1, b2, b3), (e1, e2, e3) = angles, self._angles, self._seen
+            d1, d2, d3 = a1 - b1, a2 - b2, a3 - b3
             if self.slip_std:
-                slip = self._rng.standard_normal(3).tolist()
-                change = [c * (1.0 + self.slip_std * z) for c, z in zip(change, slip)]
-            self._seen = [s + c for s, c in zip(self._seen, change)]
-            self._angles = angles
-            counts = [math.floor(a * self._count_scale) for a in self._seen]
+                z1, z2, z3 = self._rng.standard_normal(3).tolist()
+                d1, d2, d3 = d1 * (1.0 + self.slip_std * z1), d2 * (1.0 + self.slip_std * z2), \
+                    d3 * (1.0 + self.slip_std * z3)
+            e1, e2, e3 = e1 + d1, e2 + d2, e3 + d3
+            k = self._count_scale
+            counts = [math.floor(e1 * k), math.floor(e2 * k), math.floor(e3 * k)]
+            (c1, c2, c3), (p1, p2, p3) = counts, self._counts.tolist()
             scale = 2.0 * math.pi / (self._gear_counts * dt)
-            s1, s2, s3 = [(c - c0) * scale for c, c0 in zip(counts, self._counts.tolist())]
-            self.twist = tuple(a * s1 + b * s2 + c * s3 for a, b, c in self._twist_rows)
+            s1, s2, s3 = (c1 - p1) * scale, (c2 - p2) * scale, (c3 - p3) * scale
+            (r11, r12, r13), (r21, r22, r23), (r31, r32, r33) = self._twist_rows
+            self.twist = (r11 * s1 + r12 * s2 + r13 * s3, r21 * s1 + r22 * s2 + r23 * s3,
+                          r31 * s1 + r32 * s2 + r33 * s3)
             self.pose = integrate_pose(self.pose, self.twist, dt)
+            self._angles, self._seen = angles, [e1, e2, e3]
             self._counts, self._time_s = np.array(counts), self.plant.time_s
         return self.pose, self.twist
 

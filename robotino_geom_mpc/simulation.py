@@ -148,6 +148,7 @@ def run_scenario(
     if odometry == "encoders":  # its twist is the mean over the period: the pose filter's matching predictor
         control = replace(control, odometry_twist="period_mean")
     controller = MotionController(spec.controller_model(robot), control)
+    controller.start_at(*reference.position(np.zeros(1))[0].tolist())  # robot and reference start together
     # The run's pose noise drawn at once: the same values as one `RobotinoPlant.pose_noise` draw per tick.
     std_position, std_yaw = noise
     draws = (np.random.default_rng(seed).normal(0.0, (std_position, std_position, std_yaw), (n, 3)).tolist()

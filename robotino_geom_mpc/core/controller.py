@@ -132,6 +132,15 @@ class MotionController:
         if self.constrained is not None:
             self.constrained.reset()
 
+    def start_at(self, x: float, y: float, theta: float) -> None:
+        """Start the pose filter at a known pose of the robot at rest (`OdometryFilter.start_at`), no-op without one.
+
+        For tick 0 of a run, where robot and reference start together: the first measurement's pose noise
+        then reaches the MPCs as L n(0), not as a start kick.
+        """
+        if self.estimator is not None:
+            self.estimator.start_at(x, y, theta)
+
     def _acceleration_of_current(self, theta_m: float, current: np.ndarray) -> np.ndarray:
         """Body acceleration (x'', y'', theta'') the wheel currents give (friction aside), eq. (9)."""
         return acceleration_block(theta_m, self.robot) @ wheel_forces(current, self.robot)
@@ -223,10 +232,7 @@ class MotionController:
             du_x, du_y, du_theta = self.mpc.delta_u_floats(x, u_prev, y)
             u = [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta]
         else:
-            u_arr, infeasible = self.constrained.solve(
-                np.array(x), np.array(u_prev), np.array(y), self.drive.current_estimate
-            )
-            u = u_arr.tolist()
+            u, infeasible = self.constrained.solve_floats(x, u_prev, y, self.drive.current_estimate)
         currents = self.drive.currents_floats(self.field.forces_floats(theta_m, u))
         ux, uy, uw = u
         dx, dy, dw = self._damping_rates

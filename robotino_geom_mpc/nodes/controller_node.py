@@ -345,6 +345,7 @@ class ControllerNode(Node):
         reason = self.blend.due(preview_stamp)
         if reason == "start" and self.lockstep and stamp == 0:
             self.blend.reason = reason = None  # t = 0 of a lockstep run: robot and reference start together
+            self.controller.start_at(*positions[0].tolist())
         if reason is not None:
             self._engage(stamp, X, positions[0], velocities[0], accelerations[0], reason)
             dt_s = None  # the controller starts over

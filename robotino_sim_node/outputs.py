@@ -14,7 +14,12 @@ domain keep their frames apart by ``frame_prefix`` (``robot1/``), as robot_state
 of that name does. Without tf2_msgs (a venv where ``make setup`` did not build it) one error line says
 so and the plant runs without /tf.
 
-Both go out only while a subscription is matched, with the plant's other publishers' QoS.
+``applied_voltages`` (std_msgs/Float64MultiArray, 3 values [V], layout label ``wheel_voltage_v`` as
+``wheel_voltages``; ``command_interface`` cmd_vel only, `AppliedVoltages`): per drive the mean voltage the
+wheel-speed PI loops applied over the period the currents of ``wheel_currents`` cover (what
+`simulation.run_scenario` records as a cmd_vel run's voltages), published just before those currents.
+
+All go out only while a subscription is matched, with the plant's other publishers' QoS.
 """
 
 from __future__ import annotations
@@ -27,16 +32,17 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 
 from robotino_geom_mpc.core.params import ParamSpec
 from robotino_geom_mpc.description.urdf import BASE_LINK, JOINT_NAMES, check_frame_prefix
 from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.decode import STAMP_FIELDS
-from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_message
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, odometry_message, three_values_template
 from robotino_geom_mpc.ros.qos import publish_acknowledged
 
-__all__ = ["ODOM_FIELDS", "TF_DEFAULTS", "TF_SPECS", "StateOutputs", "joint_template", "odometry_template",
-           "odometry_values", "plant_odometry"]
+__all__ = ["AppliedVoltages", "ODOM_FIELDS", "TF_DEFAULTS", "TF_SPECS", "StateOutputs", "joint_template",
+           "odometry_template", "odometry_values", "plant_odometry"]
 
 TF_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("publish_tf", bool, "Publish odom -> base_link (the odometry's pose) on /tf, as the drivers do"),
@@ -136,3 +142,37 @@ class StateOutputs:
         if self.joint_pub.get_subscription_count():
             publish_acknowledged(self.node, self.joint_pub,
                                  self.joint_cdr.pack(*stamp, *wheel_angles, *wheel_speeds, *wheel_torques))
+
+
+class AppliedVoltages:
+    """``applied_voltages`` of a cmd_vel plant: the time mean of the PI loops' held voltages since the last publish.
+
+    Parameters
+    ----------
+    node
+        The plant node.
+    qos
+        The writers' QoS (`ros.qos.publish_qos`).
+    """
+
+    def __init__(self, node: Node, qos: QoSProfile) -> None:
+        self.node = node
+        self.pub = node.create_publisher(Float64MultiArray, "applied_voltages", qos)
+        self.cdr = three_values_template(VOLTAGE_LABEL)
+        self.volt_seconds = np.zeros(3)
+        self.seconds = 0.0
+
+    def drive(self, loop: Any, plant: Any, twist_body: tuple[float, ...], duration_s: float) -> np.ndarray:
+        """Run `loop` (a `wheel_speed_loop.WheelSpeedLoop`) on `plant` for `duration_s` towards `twist_body`,
+        account the voltages it held; returns each drive's peak |armature current| [A] over that time."""
+        held, currents = loop.run(plant, twist_body, duration_s)
+        self.volt_seconds += held.mean(axis=0) * duration_s
+        self.seconds += duration_s
+        return np.abs(currents).max(axis=0)
+
+    def publish(self) -> None:
+        """Publish the mean since the last publish (if a reader is matched and time has passed), then restart it."""
+        if self.seconds > 0.0 and self.pub.get_subscription_count():
+            publish_acknowledged(self.node, self.pub, self.cdr.pack(*(self.volt_seconds / self.seconds).tolist()))
+        self.volt_seconds = np.zeros(3)
+        self.seconds = 0.0

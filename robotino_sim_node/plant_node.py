@@ -16,6 +16,7 @@ publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``
                                    previous measurement, signed like the current at its end (what
                                    `simulation.run_scenario` records); published after the next tick's odom and
                                    before its ground truth (and once more after the last period)
+           ``applied_voltages``    cmd_vel only: the PI loops' mean voltages over those periods [V] (`outputs`)
            ``joint_states``        sensor_msgs/JointState of the wheels (`outputs`)
            ``/tf``                 tf2_msgs/TFMessage: odom -> base_link, the odometry's pose (``publish_tf``,
                                    `outputs`); frames ``<frame_prefix>odom``, ``<frame_prefix>base_link``
@@ -83,8 +84,7 @@ from std_msgs.msg import Float64MultiArray
 from robotino_geom_mpc.core.params import ParamSpec
 from robotino_geom_mpc.description.urdf import JOINT_NAMES, DescriptionError, check_frame_prefix
 from robotino_geom_mpc.ros.cdr import CdrTemplate, MalformedMessage, cdr_reader
-from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, three_values_layout, \
-    three_values_template
+from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, three_values_layout, three_values_template
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
@@ -93,7 +93,8 @@ from robotino_sim_node.lockstep_start import StartHandshake
 from robotino_sim_node.loop_timing import LoopTiming, lockstep_line, lockstep_report, realtime_report, write_report
 from robotino_sim_node.plant import RobotinoPlant
 from robotino_sim_node.wheel_speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
-from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, StateOutputs, odometry_template, odometry_values
+from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, AppliedVoltages, StateOutputs, odometry_template, \
+    odometry_values
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
 
@@ -166,13 +167,14 @@ class PlantNode(Node):
         p = self.params  # cmd_vel: a twist held by the wheel-speed PI loops instead of voltages
         self.speed_loop = WheelSpeedLoop(self.robot, p["wheel_pi.kp"], p["wheel_pi.ki"], p["wheel_pi.rate_hz"]) \
             if p["command_interface"] == "cmd_vel" else None
+        self.applied = None if self.speed_loop is None else AppliedVoltages(self, qos)  # the PI loops' voltages
         self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command, CONTROL_QOS,
                                                     raw=True) if self.speed_loop is None else \
             self.create_subscription(Twist, "cmd_vel", self._on_twist, CONTROL_QOS)
         self.handshake = StartHandshake(self, self.command_sub, {
             "odom": self.odom_pub, "ground_truth/odom": self.truth_pub, "wheel_currents": self.current_pub,
             "joint_states": self.state_out.joint_pub, "/tf": self.state_out.tf_pub, "/clock": self.clock_pub,
-            "clock": self.clock_pub})
+            "clock": self.clock_pub, "applied_voltages": self.applied and self.applied.pub})
 
         self.voltages = np.zeros(3)
         self.peak_currents = np.zeros(3)
@@ -261,7 +263,7 @@ class PlantNode(Node):
         if self.speed_loop is None:
             self.plant.step(command, dt)
             return self.plant.peak_abs_currents
-        return np.abs(self.speed_loop.run(self.plant, command, dt)[1]).max(axis=0)
+        return self.applied.drive(self.speed_loop, self.plant, command, dt)
 
     def _on_twist(self, msg: Twist) -> None:
         values = (msg.linear.x, msg.linear.y, msg.angular.z)
@@ -401,6 +403,8 @@ class PlantNode(Node):
 
     def _publish_currents(self) -> None:
         """Signed peak current of each drive over the period just integrated (as `simulation` records it)."""
+        if self.applied is not None:  # cmd_vel: the PI loops' mean voltages over that period, just before
+            self.applied.publish()
         if self.current_pub.get_subscription_count():
             publish_acknowledged(self, self.current_pub,
                                  self.current_cdr.pack(*np.copysign(self.peak_currents, self.plant.currents).tolist()))

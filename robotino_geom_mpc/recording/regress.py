@@ -13,7 +13,11 @@ one the diagnostics name, are not stepped: the node had no preview yet).
 Its voltages are compared with the recorded ``wheel_voltages`` answer of
 the tick (paired through the controller's ``diagnostics``, stamped with
 the tick, see `report`). Deterministic code on identical inputs gives
-identical floats, so the tolerance is 1e-12 V.
+identical floats, so the tolerance is 1e-12 V. A cmd_vel run (its
+controller sent twists on ``cmd_vel``, no ``wheel_voltages``) is compared
+the same way on the twist the node sends, `MotionController.next_velocity`
+after the step (v_x, v_y [m/s], theta' [rad/s] in base_link; zero where the
+node refused the input), with the same tolerance in those units.
 
 The controller carries state from tick to tick (u(k-1) of the Delta-u form,
 the pose estimate), so the replay needs every tick's inputs. In a lockstep
@@ -39,6 +43,7 @@ import math
 import os
 from bisect import bisect_left
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -79,6 +84,8 @@ class RegressionResult:
         preview the recording lacks, where the replay stopped; None if every tick's inputs are there.
     gap
         What is missing there (``"odom"`` or ``"reference_preview"``), or None.
+    command
+        The compared command topic: ``wheel_voltages`` (deviations in V) or ``cmd_vel`` (in m/s and rad/s).
     """
 
     ticks: int
@@ -88,10 +95,16 @@ class RegressionResult:
     tolerance_v: float
     gap_at_s: float | None = None
     gap: str | None = None
+    command: str = "wheel_voltages"
 
     @property
     def passed(self) -> bool:
         return self.compared > 0 and self.max_deviation_v <= self.tolerance_v
+
+    @property
+    def unit(self) -> str:
+        """The unit of the deviations and the tolerance: ``V``, or ``m/s, rad/s`` for a cmd_vel twist."""
+        return "V" if self.command == "wheel_voltages" else "m/s, rad/s"
 
 
 def regress_bag(
@@ -99,13 +112,14 @@ def regress_bag(
     params_file: str | os.PathLike | None = None,
     tolerance_v: float = 1e-12,
 ) -> RegressionResult:
-    """Recompute the controller's voltages from a recording and compare them to the recorded ones.
+    """Recompute the controller's voltages (a cmd_vel run: twists) from a recording and compare them to the
+    recorded ones.
 
     Raises
     ------
     BagError
         If the recording lacks ``odom``, ``reference_preview`` or
-        ``wheel_voltages``.
+        ``wheel_voltages`` (a cmd_vel run: ``cmd_vel``).
     """
     if not math.isfinite(tolerance_v) or tolerance_v < 0.0:
         raise BagError(f"tolerance must be finite and >= 0, got {tolerance_v!r}")
@@ -114,7 +128,12 @@ def regress_bag(
     robot, control, _, _ = resolve_parameters(bag, params_file)
     odom = by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry"))
     previews = by_publish_time(bag, find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory"))
-    voltages = by_publish_time(bag, find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray"))
+    command = find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray", False)
+    twists = command is None  # a cmd_vel run: the controller's twists
+    if twists and find_topic(bag, "cmd_vel", "geometry_msgs/msg/Twist", False) is None:
+        raise BagError(f"{bag.path}: no 'wheel_voltages' (std_msgs/msg/Float64MultiArray) nor 'cmd_vel' "
+                       "(geometry_msgs/msg/Twist) topic in the recording: no controller command to compare")
+    voltages = by_publish_time(bag, command or find_topic(bag, "cmd_vel", "geometry_msgs/msg/Twist"))
     diags = by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False))
     volt_t = [p for p, _ in voltages]
     answers: dict[int, np.ndarray] = {}  # tick stamp -> recorded voltages
@@ -130,7 +149,7 @@ def regress_bag(
                 engagements.setdefault(stamp_ns(msg.header.stamp), int(values["blend_engagements"]))
         i = bisect_left(volt_t, publish) - 1
         if i >= 0:
-            answers.setdefault(stamp_ns(msg.header.stamp), np.array(voltages[i][1].data))
+            answers.setdefault(stamp_ns(msg.header.stamp), _command_values(voltages[i][1], twists))
     by_stamp: dict[int, object] = {}
     for _, msg in previews:
         by_stamp.setdefault(stamp_ns(msg.header.stamp), msg)
@@ -194,6 +213,8 @@ def regress_bag(
             Y_d = positions[1:] if offsets is None else positions[1:] + offsets
             try:
                 expected = controller.step(X, Y_d, dt_s).voltages
+                if twists:  # the node's cmd_vel answer
+                    expected = controller.next_velocity()
                 last_used = stamp
             except ControllerInputError:
                 expected = np.zeros(3)
@@ -210,4 +231,11 @@ def regress_bag(
     worst_time = None if worst_stamp is None else (worst_stamp - first_stamp) * 1e-9
     gap_at = None if gap is None else (gap[0] - first_stamp) * 1e-9
     return RegressionResult(ticks, compared, worst, worst_time, float(tolerance_v), gap_at,
-                            None if gap is None else gap[1])
+                            None if gap is None else gap[1], "cmd_vel" if twists else "wheel_voltages")
+
+
+def _command_values(msg: Any, twist: bool) -> np.ndarray:
+    """The recorded command: wheel voltages, or a Twist's (linear.x, linear.y, angular.z)."""
+    if twist:
+        return np.array((msg.linear.x, msg.linear.y, msg.angular.z))
+    return np.array(msg.data)

@@ -19,7 +19,11 @@ How a recording maps onto `results.RunData` (one sample per control tick k):
   ``diagnostics`` (stamped t_k, published right after the voltages: the
   last ``wheel_voltages`` published before it), else the first
   ``wheel_voltages`` published after the tick's ``odom``; the diagnostics
-  also give the ``saturated`` / ``infeasible`` flags and the compute time;
+  also give the ``saturated`` / ``infeasible`` flags and the compute time.
+  A cmd_vel run (no ``wheel_voltages``: the controller sent twists on
+  ``cmd_vel``) takes the plant's ``applied_voltages`` instead, the mean
+  voltages its wheel-speed PI loops applied over the period after tick k (as
+  `simulation` records a cmd_vel run), paired with the tick as the currents are;
 * scalars (control period, horizon, nominal current, supply voltage) and
   the scenario name: from the run parameters the recorder stores (MCAP
   metadata record ``robotino_geom_mpc``), else from a parameter file given
@@ -165,6 +169,15 @@ def _first_after(times: list[int], items: list, t: int, before: int | None = Non
     return None
 
 
+def _applied_voltages_topic(bag: BagReader) -> str:
+    """The ``applied_voltages`` topic of a cmd_vel run; BagError naming both command topics if there is none."""
+    topic = find_topic(bag, "applied_voltages", "std_msgs/msg/Float64MultiArray", False)
+    if topic is None:
+        raise BagError(f"{bag.path}: no 'wheel_voltages' (nor, for a cmd_vel run, 'applied_voltages') topic of "
+                       "type std_msgs/msg/Float64MultiArray in the recording")
+    return topic
+
+
 def _pose(msg: Any) -> tuple[float, float, float]:
     """(x, y, yaw) of a nav_msgs/Odometry."""
     pose = msg.pose.pose
@@ -191,7 +204,7 @@ def run_data_from_bag(
     ------
     BagError
         If the bag lacks ``ground_truth/odom``, ``wheel_currents`` or
-        ``wheel_voltages``, or no tick has all its data.
+        ``wheel_voltages`` (a cmd_vel run: ``applied_voltages``), or no tick has all its data.
     """
     if not isinstance(bag, BagReader):
         bag = BagReader(bag)
@@ -199,7 +212,9 @@ def run_data_from_bag(
     truth_topic = find_topic(bag, "ground_truth/odom", "nav_msgs/msg/Odometry")
     truth = sorted(_first_per_stamp(by_publish_time(bag, truth_topic)).items())
     currents = by_publish_time(bag, find_topic(bag, "wheel_currents", "std_msgs/msg/Float64MultiArray"))
-    voltages = by_publish_time(bag, find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray"))
+    volt_topic = find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray", False)
+    applied = volt_topic is None  # a cmd_vel run: the plant's PI voltages, paired with a tick as its currents
+    voltages = by_publish_time(bag, volt_topic or _applied_voltages_topic(bag))
     odom = _first_per_stamp(by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry", False)))
     previews = _first_per_stamp(by_publish_time(
         bag, find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory", False)))
@@ -226,7 +241,9 @@ def run_data_from_bag(
         next_publish = truth_publish[k + 1] if k + 1 < len(truth) else None
         current = _first_after(cur_t, currents, publish, next_publish)
         diag = diags.get(stamp)
-        if diag is not None:
+        if applied:
+            voltage = _first_after(volt_t, voltages, publish, next_publish)
+        elif diag is not None:
             i = bisect_left(volt_t, diag[0]) - 1
             voltage = voltages[i][1] if i >= 0 else None
         else:

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR",
-           "RECORDER_WAIT_FOR", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment",
+           "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment",
            "frame_prefix", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.core.errors import RobotinoError
@@ -34,6 +34,15 @@ LOCKSTEP_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:1")
 # with the recorder too, which subscribes every topic (its /clock subscription is a recording one)
 RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
                      "wheel_currents:1", "joint_states:1", "diagnostics:1")
+
+
+def recorder_wait_for(command_interface: str = "voltages") -> list[str]:
+    """`RECORDER_WAIT_FOR` for a run's command interface: with ``cmd_vel`` the controller's twist (``cmd_vel:2``,
+    the plant's and the recorder's readers) instead of ``wheel_voltages``, and the recorder's reader of the
+    plant's ``applied_voltages``."""
+    if command_interface == "voltages":
+        return list(RECORDER_WAIT_FOR)
+    return [w.replace("wheel_voltages:", "cmd_vel:") for w in RECORDER_WAIT_FOR] + ["applied_voltages:1"]
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/
 
@@ -106,7 +115,7 @@ def node_arguments(
     mode; the plant the run's length, the seed, ``odometry_model`` (`odometry`: ideal or encoders; with
     encoders the controller ``control.odometry_twist: period_mean``) and
     ``lockstep_wait_for`` (`wait_for`, by default the subscriptions of the nodes started:
-    `LOCKSTEP_WAIT_FOR`, or `RECORDER_WAIT_FOR` with a recorder);
+    `LOCKSTEP_WAIT_FOR`, or `recorder_wait_for(command_interface)` with a recorder);
     `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`)
     and gives the nodes of `FRAME_PREFIX_NODES` its `frame_prefix`.
     A ``robot_description_publisher`` publishes the URDF and the wheels' TF. `command_interface`
@@ -122,7 +131,7 @@ def node_arguments(
     scenario_overrides = node_parameters(scenario, robot)
     extra = overrides or {}
     if wait_for is None:
-        wait_for = list(LOCKSTEP_WAIT_FOR if bag is None else RECORDER_WAIT_FOR)
+        wait_for = list(LOCKSTEP_WAIT_FOR) if bag is None else recorder_wait_for(command_interface)
         if goals_file is not None:  # the goal sender's odom subscription (its clock) too
             wait_for = [f"odom:{int(w.split(':')[1]) + 1}" if w.startswith("odom:") else w for w in wait_for]
     remaps = namespace_remaps(namespace, lockstep)

@@ -1,16 +1,25 @@
 """The cmd_vel path: the controller's twist (model velocity at k+1 in base_link) and the lockstep loop through the
-plant's wheel-speed PI loops, against a closed-form axis step and the offline loop of `simulate`."""
+plant's wheel-speed PI loops, against a closed-form axis step and the offline loop of `simulate`; `run` records a
+cmd_vel run (its metrics those of `simulate`, its twists those of the offline controller, read by mcap-ros2-support)."""
 
+import json
 import math
+import os
+import subprocess
+import sys
 import time
 from dataclasses import replace
 
 import numpy as np
+import pytest
+from mcap_ros2.reader import read_ros2_messages
 
 from probe import ProbeSpinner
 from robotino_geom_mpc.core.controller import MotionController
 from robotino_geom_mpc.core.params import default_params_file, load_params
-from robotino_geom_mpc.ros.processes import NodeGroup, node_arguments
+from robotino_geom_mpc.recording.regress import regress_bag
+from robotino_geom_mpc.results import compute_metrics
+from robotino_geom_mpc.ros.processes import RECORDER_WAIT_FOR, NodeGroup, node_arguments, recorder_wait_for
 from robotino_geom_mpc.simulation import run_scenario
 
 DURATION_S = 3.0
@@ -67,3 +76,60 @@ def test_lockstep_cmd_vel_loop_equals_simulate_cmd_vel(tmp_path):
     voltage_path = run_scenario("paper-circle", robot, control, duration_s=DURATION_S)
     assert np.abs(offline.pose - voltage_path.pose).max() > 1e-6  # the PI loop changed the run: the test can fail
     assert np.hypot(*(offline.pose[:, :2] - offline.reference[:, :2]).T).max() < 1e-3  # and it closed the loop
+
+
+def _offline_twists(monkeypatch, robot, control):
+    """`simulate`'s cmd_vel run and the twists its controller commanded (every `next_velocity` it returned)."""
+    twists = []
+    original = MotionController.next_velocity
+
+    def recording(self):
+        twists.append(original(self))
+        return twists[-1]
+
+    monkeypatch.setattr(MotionController, "next_velocity", recording)
+    run = run_scenario("paper-circle", robot, control, duration_s=DURATION_S, command_interface="cmd_vel")
+    monkeypatch.undo()
+    return run, np.array(twists)
+
+
+def test_run_cmd_vel_records_the_metrics_of_simulate_and_the_controllers_twists(tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "run", "--scenario", "paper-circle",
+                           "--command-interface", "cmd_vel", "--duration", str(DURATION_S), "--out", str(out)],
+                          capture_output=True, text=True, timeout=600, env=os.environ.copy())
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    robot, control = load_params()
+    offline, twists = _offline_twists(monkeypatch, robot, control)
+    ticks = round(DURATION_S / control.period_s)
+    assert twists.shape == (ticks, 3)
+
+    metrics = json.loads((out / "metrics.json").read_text())
+    want = compute_metrics(offline)
+    for key, value in want.items():
+        if key.startswith("compute_time") or key in ("realtime_factor", "wall_time_s"):
+            continue  # wall-clock measurements
+        if isinstance(value, float) and math.isfinite(value):
+            assert metrics[key] == pytest.approx(value, rel=1e-6, abs=1e-12), key
+        else:
+            assert metrics[key] == value, key
+    assert metrics["peak_voltage_v"] > 1.0  # the PI loops' voltages were reported (the plant's applied_voltages)
+
+    # an independent reader of the bag: the controller's twists, in publish order, one per tick
+    (mcap,) = (out / "bag").glob("*.mcap")
+    recorded = np.array([(m.ros_msg.linear.x, m.ros_msg.linear.y, m.ros_msg.angular.z)
+                         for m in read_ros2_messages(str(mcap), topics=["/cmd_vel"])])
+    np.testing.assert_allclose(recorded, twists, rtol=1e-6, atol=1e-12)
+    assert np.abs(twists).max() > 0.1  # the robot moved: a zero twist would not pass
+
+    result = regress_bag(out / "bag")  # the replay of the controller's twists, every tick
+    assert result.passed and result.command == "cmd_vel" and result.compared == result.ticks == ticks
+
+
+def test_the_recorder_waits_for_the_command_of_the_interface():
+    assert recorder_wait_for() == list(RECORDER_WAIT_FOR)
+    cmd_vel = recorder_wait_for("cmd_vel")
+    assert "cmd_vel:2" in cmd_vel and "applied_voltages:1" in cmd_vel and not any("wheel_voltages" in w for w in cmd_vel)
+    argv = node_arguments("paper-circle", default_params_file(), 1.0, True, bag="/tmp/b", command_interface="cmd_vel")
+    (value,) = [a.split(":=", 1)[1] for a in argv["plant_node"] if a.startswith("lockstep_wait_for:=")]
+    assert json.loads(value) == cmd_vel

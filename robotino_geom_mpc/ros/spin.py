@@ -93,6 +93,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """
     from rclpy.experimental import EventsExecutor
 
+    from robotino_geom_mpc.blas_threads import one_blas_thread
+
     status = start_rclpy(args)
     if status is not None:
         return status
@@ -101,6 +103,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         if STOP.is_set():  # a signal during rclpy.init
             return 0
         node = factory()
+        one_blas_thread()  # also under `ros2 run`: OpenBLAS threads only spin on a node's 3x3-9x9 matrices
         gc.collect()
         gc.freeze()
         executor = EventsExecutor()

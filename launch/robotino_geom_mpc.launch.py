@@ -3,6 +3,7 @@
     ros2 launch robotino_geom_mpc robotino_geom_mpc.launch.py                  # paper-circle in real time
     ros2 launch robotino_geom_mpc robotino_geom_mpc.launch.py scenario:=robustness lockstep:=true
     ros2 launch robotino_geom_mpc robotino_geom_mpc.launch.py namespace:=robot1   # a second robot beside it
+    ros2 launch robotino_geom_mpc robotino_geom_mpc.launch.py command_interface:=cmd_vel  # twists, wheel PI loops
 
 Launch arguments
 ----------------
@@ -28,6 +29,9 @@ frame_prefix   prefix of the frame ids (odometry, /tf, the URDF's links), given 
 fastdds_profile  Fast DDS profile file of the nodes (FASTRTPS_DEFAULT_PROFILES_FILE; default:
                config/fastdds_localhost.xml, quick announcements; config/fastdds_udp.xml across hosts);
                empty: the environment's
+command_interface  voltages (default): the controller sends wheel_voltages to the plant's drives; cmd_vel:
+               a base_link geometry_msgs/Twist on cmd_vel, held by the plant's wheel-speed PI loops (as a real
+               Robotino's driver does). Given to the controller and the plant
 duration       run length [s]; 0 runs until stopped
 seed           seed of the plant's odometry noise
 record         true: also start the MCAP recorder (bag in ``bag``)
@@ -54,7 +58,7 @@ from launch_ros.substitutions import FindPackageShare
 
 from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
-from robotino_geom_mpc.ros.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, frame_prefix, namespace_remaps, \
+from robotino_geom_mpc.ros.processes import FRAME_PREFIX_NODES, frame_prefix, namespace_remaps, recorder_wait_for, \
     ros_namespace
 from robotino_geom_mpc.scenarios import node_parameters
 
@@ -113,6 +117,10 @@ def _nodes(context) -> list:
     namespace = ros_namespace(config["namespace"])
     prefix = frame_prefix(namespace) if config["frame_prefix"] == "auto" else check_frame_prefix(config["frame_prefix"])
     frames = {"frame_prefix": prefix}
+    interface = config["command_interface"]
+    if interface not in ("voltages", "cmd_vel"):
+        raise ValueError(f"launch argument 'command_interface' must be voltages or cmd_vel, got {interface!r}")
+    command = {} if interface == "voltages" else {"command_interface": interface}  # voltages: the nodes' default
     env = {"OPENBLAS_NUM_THREADS": "1"}
     if config["fastdds_profile"]:
         env["FASTRTPS_DEFAULT_PROFILES_FILE"] = config["fastdds_profile"]
@@ -123,15 +131,16 @@ def _nodes(context) -> list:
         return frames if name in FRAME_PREFIX_NODES else {}
 
     plant = {**overrides["plant_node"], "mode": mode, "duration_s": _number(config, "duration"),
-             "seed": _number(config, "seed", int), **own("plant_node")}
+             "seed": _number(config, "seed", int), **command, **own("plant_node")}
     if record:  # the lockstep plant also waits for the recorder's subscriptions
-        plant["lockstep_wait_for"] = list(RECORDER_WAIT_FOR)
+        plant["lockstep_wait_for"] = recorder_wait_for(interface)
     nodes = [
         Node(package=PACKAGE, executable="trajectory_node", name="robotino_trajectory",
              parameters=[params_file, {**overrides["trajectory_node"], "mode": mode, **own("trajectory_node")}],
              **common),
         Node(package=PACKAGE, executable="controller_node", name="robotino_controller",
-             parameters=[params_file, {**overrides["controller_node"], "mode": mode, **own("controller_node")}],
+             parameters=[params_file, {**overrides["controller_node"], "mode": mode, **command,
+                                       **own("controller_node")}],
              **common),
         Node(package=PACKAGE, executable="plant_node", name="robotino_plant",
              parameters=[config["plant_params"], plant], **common),
@@ -158,6 +167,8 @@ def generate_launch_description() -> LaunchDescription:
                               description="frame id prefix; auto: '<namespace>/' with a namespace, else none"),
         DeclareLaunchArgument("fastdds_profile", default_value=default_profile,
                               description="Fast DDS profile of the nodes; empty: the environment's"),
+        DeclareLaunchArgument("command_interface", default_value="voltages",
+                              description="voltages: wheel_voltages to the drives; cmd_vel: a base_link Twist"),
         DeclareLaunchArgument("duration", default_value="0.0", description="run length [s], 0: until stopped"),
         DeclareLaunchArgument("seed", default_value="0", description="seed of the odometry noise"),
         DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),

@@ -10,6 +10,7 @@ it reads is a declared argument. (That it compiles and names installed files: te
 """
 
 import importlib.util
+import json
 import sys
 import types
 from pathlib import Path
@@ -128,7 +129,7 @@ def test_every_launch_configuration_read_is_a_declared_argument(description):
     _, context = _launch(description, record="true")
     read = {c.args[0] for c in _of("LaunchConfiguration", Recorded.made)} | context.launch_configurations.read
     assert read <= declared and {"scenario", "lockstep", "record", "bag", "seed", "duration", "namespace",
-                                 "frame_prefix", "fastdds_profile"} <= read
+                                 "frame_prefix", "fastdds_profile", "command_interface"} <= read
 
 
 @pytest.mark.parametrize("scenario", list(SCENARIOS))
@@ -190,6 +191,7 @@ def test_with_record_the_recorder_starts_and_the_plant_waits_for_its_subscriptio
     ({"seed": "1.5"}, ValueError, "seed"),
     ({"namespace": "robot-1"}, NamespaceError, "robot-1"),
     ({"frame_prefix": "/robot1"}, DescriptionError, "/robot1"),
+    ({"command_interface": "twist"}, ValueError, "command_interface"),
 ])
 def test_bad_arguments_stop_the_launch_with_a_clear_error(description, arguments, error, match):
     with pytest.raises(error, match=match):
@@ -201,9 +203,10 @@ def _ros_args_remaps(argv: list[str]) -> dict[str, str]:
     return dict(argv[i + 1].split(":=", 1) for i, a in enumerate(argv) if a == "-r")
 
 
-def _ros_args_frame_prefix(argv: list[str]) -> str | None:
+def _ros_args_parameter(argv: list[str], name: str) -> str | None:
+    """The last ``-p name:=value`` of a node's ``--ros-args`` (the value as text), None without one."""
     values = [argv[i + 1].split(":=", 1)[1] for i, a in enumerate(argv) if a == "-p"
-              and argv[i + 1].startswith("frame_prefix:=")]
+              and argv[i + 1].startswith(name + ":=")]
     return values[-1] if values else None
 
 
@@ -234,7 +237,7 @@ def test_namespace_moves_every_node_as_run_does(description, lockstep):
             assert _ros_args_remaps(args[name]) == launched, name
     for name in LOOP | {"recorder_node"}:
         got = _overrides(nodes[name]).get("frame_prefix")
-        assert got == _ros_args_frame_prefix(args[name]) == ("robot1/" if name in FRAME_PREFIX_NODES else None), name
+        assert got == _ros_args_parameter(args[name], "frame_prefix") == ("robot1/" if name in FRAME_PREFIX_NODES else None), name
     files, description_overrides = nodes[DESCRIPTION].kwargs["parameters"]
     assert files == PARAMS and description_overrides == {"frame_prefix": "robot1/"}
 
@@ -255,3 +258,20 @@ def test_robot_state_publisher_publishes_the_plants_urdf_where_installed(descrip
     assert rsp.kwargs["package"] == "robot_state_publisher" and rsp.kwargs["namespace"] == "/robot2"
     robot, _ = load_params(PARAMS)
     assert rsp.kwargs["parameters"] == [{"robot_description": robotino_urdf(robot), "frame_prefix": "robot2/"}]
+
+
+@pytest.mark.parametrize("interface", ["voltages", "cmd_vel"])
+def test_command_interface_reaches_controller_and_plant_as_run_gives_it(description, interface):
+    """command_interface (and, recorded, the plant's lockstep_wait_for) as `node_arguments` passes them to `run`'s
+    processes: cmd_vel to the controller and the plant, voltages left to their default."""
+    nodes, _ = _launch(description, command_interface=interface, lockstep="true", record="true", bag="/tmp/b")
+    args = node_arguments("paper-circle", PARAMS, 0.0, True, bag="/tmp/b", command_interface=interface)
+    for name in LOOP | {"recorder_node"}:
+        got = _overrides(nodes[name]).get("command_interface")
+        assert got == _ros_args_parameter(args[name], "command_interface"), name
+        assert got == (interface if name in ("controller_node", "plant_node") and interface == "cmd_vel" else None)
+    waiting = _overrides(nodes["plant_node"])["lockstep_wait_for"]
+    assert waiting == json.loads(_ros_args_parameter(args["plant_node"], "lockstep_wait_for"))
+    assert (f"{'cmd_vel' if interface == 'cmd_vel' else 'wheel_voltages'}:2") in waiting
+    default, _ = _launch(description)
+    assert all("command_interface" not in _overrides(default[name]) for name in LOOP)

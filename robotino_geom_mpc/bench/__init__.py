@@ -19,6 +19,8 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
 * `end_to_end`: ``robotino-geom-mpc run`` on 20 s of paper-circle as a
   user starts it (``run_end_to_end_s``) and its loop with the recorder,
   beside the loop without it and a bare rclpy process start.
+* `recorder_cpu`: the recorder's CPU time per message of a run's topics,
+  beside bare rclpy readers (executor, wait set) of the same messages.
 * `host_steal` samples the hypervisor's steal beside the realtime run;
   `startup_stalls` is a script (``python -m robotino_geom_mpc.bench.startup_stalls``).
 """
@@ -29,6 +31,7 @@ from robotino_geom_mpc.bench import study  # noqa: F401
 from robotino_geom_mpc.bench import cdr  # noqa: F401
 from robotino_geom_mpc.bench import constrained  # noqa: F401
 from robotino_geom_mpc.bench import end_to_end  # noqa: F401
+from robotino_geom_mpc.bench import recorder_cpu  # noqa: F401
 from robotino_geom_mpc.bench.registry import REGISTRY, BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
 
 __all__ = ["REGISTRY", "BenchmarkError", "BenchmarkSkipped", "benchmark", "run_benchmarks"]

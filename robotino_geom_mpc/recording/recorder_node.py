@@ -42,12 +42,16 @@ from __future__ import annotations
 import json
 import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.callback_groups import CallbackGroup
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
 from robotino_geom_mpc.core.params import ALL_SPECS
@@ -62,9 +66,23 @@ from robotino_geom_mpc.ros.bag_qos import adapt_request_to_offers, profile_to_di
 from robotino_geom_mpc.ros.signals import STOP, ignore_stop_signals
 from robotino_geom_mpc.ros.spin import start_rclpy
 
-__all__ = ["DRAIN_LIMIT_S", "RecorderNode", "main"]
+__all__ = ["DRAIN_LIMIT_S", "WAIT_TIMEOUT_NS", "RecorderNode", "main"]
 
 DRAIN_LIMIT_S = 60.0  # at stop: the longest the recorder keeps taking samples its readers still hold
+WAIT_TIMEOUT_NS = 50_000_000  # the recording loop's longest wait: how soon it sees a stop signal
+
+
+class _OwnLoop(CallbackGroup):
+    """The recording subscriptions' group: never executed by an executor (`RecorderNode.spin` takes them)."""
+
+    def can_execute(self, entity: Any) -> bool:
+        return False
+
+    def beginning_execution(self, entity: Any) -> bool:
+        return False
+
+    def ending_execution(self, entity: Any) -> None:
+        pass
 
 def _hidden(topic: str) -> bool:
     return any(part.startswith("_") for part in topic.split("/") if part)
@@ -115,6 +133,7 @@ class RecorderNode(Node):
         self._store_run_parameters()
         self._channels: dict[str, int] = {}
         self._recording_subs: list[Any] = []
+        self._own_loop = _OwnLoop()
         self._use_sim_time = bool(p("use_sim_time").value)
         self._discover()
         self.create_timer(float(p("discovery_period_s").value), self._discover)
@@ -161,9 +180,9 @@ class RecorderNode(Node):
                 continue
             self._channels[name] = channel
             qos = adapt_request_to_offers([i.qos_profile for i in infos], self._depth)
-            self._recording_subs.append(
-                self.create_subscription(cls, name, self._callback(channel), qos, raw=True)
-            )
+            self._recording_subs.append(self.create_subscription(
+                cls, name, self._callback(channel), qos, raw=True, callback_group=self._own_loop,
+                event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False)))
             self.get_logger().info(f"recording {name} [{type_name}]")
 
     def _callback(self, channel: int):
@@ -177,6 +196,56 @@ class RecorderNode(Node):
 
         return on_message
 
+    def _take_all(self, subscriptions: list[Any]) -> int:
+        """Write every sample the readers of `subscriptions` hold now; returns the count."""
+        taken = 0
+        for sub in subscriptions:
+            take, msg_type, on_message = sub.handle.take_message, sub.msg_type, sub.callback
+            while (sample := take(msg_type, True)) is not None:
+                on_message(*sample)  # (data, info)
+                taken += 1
+        return taken
+
+    def spin(self, executor: SingleThreadedExecutor, stop: Any) -> None:
+        """Record until `stop` (an Event) is set: one wait set, every ready sample of every topic per wake-up.
+
+        The recording subscriptions are in a callback group no executor runs (`_OwnLoop`): rclpy's executor
+        rebuilds its wait set and makes a task for each message it takes, several times the take itself
+        (`bench.recorder_cpu`). The node's other entities (timers, services, /clock of the time source) are in
+        the same wait set; when one is ready, or the wait times out, `executor` runs what is ready.
+        """
+        shape, wait_set, recording, entries = None, None, {}, []
+        with ExitStack() as handles:
+            while not stop.is_set():
+                current = (list(self.subscriptions), list(self.timers), list(self.services))
+                if current != shape:
+                    handles.close()
+                    shape = current
+                    all_subs, timers, services = current
+                    recording = {s.handle.pointer: s for s in self._recording_subs}
+                    subs = [s for s in all_subs if s.handle.pointer not in recording]
+                    others = [(s.handle, "subscription") for s in subs] + [(t.handle, "timer") for t in timers]
+                    others += [(s.handle, "service") for s in services]
+                    for entity in [*self._recording_subs, *subs, *timers, *services]:
+                        handles.enter_context(entity.handle)
+                    handles.enter_context(self.context.handle)
+                    wait_set = _rclpy.WaitSet(len(recording) + len(subs), 0, len(timers), 0,
+                                              len(services), 0, self.context.handle)
+                    add = {"subscription": wait_set.add_subscription, "timer": wait_set.add_timer,
+                           "service": wait_set.add_service}
+                    entries = [(add["subscription"], s.handle) for s in self._recording_subs]
+                    entries += [(add[kind], handle) for handle, kind in others]
+                wait_set.clear_entities()
+                for add_entity, handle in entries:
+                    add_entity(handle)
+                wait_set.wait(WAIT_TIMEOUT_NS)
+                ready = wait_set.get_ready_entities("subscription")
+                self._take_all([recording[p] for p in ready if p in recording])
+                other_ready = sum(1 for p in ready if p not in recording)
+                other_ready += len(wait_set.get_ready_entities("timer")) + len(wait_set.get_ready_entities("service"))
+                for _ in range(other_ready if ready or other_ready else 1):  # a timeout: the executor's guards
+                    executor.spin_once(timeout_sec=0)
+
     def drain(self, limit_s: float) -> int:
         """Write every sample DDS has received and not yet handed over, until all readers are empty; returns the count.
 
@@ -187,13 +256,9 @@ class RecorderNode(Node):
         """
         taken, deadline = 0, time.monotonic() + limit_s
         while time.monotonic() < deadline:
-            before = taken
-            for sub in self._recording_subs:
-                with sub.handle:
-                    while (sample := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
-                        sub.callback(*sample)  # (data, info): the recording callbacks take both
-                        taken += 1
-            if taken == before:
+            count = self._take_all(self._recording_subs)
+            taken += count
+            if count == 0:
                 return taken
         self.get_logger().warn(f"stopped draining after {limit_s:g} s ({taken} samples taken); later ones are lost")
         return taken
@@ -219,8 +284,7 @@ def main(args: list[str] | None = None) -> int:
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        while not STOP.is_set():
-            executor.spin_once(timeout_sec=0.05)
+        node.spin(executor, STOP)
         node.drain(DRAIN_LIMIT_S)
     finally:
         ignore_stop_signals()

@@ -83,6 +83,8 @@ def _rows(M: np.ndarray, n: int, name: str) -> None:
 
 def _concat(*Ms: np.ndarray) -> np.ndarray:
     """Column concatenation with broadcasting of the stack dimensions."""
+    if all(M.ndim == 2 for M in Ms):
+        return np.concatenate(Ms, axis=-1)
     batch = np.broadcast_shapes(*(M.shape[:-2] for M in Ms))
     return np.concatenate([np.broadcast_to(M, batch + M.shape[-2:]) for M in Ms], axis=-1)
 
@@ -96,18 +98,62 @@ def _uniform(ranks: np.ndarray, what: str) -> int:
     return int(ranks.flat[0])
 
 
-def _rank(s: np.ndarray, shape: tuple[int, int], rtol: float | None, atol: float) -> np.ndarray:
-    if s.shape[-1] == 0:
-        return np.zeros(s.shape[:-1], dtype=int)
+def _rank(s: np.ndarray, shape: tuple[int, int], rtol: float | None, atol: float, what: str) -> int:
+    """The numerical rank from singular values s (..., k), uniform over a stack (else GeometryError)."""
     rtol = default_rtol(*shape) if rtol is None else rtol
+    if s.ndim == 1:  # a single matrix: the same comparisons on Python floats
+        values = s.tolist()
+        tol = max(atol, rtol * values[0]) if values else 0.0
+        return sum(v > tol for v in values)
+    if s.shape[-1] == 0:
+        return _uniform(np.zeros(s.shape[:-1], dtype=int), what)
     tol = np.maximum(atol, rtol * s[..., :1])
-    return np.sum(s > tol, axis=-1)
+    return _uniform(np.sum(s > tol, axis=-1), what)
 
 
 def _norm_map(A: np.ndarray) -> np.ndarray:
     """A / ||A||_2 element-wise over a stack (zero maps stay zero)."""
     norm = np.linalg.norm(A, ord=2, axis=(-2, -1), keepdims=True)
     return A / np.where(norm > 0.0, norm, 1.0)
+
+
+# The private functions below take checked float arrays (`_matrix`) and, where named Q, orthonormal
+# bases: the algorithms call them on their own intermediate results without checking those again.
+
+
+def _image(M: np.ndarray, rtol: float | None, atol: float) -> np.ndarray:
+    U, s, _ = np.linalg.svd(M, full_matrices=False)
+    return U[..., : _rank(s, M.shape[-2:], rtol, atol, "image")]
+
+
+def _kernel(M: np.ndarray, rtol: float | None, atol: float) -> np.ndarray:
+    _, s, Vh = np.linalg.svd(M, full_matrices=True)
+    return np.swapaxes(Vh[..., _rank(s, M.shape[-2:], rtol, atol, "kernel") :, :], -1, -2)
+
+
+def _complement(Q: np.ndarray) -> np.ndarray:
+    """(im Q)^perp: the trailing columns of a complete QR of Q."""
+    n, k = Q.shape[-2:]
+    if k == 0:
+        return np.broadcast_to(np.eye(n), Q.shape[:-2] + (n, n)).copy()
+    return np.linalg.qr(Q, mode="complete")[0][..., k:]
+
+
+def _intersect(Q: np.ndarray, Qw: np.ndarray, rtol: float | None) -> np.ndarray:
+    """im Q cap im Qw (see `intersection`)."""
+    k = Q.shape[-1]
+    if k == 0 or Qw.shape[-1] == 0:
+        batch = np.broadcast_shapes(Q.shape[:-2], Qw.shape[:-2])
+        return np.zeros(batch + (Q.shape[-2], 0))
+    N = _kernel(_concat(Q, -Qw), rtol, 0.0)
+    if N.shape[-1] == 0:
+        return np.zeros(N.shape[:-2] + (Q.shape[-2], 0))
+    return np.linalg.qr(Q @ N[..., :k, :])[0]
+
+
+def _inverse_image(An: np.ndarray, Q: np.ndarray, rtol: float) -> np.ndarray:
+    """A^{-1} im Q for An = A / ||A||_2 (see `inverse_image`)."""
+    return _kernel(np.swapaxes(_complement(Q), -1, -2) @ An, rtol, rtol)
 
 
 def dim(V: np.ndarray) -> int:
@@ -131,18 +177,12 @@ def image(M: object, rtol: float | None = None, atol: float = 0.0) -> np.ndarray
     numpy.ndarray
         (..., n, r), r = rank M.
     """
-    M = _matrix(M, "M")
-    U, s, _ = np.linalg.svd(M, full_matrices=False)
-    r = _uniform(_rank(s, M.shape[-2:], rtol, atol), "image")
-    return U[..., :r]
+    return _image(_matrix(M, "M"), rtol, atol)
 
 
 def kernel(M: object, rtol: float | None = None, atol: float = 0.0) -> np.ndarray:
     """Orthonormal basis of ker M (right singular vectors of the zero singular values), (..., k, k - r)."""
-    M = _matrix(M, "M")
-    _, s, Vh = np.linalg.svd(M, full_matrices=True)
-    r = _uniform(_rank(s, M.shape[-2:], rtol, atol), "kernel")
-    return np.swapaxes(Vh[..., r:, :], -1, -2)
+    return _kernel(_matrix(M, "M"), rtol, atol)
 
 
 def _is_orthonormal(V: np.ndarray) -> bool:
@@ -155,16 +195,12 @@ def _is_orthonormal(V: np.ndarray) -> bool:
 
 def _basis(V: np.ndarray, rtol: float | None) -> np.ndarray:
     """V itself when its columns are orthonormal, else an orthonormal basis of im V."""
-    return V if _is_orthonormal(V) else image(V, rtol)
+    return V if _is_orthonormal(V) else _image(V, rtol, 0.0)
 
 
 def orthogonal_complement(V: object, rtol: float | None = None) -> np.ndarray:
     """Orthonormal basis of (im V)^perp (the trailing columns of a complete QR of a basis of im V)."""
-    Q = _basis(_matrix(V, "V"), rtol)
-    n, k = Q.shape[-2:]
-    if k == 0:
-        return np.broadcast_to(np.eye(n), Q.shape[:-2] + (n, n)).copy()
-    return np.linalg.qr(Q, mode="complete")[0][..., k:]
+    return _complement(_basis(_matrix(V, "V"), rtol))
 
 
 def subspace_sum(*Vs: object, rtol: float | None = None) -> np.ndarray:
@@ -174,7 +210,7 @@ def subspace_sum(*Vs: object, rtol: float | None = None) -> np.ndarray:
     mats = [_matrix(V, f"Vs[{k}]") for k, V in enumerate(Vs)]
     for k, V in enumerate(mats[1:], 1):
         _rows(V, mats[0].shape[-2], f"Vs[{k}]")
-    return image(_concat(*mats), rtol)
+    return _image(_concat(*mats), rtol, 0.0)
 
 
 def intersection(*Vs: object, rtol: float | None = None) -> np.ndarray:
@@ -194,15 +230,9 @@ def intersection(*Vs: object, rtol: float | None = None) -> np.ndarray:
         _rows(V, mats[0].shape[-2], f"Vs[{k}]")
     Q = _basis(mats[0], rtol)
     for W in mats[1:]:
-        Qw = _basis(W, rtol)
-        k = Q.shape[-1]
-        if k == 0 or Qw.shape[-1] == 0:
-            batch = np.broadcast_shapes(Q.shape[:-2], Qw.shape[:-2])
-            return np.zeros(batch + (Q.shape[-2], 0))
-        N = kernel(_concat(Q, -Qw), rtol)
-        if N.shape[-1] == 0:
-            return np.zeros(N.shape[:-2] + (Q.shape[-2], 0))
-        Q = np.linalg.qr(Q @ N[..., :k, :])[0]
+        Q = _intersect(Q, _basis(W, rtol), rtol)
+        if Q.shape[-1] == 0:
+            return Q
     return Q
 
 
@@ -214,7 +244,7 @@ def apply_map(A: object, V: object, rtol: float | None = None) -> np.ndarray:
     Q = _basis(V, rtol)
     n = A.shape[-1]
     rtol = default_rtol(n, n) if rtol is None else rtol
-    return image(_norm_map(A) @ Q, rtol, atol=rtol)
+    return _image(_norm_map(A) @ Q, rtol, rtol)
 
 
 def inverse_image(A: object, V: object, rtol: float | None = None) -> np.ndarray:
@@ -224,8 +254,7 @@ def inverse_image(A: object, V: object, rtol: float | None = None) -> np.ndarray
     _rows(V, A.shape[-1], "V")
     n = A.shape[-1]
     rtol = default_rtol(n, n) if rtol is None else rtol
-    Vc = orthogonal_complement(V, rtol)
-    return kernel(np.swapaxes(Vc, -1, -2) @ _norm_map(A), rtol, atol=rtol)
+    return _inverse_image(_norm_map(A), _basis(V, rtol), rtol)
 
 
 def minI(A: object, B: object, rtol: float | None = None) -> np.ndarray:
@@ -243,9 +272,9 @@ def minI(A: object, B: object, rtol: float | None = None) -> np.ndarray:
     _rows(B, n, "B")
     rtol = default_rtol(n, n) if rtol is None else rtol
     An = _norm_map(A)
-    R = image(B, rtol)
+    R = _image(B, rtol, 0.0)
     for _ in range(n):
-        R_next = image(_concat(R, An @ R), rtol, atol=rtol)
+        R_next = _image(_concat(R, An @ R), rtol, rtol)
         if dim(R_next) == dim(R):
             return R_next
         R = R_next
@@ -269,10 +298,11 @@ def maxV(A: object, B: object, E: object, rtol: float | None = None) -> np.ndarr
     _rows(B, n, "B")
     _rows(E, n, "E")
     rtol = default_rtol(n, n) if rtol is None else rtol
-    Eq = image(E, rtol)
+    An = _norm_map(A)
+    Eq = _image(E, rtol, 0.0)
     V = Eq
     for _ in range(n + 1):
-        V_next = intersection(Eq, inverse_image(A, subspace_sum(V, B, rtol=rtol), rtol), rtol=rtol)
+        V_next = _intersect(Eq, _inverse_image(An, _image(_concat(V, B), rtol, 0.0), rtol), rtol)
         if dim(V_next) == dim(V):
             return V_next
         V = V_next
@@ -298,10 +328,10 @@ def minS(A: object, C: object, B: object, rtol: float | None = None) -> np.ndarr
     _rows(B, n, "B")
     rtol = default_rtol(n, n) if rtol is None else rtol
     An = _norm_map(A)
-    Bq = image(B, rtol)
+    Bq, Cq = _image(B, rtol, 0.0), _basis(C, rtol)
     S = Bq
     for _ in range(n + 1):
-        S_next = image(_concat(Bq, An @ intersection(S, C, rtol=rtol)), rtol, atol=rtol)
+        S_next = _image(_concat(Bq, An @ _intersect(S, Cq, rtol)), rtol, rtol)
         if dim(S_next) == dim(S):
             return S_next
         S = S_next
@@ -340,10 +370,13 @@ def z_sequence(
         raise GeometryError(f"steps must be >= 0, got {steps}")
     rtol = default_rtol(n, n) if rtol is None else rtol
     An = _norm_map(A)
-    Bq = image(B, rtol)
+    Bq, Fq, Cq = _image(B, rtol, 0.0), _basis(F, rtol), _basis(C, rtol)
     Z = [Bq]
     for _ in range(steps):
-        Z.append(image(_concat(Bq, An @ intersection(Z[-1], F, C, rtol=rtol)), rtol, atol=rtol))
+        common = _intersect(Z[-1], Fq, rtol)
+        if common.shape[-1]:
+            common = _intersect(common, Cq, rtol)
+        Z.append(_image(_concat(Bq, An @ common), rtol, rtol))
     return Z
 
 

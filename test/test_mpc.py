@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import quadprog
 from scipy.integrate import solve_ivp
+from scipy.linalg import expm
 
 from robotino_geom_mpc.core.mpc import (
     DecoupledMPC,
@@ -40,6 +41,18 @@ def test_discretisation_without_friction_is_the_double_integrator():
     A_d, B_d = discretize_axis(0.0, Ts)
     np.testing.assert_allclose(A_d, [[1.0, Ts], [0.0, 1.0]], atol=1e-15)
     np.testing.assert_allclose(B_d, [Ts**2 / 2, Ts], atol=1e-15)
+
+
+@pytest.mark.parametrize("period_s", [0.001, 0.01, 0.1])
+@pytest.mark.parametrize("damping_ts", [0.0, 1e-12, 1e-7, 1e-3, 0.05, 0.0999999, 0.1, 0.3, 2.0, 40.0])
+def test_closed_form_discretisation_equals_van_loan_expm(damping_ts, period_s):
+    """The closed form against expm of [[A, B], [0, 0]] Ts (Van Loan), on both sides of the series switch."""
+    damping = damping_ts / period_s
+    A_d, B_d = discretize_axis(damping, period_s)
+    M = np.array([[0.0, 1.0, 0.0], [0.0, -damping, 1.0], [0.0, 0.0, 0.0]])
+    E = expm(M * period_s)
+    np.testing.assert_allclose(A_d, E[:2, :2], rtol=1e-12, atol=0.0)
+    np.testing.assert_allclose(B_d, E[:2, 2], rtol=1e-12, atol=0.0)
 
 
 def _simulate(A_d, B_d, x, u_prev, delta_U):

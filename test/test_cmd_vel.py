@@ -17,7 +17,9 @@ from mcap_ros2.reader import read_ros2_messages
 from probe import ProbeSpinner
 from robotino_geom_mpc.core.controller import MotionController
 from robotino_geom_mpc.core.params import default_params_file, load_params
+from robotino_geom_mpc.recording.bag import BagError, BagWriter
 from robotino_geom_mpc.recording.regress import regress_bag
+from robotino_geom_mpc.recording.report import run_data_from_bag
 from robotino_geom_mpc.results import compute_metrics
 from robotino_geom_mpc.ros.processes import RECORDER_WAIT_FOR, NodeGroup, node_arguments, recorder_wait_for
 from robotino_geom_mpc.simulation import run_scenario
@@ -133,3 +135,19 @@ def test_the_recorder_waits_for_the_command_of_the_interface():
     argv = node_arguments("paper-circle", default_params_file(), 1.0, True, bag="/tmp/b", command_interface="cmd_vel")
     (value,) = [a.split(":=", 1)[1] for a in argv["plant_node"] if a.startswith("lockstep_wait_for:=")]
     assert json.loads(value) == cmd_vel
+
+
+def test_a_bag_without_any_command_topic_is_refused_by_report_and_regress_by_name(tmp_path):
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import serialize_message
+
+    path = tmp_path / "bag"
+    with BagWriter(path) as bag:  # the plant's and the trajectory's topics, no controller command
+        for name in ("odom", "ground_truth/odom"):
+            bag.write(bag.add_topic("/" + name, "nav_msgs/msg/Odometry"), 1, serialize_message(Odometry()), 1)
+        bag.add_topic("/wheel_currents", "std_msgs/msg/Float64MultiArray")
+        bag.add_topic("/reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory")
+    with pytest.raises(BagError, match="no 'wheel_voltages' .*applied_voltages"):
+        run_data_from_bag(path)
+    with pytest.raises(BagError, match="no 'wheel_voltages' .*'cmd_vel'"):
+        regress_bag(path)

@@ -185,9 +185,6 @@ def regress_bag(
         previous = stamp
         try:
             X = odometry_state(msg, theta)
-        except InputRejected:
-            expected = np.zeros(3)
-        else:
             preview = by_stamp.get(used.get(stamp, stamp))
             if preview is None:
                 answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
@@ -197,6 +194,9 @@ def regress_bag(
                     continue
                 preview = previews[i][1]
             positions, velocities, accelerations = preview_arrays(preview, control.horizon, theta)
+        except InputRejected:  # the node refused the odometry or the preview: zero output, no step
+            expected = np.zeros(3)
+        else:
             dt = (stamp - stamp_ns(preview.header.stamp)) * 1e-9  # lockstep: 0
             positions = shift_preview(positions, velocities, accelerations, dt)
             velocities = velocities + dt * accelerations

@@ -249,7 +249,7 @@ def run_data_from_bag(
         else:
             after = odom[stamp][0] if stamp in odom else publish
             voltage = _first_after(volt_t, voltages, after, next_publish)
-        if stamp in previews and previews[stamp][1].points:
+        if stamp in previews and previews[stamp][1].points and previews[stamp][1].points[0].transforms:
             tf = previews[stamp][1].points[0].transforms[0]
             reference = (tf.translation.x, tf.translation.y, yaw(tf.rotation))
         elif path_t is not None and path_t[0] <= stamp <= path_t[-1]:

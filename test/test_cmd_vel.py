@@ -151,3 +151,36 @@ def test_a_bag_without_any_command_topic_is_refused_by_report_and_regress_by_nam
         run_data_from_bag(path)
     with pytest.raises(BagError, match="no 'wheel_voltages' .*'cmd_vel'"):
         regress_bag(path)
+
+
+def test_regress_on_cmd_vel_takes_a_preview_the_node_refuses_as_a_zero_twist(tmp_path):
+    """A preview of the wrong length (another horizon) is refused by the node: zero twist, no step. regress
+    expects exactly that (one tick, a zero twist matches, a moving one does not), instead of failing."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from geometry_msgs.msg import Transform, Twist, Vector3
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import serialize_message
+    from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+
+    _, control = load_params()
+    odom = Odometry()
+    odom.pose.pose.orientation.w = 1.0
+    preview = MultiDOFJointTrajectory(points=[MultiDOFJointTrajectoryPoint(transforms=[Transform()])
+                                              for _ in range(control.horizon + 9)])
+    preview.points[0].transforms[0].rotation.w = 1.0
+    status = DiagnosticStatus(values=[KeyValue(key="error_x_m", value="0")])
+    verdicts = []
+    for answer in (0.0, 0.01):
+        path = tmp_path / f"bag{answer}"
+        with BagWriter(path) as bag:
+            for publish, (topic, kind, msg) in enumerate([
+                    ("/reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory", preview),
+                    ("/odom", "nav_msgs/msg/Odometry", odom),
+                    ("/cmd_vel", "geometry_msgs/msg/Twist", Twist(linear=Vector3(x=answer))),
+                    ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", DiagnosticArray(status=[status]))],
+                    start=1):
+                bag.write(bag.add_topic(topic, kind), publish, serialize_message(msg), publish)
+        result = regress_bag(path)
+        assert result.command == "cmd_vel" and result.ticks == result.compared == 1
+        verdicts.append((result.passed, result.max_deviation_v))
+    assert verdicts == [(True, 0.0), (False, 0.01)]

@@ -158,24 +158,24 @@ def run_scenario(
     targets = reference.position(np.arange(n + N + 1) * Ts)  # row j: the reference at j Ts
     # Only floats and arrays are kept per tick (no tuples): nothing for the garbage collector to scan.
     poses, measured, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], [], []
+    measure, control_step, plant_step = source.noisy_odometry_floats, controller.step, plant.step
     for k in tqdm(range(n), desc=scenario, unit="tick", disable=not progress, mininterval=0.5):
-        pose_measured, twist_measured = source.noisy_odometry_floats(draws[k])
-        X = odometry_state_floats(pose_measured, twist_measured)
-        out = controller.step(X, targets[k + 1 : k + N + 1])
-        poses.append(plant.pose)
+        pose_measured, twist_measured = measure(draws[k])
+        out = control_step(odometry_state_floats(pose_measured, twist_measured), targets[k + 1 : k + N + 1])
+        poses += plant.pose_floats()
         measured += pose_measured
         voltages += out.voltages
         saturated.append(out.saturated)
         infeasible.append(out.infeasible)
         compute.append(out.compute_time_s)
         if speed_loop is None:
-            plant.step(out.voltages, Ts)
+            plant_step(out.voltages, Ts)
             substep_currents.append(plant.substep_currents)
         else:
             held, trace = speed_loop.run(plant, controller.next_velocity(), Ts)
             voltages[-3:] = held.mean(axis=0).tolist()
             substep_currents.append(trace)
-    pose = np.array(poses)
+    pose = np.array(poses).reshape(n, 3)
     trace = np.array(substep_currents)  # (n, substeps + 1, 3); the last row is the current at the period's end
     currents = np.copysign(np.abs(trace).max(axis=1), trace[:, -1])
 

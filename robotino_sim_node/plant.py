@@ -343,7 +343,11 @@ class RobotinoPlant:
     @property
     def pose(self) -> np.ndarray:
         """(x, y, theta) [m, m, rad], a copy."""
-        return np.array(self._w[0:5:2])
+        return np.array(self.pose_floats())
+
+    def pose_floats(self) -> list[float]:
+        """`pose` as a new list of three Python floats (the offline loop's per-tick record)."""
+        return self._w[0:5:2]
 
     @property
     def body_state(self) -> np.ndarray:

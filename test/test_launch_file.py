@@ -22,7 +22,8 @@ import ament_index_python.packages
 from robotino_geom_mpc.core.params import ALL_SPECS, config_file, default_params_file, load_params, \
     params_from_values, read_parameter_file
 from robotino_geom_mpc.description.urdf import DescriptionError, robotino_urdf
-from robotino_geom_mpc.ros.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, NamespaceError, node_arguments
+from robotino_geom_mpc.ros.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, NamespaceError, node_arguments, \
+    recorder_wait_for
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
 from robotino_geom_mpc.simulation import run_scenario
 
@@ -178,7 +179,7 @@ def test_with_record_the_recorder_starts_and_the_plant_waits_for_its_subscriptio
     recorded, _ = _launch(description, record="True", bag="/tmp/some_bag", scenario="lemniscate")
     assert _overrides(recorded["recorder_node"]) == {"output": "/tmp/some_bag", "scenario": "lemniscate"}
     waiting = _overrides(recorded["plant_node"])
-    assert waiting["lockstep_wait_for"] == list(RECORDER_WAIT_FOR)
+    assert waiting["lockstep_wait_for"] == recorder_wait_for() != list(RECORDER_WAIT_FOR)  # + the description publisher
     assert "lockstep_wait_for" not in _overrides(plain["plant_node"])  # the plant's default: the loop's nodes
     assert waiting.keys() - {"lockstep_wait_for"} == _overrides(plain["plant_node"]).keys()
 

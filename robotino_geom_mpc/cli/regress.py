@@ -35,13 +35,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "regress",
         help=VERBS["regress"],
         description="Feed the recorded odometry and reference previews of each control tick into a fresh "
-        "controller and compare its voltages with the recorded ones (exit 1 beyond --tol).",
+        "controller and compare its voltages (or cmd_vel twists) with the recorded ones (exit 1 beyond --tol).",
     )
     parser.add_argument("bag", type=Path, metavar="BAG", help="bag directory or .mcap file")
     parser.add_argument("--params", type=Path, default=None,
                         help="ROS 2 parameter file (default: the parameters stored in the recording)")
-    parser.add_argument("--tol", type=_tolerance, default=1e-12, metavar="V",
-                        help="largest accepted deviation [V] (default 1e-12)")
+    parser.add_argument("--tol", type=_tolerance, default=1e-12, metavar="TOL",
+                        help="largest accepted deviation [V; m/s and rad/s for a cmd_vel recording] (default 1e-12)")
     parser.set_defaults(func=run)
     return parser
 
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     where = "" if result.worst_time_s is None else f" at t = {result.worst_time_s:.3f} s"
     verdict = "PASS" if result.passed else "FAIL"
     print(f"{verdict}: {result.compared} of {result.ticks} ticks compared, max deviation "
-          f"{result.max_deviation_v:.3e} V{where} (tolerance {result.tolerance_v:g} V)")
+          f"{result.max_deviation_v:.3e} {result.unit}{where} (tolerance {result.tolerance_v:g} {result.unit})")
     if result.gap_at_s is not None:
         print(f"the recording lacks the {result.gap} of the tick at t = {result.gap_at_s:.3f} s: "
               "the replay stopped there (the controller's state needs every tick)")

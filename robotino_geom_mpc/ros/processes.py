@@ -37,12 +37,15 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
 
 
 def recorder_wait_for(command_interface: str = "voltages") -> list[str]:
-    """`RECORDER_WAIT_FOR` for a run's command interface: with ``cmd_vel`` the controller's twist (``cmd_vel:2``,
-    the plant's and the recorder's readers) instead of ``wheel_voltages``, and the recorder's reader of the
-    plant's ``applied_voltages``."""
+    """`RECORDER_WAIT_FOR` for a run's nodes (a description publisher among them) and command interface: with
+    ``cmd_vel`` the controller's twist (``cmd_vel:2``, the plant's and the recorder's readers) instead of
+    ``wheel_voltages``, and the recorder's reader of the plant's ``applied_voltages``."""
+    # joint_states: the recorder's reader and the description publisher's (its wheel TF recorded from tick 0)
+    waits = [w.replace("joint_states:1", "joint_states:2") for w in RECORDER_WAIT_FOR]
     if command_interface == "voltages":
-        return list(RECORDER_WAIT_FOR)
-    return [w.replace("wheel_voltages:", "cmd_vel:") for w in RECORDER_WAIT_FOR] + ["applied_voltages:1"]
+        return waits
+    return [w.replace("wheel_voltages:", "cmd_vel:") for w in waits] + ["applied_voltages:1"]
+
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/
 

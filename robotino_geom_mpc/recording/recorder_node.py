@@ -13,6 +13,12 @@ records by default its namespace's topics and the shared ``/tf`` and
 a topic are not in the bag (as with ``ros2 bag record``): a lockstep run
 makes the plant wait for the recorder's subscriptions (``lockstep_wait_for``).
 
+CPU: the recorder does not spin its recording subscriptions with an rclpy
+executor but waits on one wait set of its own (`RecorderNode.spin`) and,
+at most every `TAKE_PERIOD_S` (0.02 s), takes every sample of every topic in one
+batch (the samples in between wait in DDS's keep-all readers): about 40 us
+of CPU per message against 150 us with the executor (`bench.recorder_cpu`).
+
 Times: ``log_time`` is the receive time on the system clock (the DDS
 reception timestamp), as ``ros2 bag record`` does by default; with
 ``use_sim_time:=true`` it is the node's ROS time (/clock) at reception, as
@@ -66,9 +72,11 @@ from robotino_geom_mpc.ros.bag_qos import adapt_request_to_offers, profile_to_di
 from robotino_geom_mpc.ros.signals import STOP, ignore_stop_signals
 from robotino_geom_mpc.ros.spin import start_rclpy
 
-__all__ = ["DRAIN_LIMIT_S", "WAIT_TIMEOUT_NS", "RecorderNode", "main"]
+__all__ = ["DRAIN_LIMIT_S", "TAKE_PERIOD_S", "WAIT_TIMEOUT_NS", "RecorderNode", "main"]
 
 DRAIN_LIMIT_S = 60.0  # at stop: the longest the recorder keeps taking samples its readers still hold
+# shortest time between two takes: what arrives meanwhile waits in the keep-all readers, then goes in one batch
+TAKE_PERIOD_S = 0.02
 WAIT_TIMEOUT_NS = 50_000_000  # the recording loop's longest wait: how soon it sees a stop signal
 
 
@@ -135,6 +143,8 @@ class RecorderNode(Node):
         self._recording_subs: list[Any] = []
         self._own_loop = _OwnLoop()
         self._use_sim_time = bool(p("use_sim_time").value)
+        # with sim time a sample's log_time is the /clock time at its take: no waiting, so it stays as fresh
+        self._take_period = 0.0 if self._use_sim_time else TAKE_PERIOD_S
         self._discover()
         self.create_timer(float(p("discovery_period_s").value), self._discover)
         self.create_timer(float(p("flush_period_s").value), self.writer.flush)
@@ -214,7 +224,7 @@ class RecorderNode(Node):
         (`bench.recorder_cpu`). The node's other entities (timers, services, /clock of the time source) are in
         the same wait set; when one is ready, or the wait times out, `executor` runs what is ready.
         """
-        shape, wait_set, recording, entries = None, None, {}, []
+        shape, wait_set, recording, entries, last_take = None, None, {}, [], 0.0
         with ExitStack() as handles:
             while not stop.is_set():
                 current = (list(self.subscriptions), list(self.timers), list(self.services))
@@ -240,7 +250,10 @@ class RecorderNode(Node):
                     add_entity(handle)
                 wait_set.wait(WAIT_TIMEOUT_NS)
                 ready = wait_set.get_ready_entities("subscription")
-                self._take_all([recording[p] for p in ready if p in recording])
+                if any(p in recording for p in ready):
+                    time.sleep(max(0.0, last_take + self._take_period - time.monotonic()))
+                    last_take = time.monotonic()
+                    self._take_all(self._recording_subs)
                 other_ready = sum(1 for p in ready if p not in recording)
                 other_ready += len(wait_set.get_ready_entities("timer")) + len(wait_set.get_ready_entities("service"))
                 for _ in range(other_ready if ready or other_ready else 1):  # a timeout: the executor's guards

@@ -26,6 +26,7 @@ __all__ = ["ControllerInputError", "ControlOutput", "MotionController", "odometr
 
 
 _FLOAT64 = np.dtype(np.float64)
+_FLOAT_TYPE = {float}  # the element types of an X the fast path takes as it is
 
 
 class ControllerInputError(RobotinoError, ValueError):
@@ -155,7 +156,7 @@ class MotionController:
 
         A tuple of six floats and a float array of the preview's shape (the offline loop's) skip numpy's conversions.
         """
-        if type(X) is tuple and len(X) == 6 and all(type(v) is float for v in X):
+        if type(X) is tuple and len(X) == 6 and set(map(type, X)) == _FLOAT_TYPE:
             x = list(X)
         else:
             X = np.asarray(X, dtype=float)
@@ -166,10 +167,11 @@ class MotionController:
         if Y_d.shape != (self.horizon, 3):
             raise ControllerInputError(f"preview must have shape ({self.horizon}, 3), got {Y_d.shape}")
         y = Y_d.tolist()
-        # A sum is finite iff its terms are, short of overflow (values near 1e308 are garbage too).
-        if not math.isfinite(sum(x)):
-            raise ControllerInputError(f"X must be finite and of physical magnitude, got {x}")
-        if not math.isfinite(sum(map(sum, y))):
+        # A sum is finite iff its terms are, short of overflow (values near 1e308 are garbage too):
+        # one sum over both, and the culprit named when it is not finite.
+        if not math.isfinite(sum(x) + sum(map(sum, y))):
+            if not math.isfinite(sum(x)):
+                raise ControllerInputError(f"X must be finite and of physical magnitude, got {x}")
             raise ControllerInputError("preview must be finite and of physical magnitude")
         return x, y
 

@@ -256,3 +256,59 @@ def test_maxV_recovers_a_planted_controlled_invariant(seed, k, extra):
     Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
     V = geo.maxV(Q @ A @ Q.T, Q @ B, geo.kernel(C @ Q.T))
     assert geo.subspaces_equal(V, Q[:, :k])
+
+
+# --- the algorithms against the textbook recursions written with scipy.linalg.orth / null_space ----------
+
+
+def _sp_sum(*Vs):
+    return sla.orth(np.hstack(Vs))
+
+
+def _sp_cap(V, W):
+    if V.shape[1] == 0 or W.shape[1] == 0:
+        return np.zeros((V.shape[0], 0))
+    Q, Qw = sla.orth(V), sla.orth(W)
+    N = sla.null_space(np.hstack((Q, -Qw)))
+    return sla.orth(Q @ N[: Q.shape[1]]) if N.shape[1] else np.zeros((V.shape[0], 0))
+
+
+def _sp_inverse_image(A, V):
+    Vperp = sla.null_space(V.T) if V.shape[1] else np.eye(A.shape[0])
+    return sla.null_space(Vperp.T @ A) if Vperp.shape[1] else np.eye(A.shape[0])
+
+
+def _sp_maxV(A, B, E):
+    V = sla.orth(E)
+    for _ in range(A.shape[0] + 1):
+        V = _sp_cap(E, _sp_inverse_image(A, _sp_sum(V, B)))
+    return V
+
+
+def _sp_minS(A, C, B):
+    S = sla.orth(B)
+    for _ in range(A.shape[0] + 1):
+        S = _sp_sum(B, A @ _sp_cap(S, C))
+    return S
+
+
+@PROPS
+@given(systems())
+def test_algorithms_equal_the_recursions_of_an_independent_implementation(system):
+    """maxV, minS, minI and z_sequence (private cores on their own intermediates) against the same
+    recursions on scipy's orth / null_space, iterated to their fixed points."""
+    A, B, C, _ = system
+    n = A.shape[0]
+    E = sla.null_space(C)
+    assert geo.subspaces_equal(geo.maxV(A, B, E), _sp_maxV(A, B, E))
+    assert geo.subspaces_equal(geo.minS(A, E, B), _sp_minS(A, E, B))
+    R = sla.orth(B)
+    for _ in range(n):
+        R = _sp_sum(R, A @ R)
+    assert geo.subspaces_equal(geo.minI(A, B), R)
+    F = sla.orth(np.hstack((B, A @ B)))
+    Z = geo.z_sequence(A, B, E, F)
+    ref = sla.orth(B)
+    for Zj in Z:
+        assert geo.subspaces_equal(Zj, ref)
+        ref = _sp_sum(B, A @ _sp_cap(_sp_cap(ref, F), E))

@@ -294,3 +294,13 @@ def test_pose_noise_is_the_odometrys_draws_and_none_without_noise():
     assert noise == tuple(np.random.default_rng(5).normal(0.0, (1e-3, 1e-3, 2e-3)).tolist())
     pose, _ = plant.odometry_floats(np.random.default_rng(5), (1e-3, 2e-3))
     assert np.allclose(np.subtract(pose, plant.pose), noise, atol=1e-16)
+
+
+def test_pose_floats_is_the_state_pose_and_a_copy():
+    """The offline loop's per-tick record: x, y, theta of `state` as Python floats, detached from the plant."""
+    plant = RobotinoPlant(ROBOT, state0=np.array([0.3, 0.1, -0.2, 0.4, 1.1, 0.5, 0.0, 0.0, 0.0]))
+    plant.step((6.0, -3.0, 2.0), 0.01)
+    got = plant.pose_floats()
+    assert got == plant.state[[0, 2, 4]].tolist() and all(type(v) is float for v in got)
+    got[0] = 99.0
+    assert plant.pose[0] != 99.0

@@ -1,4 +1,4 @@
-"""Constrained mode's speed path: the QP only where a limit binds, DAQP's warm start, and the `constrained` benchmark.
+"""Constrained mode's speed path: the screen, the QP only where a limit binds, DAQP's warm start, the benchmark.
 
 No wall time is asserted: the work is counted (QP solves, active-set iterations)
 and the benchmark's two sides must agree.
@@ -9,6 +9,8 @@ from dataclasses import replace
 import daqp
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from robotino_geom_mpc.bench.constrained import bench_constrained, constrained_inputs, qp_calls
 from robotino_geom_mpc.core.constrained import ConstrainedMPC
@@ -97,3 +99,96 @@ def test_benchmark_reports_its_figures_with_osqp_agreeing():
     assert 0.0 < figures["constrained_step_speedup_vs_osqp_worst"] <= figures["constrained_step_speedup_vs_osqp"]
     assert figures["constrained_osqp_max_u_difference"] <= 1e-6 * 10.0  # |u| reaches ~10 m/s^2 in the position step
     assert figures["constrained_binding_ticks"] >= 10
+
+
+class _CountingChecks(ConstrainedMPC):
+    """ConstrainedMPC counting its full checks (`_check`): a `solve_floats` without one was passed by the screen."""
+
+    checks = 0
+
+    def _check(self, w):
+        self.checks += 1
+        return super()._check(w)
+
+    def screened(self, X, u_prev, Y_d, i_start):
+        """u of `solve_floats` on the arrays' floats, and whether the screen passed it."""
+        before = self.checks
+        u, _ = self.solve_floats(X.tolist(), u_prev.tolist(), Y_d.tolist(), i_start.tolist())
+        return u, self.checks == before
+
+
+def _pair(model, control):
+    """A counting solver and a plain one (its `solve` always runs the full check) on the same model."""
+    mpc = DecoupledMPC(model, control)
+    return _CountingChecks(model, control, mpc), ConstrainedMPC(model, control, mpc)
+
+
+def test_screen_passes_only_feasible_ticks_and_keeps_u_bit_for_bit(inputs):
+    """On every bench input: each screened tick's rows (the full check, independent instance) lie in [-1, 1],
+    u equals the always-checking `solve` bit for bit, and the screen decides most nominal ticks."""
+    _, control = load_params()
+    control = replace(control, mode="constrained")
+    for name, inputs_set in inputs.items():
+        calls = qp_calls(inputs_set, control)
+        screen, full = _pair(inputs_set.model, control)
+        passed = 0
+        for c in calls:
+            u, by_screen = screen.screened(c.X, c.u_prev, c.Y_d, c.i_start)
+            assert u == full.solve(c.X, c.u_prev, c.Y_d, c.i_start)[0].tolist()  # bit for bit
+            if by_screen:
+                passed += 1
+                assert np.abs(full.closed_form_rows(c.X, c.u_prev, c.Y_d, c.i_start)).max() <= 1.0
+        if name in ("paper-circle", "robustness"):
+            assert passed >= 0.75 * len(calls), (name, passed)
+        else:  # the limits bind on (nearly) every tick of the transients
+            assert passed <= 0.1 * len(calls), (name, passed)
+
+
+def _tick(rng, scale_y):
+    """A random tick (X, u(k-1), Y_d, i_0) near the closed form's limits when scale_y is large."""
+    _, control = load_params()
+    X = rng.normal(0.0, [0.5, 0.3, 0.5, 0.3, 3.0, 0.5])
+    Ts, N = control.period_s, control.horizon
+    Y_d = X[0::2] + np.outer(np.arange(1, N + 1) * Ts, X[1::2]) + rng.normal(0.0, scale_y, (N, 3))
+    return X, rng.normal(0.0, 0.3, 3), Y_d, rng.normal(0.0, 0.2, 3)
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), size=st.floats(-7.0, -0.5), scale_y=st.floats(-5.0, -2.5),
+       shift=st.floats(-50.0, 50.0))
+def test_screen_never_passes_a_tick_the_full_check_fails(seed, size, scale_y, shift):
+    """Property: from a checked reference tick, any other tick (moved by 10**size in every input, and its
+    positions translated by `shift` metres) that the screen passes meets every limit, with the closed form's u."""
+    robot, control = load_params()
+    control = replace(control, mode="constrained")
+    rng = np.random.default_rng(seed)
+    X, u_prev, Y_d, i_start = _tick(rng, 10.0**scale_y)
+    screen, full = _pair(robot, control)
+    assume(np.abs(full.closed_form_rows(X, u_prev, Y_d, i_start)).max() <= 1.0)
+    screen.screened(X, u_prev, Y_d, i_start)  # the full check: the reference
+    step = 10.0**size
+    X2 = X + step * rng.normal(0.0, 1.0, 6)
+    X2[[0, 2]] += shift
+    Y_d2 = Y_d + step * rng.normal(0.0, 1.0, Y_d.shape)
+    Y_d2[:, :2] += X2[[0, 2]] - X[[0, 2]] - step * rng.normal(0.0, 1.0, 2)  # the preview follows the robot
+    u_prev2, i_start2 = u_prev + step * rng.normal(0.0, 1.0, 3), i_start + step * rng.normal(0.0, 1.0, 3)
+    u, by_screen = screen.screened(X2, u_prev2, Y_d2, i_start2)
+    if by_screen:
+        assert np.abs(full.closed_form_rows(X2, u_prev2, Y_d2, i_start2)).max() <= 1.0
+        assert u == full.solve(X2, u_prev2, Y_d2, i_start2)[0].tolist()
+
+
+def test_screen_decides_small_changes_and_defers_large_ones():
+    """The property above is not vacuous: a 1e-7 change of a feasible tick is screened, a change that
+    drives the closed form over a limit is not (the full check runs and the QP answers)."""
+    robot, control = load_params()
+    control = replace(control, mode="constrained")
+    X, u_prev, Y_d, i_start = _tick(np.random.default_rng(5), 1e-4)
+    screen, full = _pair(robot, control)
+    assert np.abs(full.closed_form_rows(X, u_prev, Y_d, i_start)).max() <= 0.5
+    assert not screen.screened(X, u_prev, Y_d, i_start)[1]  # no reference yet
+    assert screen.screened(X + 1e-7, u_prev, Y_d + 1e-7, i_start)[1]
+    far = Y_d + np.array([0.05, -0.03, 0.2])  # amperes wanted: a limit binds
+    assert np.abs(full.closed_form_rows(X, u_prev, far, i_start)).max() > 1.0
+    u, by_screen = screen.screened(X, u_prev, far, i_start)
+    assert not by_screen and u == full.solve(X, u_prev, far, i_start)[0].tolist()

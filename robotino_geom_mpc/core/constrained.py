@@ -20,10 +20,9 @@ constraint rows. A step costs a few small matrix products.
 
 The step first evaluates the unconstrained optimum, the closed form (56),
 and checks its rows: a convex QP whose unconstrained minimiser is feasible is
-solved by it, so then u(k) is the closed form's, bit for bit. The check is
-five numpy calls on buffers fixed at construction (no per-tick allocation):
-the step's angles, signals at z* and z* itself in one matrix-vector product,
-a cos, two multiplies and the rows of both signs in a second product.
+solved by it, so then u(k) is the closed form's, bit for bit. The check (five
+numpy calls on fixed buffers) runs only when a screen cannot decide: a bound,
+in a few float operations, of the rows' change since the last checked tick.
 Only when a limit binds is the QP solved, shifted to the closed form
 (z = z* + d: no linear cost, bounds 1 -/+ the rows at z*), by DAQP (a dual
 active-set solver for small dense QPs: exact on its active set, two-sided
@@ -39,6 +38,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from itertools import chain
+from operator import mul, sub
 
 import daqp
 import numpy as np
@@ -56,6 +56,8 @@ _DAQP_OPTIMAL = 1  # DAQP exitflag of an optimal solution
 _max = np.maximum.reduce  # ndarray.max without its Python wrapper
 _ONE = np.ones(1)  # the constant entry of the parameter vector
 _PRIMAL_TOL = 1e-11  # DAQP primal feasibility tolerance on the scaled rows (its default 1e-6 moves u by ~1e-5)
+_SCREEN_MARGIN = 1e-9  # the screen passes only rows proven below 1 - this (round-off of the rows ~1e-13)
+_SCREEN_W_STEP = 0.5  # [rad/s] largest change of theta' since the reference the screen accepts
 
 
 class ConstrainedMPC:
@@ -144,6 +146,7 @@ class ConstrainedMPC:
         # one product for the factors' angles, the extended signals at the closed form z* = K p, and z*
         self._closed_form_map = np.concatenate((A, F_ext + Fz_ext @ K, K))
         self._B_both = np.concatenate((B_ext, -B_ext))  # max over both signs in one call
+        self._screen_setup(A, F_ext + Fz_ext @ K, B_ext)
         # G = B_ext diag(factors) Fz_ext = sum over the distinct factors (4N + 1 cos, 2N theta' cos) of
         # the factor times a fixed matrix: rows of equal angle (and theta' or not) share a factor
         theta = np.arange(len(F_ext)) >= n_sig
@@ -215,8 +218,66 @@ class ConstrainedMPC:
         self._upper, self._lower, self._no_cost = np.empty(m), np.empty(m), np.zeros(nz)
 
     def reset(self) -> None:
-        """Drop the warm start (the last active set)."""
+        """Drop the warm start (the last active set) and the screen's reference."""
         self._daqp: daqp.Model | None = None
+        self._screen_ref: tuple[list[float], float, float] | None = None
+
+    def _screen_setup(self, A: np.ndarray, M: np.ndarray, B_ext: np.ndarray) -> None:
+        """The screen's constants on q = T p (see `_set_screen_reference`).
+
+        q: the bracket of eq. (56), Y_d - G_p x - F_2p u(k-1) (axis by axis), x', y', theta, theta',
+        u(k-1), i_0. A translation of the positions (with p's constant entry, T's null space) changes
+        neither signals nor angles: they are M T^+ q and A T^+ q (+ constant).
+        """
+        N, mpc = self.N, self.mpc
+        T = np.zeros((3 * N + 10, 3 * N + 13))
+        for a in range(3):
+            errors = np.arange(a * N, (a + 1) * N)
+            T[errors, np.arange(a, 3 * N, 3)] = 1.0
+            T[errors, 3 * N + 2 * a : 3 * N + 2 * a + 2] = -mpc.G_p[a]
+            T[errors, 3 * N + 6 + a] = -mpc.F_2p[a]
+        T[3 * N :, [3 * N + 1, 3 * N + 3, *range(3 * N + 4, 3 * N + 12)]] = np.eye(10)
+        self._free = [np.column_stack((np.ones(N), mpc.G_p[a], mpc.F_2p[a])) for a in range(3)]  # (1, G_p, F_2p)
+        back = np.linalg.pinv(T)
+        n_sig, signals, angles = self._n_sig, np.abs(M @ back), np.abs(A @ back)
+        self._screen_B = np.abs(B_ext)
+        self._screen_angles = np.concatenate((angles, angles[n_sig - self._n_rate :]))  # theta' rows: the rates'
+        self._screen_cos = self._screen_B[:, :n_sig] @ signals[:n_sig]
+        self._screen_theta = self._screen_B[:, n_sig:] @ signals[n_sig:]
+
+    def _screen_vector(
+        self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]], i_start: Sequence[float]
+    ) -> list[float]:
+        """c q (q = T p of `_screen_setup`, c the reference's weights) from the floats."""
+        px, vx, py, vy, theta, w = X
+        ux, uy, ut = u_prev
+        (cx, cy, ct), rest = self._screen_weights
+        q = [c * y[0] - (g_p * px + g_v * vx + f * ux) for y, (c, g_p, g_v, f) in zip(Y_d, cx)]
+        q += [c * y[1] - (g_p * py + g_v * vy + f * uy) for y, (c, g_p, g_v, f) in zip(Y_d, cy)]
+        q += [c * y[2] - (g_p * theta + g_v * w + f * ut) for y, (c, g_p, g_v, f) in zip(Y_d, ct)]
+        q += map(mul, rest, (vx, vy, theta, w, ux, uy, ut, *map(float, i_start)))  # no numpy scalars
+        return q
+
+    def _set_screen_reference(
+        self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]], i_start: Sequence[float]
+    ) -> None:
+        """Make a tick whose full check has just passed (rows, signals in the buffers) the screen's reference.
+
+        The screen passes a tick when max |rows_r| + sum_j c_j |q_j - q_r,j| <= 1 - `_SCREEN_MARGIN`: row i
+        is sum_k B_ik f_k s_k (f: cos of the angles, or theta' times the rate rows'; s: signals at z*),
+        |f s - f_r s_r| <= |f| |s - s_r| + |f - f_r| |s_r|, |cos a - cos b| <= |a - b|, |f| <= 1 or
+        |theta'_r| + `_SCREEN_W_STEP` (a larger change of theta' fails the screen), so c_j, the largest
+        over the rows, bounds the change per unit of |q_j - q_r,j|.
+        """
+        n_sig, B, s, w = self._n_sig, self._screen_B, np.abs(self._signals_z), abs(X[5])
+        scale = np.concatenate((s[:n_sig], w * s[n_sig:]))
+        c = self._screen_cos + (w + _SCREEN_W_STEP) * self._screen_theta + (B * scale) @ self._screen_angles
+        c[:, 3 * self.N + 3] += B[:, n_sig:] @ s[n_sig:]
+        c = c.max(axis=0)  # per unit of |q_j - q_r,j|, the largest over the rows
+        weighted = [(c[a * self.N : (a + 1) * self.N, None] * self._free[a]).tolist() for a in range(3)]
+        self._screen_weights = weighted, c[3 * self.N :].tolist()
+        slack = 1.0 - _SCREEN_MARGIN - float(_max(self._rows_both))
+        self._screen_ref = (self._screen_vector(X, u_prev, Y_d, i_start), X[5], slack)
 
     def _closed_form_check(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> bool:
         """Whether the closed form (56) meets every limit; leaves p and the step's factors in the buffers."""
@@ -251,17 +312,9 @@ class ConstrainedMPC:
     def constraint_rows(
         self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The scaled constraint rows as affine functions h + G z (|h + G z| <= 1 row-wise).
+        """The scaled constraint rows as affine functions h + G z (|h + G z| <= 1 row-wise), h (9N,), G (9N, 3N).
 
-        Parameters
-        ----------
-        X, u_prev, Y_d, i_start
-            As for `solve_increments`.
-
-        Returns
-        -------
-        h : ndarray, shape (9N,)
-        G : ndarray, shape (9N, 3N)
+        The arguments are those of `solve_increments`.
         """
         return self.qp_problem(X, u_prev, Y_d, i_start)[2:]
 
@@ -380,12 +433,16 @@ class ConstrainedMPC:
     ) -> tuple[list[float], bool]:
         """`solve` on Python floats (the controller's per-tick path): u(k) as 3 floats, and the infeasible flag.
 
-        The same numbers as `solve`, bit for bit: p is filled from the floats
-        instead of concatenated from arrays.
+        The same numbers as `solve`, bit for bit: the full check (p filled from the floats) runs only
+        when the screen (`_set_screen_reference`, a few float operations) cannot prove the limits.
         """
-        self._p[:] = [*chain.from_iterable(Y_d), *X, *u_prev, *i_start, 1.0]
-        if self._check(X[5]):
-            du_x, du_y, du_theta = self.mpc.delta_u_floats(X, u_prev, Y_d)
-            return [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta], False
-        delta_U, infeasible = self._solve_qp()
-        return (delta_U[0] + u_prev).tolist(), infeasible
+        ref = self._screen_ref  # (c q_r, theta'_r, slack): the screen of `_set_screen_reference`, else the full check
+        if ref is None or not abs(X[5] - ref[1]) <= _SCREEN_W_STEP or not sum(
+            map(abs, map(sub, self._screen_vector(X, u_prev, Y_d, i_start), ref[0]))) <= ref[2]:
+            self._p[:] = [*chain.from_iterable(Y_d), *X, *u_prev, *i_start, 1.0]
+            if not self._check(X[5]):
+                delta_U, infeasible = self._solve_qp()
+                return (delta_U[0] + u_prev).tolist(), infeasible
+            self._set_screen_reference(X, u_prev, Y_d, i_start)
+        du_x, du_y, du_theta = self.mpc.delta_u_floats(X, u_prev, Y_d)
+        return [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta], False

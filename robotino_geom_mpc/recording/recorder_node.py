@@ -55,6 +55,7 @@ from typing import Any
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.callback_groups import CallbackGroup
+from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -146,8 +147,9 @@ class RecorderNode(Node):
         # with sim time a sample's log_time is the /clock time at its take: no waiting, so it stays as fresh
         self._take_period = 0.0 if self._use_sim_time else TAKE_PERIOD_S
         self._discover()
-        self.create_timer(float(p("discovery_period_s").value), self._discover)
-        self.create_timer(float(p("flush_period_s").value), self.writer.flush)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)  # not ROS time: with use_sim_time, /clock may not run yet
+        self.create_timer(float(p("discovery_period_s").value), self._discover, clock=steady)
+        self.create_timer(float(p("flush_period_s").value), self.writer.flush, clock=steady)
         self.get_logger().info(f"recording into {Path(output).resolve()} ({compression})")
 
     def _store_run_parameters(self) -> None:
@@ -224,40 +226,42 @@ class RecorderNode(Node):
         (`bench.recorder_cpu`). The node's other entities (timers, services, /clock of the time source) are in
         the same wait set; when one is ready, or the wait times out, `executor` runs what is ready.
         """
-        shape, wait_set, recording, entries, last_take = None, None, {}, [], 0.0
+        shape, wait_set, own, entries, last_take = None, None, set(), [], 0.0
         with ExitStack() as handles:
             while not stop.is_set():
                 current = (list(self.subscriptions), list(self.timers), list(self.services))
-                if current != shape:
+                if current != shape:  # a topic was discovered (or the time source subscribed /clock)
                     handles.close()
                     shape = current
-                    all_subs, timers, services = current
-                    recording = {s.handle.pointer: s for s in self._recording_subs}
-                    subs = [s for s in all_subs if s.handle.pointer not in recording]
-                    others = [(s.handle, "subscription") for s in subs] + [(t.handle, "timer") for t in timers]
-                    others += [(s.handle, "service") for s in services]
-                    for entity in [*self._recording_subs, *subs, *timers, *services]:
-                        handles.enter_context(entity.handle)
-                    handles.enter_context(self.context.handle)
-                    wait_set = _rclpy.WaitSet(len(recording) + len(subs), 0, len(timers), 0,
-                                              len(services), 0, self.context.handle)
-                    add = {"subscription": wait_set.add_subscription, "timer": wait_set.add_timer,
-                           "service": wait_set.add_service}
-                    entries = [(add["subscription"], s.handle) for s in self._recording_subs]
-                    entries += [(add[kind], handle) for handle, kind in others]
+                    wait_set, own, entries = self._wait_set(handles, *current)
                 wait_set.clear_entities()
                 for add_entity, handle in entries:
                     add_entity(handle)
                 wait_set.wait(WAIT_TIMEOUT_NS)
                 ready = wait_set.get_ready_entities("subscription")
-                if any(p in recording for p in ready):
+                if any(p in own for p in ready):
                     time.sleep(max(0.0, last_take + self._take_period - time.monotonic()))
                     last_take = time.monotonic()
                     self._take_all(self._recording_subs)
-                other_ready = sum(1 for p in ready if p not in recording)
-                other_ready += len(wait_set.get_ready_entities("timer")) + len(wait_set.get_ready_entities("service"))
-                for _ in range(other_ready if ready or other_ready else 1):  # a timeout: the executor's guards
+                others = sum(1 for p in ready if p not in own)
+                others += len(wait_set.get_ready_entities("timer")) + len(wait_set.get_ready_entities("service"))
+                for _ in range(others if ready or others else 1):  # after a timeout: the executor's guards
                     executor.spin_once(timeout_sec=0)
+
+    def _wait_set(self, handles: ExitStack, subs: list[Any], timers: list[Any],
+                  services: list[Any]) -> tuple[Any, set[int], list[tuple[Any, Any]]]:
+        """A wait set for all of the node's subscriptions, timers and services (their handles held in `handles`).
+
+        Returns it, the pointers of the recording subscriptions and the (add function, handle) of each entity.
+        """
+        wait_set = _rclpy.WaitSet(len(subs), 0, len(timers), 0, len(services), 0, self.context.handle)
+        entries = [(wait_set.add_subscription, s.handle) for s in subs]
+        entries += [(wait_set.add_timer, t.handle) for t in timers]
+        entries += [(wait_set.add_service, s.handle) for s in services]
+        for _, handle in entries:
+            handles.enter_context(handle)
+        handles.enter_context(self.context.handle)
+        return wait_set, {s.handle.pointer for s in self._recording_subs}, entries
 
     def drain(self, limit_s: float) -> int:
         """Write every sample DDS has received and not yet handed over, until all readers are empty; returns the count.

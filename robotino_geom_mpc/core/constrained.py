@@ -14,9 +14,8 @@ the measured one for the first period (at mid-period, as the controller
 applies it) and the reference's for the later ones. Only the headings enter
 non-linearly, through planar rotations: so the per-axis signals (u, v and
 the body-frame motor-speed rate u - (k/M) v + theta' (-v_y, v_x, 0)) are
-fixed matrices times (preview, state, u(k-1), z), rotated by the headings,
-and a fixed matrix maps the rotated signals and the start currents to the
-constraint rows. A step costs a few small matrix products.
+fixed matrices times (preview, state, u(k-1), z), rotated by the headings, and
+a fixed matrix maps the rotated signals and the start currents to the rows.
 
 The step first evaluates the unconstrained optimum, the closed form (56),
 and checks its rows: a convex QP whose unconstrained minimiser is feasible is
@@ -36,8 +35,9 @@ possible, and the step reports `infeasible`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from itertools import chain
+from itertools import chain, cycle
 from operator import mul, sub
 
 import daqp
@@ -220,14 +220,13 @@ class ConstrainedMPC:
     def reset(self) -> None:
         """Drop the warm start (the last active set) and the screen's reference."""
         self._daqp: daqp.Model | None = None
-        self._screen_ref: tuple[list[float], float, float] | None = None
+        self._screen_ref: tuple[float, float] | None = None
 
     def _screen_setup(self, A: np.ndarray, M: np.ndarray, B_ext: np.ndarray) -> None:
-        """The screen's constants on q = T p (see `_set_screen_reference`).
+        """The screen's constants (`_set_screen_reference`) on q = T p: |M T^+|, |A T^+|, |B_ext| and products.
 
-        q: the bracket of eq. (56), Y_d - G_p x - F_2p u(k-1) (axis by axis), x', y', theta, theta',
-        u(k-1), i_0. A translation of the positions (with p's constant entry, T's null space) changes
-        neither signals nor angles: they are M T^+ q and A T^+ q (+ constant).
+        q: eq. (56)'s bracket Y_d - G_p x - F_2p u(k-1) (axis by axis), x', y', theta, theta', u(k-1), i_0;
+        translating the positions (T's null space with p's constant entry) changes no signal nor angle.
         """
         N, mpc = self.N, self.mpc
         T = np.zeros((3 * N + 10, 3 * N + 13))
@@ -237,7 +236,8 @@ class ConstrainedMPC:
             T[errors, 3 * N + 2 * a : 3 * N + 2 * a + 2] = -mpc.G_p[a]
             T[errors, 3 * N + 6 + a] = -mpc.F_2p[a]
         T[3 * N :, [3 * N + 1, 3 * N + 3, *range(3 * N + 4, 3 * N + 12)]] = np.eye(10)
-        self._free = [np.column_stack((np.ones(N), mpc.G_p[a], mpc.F_2p[a])) for a in range(3)]  # (1, G_p, F_2p)
+        self._brackets = T[: 3 * N].reshape(3, N, -1).swapaxes(0, 1).reshape(3 * N, -1)  # in Y_d's order
+        self._free = np.stack([np.column_stack((np.ones(N), mpc.G_p[a], mpc.F_2p[a])) for a in range(3)], 1)
         back = np.linalg.pinv(T)
         n_sig, signals, angles = self._n_sig, np.abs(M @ back), np.abs(A @ back)
         self._screen_B = np.abs(B_ext)
@@ -245,39 +245,42 @@ class ConstrainedMPC:
         self._screen_cos = self._screen_B[:, :n_sig] @ signals[:n_sig]
         self._screen_theta = self._screen_B[:, n_sig:] @ signals[n_sig:]
 
-    def _screen_vector(
+    def _screen_change(
         self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]], i_start: Sequence[float]
-    ) -> list[float]:
-        """c q (q = T p of `_screen_setup`, c the reference's weights) from the floats."""
+    ) -> float:
+        """sum_j c_j |q_j - q_r,j| (`_set_screen_reference`) from the floats; inf for a larger change of theta'."""
         px, vx, py, vy, theta, w = X
+        if not abs(w - self._screen_ref[0]) <= _SCREEN_W_STEP:
+            return math.inf
         ux, uy, ut = u_prev
-        (cx, cy, ct), rest = self._screen_weights
-        q = [c * y[0] - (g_p * px + g_v * vx + f * ux) for y, (c, g_p, g_v, f) in zip(Y_d, cx)]
-        q += [c * y[1] - (g_p * py + g_v * vy + f * uy) for y, (c, g_p, g_v, f) in zip(Y_d, cy)]
-        q += [c * y[2] - (g_p * theta + g_v * w + f * ut) for y, (c, g_p, g_v, f) in zip(Y_d, ct)]
-        q += map(mul, rest, (vx, vy, theta, w, ux, uy, ut, *map(float, i_start)))  # no numpy scalars
-        return q
+        i_x, i_y, i_theta = i_start.tolist() if isinstance(i_start, np.ndarray) else i_start  # no numpy scalars
+        brackets, rest, rest_ref = self._screen_weights  # per bracket entry (c, c G_p, c F_2p, c q_r)
+        axes = cycle(((px, vx, ux), (py, vy, uy), (theta, w, ut)))
+        change = sum([abs(c * y - (g_p * p + g_v * v + f * u) - r)
+                      for y, (c, g_p, g_v, f, r), (p, v, u) in zip(chain.from_iterable(Y_d), brackets, axes)])
+        others = (vx, vy, theta, w, ux, uy, ut, i_x, i_y, i_theta)
+        return change + sum(map(mul, rest, map(abs, map(sub, others, rest_ref))))
 
     def _set_screen_reference(
         self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]], i_start: Sequence[float]
     ) -> None:
         """Make a tick whose full check has just passed (rows, signals in the buffers) the screen's reference.
 
-        The screen passes a tick when max |rows_r| + sum_j c_j |q_j - q_r,j| <= 1 - `_SCREEN_MARGIN`: row i
-        is sum_k B_ik f_k s_k (f: cos of the angles, or theta' times the rate rows'; s: signals at z*),
-        |f s - f_r s_r| <= |f| |s - s_r| + |f - f_r| |s_r|, |cos a - cos b| <= |a - b|, |f| <= 1 or
-        |theta'_r| + `_SCREEN_W_STEP` (a larger change of theta' fails the screen), so c_j, the largest
-        over the rows, bounds the change per unit of |q_j - q_r,j|.
+        The screen passes a tick if max |rows_r| + sum_j c_j |q_j - q_r,j| <= 1 - `_SCREEN_MARGIN`: row i is
+        sum_k B_ik f_k s_k (f: cos of the angles, or theta' times the rate rows'; s: signals at z*), |f s - f_r s_r|
+        <= |f| |s - s_r| + |f - f_r| |s_r|, |cos a - cos b| <= |a - b|, |f| <= 1 or |theta'_r| + `_SCREEN_W_STEP`
+        (a larger change of theta' fails): c_j, the largest over the rows, bounds the change per |q_j - q_r,j|.
         """
-        n_sig, B, s, w = self._n_sig, self._screen_B, np.abs(self._signals_z), abs(X[5])
+        N, n_sig, B, s, w, p = self.N, self._n_sig, self._screen_B, np.abs(self._signals_z), abs(X[5]), self._p
         scale = np.concatenate((s[:n_sig], w * s[n_sig:]))
         c = self._screen_cos + (w + _SCREEN_W_STEP) * self._screen_theta + (B * scale) @ self._screen_angles
-        c[:, 3 * self.N + 3] += B[:, n_sig:] @ s[n_sig:]
-        c = c.max(axis=0)  # per unit of |q_j - q_r,j|, the largest over the rows
-        weighted = [(c[a * self.N : (a + 1) * self.N, None] * self._free[a]).tolist() for a in range(3)]
-        self._screen_weights = weighted, c[3 * self.N :].tolist()
-        slack = 1.0 - _SCREEN_MARGIN - float(_max(self._rows_both))
-        self._screen_ref = (self._screen_vector(X, u_prev, Y_d, i_start), X[5], slack)
+        c[:, 3 * N + 3] += B[:, n_sig:] @ s[n_sig:]
+        c = c.max(axis=0)
+        c_brackets = c[: 3 * N].reshape(3, N).T.ravel()  # Y_d's order: period by period
+        brackets = np.column_stack((c_brackets[:, None] * self._free.reshape(-1, 4), c_brackets * (self._brackets @ p)))
+        others = [X[1], X[3], X[4], X[5], *u_prev, *map(float, i_start)]
+        self._screen_weights = brackets.tolist(), c[3 * N :].tolist(), others
+        self._screen_ref = (X[5], 1.0 - _SCREEN_MARGIN - float(_max(self._rows_both)))
 
     def _closed_form_check(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> bool:
         """Whether the closed form (56) meets every limit; leaves p and the step's factors in the buffers."""
@@ -436,9 +439,8 @@ class ConstrainedMPC:
         The same numbers as `solve`, bit for bit: the full check (p filled from the floats) runs only
         when the screen (`_set_screen_reference`, a few float operations) cannot prove the limits.
         """
-        ref = self._screen_ref  # (c q_r, theta'_r, slack): the screen of `_set_screen_reference`, else the full check
-        if ref is None or not abs(X[5] - ref[1]) <= _SCREEN_W_STEP or not sum(
-            map(abs, map(sub, self._screen_vector(X, u_prev, Y_d, i_start), ref[0]))) <= ref[2]:
+        ref = self._screen_ref  # (theta'_r, slack): the screen of `_set_screen_reference`, else the full check
+        if ref is None or not self._screen_change(X, u_prev, Y_d, i_start) <= ref[1]:
             self._p[:] = [*chain.from_iterable(Y_d), *X, *u_prev, *i_start, 1.0]
             if not self._check(X[5]):
                 delta_U, infeasible = self._solve_qp()

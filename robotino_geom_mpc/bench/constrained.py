@@ -190,7 +190,8 @@ def bench_constrained(quick: bool) -> dict[str, float]:
 
     * ``constrained_step_us``: median over the ticks of the paper-circle and
       robustness inputs of `MotionController.step` in constrained mode (its
-      compute_time_s: the closed form's check, and the QP where a limit binds);
+      compute_time_s: the screen of `ConstrainedMPC.solve_floats`, the full
+      check where the screen cannot decide, and the QP where a limit binds);
     * ``constrained_step_worst_us``: its slowest tick over all four input
       sets, the binding transients included;
     * ``constrained_over_closed_form``: median over the same nominal ticks of

@@ -180,6 +180,8 @@ def test_advance_predicts_the_start_current_after_the_elapsed_time(robot, satura
     np.testing.assert_allclose(drive.current_estimate, expected, atol=1e-10)
     drive.advance(Ts)  # one period: the prediction of the step itself
     np.testing.assert_allclose(drive.current_estimate, one_period, atol=1e-12)
+    assert drive.current_estimate_floats == drive.current_estimate.tolist()  # the float path: the same values
+    assert all(type(v) is float for v in drive.current_estimate_floats)
 
 
 def test_bad_input_raises(robot):

@@ -234,7 +234,7 @@ class MotionController:
             du_x, du_y, du_theta = self.mpc.delta_u_floats(x, u_prev, y)
             u = [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta]
         else:
-            u, infeasible = self.constrained.solve_floats(x, u_prev, y, self.drive.current_estimate)
+            u, infeasible = self.constrained.solve_floats(x, u_prev, y, self.drive.current_estimate_floats)
         currents = self.drive.currents_floats(self.field.forces_floats(theta_m, u))
         ux, uy, uw = u
         dx, dy, dw = self._damping_rates

@@ -173,6 +173,11 @@ class InverseDrive:
         """Predicted currents at the start of the next period [A] (one period after the last, or as `advance` set)."""
         return np.array(self._i0)
 
+    @property
+    def current_estimate_floats(self) -> list[float]:
+        """`current_estimate` as three Python floats (the controller's per-tick path)."""
+        return list(self._i0)
+
     def reset(self, currents: np.ndarray | None = None) -> None:
         """Start again from known currents (default zero: a robot at rest, drives off)."""
         self._i0 = [0.0, 0.0, 0.0] if currents is None else self._vec(currents, "currents").tolist()

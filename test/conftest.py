@@ -10,6 +10,8 @@ import os
 import random
 import sys
 
+import pytest
+
 os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 101))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
@@ -18,3 +20,13 @@ os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 from robotino_geom_mpc.ros.processes import dds_environment  # noqa: E402  (after the variables it reads)
 
 os.environ.update(dds_environment(os.environ))
+
+
+@pytest.fixture
+def procs(tmp_path):
+    """Child processes of one test (`recording_helpers.Processes`), ended when it ends."""
+    from recording_helpers import Processes
+
+    processes = Processes(tmp_path)
+    yield processes
+    processes.close()

@@ -9,23 +9,15 @@ from __future__ import annotations
 import signal
 import time
 
-import pytest
 import yaml
 from mcap.reader import make_reader
 from mcap_ros2.reader import read_ros2_messages
 from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
-from recording_helpers import (TYPES, Processes, expected_values, remove_dead_segments, shm_segments, values_of,
+from recording_helpers import (TYPES, expected_values, remove_dead_segments, shm_segments, values_of,
                                wait_for)
 from robotino_geom_mpc.recording.bag import BagReader
-
-
-@pytest.fixture
-def procs(tmp_path):
-    p = Processes(tmp_path)
-    yield p
-    p.close()
 
 
 def _recording(bag: BagReader, topic: str, kind: str) -> list[tuple[float, ...]]:

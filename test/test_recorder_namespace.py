@@ -6,16 +6,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from recording_helpers import PYTHON, Processes
+from recording_helpers import PYTHON
 from robotino_geom_mpc.recording.bag import BagError, BagReader
 from robotino_geom_mpc.recording.report import find_topic
-
-
-@pytest.fixture
-def procs(tmp_path):
-    p = Processes(tmp_path)
-    yield p
-    p.close()
 
 
 def test_a_namespaced_recorder_records_its_robot_and_tf_only(procs, tmp_path):

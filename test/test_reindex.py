@@ -22,7 +22,7 @@ from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.rosbag2.errors import ReaderError
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
-from recording_helpers import (PYTHON, Processes, build_message, env, expected_values, remove_dead_segments,
+from recording_helpers import (PYTHON, build_message, env, expected_values, remove_dead_segments,
                                shm_segments, values_of, wait_for)
 from robotino_geom_mpc.recording.bag import RUN_METADATA, BagReader, BagWriter, damage_report
 from robotino_geom_mpc.recording.bag_writer import write_metadata_yaml
@@ -30,13 +30,6 @@ from robotino_geom_mpc.recording.bag_writer import write_metadata_yaml
 FLUSH_S = 0.2
 RATE_HZ = 200.0
 KIND = "float64_array"
-
-
-@pytest.fixture
-def procs(tmp_path):
-    p = Processes(tmp_path)
-    yield p
-    p.close()
 
 
 def _reindex(path) -> subprocess.CompletedProcess:

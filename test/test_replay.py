@@ -21,7 +21,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from recording_helpers import PYTHON, Processes, build_message, values_of
+from recording_helpers import PYTHON, build_message, values_of
 from robotino_geom_mpc.recording.bag import BagWriter
 from rclpy.serialization import serialize_message
 
@@ -66,13 +66,6 @@ class Listener:
         self.executor.shutdown()
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
-
-
-@pytest.fixture
-def procs(tmp_path):
-    p = Processes(tmp_path)
-    yield p
-    p.close()
 
 
 def _make_bag(path):

@@ -20,13 +20,15 @@ a fixed matrix maps the rotated signals and the start currents to the rows.
 The step first evaluates the unconstrained optimum, the closed form (56),
 and checks its rows: a convex QP whose unconstrained minimiser is feasible is
 solved by it, so then u(k) is the closed form's, bit for bit. The check (five
-numpy calls on fixed buffers) runs only when a screen cannot decide: a bound,
-in a few float operations, of the rows' change since the last checked tick.
+numpy calls on fixed buffers) runs only when a screen (`limit_screen`) cannot
+decide: a bound, in a few float operations, of the rows' change since the
+last checked tick.
 Only when a limit binds is the QP solved, shifted to the closed form
 (z = z* + d: no linear cost, bounds 1 -/+ the rows at z*), by DAQP (a dual
 active-set solver for small dense QPs: exact on its active set, two-sided
-rows natively), warm-started from the previous QP's active set; its G is the
-step's 6N + 1 distinct factors times one fixed matrix. When the limits
+rows natively; `warm_qp`, set up once), warm-started from the previous QP's
+active set; its G is the step's 6N + 1 distinct factors times one fixed
+matrix. When the limits
 cannot all hold, the least total violation is found by a linear programme
 (scipy's HiGHS), the limits are relaxed by exactly that much and the QP
 solved again: the output stays finite, the violation is the smallest
@@ -35,28 +37,23 @@ possible, and the step reports `infeasible`.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from itertools import chain, cycle
-from operator import mul, sub
+from itertools import chain
 
-import daqp
 import numpy as np
 
 from .decoupling import DecouplingField
 from .drive import MotorKinematics, ZOHDrive
+from .limit_screen import LimitScreen
 from .mpc import DecoupledMPC, axis_dampings
 from .params import ControlParams, RobotinoParams
+from .warm_qp import WarmDaqp
 
 __all__ = ["ConstrainedMPC"]
 
 _VIOLATION_TOL = 1e-6  # relative to the limit: larger slack means infeasible
-_DAQP_OPTIMAL = 1  # DAQP exitflag of an optimal solution
 _max = np.maximum.reduce  # ndarray.max without its Python wrapper
 _ONE = np.ones(1)  # the constant entry of the parameter vector
-_PRIMAL_TOL = 1e-11  # DAQP primal feasibility tolerance on the scaled rows (its default 1e-6 moves u by ~1e-5)
-_SCREEN_MARGIN = 1e-9  # the screen passes only rows proven below 1 - this (round-off of the rows ~1e-13)
-_SCREEN_W_STEP = 0.5  # [rad/s] largest change of theta' since the reference the screen accepts
 
 
 class ConstrainedMPC:
@@ -147,7 +144,7 @@ class ConstrainedMPC:
         # one product for the factors' angles, the extended signals at the closed form z* = K p, and z*
         self._closed_form_map = np.concatenate((A, F_ext + Fz_ext @ K, K))
         self._B_both = np.concatenate((B_ext, -B_ext))  # max over both signs in one call
-        self._screen_setup(A, F_ext + Fz_ext @ K, B_ext)
+        self._screen = LimitScreen(mpc, A, F_ext + Fz_ext @ K, B_ext, n_sig, self._n_rate)
         # G = B_ext diag(factors) Fz_ext = sum over the distinct factors (4N + 1 cos, 2N theta' cos) of
         # the factor times a fixed matrix: rows of equal angle (and theta' or not) share a factor
         theta = np.arange(len(F_ext)) >= n_sig
@@ -156,6 +153,7 @@ class ConstrainedMPC:
         self._G_map = np.zeros((len(self._distinct), B_ext.size // len(F_ext) * nz))
         np.add.at(self._G_map, group.ravel(), np.einsum("rk,kz->krz", B_ext, Fz_ext).reshape(len(F_ext), -1))
         self._buffers(n_p, nz, len(F_ext))
+        self._daqp = WarmDaqp(self._P, 9 * N)
         self.reset()
 
     @staticmethod
@@ -214,74 +212,14 @@ class ConstrainedMPC:
         self._theta_factors = self._ext_factors[n_sig:]  # theta' times the rate rows' factors
         self._rows_both = np.empty(2 * m)
         self._rows = self._rows_both[:m]  # at z*
-        self._distinct_factors, self._G_flat = np.empty(len(self._distinct)), np.empty(m * nz)
+        self._distinct_factors, self._G_flat = np.empty(len(self._distinct)), np.zeros(m * nz)
         self._G = self._G_flat.reshape(m, nz)
         self._upper, self._lower, self._no_cost = np.empty(m), np.empty(m), np.zeros(nz)
 
     def reset(self) -> None:
         """Drop the warm start (the last active set) and the screen's reference."""
-        self._daqp: daqp.Model | None = None
-        self._screen_ref: tuple[float, float] | None = None
-
-    def _screen_setup(self, A: np.ndarray, M: np.ndarray, B_ext: np.ndarray) -> None:
-        """The screen's constants (`_set_screen_reference`) on q = T p: |M T^+|, |A T^+|, |B_ext| and products.
-
-        q: eq. (56)'s bracket Y_d - G_p x - F_2p u(k-1) (axis by axis), x', y', theta, theta', u(k-1), i_0;
-        translating the positions (T's null space with p's constant entry) changes no signal nor angle.
-        """
-        N, mpc = self.N, self.mpc
-        T = np.zeros((3 * N + 10, 3 * N + 13))
-        for a in range(3):
-            errors = np.arange(a * N, (a + 1) * N)
-            T[errors, np.arange(a, 3 * N, 3)] = 1.0
-            T[errors, 3 * N + 2 * a : 3 * N + 2 * a + 2] = -mpc.G_p[a]
-            T[errors, 3 * N + 6 + a] = -mpc.F_2p[a]
-        T[3 * N :, [3 * N + 1, 3 * N + 3, *range(3 * N + 4, 3 * N + 12)]] = np.eye(10)
-        self._brackets = T[: 3 * N].reshape(3, N, -1).swapaxes(0, 1).reshape(3 * N, -1)  # in Y_d's order
-        self._free = np.stack([np.column_stack((np.ones(N), mpc.G_p[a], mpc.F_2p[a])) for a in range(3)], 1)
-        back = np.linalg.pinv(T)
-        n_sig, signals, angles = self._n_sig, np.abs(M @ back), np.abs(A @ back)
-        self._screen_B = np.abs(B_ext)
-        self._screen_angles = np.concatenate((angles, angles[n_sig - self._n_rate :]))  # theta' rows: the rates'
-        self._screen_cos = self._screen_B[:, :n_sig] @ signals[:n_sig]
-        self._screen_theta = self._screen_B[:, n_sig:] @ signals[n_sig:]
-
-    def _screen_change(
-        self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]], i_start: Sequence[float]
-    ) -> float:
-        """sum_j c_j |q_j - q_r,j| (`_set_screen_reference`) from the floats; inf for a larger change of theta'."""
-        px, vx, py, vy, theta, w = X
-        if not abs(w - self._screen_ref[0]) <= _SCREEN_W_STEP:
-            return math.inf
-        ux, uy, ut = u_prev
-        i_x, i_y, i_theta = i_start.tolist() if isinstance(i_start, np.ndarray) else i_start  # no numpy scalars
-        brackets, rest, rest_ref = self._screen_weights  # per bracket entry (c, c G_p, c F_2p, c q_r)
-        axes = cycle(((px, vx, ux), (py, vy, uy), (theta, w, ut)))
-        change = sum([abs(c * y - (g_p * p + g_v * v + f * u) - r)
-                      for y, (c, g_p, g_v, f, r), (p, v, u) in zip(chain.from_iterable(Y_d), brackets, axes)])
-        others = (vx, vy, theta, w, ux, uy, ut, i_x, i_y, i_theta)
-        return change + sum(map(mul, rest, map(abs, map(sub, others, rest_ref))))
-
-    def _set_screen_reference(
-        self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]], i_start: Sequence[float]
-    ) -> None:
-        """Make a tick whose full check has just passed (rows, signals in the buffers) the screen's reference.
-
-        The screen passes a tick if max |rows_r| + sum_j c_j |q_j - q_r,j| <= 1 - `_SCREEN_MARGIN`: row i is
-        sum_k B_ik f_k s_k (f: cos of the angles, or theta' times the rate rows'; s: signals at z*), |f s - f_r s_r|
-        <= |f| |s - s_r| + |f - f_r| |s_r|, |cos a - cos b| <= |a - b|, |f| <= 1 or |theta'_r| + `_SCREEN_W_STEP`
-        (a larger change of theta' fails): c_j, the largest over the rows, bounds the change per |q_j - q_r,j|.
-        """
-        N, n_sig, B, s, w, p = self.N, self._n_sig, self._screen_B, np.abs(self._signals_z), abs(X[5]), self._p
-        scale = np.concatenate((s[:n_sig], w * s[n_sig:]))
-        c = self._screen_cos + (w + _SCREEN_W_STEP) * self._screen_theta + (B * scale) @ self._screen_angles
-        c[:, 3 * N + 3] += B[:, n_sig:] @ s[n_sig:]
-        c = c.max(axis=0)
-        c_brackets = c[: 3 * N].reshape(3, N).T.ravel()  # Y_d's order: period by period
-        brackets = np.column_stack((c_brackets[:, None] * self._free.reshape(-1, 4), c_brackets * (self._brackets @ p)))
-        others = [X[1], X[3], X[4], X[5], *u_prev, *map(float, i_start)]
-        self._screen_weights = brackets.tolist(), c[3 * N :].tolist(), others
-        self._screen_ref = (X[5], 1.0 - _SCREEN_MARGIN - float(_max(self._rows_both)))
+        self._daqp.reset()
+        self._screen.reset()
 
     def _closed_form_check(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> bool:
         """Whether the closed form (56) meets every limit; leaves p and the step's factors in the buffers."""
@@ -331,21 +269,6 @@ class ConstrainedMPC:
         G, z = self._G.copy(), self._z_star
         return self._P, -(self._P @ z), self._rows - G @ z, G
 
-    def _qp(self, G: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[bool, np.ndarray]:
-        """DAQP on min 1/2 d'Pd, lower <= G d <= upper, from the last active set; keeps the new one."""
-        if self._daqp is None:
-            self._daqp = daqp.Model()
-            self._daqp.setup(self._P, self._no_cost, G, upper, lower, np.zeros(len(upper), dtype=np.int32))
-            self._daqp.settings = {"primal_tol": _PRIMAL_TOL}
-        else:  # without `sense`, DAQP starts from the active set of its last solve
-            self._daqp.update(A=G, bupper=upper, blower=lower)
-        self._daqp_data = (G, upper, lower)  # DAQP keeps pointers to the arrays: keep them alive
-        d, _, exitflag, _ = self._daqp.solve()
-        ok = exitflag == _DAQP_OPTIMAL
-        if not ok:  # start the next QP cold
-            self._daqp = None
-        return ok, np.asarray(d)
-
     def solve_increments(
         self,
         X: np.ndarray,
@@ -392,12 +315,12 @@ class ConstrainedMPC:
         G, rows = self._G, self._rows
         np.subtract(1.0, rows, out=self._upper)
         np.subtract(-1.0, rows, out=self._lower)
-        ok, d = self._qp(G, self._lower, self._upper)
+        ok, d = self._daqp.solve(G, self._lower, self._upper)
         infeasible = False
         if not ok:
             d_lp, slack = self._least_violation(G, rows)
             infeasible = bool(slack.max() > _VIOLATION_TOL)
-            ok, d = self._qp(G, self._lower - slack - 1e-9, self._upper + slack + 1e-9)
+            ok, d = self._daqp.solve(G, self._lower - slack - 1e-9, self._upper + slack + 1e-9)
             if not ok:  # numerically stuck: the LP's point itself has the least violation
                 d = d_lp
         return (self._z_star + d).reshape(self.N, 3), infeasible
@@ -437,14 +360,16 @@ class ConstrainedMPC:
         """`solve` on Python floats (the controller's per-tick path): u(k) as 3 floats, and the infeasible flag.
 
         The same numbers as `solve`, bit for bit: the full check (p filled from the floats) runs only
-        when the screen (`_set_screen_reference`, a few float operations) cannot prove the limits.
+        when the screen (`limit_screen.LimitScreen`, a few float operations) cannot prove the limits.
+        A tick where a limit binds drops the screen's reference (the next tick is checked in full).
         """
-        ref = self._screen_ref  # (theta'_r, slack): the screen of `_set_screen_reference`, else the full check
-        if ref is None or not self._screen_change(X, u_prev, Y_d, i_start) <= ref[1]:
+        if not self._screen.passes(X, u_prev, Y_d, i_start):
             self._p[:] = [*chain.from_iterable(Y_d), *X, *u_prev, *i_start, 1.0]
             if not self._check(X[5]):
+                self._screen.reset()
                 delta_U, infeasible = self._solve_qp()
-                return (delta_U[0] + u_prev).tolist(), infeasible
-            self._set_screen_reference(X, u_prev, Y_d, i_start)
+                du_x, du_y, du_theta = delta_U[0].tolist()
+                return [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta], infeasible
+            self._screen.set_reference(X, u_prev, i_start, self._p, self._signals_z, float(_max(self._rows_both)))
         du_x, du_y, du_theta = self.mpc.delta_u_floats(X, u_prev, Y_d)
         return [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta], False

@@ -16,7 +16,9 @@ publishes  ``robot_description``  std_msgs/String, the URDF generated from the r
 subscribes ``joint_states``       sensor_msgs/JointState (the plant's wheels)
 
 Frame ids are the URDF's links with ``frame_prefix`` (as robot_state_publisher's parameter of that name).
-A joint_states message whose names and positions do not pair up, or with a non-finite position, is
+A joint_states message naming exactly the moving joints in the URDF's order (the plant's) is read in place
+and its /tf patched into a serialized template (`ros.cdr`: no Python message per tick); any other goes
+through the general decoder and the same transforms as messages. A joint_states message whose names and positions do not pair up, or with a non-finite position, is
 skipped with a throttled warning; names the URDF does not have are ignored.
 
 Parameters: the robot/control parameters of config/*.yaml (``/**`` section) plus ``frame_prefix``.
@@ -30,10 +32,13 @@ from typing import Any
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
+from builtin_interfaces.msg import Time as TimeMsg
 
 from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix, joint_transform, \
     robotino_urdf, urdf_joints
+from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate, MalformedMessage, cdr_reader
+from robotino_geom_mpc.ros.decode import STAMP_FIELDS
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import LATCHED_QOS, PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import run_node
@@ -44,6 +49,7 @@ DESCRIPTION_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("frame_prefix", str, "Prefix of the frame ids (the URDF's links), e.g. 'robot1/'; empty: none"),
 )
 _MOVING = ("revolute", "continuous")
+_ROTATION = ("x", "y", "z", "w")
 
 
 def _prefix_problem(values: dict[str, Any]) -> str | None:
@@ -72,8 +78,9 @@ class RobotDescriptionNode(Node):
         self.tf_pub = self.create_publisher(TFMessage, "/tf", PUBLISH_QOS)
         self.static_pub = self.create_publisher(TFMessage, "/tf_static", LATCHED_QOS)  # as tf2's static broadcaster
         self.skipped = 0
+        self._read_joints = cdr_reader(JointState, "sensor_msgs/msg/JointState")
         self._describe()
-        self.create_subscription(JointState, "joint_states", self._on_joints, PUBLISH_QOS)
+        self.create_subscription(JointState, "joint_states", self._on_joint_bytes, PUBLISH_QOS, raw=True)
         self.get_logger().info(f"robot description published ({len(self.moving)} moving joints)")
 
     def _on_params(self, changed: dict) -> None:
@@ -85,6 +92,7 @@ class RobotDescriptionNode(Node):
         self.urdf = robotino_urdf(robot)
         joints = urdf_joints(self.urdf)
         self.moving = {j.name: j for j in joints if j.type in _MOVING}
+        self._templates()
         self.description_pub.publish(String(data=self.urdf))
         fixed = [j for j in joints if j.type == "fixed"]
         if fixed:
@@ -101,14 +109,52 @@ class RobotDescriptionNode(Node):
         t.x, t.y, t.z, r.x, r.y, r.z, r.w = x, y, z, qx, qy, qz, qw
         return msg
 
-    def _on_joints(self, msg: JointState) -> None:
-        if len(msg.name) != len(msg.position) or not all(map(math.isfinite, msg.position)):
-            self.skipped += 1
-            self.get_logger().warn(
-                f"joint_states with {len(msg.name)} names, {len(msg.position)} positions or a non-finite "
-                f"position: skipped ({self.skipped} so far)", throttle_duration_sec=2.0)
+    def _templates(self) -> None:
+        """The in-place reader of joint_states naming the moving joints in order, and their /tf as a template."""
+        n = len(self.moving)
+        names = list(self.moving)
+        self.joint_layout = CdrLayout(
+            JointState(name=names, position=[0.0] * n, velocity=[0.0] * n, effort=[0.0] * n),
+            STAMP_FIELDS + tuple(f"position[{j}]" for j in range(n)))
+        stamp = TimeMsg()
+        message = self._tf_message(transforms=[self._stamped(self.moving[name], 0.0, stamp) for name in names])
+        self.tf_cdr = CdrTemplate(message, tuple(
+            f"transforms[{j}].{field}" for j in range(n) for field in STAMP_FIELDS + tuple(
+                f"transform.rotation.{axis}" for axis in _ROTATION)))
+
+    def _on_joint_bytes(self, data: bytes) -> None:
+        """joint_states as bytes: the plant's layout read in place, /tf from the template; else decoded."""
+        values = self.joint_layout.read(data)
+        if values is None:
+            try:
+                msg = self._read_joints(data)
+            except MalformedMessage as exc:
+                self.skipped += 1
+                self.get_logger().warn(f"undecodable joint_states: skipped ({self.skipped} so far): {exc}",
+                                       throttle_duration_sec=2.0)
+                return
+            self._on_joints(msg)
             return
-        transforms = [self._stamped(self.moving[name], position, msg.header.stamp)
+        stamp, positions = values[:2], values[2:]
+        if not math.isfinite(sum(positions)):
+            self._skip(len(positions), len(positions))
+            return
+        self.tf_pub.publish(self.tf_cdr.pack(*(value for joint, position in zip(self.moving.values(), positions)
+                                              for value in (*stamp, *joint_transform(joint, position)[1]))))
+
+    def _skip(self, names: int, positions: int) -> None:
+        self.skipped += 1
+        self.get_logger().warn(
+            f"joint_states with {names} names, {positions} positions or a non-finite "
+            f"position: skipped ({self.skipped} so far)", throttle_duration_sec=2.0)
+
+    def _on_joints(self, msg: Any) -> None:
+        """A decoded joint_states (any names, order, length): the transforms of the moving joints it names."""
+        if len(msg.name) != len(msg.position) or not all(map(math.isfinite, msg.position)):
+            self._skip(len(msg.name), len(msg.position))
+            return
+        stamp = TimeMsg(sec=msg.header.stamp.sec, nanosec=msg.header.stamp.nanosec)
+        transforms = [self._stamped(self.moving[name], position, stamp)
                       for name, position in zip(msg.name, msg.position) if name in self.moving]
         if transforms:
             self.tf_pub.publish(self._tf_message(transforms=transforms))

@@ -214,7 +214,9 @@ class ConstrainedMPC:
         self._rows = self._rows_both[:m]  # at z*
         self._distinct_factors, self._G_flat = np.empty(len(self._distinct)), np.zeros(m * nz)
         self._G = self._G_flat.reshape(m, nz)
-        self._upper, self._lower, self._no_cost = np.empty(m), np.empty(m), np.zeros(nz)
+        self._bounds = np.empty((2, m))
+        self._upper, self._lower = self._bounds  # 1 - rows, -1 - rows: (1, -1) + (-rows) in one call
+        self._negative_rows, self._plus_minus_one = self._rows_both[m:].reshape(1, m), np.array([[1.0], [-1.0]])
 
     def reset(self) -> None:
         """Drop the warm start (the last active set) and the screen's reference."""
@@ -243,7 +245,7 @@ class ConstrainedMPC:
 
     def _constraint_matrix(self) -> None:
         """G for the factors in the buffers (`_closed_form_check` first): the distinct factors times one matrix."""
-        np.take(self._ext_factors, self._distinct, out=self._distinct_factors)
+        self._ext_factors.take(self._distinct, out=self._distinct_factors)
         np.dot(self._distinct_factors, self._G_map, self._G_flat)
 
     def closed_form_rows(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> np.ndarray:
@@ -313,8 +315,7 @@ class ConstrainedMPC:
         """
         self._constraint_matrix()
         G, rows = self._G, self._rows
-        np.subtract(1.0, rows, out=self._upper)
-        np.subtract(-1.0, rows, out=self._lower)
+        np.add(self._plus_minus_one, self._negative_rows, out=self._bounds)
         ok, d = self._daqp.solve(G, self._lower, self._upper)
         infeasible = False
         if not ok:

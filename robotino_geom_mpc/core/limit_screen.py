@@ -6,14 +6,13 @@ bound of the rows' change since the reference stays below 1. The bound is
 linear in the change of q = T p: eq. (56)'s bracket Y_d - G_p x - F_2p u(k-1)
 (axis by axis), x', y', theta, theta', u(k-1) and the start currents i_0
 (translating the positions changes no signal nor angle). Its per-tick cost
-is a chain of C-level `map` calls over Python floats: no numpy call.
+is one unrolled loop over the periods on Python floats: no numpy call.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from itertools import chain
 from operator import mul, sub
 
 import numpy as np
@@ -83,13 +82,11 @@ class LimitScreen:
             return math.inf
         ux, uy, ut = u_prev
         i_x, i_y, i_theta = i_start.tolist() if isinstance(i_start, np.ndarray) else i_start  # no numpy scalars
-        c_y, c_p, c_v, c_u, c_r, rest, rest_ref = self._weights
-        N = self.N  # c_j q_j - c_j q_r,j = c_j y_j - (c G_p)_j (p_j, v_j) - (c F_2p)_j u_j - c_j q_r,j
-        weighted = map(mul, c_y, chain.from_iterable(Y_d))
-        weighted = map(sub, weighted, map(mul, c_p, [px, py, theta] * N))
-        weighted = map(sub, weighted, map(mul, c_v, [vx, vy, w] * N))
-        weighted = map(sub, weighted, map(mul, c_u, [ux, uy, ut] * N))
-        change = sum(map(abs, map(sub, weighted, c_r)))
+        change = 0.0  # per entry c_j q_j - c_j q_r,j = c_j y_j - (c G_p)_j (p_j, v_j) - (c F_2p)_j u_j - c_j q_r,j
+        for (yx, yy, yt), (a, b, c, d, e), (f, g, h, i, j), (k, l, m, n, o) in zip(Y_d, *self._weights[0]):
+            change += (abs(a * yx - b * px - c * vx - d * ux - e) + abs(f * yy - g * py - h * vy - i * uy - j)
+                       + abs(k * yt - l * theta - m * w - n * ut - o))
+        rest, rest_ref = self._weights[1:]
         others = (vx, vy, theta, w, ux, uy, ut, i_x, i_y, i_theta)
         return change + sum(map(mul, rest, map(abs, map(sub, others, rest_ref))))
 
@@ -115,8 +112,8 @@ class LimitScreen:
         c[:, 3 * N + 3] += B[:, n_sig:] @ s[n_sig:]
         c = c.max(axis=0)
         c_brackets = c[: 3 * N].reshape(3, N).T.ravel()  # Y_d's order: period by period
-        c_free = (c_brackets[:, None] * self._free).T.tolist()
+        weights = np.column_stack((c_brackets, c_brackets[:, None] * self._free, c_brackets * (self._brackets @ p)))
+        per_axis = [list(map(tuple, weights[a::3].tolist())) for a in range(3)]  # (c, c G_p, c F_2p, c q_r), period j
         others = [X[1], X[3], X[4], X[5], *u_prev, *map(float, i_start)]
-        self._weights = (c_brackets.tolist(), *c_free, (c_brackets * (self._brackets @ p)).tolist(),
-                         c[3 * N :].tolist(), others)
+        self._weights = per_axis, c[3 * N :].tolist(), others
         self._ref = (X[5], 1.0 - SCREEN_MARGIN - rows_max)

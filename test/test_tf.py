@@ -176,3 +176,39 @@ def test_a_run_bag_read_by_mcap_ros2_holds_tf_and_the_robot_description(tmp_path
     assert len(odom) == 300 and pairs[("odom", "base_link")] == odom  # every tick's pose, the same values
     for i in range(3):
         assert set(pairs[("base_link", f"wheel{i}_link")]) == set(odom)
+
+
+def test_wheel_tf_of_other_joint_state_layouts(tmp_path):
+    """The plant's layout goes the in-place path; other orders, an unknown name and a NaN the general one."""
+    robot, _ = load_params()
+    l, r = robot.wheel_distance_m, robot.wheel_radius_m
+    sent = [  # (names, positions)
+        (["wheel0_joint", "wheel1_joint", "wheel2_joint"], [0.1, -0.2, 0.3]),  # the plant's layout
+        (["wheel2_joint", "wheel0_joint"], [1.5, -0.5]),  # other order, two joints
+        (["caster", "wheel1_joint"], [9.0, 2.5]),  # a name the URDF does not have
+        (["wheel0_joint", "wheel1_joint", "wheel2_joint"], [0.0, math.nan, 0.0]),  # skipped
+    ]
+    with NodeGroup(log_dir=tmp_path) as group, Harness("tf_layouts_test") as h:
+        tf = h.collect("/tf", tf2_msgs.TFMessage)
+        pub = h.node.create_publisher(JointState, "joint_states", PUBLISH_QOS)
+        node = group.start("robot_description_publisher", ros_args(None, {}))
+        assert h.spin_until(lambda: pub.get_subscription_count() > 0 and h.node.count_publishers("/tf") > 0,
+                            30.0), node.stderr_tail()
+        h.spin_for(1.0)  # the /tf reader matched on both sides
+        for k, (names, positions) in enumerate(sent):
+            msg = JointState(name=names, position=positions, velocity=[0.0] * len(names), effort=[0.0] * len(names))
+            msg.header.stamp.sec = k + 1
+            pub.publish(msg)
+        assert h.spin_until(lambda: len(tf) >= 3, 10.0), node.stderr_tail()
+        h.spin_for(0.5)
+    assert [m.transforms[0].header.stamp.sec for m in tf] == [1, 2, 3]  # the NaN message gave none
+    for msg, (names, positions) in zip(tf, sent):
+        known = [(n, p) for n, p in zip(names, positions) if n.startswith("wheel")]
+        assert [t.child_frame_id for t in msg.transforms] == [n.replace("_joint", "_link") for n, _ in known]
+        for t, (name, position) in zip(msg.transforms, known):
+            beta = BETA[int(name[5])]
+            assert t.header.frame_id == "base_link" and t.header.stamp == msg.transforms[0].header.stamp
+            tr, q = t.transform.translation, t.transform.rotation
+            np.testing.assert_allclose([tr.x, tr.y, tr.z], [l * math.cos(beta), l * math.sin(beta), r], atol=1e-12)
+            expected = Rotation.from_euler("z", beta) * Rotation.from_rotvec([-position, 0.0, 0.0])
+            assert abs(abs(np.dot([q.x, q.y, q.z, q.w], expected.as_quat())) - 1.0) < 1e-12

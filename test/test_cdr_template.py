@@ -149,13 +149,11 @@ def test_template_does_not_change_the_message():
     assert msg == Float64MultiArray(data=[1.5, 2.5])
 
 
-@pytest.mark.parametrize("with_rosbags", [True, False])
-def test_cdr_reader_decodes_odometry_with_either_decoder(monkeypatch, with_rosbags):
-    """rosbags' reader and rclpy's fallback decode to the same field values; garbage is MalformedMessage."""
+def test_cdr_reader_decodes_odometry_without_importing_rosbags(monkeypatch):
+    """The fallback decodes the field values rclpy serialized, with rosbags not importable; garbage is MalformedMessage."""
     from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 
-    if not with_rosbags:
-        monkeypatch.setitem(sys.modules, "rosbags.typesys", None)  # import fails as if not installed
+    monkeypatch.setitem(sys.modules, "rosbags.typesys", None)  # any import of it fails
     read = cdr_reader(Odometry, "nav_msgs/msg/Odometry")
     msg = Odometry()
     msg.header.frame_id, msg.child_frame_id = "odom", "base_link"

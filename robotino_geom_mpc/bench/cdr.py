@@ -8,7 +8,8 @@ the repeats interleaved (`registry.median_per_call`):
   message kept between samples (as the nodes do with the messages they do
   not template) and ``rclpy.serialization.serialize_message``;
 * reading: `CdrLayout.read` against ``deserialize_message`` and against the
-  general decoder the nodes fall back to (`cdr.cdr_reader`, rosbags'), each
+  general decoder the nodes fall back to (`cdr.cdr_reader`: rclpy's, its errors
+  wrapped), each
   followed by taking the values the node needs (`ros.decode`), as the
   nodes' fallback does.
 
@@ -91,7 +92,7 @@ def _sample(template: Any, rng: random.Random) -> tuple:
     return tuple(values)
 
 
-@benchmark("cdr", "CdrTemplate.pack and CdrLayout.read against rclpy's (de)serialization and rosbags' decoder")
+@benchmark("cdr", "CdrTemplate.pack and CdrLayout.read against rclpy's (de)serialization and the nodes' fallback decoder")
 def bench_cdr(quick: bool) -> dict[str, float]:
     """Per message: pack vs set + serialize_message, layout read vs deserialize_message and vs cdr_reader [us]."""
     try:

@@ -5,7 +5,7 @@ control step, so the loop's messages travel as bytes: `CdrTemplate`
 serializes a fixed-layout message once and patches its numbers per sample
 (publishers), `CdrLayout` reads the numbers straight from bytes laid out like
 a template and returns None for any other layout, which then goes to the
-general decoder (`cdr_reader`). `bench --json` times both against rclpy's own
+general decoder (`cdr_reader`, rclpy's). `bench --json` times both against rclpy's own
 (de)serialization (``cdr_*`` keys).
 """
 
@@ -32,31 +32,18 @@ class MalformedMessage(RobotinoError, ValueError):
 def cdr_reader(msg_type: type, type_name: str) -> Callable[[bytes], Any]:
     """A decoder of serialized `msg_type` messages (e.g. ``"nav_msgs/msg/Odometry"`` for `type_name`).
 
-    rosbags' generated CDR readers build the message 2-3 times faster than
-    rclpy's C-to-Python conversion; without rosbags (a ROS install where it is
-    not on the path) rclpy's `deserialize_message` decodes. Both give objects
-    with the message's field names. Undecodable bytes raise `MalformedMessage`.
+    rclpy's `deserialize_message`: the nodes' fallback for a layout `CdrLayout` does not read, rare enough
+    that its speed does not matter, and free to import (rosbags' faster generated readers cost a node
+    0.3-0.5 s of import at start). Undecodable bytes raise `MalformedMessage`.
     """
-    try:
-        from rosbags.typesys import Stores, get_typestore
-    except ImportError:
 
-        def decode(data: bytes) -> Any:
-            try:
-                return deserialize_message(data, msg_type)
-            except Exception as exc:  # rclpy raises various errors for garbage
-                raise MalformedMessage(f"{type_name}: {exc}") from None
-
-        return decode
-    store = get_typestore(Stores.ROS2_JAZZY)
-
-    def decode_fast(data: bytes) -> Any:
+    def decode(data: bytes) -> Any:
         try:
-            return store.deserialize_cdr(data, type_name)
-        except Exception as exc:  # SerdeError, struct.error, IndexError on truncated data
+            return deserialize_message(data, msg_type)
+        except Exception as exc:  # rclpy raises various errors for garbage
             raise MalformedMessage(f"{type_name}: {exc}") from None
 
-    return decode_fast
+    return decode
 
 
 class CdrTemplateError(RobotinoError, ValueError):

@@ -8,6 +8,7 @@ topics in `controller_node`'s docstring). Publishers use
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -19,7 +20,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
 
-from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, three_values_template, yaw_to_quaternion
+from robotino_geom_mpc.ros.cdr import CdrTemplate
+from robotino_geom_mpc.ros.decode import STAMP_FIELDS
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, three_values_template
 from robotino_geom_mpc.ros.qos import publish_acknowledged, publish_qos
 
 __all__ = ["ControllerOutputs", "STATUS_NAME", "TRACKING_KEYS"]
@@ -30,6 +33,18 @@ TRACKING_KEYS = ("error_x_m", "error_y_m", "error_theta_rad", "compute_time_ms",
 ZERO = (0.0, 0.0, 0.0)
 # the newest prediction only, kept for a late reader (a display); never blocks the loop
 PATH_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def _path_template(frame: str, horizon: int) -> CdrTemplate:
+    """nav_msgs/Path of `horizon` poses in `frame` as a template: header stamp, then per pose its stamp, x, y and the
+    yaw quaternion's z, w (`messages.yaw_to_quaternion`: x = y = 0)."""
+    path = Path(poses=[PoseStamped() for _ in range(horizon)])
+    path.header.frame_id = frame
+    for pose in path.poses:
+        pose.header.frame_id = frame
+    return CdrTemplate(path, STAMP_FIELDS + tuple(
+        f"poses[{j}].{field}" for j in range(horizon) for field in STAMP_FIELDS + (
+            "pose.position.x", "pose.position.y", "pose.orientation.z", "pose.orientation.w")))
 
 
 def _diagnostics_message(keys: Sequence[str]) -> DiagnosticArray:
@@ -81,11 +96,7 @@ class ControllerOutputs:
         self.diag_event = _diagnostics_message(event_keys)
         self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, command
         self.path_pub = node.create_publisher(Path, "predicted_path", PATH_QOS)
-        frame = frame_prefix + ODOM_FRAME
-        self.path = Path(poses=[PoseStamped() for _ in range(horizon)])
-        self.path.header.frame_id = frame
-        for pose in self.path.poses:
-            pose.header.frame_id = frame
+        self.path_cdr = _path_template(frame_prefix + ODOM_FRAME, horizon)
 
     # commands -----------------------------------------------------------------------------------
     def send(self, command: Sequence[float]) -> None:
@@ -127,13 +138,11 @@ class ControllerOutputs:
 
         The header carries `stamp`, pose j the time `stamp` + j Ts it is predicted for.
         """
-        msg = self.path
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-        for j, (pose, (x, y, theta)) in enumerate(zip(msg.poses, predicted.tolist()), start=1):
-            pose.header.stamp.sec, pose.header.stamp.nanosec = divmod(stamp + j * period_ns, 1_000_000_000)
-            pose.pose.position.x, pose.pose.position.y = x, y
-            pose.pose.orientation = yaw_to_quaternion(theta)
-        publish_acknowledged(self.node, self.path_pub, msg)
+        values = [*divmod(stamp, 1_000_000_000)]
+        for j, (x, y, theta) in enumerate(predicted.tolist(), start=1):
+            values += (*divmod(stamp + j * period_ns, 1_000_000_000), x, y, math.sin(0.5 * theta),
+                       math.cos(0.5 * theta))
+        publish_acknowledged(self.node, self.path_pub, self.path_cdr.pack(*values))
 
     # diagnostics --------------------------------------------------------------------------------
     def diagnosing(self) -> bool:

@@ -192,3 +192,19 @@ def test_screen_decides_small_changes_and_defers_large_ones():
     assert np.abs(full.closed_form_rows(X, u_prev, far, i_start)).max() > 1.0
     u, by_screen = screen.screened(X, u_prev, far, i_start)
     assert not by_screen and u == full.solve(X, u_prev, far, i_start)[0].tolist()
+
+
+def test_a_binding_tick_drops_the_screen_reference():
+    """After a tick where a limit binds, the next tick is checked in full even when the old reference would
+    screen it, and its u is the closed form's; then the screen passes ticks near it again."""
+    robot, control = load_params()
+    control = replace(control, mode="constrained")
+    X, u_prev, Y_d, i_start = _tick(np.random.default_rng(5), 1e-4)
+    screen, full = _pair(robot, control)
+    screen.screened(X, u_prev, Y_d, i_start)  # the reference
+    assert screen.screened(X + 1e-7, u_prev, Y_d + 1e-7, i_start)[1]
+    far = Y_d + np.array([0.05, -0.03, 0.2])
+    assert not screen.screened(X, u_prev, far, i_start)[1]  # a limit binds: the QP
+    u, by_screen = screen.screened(X + 1e-7, u_prev, Y_d + 1e-7, i_start)
+    assert not by_screen and u == full.solve(X + 1e-7, u_prev, Y_d + 1e-7, i_start)[0].tolist()
+    assert screen.screened(X + 2e-7, u_prev, Y_d + 2e-7, i_start)[1]

@@ -86,9 +86,9 @@ from robotino_geom_mpc.core.goal_reference import GoalReference
 from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.nodes.goal_inputs import GOAL_DEFAULTS, GOAL_SPECS, GoalInputs, goal_params_problem
 from robotino_geom_mpc.core.trajectory import Reference, TrajectoryError
-from robotino_geom_mpc.ros.cdr import CdrTemplate
+from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, ns_to_stamp, point_values, preview_template, preview_values, \
-    stamp_to_ns, yaw_to_quaternion
+    yaw_to_quaternion
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CLOCK_SUB_QOS, LATCHED_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
@@ -156,7 +156,8 @@ class TrajectoryNode(Node):
         self.preview_cdr: CdrTemplate | None = None  # built on first use (horizon and period fixed)
         self.grid: np.ndarray | None = None  # lockstep: point values at k Ts (`_grid_values`)
         if self.lockstep:
-            self.clock_sub = self.create_subscription(ClockMsg, "/clock", self._on_clock, CLOCK_SUB_QOS)
+            self.clock_layout = CdrLayout(ClockMsg(), ("clock.sec", "clock.nanosec"))  # read in place
+            self.clock_sub = self.create_subscription(ClockMsg, "/clock", self._on_clock, CLOCK_SUB_QOS, raw=True)
             self.clock_heard_at = monotonic()  # steady time of the last /clock (of the start before the first)
             self.clock_watch = self.create_timer(self.params["clock_timeout_s"] / 2, self._check_clock,
                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -257,9 +258,13 @@ class TrajectoryNode(Node):
         publish_acknowledged(self, self.preview_pub, self.preview_cdr.pack(*divmod(t_ns, 1_000_000_000), *values))
         self.last_published_ns = t_ns
 
-    def _on_clock(self, msg: ClockMsg) -> None:
+    def _on_clock(self, data: bytes) -> None:
+        values = self.clock_layout.read(data)
+        if values is None:  # every well-formed Clock has the layout
+            self.get_logger().warn(f"undecodable /clock ({len(data)} bytes) ignored", throttle_duration_sec=1.0)
+            return
         self.clock_heard_at = monotonic()
-        now = stamp_to_ns(msg.clock)
+        now = values[0] * 1_000_000_000 + values[1]
         # the preview of the tick itself only on the first tick, a jump, or a resent tick
         self._publish_ahead(now, current=now == self.last_clock_ns or self.last_published_ns != now)
         self.last_clock_ns = now

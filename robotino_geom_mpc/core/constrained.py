@@ -22,16 +22,14 @@ and checks its rows: a convex QP whose unconstrained minimiser is feasible is
 solved by it, so then u(k) is the closed form's, bit for bit. The check (five
 numpy calls on fixed buffers) runs only when a screen (`limit_screen`) cannot
 decide: a bound, in a few float operations, of the rows' change since the
-last checked tick.
-Only when a limit binds is the QP solved, shifted to the closed form
-(z = z* + d: no linear cost, bounds 1 -/+ the rows at z*), by DAQP (a dual
-active-set solver for small dense QPs: exact on its active set, two-sided
-rows natively; `warm_qp`, set up once), warm-started from the previous QP's
-active set; its G is the step's 6N + 1 distinct factors times one fixed
-matrix. When the limits
-cannot all hold, the least total violation is found by a linear programme
-(scipy's HiGHS), the limits are relaxed by exactly that much and the QP
-solved again: the output stays finite, the violation is the smallest
+last checked tick. Only when a limit binds is the QP solved, shifted to the
+closed form (z = z* + d: no linear cost, bounds 1 -/+ the rows at z*), by
+DAQP (a dual active-set solver for small dense QPs: exact on its active set,
+two-sided rows natively; `warm_qp`, set up once), warm-started from the
+previous QP's active set; its G is the step's 6N + 1 distinct factors times
+one fixed matrix. When the limits cannot all hold, the least total violation
+is found by a linear programme (scipy's HiGHS), the limits are relaxed by
+exactly that much and the QP solved again: the output stays finite, the violation is the smallest
 possible, and the step reports `infeasible`.
 """
 

@@ -10,7 +10,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Transform
 from nav_msgs.msg import Odometry, Path
 from rclpy.serialization import serialize_message
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 
 from robotino_geom_mpc.cli import main
@@ -198,3 +198,66 @@ def test_report_on_a_truncated_recording_names_the_damage_and_covers_what_was_re
                                              "odometry")},
                                flags={k: v[:ticks] for k, v in expected.flags.items()})
     _assert_same_metrics(read_metrics(tmp_path / "o" / "metrics.json"), compute_metrics(part))
+
+
+def _random_label(rng) -> str:
+    return "".join(str(rng.choice(list("abc_xyz"))) for _ in range(int(rng.integers(0, 9))))
+
+
+def _random_messages(rng):
+    """Odometry, previews and Float64MultiArray with random values, string lengths (alignment) and counts."""
+    for _ in range(40):
+        q = rng.normal(size=4)
+        odom = _stamp(Odometry(), int(rng.integers(0, 2**40)))
+        odom.header.frame_id, odom.child_frame_id = _random_label(rng), _random_label(rng)
+        p, o = odom.pose.pose.position, odom.pose.pose.orientation
+        p.x, p.y, p.z = rng.normal(size=3)
+        o.x, o.y, o.z, o.w = q / np.linalg.norm(q)
+        odom.pose.covariance = rng.normal(size=36)
+        yield "nav_msgs/msg/Odometry", odom
+        preview = _stamp(MultiDOFJointTrajectory(), int(rng.integers(0, 2**40)))
+        preview.header.frame_id = _random_label(rng)
+        preview.joint_names = [_random_label(rng) for _ in range(int(rng.integers(0, 3)))]
+        for _ in range(int(rng.integers(0, 3))):
+            point = MultiDOFJointTrajectoryPoint()
+            for _ in range(int(rng.integers(0, 3))):
+                tf = Transform()
+                tf.translation.x, tf.translation.y, tf.translation.z = rng.normal(size=3)
+                tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = rng.normal(size=4)
+                point.transforms.append(tf)
+            preview.points.append(point)
+        yield "trajectory_msgs/msg/MultiDOFJointTrajectory", preview
+        values = Float64MultiArray(data=list(rng.normal(size=int(rng.integers(1, 5)))))  # rosbags refuses empty data
+        for _ in range(int(rng.integers(0, 3))):
+            dim = MultiArrayDimension(label=_random_label(rng), size=int(rng.integers(0, 9)),
+                                      stride=int(rng.integers(0, 9)))
+            values.layout.dim.append(dim)
+        values.layout.data_offset = int(rng.integers(0, 5))
+        yield "std_msgs/msg/Float64MultiArray", values
+
+
+def test_cdr_values_read_what_the_decoders_decode():
+    """The byte readers give, on rclpy's serialization of random messages, what they take from rosbags' decoded
+    message; big-endian bytes (rosbags' serializer) go to the decoded message and give the same values."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from robotino_geom_mpc.recording import cdr_values as cv
+
+    readers = {"nav_msgs/msg/Odometry": (cv.odometry_pose, cv.odometry_pose_of_message),
+               "trajectory_msgs/msg/MultiDOFJointTrajectory": (cv.preview_start, cv.preview_start_of_message),
+               "std_msgs/msg/Float64MultiArray": (cv.three_values, cv.three_values_of_message)}
+    store = get_typestore(Stores.ROS2_JAZZY)
+    seen = set()
+    for type_name, msg in _random_messages(np.random.default_rng(7)):
+        read, of_message = readers[type_name]
+        data = serialize_message(msg)
+        decoded = store.deserialize_cdr(data, type_name)
+        expected = of_message(decoded)
+        assert read(data) == expected, type_name
+        big = store.serialize_cdr(decoded, type_name, little_endian=False)
+        with pytest.raises(ValueError):
+            read(big)
+        assert cv.values_of(big, read, of_message, lambda: store.deserialize_cdr(big, type_name)) == expected
+        seen.add((type_name, expected[1] is None if type_name.startswith("traj") else len(expected)))
+    assert ("trajectory_msgs/msg/MultiDOFJointTrajectory", True) in seen  # previews without a first transform
+    assert ("trajectory_msgs/msg/MultiDOFJointTrajectory", False) in seen

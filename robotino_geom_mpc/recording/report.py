@@ -40,13 +40,22 @@ import math
 import os
 from bisect import bisect_left, bisect_right
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from robotino_geom_mpc.core.params import ParamError, load_params, params_from_values
 from robotino_geom_mpc.plots import write_plots
-from robotino_geom_mpc.recording.bag import RUN_METADATA, BagError, BagReader
+from robotino_geom_mpc.recording.bag import RUN_METADATA, BagError, BagMessage, BagReader
+from robotino_geom_mpc.recording.cdr_values import (
+    odometry_pose,
+    odometry_pose_of_message,
+    preview_start,
+    preview_start_of_message,
+    three_values,
+    three_values_of_message,
+    values_of,
+)
 from robotino_geom_mpc.recording.definitions import _typestore
 from robotino_geom_mpc.results import RunData, compute_metrics, write_metrics
 
@@ -132,33 +141,50 @@ def resolve_parameters(bag: BagReader, params_file: str | os.PathLike | None):
     return robot, control, scenario, source
 
 
-def by_publish_time(bag: BagReader, topic: str | None) -> list[tuple[int, Any]]:
-    """(publish time [ns], deserialised message) of a topic, in publish-time order ([] for None).
-
-    rosbags' CDR decoder (its ROS 2 Jazzy types) builds the messages: 2-3 times faster than rclpy's
-    `deserialize_message` and without importing rclpy (a 20 s run's report decodes ~12 000 messages).
-
-    Raises
-    ------
-    BagError
-        If a message of `topic` does not decode as its type.
-    """
+def _by_publish_time(bag: BagReader, topic: str | None, convert: Callable[[BagMessage], Any]) -> list[tuple[int, Any]]:
+    """(publish time [ns], `convert(message)`) of a topic, in publish-time order ([] for None); BagError if a
+    message does not decode."""
     if topic is None:
         return []
-    store, items = _typestore(), []
+    items = []
     for m in bag.messages([topic]):
         try:
-            items.append((m.publish_time_ns, store.deserialize_cdr(m.data, m.type)))
+            items.append((m.publish_time_ns, convert(m)))
         except Exception as exc:  # SerdeError, struct.error, IndexError, KeyError (unknown type)
             raise BagError(f"{bag.path}: a {m.type} message on {topic} does not decode: {exc!r}") from None
     items.sort(key=lambda item: item[0])
     return items
 
 
-def _first_per_stamp(items: list[tuple[int, Any]]) -> dict[int, tuple[int, Any]]:
+def by_publish_time(bag: BagReader, topic: str | None) -> list[tuple[int, Any]]:
+    """(publish time [ns], deserialised message) of a topic, in publish-time order ([] for None).
+
+    rosbags' CDR decoder (its ROS 2 Jazzy types) builds the messages: 2-3 times faster than rclpy's
+    `deserialize_message` and without importing rclpy.
+
+    Raises
+    ------
+    BagError
+        If a message of `topic` does not decode as its type.
+    """
+    store = _typestore()
+    return _by_publish_time(bag, topic, lambda m: store.deserialize_cdr(m.data, m.type))
+
+
+def _values_by_publish_time(bag: BagReader, topic: str | None, read: Callable[[bytes], Any],
+                            of_message: Callable[[Any], Any]) -> list[tuple[int, Any]]:
+    """`by_publish_time` of the values `read` takes from each message's bytes (`cdr_values`; rosbags' decoder
+    and `of_message` for bytes it does not walk): a tenth of the cost of decoding whole messages."""
+    store = _typestore()
+    return _by_publish_time(bag, topic, lambda m: values_of(
+        m.data, read, of_message, lambda: store.deserialize_cdr(m.data, m.type)))
+
+
+def _first_per_stamp(items: list[tuple[int, tuple[int, Any]]]) -> dict[int, tuple[int, Any]]:
+    """(publish time, (stamp, value)) items -> stamp -> (publish time, value) of the first published."""
     out: dict[int, tuple[int, Any]] = {}
-    for publish, msg in items:
-        out.setdefault(stamp_ns(msg.header.stamp), (publish, msg))
+    for publish, (stamp, value) in items:
+        out.setdefault(stamp, (publish, value))
     return out
 
 
@@ -176,12 +202,6 @@ def _applied_voltages_topic(bag: BagReader) -> str:
         raise BagError(f"{bag.path}: no 'wheel_voltages' (nor, for a cmd_vel run, 'applied_voltages') topic of "
                        "type std_msgs/msg/Float64MultiArray in the recording")
     return topic
-
-
-def _pose(msg: Any) -> tuple[float, float, float]:
-    """(x, y, yaw) of a nav_msgs/Odometry."""
-    pose = msg.pose.pose
-    return (pose.position.x, pose.position.y, yaw(pose.orientation))
 
 
 def controller_diagnostics(msg: Any) -> dict[str, str] | None:
@@ -210,14 +230,19 @@ def run_data_from_bag(
         bag = BagReader(bag)
     robot, control, stored_scenario, source = resolve_parameters(bag, params_file)
     truth_topic = find_topic(bag, "ground_truth/odom", "nav_msgs/msg/Odometry")
-    truth = sorted(_first_per_stamp(by_publish_time(bag, truth_topic)).items())
-    currents = by_publish_time(bag, find_topic(bag, "wheel_currents", "std_msgs/msg/Float64MultiArray"))
+    truth = sorted(_first_per_stamp(_values_by_publish_time(
+        bag, truth_topic, odometry_pose, odometry_pose_of_message)).items())
+    currents = _values_by_publish_time(bag, find_topic(bag, "wheel_currents", "std_msgs/msg/Float64MultiArray"),
+                                       three_values, three_values_of_message)
     volt_topic = find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray", False)
     applied = volt_topic is None  # a cmd_vel run: the plant's PI voltages, paired with a tick as its currents
-    voltages = by_publish_time(bag, volt_topic or _applied_voltages_topic(bag))
-    odom = _first_per_stamp(by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry", False)))
-    previews = _first_per_stamp(by_publish_time(
-        bag, find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory", False)))
+    voltages = _values_by_publish_time(bag, volt_topic or _applied_voltages_topic(bag), three_values,
+                                       three_values_of_message)
+    odom = _first_per_stamp(_values_by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry", False),
+                                                    odometry_pose, odometry_pose_of_message))
+    previews = _first_per_stamp(_values_by_publish_time(
+        bag, find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory", False),
+        preview_start, preview_start_of_message))
     diags: dict[int, tuple[int, dict[str, str]]] = {}
     for publish, msg in by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray",
                                                          False)):
@@ -237,7 +262,7 @@ def run_data_from_bag(
     volt_t = [p for p, _ in voltages]
     truth_publish = [p for _, (p, _) in truth]
     rows: list[tuple] = []
-    for k, (stamp, (publish, msg)) in enumerate(truth):
+    for k, (stamp, (publish, pose)) in enumerate(truth):
         next_publish = truth_publish[k + 1] if k + 1 < len(truth) else None
         current = _first_after(cur_t, currents, publish, next_publish)
         diag = diags.get(stamp)
@@ -249,17 +274,16 @@ def run_data_from_bag(
         else:
             after = odom[stamp][0] if stamp in odom else publish
             voltage = _first_after(volt_t, voltages, after, next_publish)
-        if stamp in previews and previews[stamp][1].points and previews[stamp][1].points[0].transforms:
-            tf = previews[stamp][1].points[0].transforms[0]
-            reference = (tf.translation.x, tf.translation.y, yaw(tf.rotation))
+        if stamp in previews and previews[stamp][1] is not None:
+            reference = previews[stamp][1]
         elif path_t is not None and path_t[0] <= stamp <= path_t[-1]:
             reference = tuple(np.interp(stamp, path_t, path_ref[:, j]) for j in range(3))
         else:
             reference = None
-        if current is None or voltage is None or reference is None or len(current.data) != 3 or len(voltage.data) != 3:
+        if current is None or voltage is None or reference is None or len(current) != 3 or len(voltage) != 3:
             continue
-        rows.append((stamp, _pose(msg), reference, tuple(current.data), tuple(voltage.data), diag[1] if diag else None,
-                     _pose(odom[stamp][1]) if stamp in odom else None))
+        rows.append((stamp, pose, reference, current, voltage, diag[1] if diag else None,
+                     odom[stamp][1] if stamp in odom else None))
     if not rows:
         raise BagError(f"{bag.path}: no control tick with pose, reference, currents and voltages in the recording")
     t0 = rows[0][0]

@@ -261,3 +261,26 @@ def test_cdr_values_read_what_the_decoders_decode():
         seen.add((type_name, expected[1] is None if type_name.startswith("traj") else len(expected)))
     assert ("trajectory_msgs/msg/MultiDOFJointTrajectory", True) in seen  # previews without a first transform
     assert ("trajectory_msgs/msg/MultiDOFJointTrajectory", False) in seen
+
+
+def test_bag_reader_reads_the_messages_mcap_reads(synthetic):
+    """BagReader's chunk walk gives mcap's own reader's messages (channel, times, sequence, bytes); a record
+    running past its chunk's end is refused."""
+    from mcap.reader import make_reader
+    from mcap.records import Chunk
+
+    from robotino_geom_mpc.recording.bag import BagReader
+    from robotino_geom_mpc.recording.bag_reader import _chunk_records
+
+    path, _ = synthetic
+    bag = BagReader(path)
+    (file,) = sorted(path.glob("*.mcap"))
+    with open(file, "rb") as stream:
+        want = sorted((c.topic, m.log_time, m.publish_time, m.sequence, bytes(m.data))
+                      for _, c, m in make_reader(stream).iter_messages())
+    got = sorted((m.topic, m.log_time_ns, m.publish_time_ns, m.sequence, m.data) for m in bag.messages())
+    assert len(got) > 1500 and got == want
+    record = bytes([0x05]) + (40).to_bytes(8, "little") + bytes(30)  # a message record 10 bytes short
+    with pytest.raises(ValueError, match="past its end"):
+        _chunk_records(Chunk(compression="", data=record, message_end_time=0,
+                             message_start_time=0, uncompressed_crc=0, uncompressed_size=len(record)))

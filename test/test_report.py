@@ -234,6 +234,16 @@ def _random_messages(rng):
             values.layout.dim.append(dim)
         values.layout.data_offset = int(rng.integers(0, 5))
         yield "std_msgs/msg/Float64MultiArray", values
+        diag = _stamp(DiagnosticArray(), int(rng.integers(0, 2**40)))
+        for _ in range(int(rng.integers(0, 4))):
+            status = DiagnosticStatus(level=bytes([int(rng.integers(0, 4))]), name=_random_label(rng),
+                                      message=_random_label(rng) + "\u00b5", hardware_id=_random_label(rng))
+            keys = [_random_label(rng) + "k" for _ in range(int(rng.integers(0, 4)))]
+            if rng.random() < 0.4:
+                keys.insert(int(rng.integers(0, len(keys) + 1)), "error_x_m")
+            status.values = [KeyValue(key=k, value=_random_label(rng)) for k in keys]
+            diag.status.append(status)
+        yield "diagnostic_msgs/msg/DiagnosticArray", diag
 
 
 def test_cdr_values_read_what_the_decoders_decode():
@@ -245,7 +255,9 @@ def test_cdr_values_read_what_the_decoders_decode():
 
     readers = {"nav_msgs/msg/Odometry": (cv.odometry_pose, cv.odometry_pose_of_message),
                "trajectory_msgs/msg/MultiDOFJointTrajectory": (cv.preview_start, cv.preview_start_of_message),
-               "std_msgs/msg/Float64MultiArray": (cv.three_values, cv.three_values_of_message)}
+               "std_msgs/msg/Float64MultiArray": (cv.three_values, cv.three_values_of_message),
+               "diagnostic_msgs/msg/DiagnosticArray": (cv.diagnostics_with("error_x_m"),
+                                                       cv.diagnostics_with_of_message("error_x_m"))}
     store = get_typestore(Stores.ROS2_JAZZY)
     seen = set()
     for type_name, msg in _random_messages(np.random.default_rng(7)):
@@ -258,9 +270,9 @@ def test_cdr_values_read_what_the_decoders_decode():
         with pytest.raises(ValueError):
             read(big)
         assert cv.values_of(big, read, of_message, lambda: store.deserialize_cdr(big, type_name)) == expected
-        seen.add((type_name, expected[1] is None if type_name.startswith("traj") else len(expected)))
-    assert ("trajectory_msgs/msg/MultiDOFJointTrajectory", True) in seen  # previews without a first transform
-    assert ("trajectory_msgs/msg/MultiDOFJointTrajectory", False) in seen
+        seen.add((type_name, expected[1] is None if type_name.startswith(("traj", "diag")) else len(expected)))
+    for type_name in ("trajectory_msgs/msg/MultiDOFJointTrajectory", "diagnostic_msgs/msg/DiagnosticArray"):
+        assert {(type_name, True), (type_name, False)} <= seen  # with and without the values looked for
 
 
 def test_bag_reader_reads_the_messages_mcap_reads(synthetic):

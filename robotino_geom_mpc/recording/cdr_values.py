@@ -21,7 +21,7 @@ from typing import Any
 from robotino_geom_mpc.ros.decode import yaw_of
 
 __all__ = [
-    "odometry_pose", "odometry_pose_of_message", "preview_start", "preview_start_of_message", "three_values",
+    "diagnostics_with", "diagnostics_with_of_message", "odometry_pose", "odometry_pose_of_message", "preview_start", "preview_start_of_message", "three_values",
     "three_values_of_message", "values_of",
 ]
 
@@ -115,12 +115,53 @@ def three_values_of_message(msg: Any) -> tuple[float, ...]:
     return tuple(float(v) for v in msg.data)
 
 
+def _string(data: bytes, pos: int) -> tuple[str, int]:
+    length, pos = _count(data, pos)
+    if length == 0 or pos + length > len(data):
+        raise _Unreadable("a string past the end of the message")
+    return data[pos : pos + length - 1].decode(), pos + length  # without the terminating NUL
+
+
+def diagnostics_with(key: str) -> Callable[[bytes], tuple[int, dict[str, str] | None]]:
+    """A reader of diagnostic_msgs/DiagnosticArray bytes -> (header stamp [ns], the key-values of the first
+    status that has `key`, None if none has)."""
+
+    def read(data: bytes) -> tuple[int, dict[str, str] | None]:
+        stamp, pos = _header(data)
+        statuses, pos = _count(data, pos)
+        for _ in range(statuses):
+            pos = _skip_string(data, _skip_string(data, _skip_string(data, pos + 1)))  # level; name, message, id
+            count, pos = _count(data, pos)
+            values = {}
+            for _ in range(count):
+                name, pos = _string(data, pos)
+                values[name], pos = _string(data, pos)
+            if key in values:
+                return stamp, values
+        return stamp, None
+
+    return read
+
+
+def diagnostics_with_of_message(key: str) -> Callable[[Any], tuple[int, dict[str, str] | None]]:
+    """`diagnostics_with` of a decoded message."""
+
+    def of_message(msg: Any) -> tuple[int, dict[str, str] | None]:
+        for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if key in values:
+                return _stamp_ns(msg), values
+        return _stamp_ns(msg), None
+
+    return of_message
+
+
 def values_of(data: bytes, read: Callable[[bytes], Any], of_message: Callable[[Any], Any],
               decode: Callable[[], Any]) -> Any:
     """`read(data)`, else `of_message(decode())` for bytes `read` does not walk (`decode` raises as it will)."""
     try:
         return read(data)
-    except (_Unreadable, struct.error, IndexError):
+    except (_Unreadable, struct.error, IndexError, UnicodeDecodeError):
         return of_message(decode())
 
 

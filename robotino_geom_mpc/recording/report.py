@@ -48,6 +48,8 @@ from robotino_geom_mpc.core.params import ParamError, load_params, params_from_v
 from robotino_geom_mpc.plots import write_plots
 from robotino_geom_mpc.recording.bag import RUN_METADATA, BagError, BagMessage, BagReader
 from robotino_geom_mpc.recording.cdr_values import (
+    diagnostics_with,
+    diagnostics_with_of_message,
     odometry_pose,
     odometry_pose_of_message,
     preview_start,
@@ -204,13 +206,13 @@ def _applied_voltages_topic(bag: BagReader) -> str:
     return topic
 
 
+_TRACKING_KEY = "error_x_m"  # the controller's tracking status is the diagnostics status with this key
+_read_diagnostics, _diagnostics_of_message = diagnostics_with(_TRACKING_KEY), diagnostics_with_of_message(_TRACKING_KEY)
+
+
 def controller_diagnostics(msg: Any) -> dict[str, str] | None:
     """Key-values of the controller's tracking status in a DiagnosticArray (None if it has none)."""
-    for status in msg.status:
-        keys = {kv.key: kv.value for kv in status.values}
-        if "error_x_m" in keys:
-            return keys
-    return None
+    return _diagnostics_of_message(msg)[1]
 
 
 def run_data_from_bag(
@@ -243,12 +245,9 @@ def run_data_from_bag(
     previews = _first_per_stamp(_values_by_publish_time(
         bag, find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory", False),
         preview_start, preview_start_of_message))
-    diags: dict[int, tuple[int, dict[str, str]]] = {}
-    for publish, msg in by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray",
-                                                         False)):
-        values = controller_diagnostics(msg)
-        if values is not None:
-            diags.setdefault(stamp_ns(msg.header.stamp), (publish, values))
+    diags = _first_per_stamp([item for item in _values_by_publish_time(
+        bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False), _read_diagnostics,
+        _diagnostics_of_message) if item[1][1] is not None])
     path = by_publish_time(bag, find_topic(bag, "reference_path", "nav_msgs/msg/Path", False))
     path_t = path_ref = None
     if path:

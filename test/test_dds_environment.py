@@ -18,11 +18,11 @@ def test_added_only_for_localhost_discovery_without_a_profile_of_the_users():
     assert dds_environment({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
                             "FASTRTPS_DEFAULT_PROFILES_FILE": "/mine.xml"}) == {}
     (path,) = dds_environment({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}).values()
-    # read by an XML parser of its own: the default participant profile announces every 0.5 s
+    # read by an XML parser of its own: the default participant profile announces every 0.1 s
     (profile,) = ET.parse(path).getroot().findall("f:participant", NS)
     assert profile.get("is_default_profile") == "true"
     period = profile.find("f:rtps/f:builtin/f:discovery_config/f:leaseAnnouncement", NS)
-    assert int(period.find("f:sec", NS).text) + 1e-9 * int(period.find("f:nanosec", NS).text) == pytest.approx(0.5)
+    assert int(period.find("f:sec", NS).text) + 1e-9 * int(period.find("f:nanosec", NS).text) == pytest.approx(0.1)
 
 
 def test_fast_dds_loads_the_profile_without_complaint():

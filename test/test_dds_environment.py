@@ -33,3 +33,19 @@ def test_fast_dds_loads_the_profile_without_complaint():
     log = out.stdout + out.stderr  # Fast DDS logs to stdout
     assert out.returncode == 0, log
     assert "XMLPARSER" not in log and "Error" not in log, log
+
+
+def test_a_lockstep_plant_settles_shorter_only_with_the_profile(monkeypatch):
+    """`node_arguments` gives the plant PROFILE_SETTLE_S when the nodes get the profile; otherwise the plant's own."""
+    from robotino_geom_mpc.core.params import default_params_file
+    from robotino_geom_mpc.ros.processes import PROFILE_SETTLE_S, node_arguments
+
+    def settle(lockstep: bool) -> list[str]:
+        argv = node_arguments("paper-circle", default_params_file(), 1.0, lockstep)["plant_node"]
+        return [a for a in argv if a.startswith("lockstep_settle_s:=")]
+
+    monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    assert settle(True) == [f"lockstep_settle_s:={PROFILE_SETTLE_S:g}"] and settle(False) == []
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET")
+    assert settle(True) == []

@@ -18,8 +18,9 @@ subscribes ``joint_states``       sensor_msgs/JointState (the plant's wheels)
 Frame ids are the URDF's links with ``frame_prefix`` (as robot_state_publisher's parameter of that name).
 A joint_states message naming exactly the moving joints in the URDF's order (the plant's) is read in place
 and its /tf patched into a serialized template (`ros.cdr`: no Python message per tick); any other goes
-through the general decoder and the same transforms as messages. A joint_states message whose names and positions do not pair up, or with a non-finite position, is
-skipped with a throttled warning; names the URDF does not have are ignored.
+through the general decoder and the same transforms as messages. A joint_states message whose names and
+positions do not pair up, or with a non-finite position, is skipped with a throttled warning; names the URDF
+does not have are ignored.
 
 Parameters: the robot/control parameters of config/*.yaml (``/**`` section) plus ``frame_prefix``.
 """

@@ -21,8 +21,8 @@ from typing import Any
 from robotino_geom_mpc.ros.decode import yaw_of
 
 __all__ = [
-    "diagnostics_with", "diagnostics_with_of_message", "odometry_pose", "odometry_pose_of_message", "preview_start", "preview_start_of_message", "three_values",
-    "three_values_of_message", "values_of",
+    "diagnostics_with", "diagnostics_with_of_message", "odometry_pose", "odometry_pose_of_message", "preview_start",
+    "preview_start_of_message", "three_values", "three_values_of_message", "values_of",
 ]
 
 _LITTLE_ENDIAN = (b"\x00\x01", b"\x00\x03")  # CDR_LE, PL_CDR_LE

@@ -10,7 +10,7 @@ import rclpy
 from nav_msgs.msg import Odometry
 from rclpy.context import Context
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
@@ -22,8 +22,10 @@ from robotino_geom_mpc.ros.messages import quaternion_to_yaw, stamp_to_ns
 PROBE_WAIT_FOR = ("odom:1", "/clock:1", "reference_preview:2", "wheel_voltages:2", "ground_truth/odom:1",
                   "wheel_currents:1")
 
-# a deep reader queue: the probe may lag behind the loop but must not lose samples
-PROBE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+# keep-all and reliable, as the recorder: the probe may lag behind the loop (its Python decoding of a
+# preview costs more than the loop's tick) but loses no sample. A keep-last queue, however deep, drops
+# its oldest samples once the probe lags by more than its depth: a preview of tick 400 went missing so.
+PROBE_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class LoopProbe(Node):

@@ -15,12 +15,13 @@ from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 __all__ = ["Harness", "DEEP_QOS"]
 
-# a deep reliable reader queue: nothing is lost while the harness is not spinning
-DEEP_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+# keep-all and reliable: nothing is lost while the harness is not spinning or lags behind a lockstep loop
+# (a keep-last queue, however deep, drops its oldest samples once the reader lags by more than its depth)
+DEEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class Harness:

@@ -36,7 +36,7 @@ from dataclasses import asdict, replace
 import numpy as np
 from tqdm import tqdm
 
-from robotino_sim_node.encoders import DEFAULT_COUNTS_PER_REV, EncoderError, odometry_source
+from robotino_sim_node.encoders import CONTROLLER_TWIST, DEFAULT_COUNTS_PER_REV, EncoderError, odometry_source
 from robotino_sim_node.plant import RobotinoPlant
 from robotino_sim_node.wheel_speed_loop import DEFAULT_KI, DEFAULT_KP, DEFAULT_RATE_HZ, WheelSpeedLoop, \
     WheelSpeedLoopError
@@ -145,8 +145,8 @@ def run_scenario(
             speed_loop = WheelSpeedLoop(plant.params, *(wheel_pi or (DEFAULT_KP, DEFAULT_KI, DEFAULT_RATE_HZ)))
         except WheelSpeedLoopError as exc:
             raise SimulationError(str(exc)) from None
-    if odometry == "encoders":  # its twist is the mean over the period: the pose filter's matching predictor
-        control = replace(control, odometry_twist="period_mean")
+    if odometry in CONTROLLER_TWIST:
+        control = replace(control, odometry_twist=CONTROLLER_TWIST[odometry])
     controller = MotionController(spec.controller_model(robot), control)
     controller.start_at(*reference.position(np.zeros(1))[0].tolist())  # robot and reference start together
     # The run's pose noise drawn at once: the same values as one `RobotinoPlant.pose_noise` draw per tick.

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ODOMETRY_MODELS",
+    "CONTROLLER_TWIST",
     "DEFAULT_COUNTS_PER_REV",
     "ODOMETRY_SPECS",
     "ODOMETRY_DEFAULTS",
@@ -46,6 +47,9 @@ __all__ = [
 ]
 
 ODOMETRY_MODELS = ("ideal", "encoders")
+# the controller's ``control.odometry_twist`` an odometry model's twist asks for (absent: the user's setting):
+# the encoders' twist is the mean over the period, which the pose filter's period_mean predictor matches
+CONTROLLER_TWIST = {"encoders": "period_mean"}
 DEFAULT_COUNTS_PER_REV = 2048  # the public Robotino drivers' motor encoders (gear 16: 32768 counts a wheel turn)
 
 # The plant node's parameters of its odometry (`odometry_source`'s settings).

@@ -132,6 +132,7 @@ def node_arguments(
     """
     from robotino_geom_mpc.core.params import load_params
     from robotino_geom_mpc.scenarios import node_parameters
+    from robotino_sim_node.encoders import CONTROLLER_TWIST
 
     robot, _ = load_params(params_file)
     mode = "lockstep" if lockstep else "realtime"
@@ -149,8 +150,8 @@ def node_arguments(
                                                        **extra.get("recorder_node", {})}, remaps)
     # no use_sim_time: in lockstep the trajectory's time is the /clock messages and the controller's the
     # odometry stamps; the time source's /clock reader would cost each a wake-up a tick
-    # encoder odometry's twist is the mean over the period: the controller's pose filter predicts accordingly
-    twist = {"controller_node": {"control.odometry_twist": "period_mean"}} if odometry == "encoders" else {}
+    twist = {"controller_node": {"control.odometry_twist": CONTROLLER_TWIST[odometry]}} \
+        if odometry in CONTROLLER_TWIST else {}
     interface = {} if command_interface == "voltages" else {
         name: {"command_interface": command_interface} for name in ("controller_node", "plant_node")}
     for name in ("trajectory_node", "controller_node"):

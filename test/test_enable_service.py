@@ -1,6 +1,6 @@
 """~/enable (std_srvs/SetBool) on the controller: disabled = zero volts and holding, enabled again = bumpless.
 
-A lockstep paper-circle with real node processes: the controller is disabled mid-circle and enabled
+A lockstep paper-circle (22 s) with real node processes: the controller is disabled mid-circle and enabled
 again a second later. The plant's currents, the controller's voltages and the ground truth come from
 the loop probe (one sample per tick), the disabled ticks from the controller's diagnostics.
 """
@@ -18,7 +18,7 @@ from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.ros.messages import stamp_to_ns
 from robotino_geom_mpc.ros.processes import NodeGroup
 
-DURATION_S = 14.0
+DURATION_S = 22.0  # the whole circle: the service calls' wall latency is several simulated seconds at 6x
 DISABLE_AT_S = 1.5  # simulated time at which the test asks to disable (the service acts a few ticks later)
 HOLD_S = 1.0
 

@@ -110,7 +110,9 @@ class GoalRun:
 
 @pytest.fixture(scope="module")
 def goal_run(tmp_path_factory):
-    args = node_arguments("goals", default_params_file(), 120.0, lockstep=MODE == "lockstep")
+    # the lockstep loop runs on while the tests wait in wall time (6-8x real time): simulated time to spare, the
+    # nodes are stopped when the module's tests end (120 s ran out before the last path on a fast loop)
+    args = node_arguments("goals", default_params_file(), 1000.0, lockstep=MODE == "lockstep")
     with NodeGroup(log_dir=tmp_path_factory.mktemp("goals")) as group, Harness("goals_test") as h:
         run = GoalRun(h, group)
         for name in ("plant_node", "controller_node", "trajectory_node"):

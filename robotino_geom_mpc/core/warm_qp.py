@@ -28,9 +28,11 @@ class WarmDaqp:
 
     def __init__(self, P: np.ndarray, rows: int) -> None:
         n = len(P)
-        self._data = (P, np.zeros(n), np.zeros((rows, n)), np.ones(rows), -np.ones(rows))  # DAQP keeps pointers
+        # DAQP keeps pointers to the arrays it is given: the Hessian and the (zero) cost for the model's life,
+        # G, the bounds and `sense` until the next update gives others (`solve` keeps those)
+        self._setup = (P, np.zeros(n), np.zeros((rows, n)), np.ones(rows), -np.ones(rows), np.zeros(rows, np.int32))
         self._model = daqp.Model()
-        self._model.setup(*self._data, np.zeros(rows, dtype=np.int32))
+        self._model.setup(*self._setup)
         self._model.settings = {"primal_tol": _PRIMAL_TOL}
         self._rows = rows
         self.reset()
@@ -44,8 +46,9 @@ class WarmDaqp:
         if self._cold is None:  # without `sense`, DAQP starts from the active set of its last solve
             self._model.update(A=G, bupper=upper, blower=lower)
         else:
-            self._model.update(A=G, bupper=upper, blower=lower, sense=self._cold)
-        self._data = (G, upper, lower, self._cold)  # DAQP keeps pointers to the arrays: keep them alive
+            self._sense = self._cold  # kept: DAQP reads its last `sense` array until it gets another
+            self._model.update(A=G, bupper=upper, blower=lower, sense=self._sense)
+        self._data = (G, upper, lower)  # alive until the next update
         d, _, exitflag, _ = self._model.solve()
         ok = exitflag == _DAQP_OPTIMAL
         self._cold = None if ok else np.zeros(self._rows, dtype=np.int32)

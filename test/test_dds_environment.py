@@ -49,3 +49,11 @@ def test_a_lockstep_plant_settles_shorter_only_with_the_profile(monkeypatch):
     assert settle(True) == [f"lockstep_settle_s:={PROFILE_SETTLE_S:g}"] and settle(False) == []
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET")
     assert settle(True) == []
+    # the nodes' environment decides, not the caller's: nodes given another profile (two hosts) keep the default
+    udp = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "FASTRTPS_DEFAULT_PROFILES_FILE": "/udp.xml"}
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    argv = node_arguments("paper-circle", default_params_file(), 1.0, True, environ=udp)["plant_node"]
+    assert not [a for a in argv if a.startswith("lockstep_settle_s:=")]
+    argv = node_arguments("paper-circle", default_params_file(), 1.0, True,
+                          environ={"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})["plant_node"]
+    assert f"lockstep_settle_s:={PROFILE_SETTLE_S:g}" in argv

@@ -101,7 +101,7 @@ def _run(hosts: Hosts, tmp_path, scenario: str, duration_s: float, lockstep: boo
            "FASTRTPS_DEFAULT_PROFILES_FILE": str(config_file("fastdds_udp.xml"))}
     report = tmp_path / "timing.json"
     args = node_arguments(scenario, params, duration_s, lockstep, bag=bag,
-                          overrides={"plant_node": {"timing_report": str(report)}})
+                          overrides={"plant_node": {"timing_report": str(report)}}, environ={**os.environ, **env})
     before = hosts.received_bytes(0)
     with NodeGroup(tmp_path / "plant_host", env, hosts.prefix(0)) as plant_host, \
             NodeGroup(tmp_path / "controller_host", env, hosts.prefix(1)) as controller_host:

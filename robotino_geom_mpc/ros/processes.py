@@ -115,6 +115,7 @@ def node_arguments(
     namespace: str = "",
     goals_file: str | os.PathLike | None = None,
     command_interface: str = "voltages",
+    environ: Mapping[str, str] | None = None,
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`.
 
@@ -129,6 +130,9 @@ def node_arguments(
     cmd_vel goes to the controller and the plant (voltages, their default, is left to them).
     With `goals_file` (scenario ``goals``) a ``goal_sender`` sends the file's
     goals and paths; a lockstep plant waits for its odom subscription too, so its times count from tick 0.
+    `environ` is the environment the nodes will run in (`os.environ` if None, as for a `NodeGroup` without
+    ``env``): where `dds_environment` gives them the localhost profile, a lockstep plant settles
+    `PROFILE_SETTLE_S` before tick 0 instead of its default.
     """
     from robotino_geom_mpc.core.params import load_params
     from robotino_geom_mpc.scenarios import node_parameters
@@ -158,7 +162,8 @@ def node_arguments(
         args[name] = ros_args(params_file, {**scenario_overrides[name], "mode": mode, **twist.get(name, {}),
                                             **interface.get(name, {}), **frames.get(name, {}), **extra.get(name, {})},
                               remaps)
-    settle = {"lockstep_settle_s": PROFILE_SETTLE_S} if lockstep and dds_environment(os.environ) else {}
+    localhost_profile = dds_environment(os.environ if environ is None else environ)
+    settle = {"lockstep_settle_s": PROFILE_SETTLE_S} if lockstep and localhost_profile else {}
     args["plant_node"] = ros_args(params_file, {
         **scenario_overrides["plant_node"],
         "mode": mode,

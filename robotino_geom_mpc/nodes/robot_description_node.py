@@ -149,13 +149,12 @@ class RobotDescriptionNode(Node):
             f"joint_states with {names} names, {positions} positions or a non-finite "
             f"position: skipped ({self.skipped} so far)", throttle_duration_sec=2.0)
 
-    def _on_joints(self, msg: Any) -> None:
+    def _on_joints(self, msg: JointState) -> None:
         """A decoded joint_states (any names, order, length): the transforms of the moving joints it names."""
         if len(msg.name) != len(msg.position) or not all(map(math.isfinite, msg.position)):
             self._skip(len(msg.name), len(msg.position))
             return
-        stamp = TimeMsg(sec=msg.header.stamp.sec, nanosec=msg.header.stamp.nanosec)
-        transforms = [self._stamped(self.moving[name], position, stamp)
+        transforms = [self._stamped(self.moving[name], position, msg.header.stamp)
                       for name, position in zip(msg.name, msg.position) if name in self.moving]
         if transforms:
             self.tf_pub.publish(self._tf_message(transforms=transforms))

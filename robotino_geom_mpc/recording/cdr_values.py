@@ -18,7 +18,7 @@ import struct
 from collections.abc import Callable
 from typing import Any
 
-from robotino_geom_mpc.ros.decode import yaw_of
+from robotino_geom_mpc.ros.decode import stamp_ns, yaw_of
 
 __all__ = [
     "diagnostics_with", "diagnostics_with_of_message", "odometry_pose", "odometry_pose_of_message", "preview_start",
@@ -73,7 +73,7 @@ def odometry_pose_of_message(msg: Any) -> tuple[int, tuple[float, float, float]]
     """`odometry_pose` of a decoded message."""
     pose = msg.pose.pose
     q = pose.orientation
-    return _stamp_ns(msg), (pose.position.x, pose.position.y, yaw_of(q.x, q.y, q.z, q.w))
+    return stamp_ns(msg.header.stamp), (pose.position.x, pose.position.y, yaw_of(q.x, q.y, q.z, q.w))
 
 
 def preview_start(data: bytes) -> tuple[int, tuple[float, float, float] | None]:
@@ -93,10 +93,10 @@ def preview_start(data: bytes) -> tuple[int, tuple[float, float, float] | None]:
 def preview_start_of_message(msg: Any) -> tuple[int, tuple[float, float, float] | None]:
     """`preview_start` of a decoded message."""
     if not msg.points or not msg.points[0].transforms:
-        return _stamp_ns(msg), None
+        return stamp_ns(msg.header.stamp), None
     tf = msg.points[0].transforms[0]
     q = tf.rotation
-    return _stamp_ns(msg), (tf.translation.x, tf.translation.y, yaw_of(q.x, q.y, q.z, q.w))
+    return stamp_ns(msg.header.stamp), (tf.translation.x, tf.translation.y, yaw_of(q.x, q.y, q.z, q.w))
 
 
 def three_values(data: bytes) -> tuple[float, ...]:
@@ -150,8 +150,8 @@ def diagnostics_with_of_message(key: str) -> Callable[[Any], tuple[int, dict[str
         for status in msg.status:
             values = {kv.key: kv.value for kv in status.values}
             if key in values:
-                return _stamp_ns(msg), values
-        return _stamp_ns(msg), None
+                return stamp_ns(msg.header.stamp), values
+        return stamp_ns(msg.header.stamp), None
 
     return of_message
 
@@ -164,6 +164,3 @@ def values_of(data: bytes, read: Callable[[bytes], Any], of_message: Callable[[A
     except (_Unreadable, struct.error, IndexError, UnicodeDecodeError):
         return of_message(decode())
 
-
-def _stamp_ns(msg: Any) -> int:
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)

@@ -36,7 +36,6 @@ stopped) are left out; ``meta["ticks_dropped"]`` counts them.
 from __future__ import annotations
 
 import json
-import math
 import os
 from bisect import bisect_left, bisect_right
 from pathlib import Path
@@ -60,6 +59,7 @@ from robotino_geom_mpc.recording.cdr_values import (
 )
 from robotino_geom_mpc.recording.definitions import _typestore
 from robotino_geom_mpc.results import RunData, compute_metrics, write_metrics
+from robotino_geom_mpc.ros.decode import stamp_ns, yaw_of
 
 __all__ = [
     "find_topic",
@@ -75,14 +75,9 @@ __all__ = [
 
 
 
-def stamp_ns(stamp: Any) -> int:
-    """builtin_interfaces/Time as integer nanoseconds."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
 def yaw(q: Any) -> float:
     """Yaw (rad) of a quaternion message (ZYX convention)."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return yaw_of(q.x, q.y, q.z, q.w)
 
 
 def find_topic(bag: BagReader, suffix: str, type_name: str, required: bool = True) -> str | None:

@@ -20,7 +20,7 @@ from robotino_geom_mpc.core.errors import RobotinoError
 __all__ = [
     "InputRejected", "ODOM_FIELDS", "POINT_FIELDS", "QUATERNION_NORM_TOLERANCE", "STAMP_FIELDS", "TILT_TOLERANCE_RAD",
     "check_yaw_quaternion", "odometry_state", "odometry_values", "preview_arrays", "preview_of_values",
-    "preview_point_values", "stamp_problem", "state_of_odometry", "unwrap_near", "yaw_of",
+    "preview_point_values", "stamp_ns", "stamp_problem", "state_of_odometry", "unwrap_near", "yaw_of",
 ]
 
 STAMP_FIELDS = ("header.stamp.sec", "header.stamp.nanosec")
@@ -109,6 +109,11 @@ def stamp_problem(stamp_ns: int, last_ns: int | None, now_ns: int | None, timeou
     if last_ns is not None and stamp_ns <= last_ns:
         return "duplicate" if stamp_ns == last_ns else "old"
     return None
+
+
+def stamp_ns(stamp) -> int:
+    """A decoded builtin_interfaces/Time (rclpy's, rosbags' or mcap's) as integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def yaw_of(x: float, y: float, z: float, w: float) -> float:

@@ -88,7 +88,8 @@ def _chunk_records(chunk: Chunk) -> list[Any]:
             if end - start < _MESSAGE_HEADER.size:
                 raise ValueError(f"a message record at byte {pos} of the chunk is shorter than its header")
             channel_id, sequence, log_time, publish_time = _MESSAGE_HEADER.unpack_from(data, start)
-            records.append(Message(channel_id=channel_id, log_time=log_time, data=data[start + 22 : end],
+            body = start + _MESSAGE_HEADER.size
+            records.append(Message(channel_id=channel_id, log_time=log_time, data=data[body:end],
                                    publish_time=publish_time, sequence=sequence))
         elif opcode in (Opcode.CHANNEL, Opcode.SCHEMA):
             records.append(_read_record(opcode, data[start:end]))

@@ -24,7 +24,6 @@ All go out only while a subscription is matched, with the plant's other publishe
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -38,7 +37,8 @@ from robotino_geom_mpc.core.params import ParamSpec
 from robotino_geom_mpc.description.urdf import BASE_LINK, JOINT_NAMES, check_frame_prefix
 from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.decode import STAMP_FIELDS
-from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, odometry_message, three_values_template
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, odometry_message, three_values_template, \
+    yaw_quaternion_zw
 from robotino_geom_mpc.ros.qos import publish_acknowledged
 
 __all__ = ["AppliedVoltages", "ODOM_FIELDS", "TF_DEFAULTS", "TF_SPECS", "StateOutputs", "joint_template",
@@ -82,7 +82,7 @@ def odometry_template(sigma_position: float, sigma_yaw: float, frame_prefix: str
 def odometry_values(pose: tuple[float, ...], twist_body: tuple[float, ...]) -> tuple[float, ...]:
     """The values of `odometry_template` after the stamp: x, y, yaw quaternion (z, w), body twist (vx, vy, omega)."""
     x, y, theta = pose
-    return (x, y, math.sin(0.5 * theta), math.cos(0.5 * theta), *twist_body)
+    return (x, y, *yaw_quaternion_zw(theta), *twist_body)
 
 
 def joint_template() -> CdrTemplate:
@@ -138,7 +138,7 @@ class StateOutputs:
         if self.tf_pub is not None and self.tf_pub.get_subscription_count():
             x, y, theta = pose
             publish_acknowledged(self.node, self.tf_pub, self.tf_cdr.pack(
-                *stamp, x, y, math.sin(0.5 * theta), math.cos(0.5 * theta)))
+                *stamp, x, y, *yaw_quaternion_zw(theta)))
         if self.joint_pub.get_subscription_count():
             publish_acknowledged(self.node, self.joint_pub,
                                  self.joint_cdr.pack(*stamp, *wheel_angles, *wheel_speeds, *wheel_torques))

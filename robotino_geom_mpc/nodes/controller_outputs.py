@@ -8,7 +8,6 @@ topics in `controller_node`'s docstring). Publishers use
 
 from __future__ import annotations
 
-import math
 import struct
 from collections.abc import Callable, Sequence
 
@@ -23,7 +22,7 @@ from std_msgs.msg import Float64MultiArray
 
 from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.decode import STAMP_FIELDS
-from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, three_values_template
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, three_values_template, yaw_quaternion_zw
 from robotino_geom_mpc.ros.qos import publish_acknowledged, publish_qos
 
 __all__ = ["ControllerOutputs", "STATUS_NAME", "TRACKING_KEYS", "diagnostics_cdr"]
@@ -38,7 +37,7 @@ PATH_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durabilit
 
 def _path_template(frame: str, horizon: int) -> CdrTemplate:
     """nav_msgs/Path of `horizon` poses in `frame` as a template: header stamp, then per pose its stamp, x, y and the
-    yaw quaternion's z, w (`messages.yaw_to_quaternion`: x = y = 0)."""
+    yaw quaternion's z, w (`messages.yaw_quaternion_zw`: x = y = 0)."""
     path = Path(poses=[PoseStamped() for _ in range(horizon)])
     path.header.frame_id = frame
     for pose in path.poses:
@@ -170,8 +169,7 @@ class ControllerOutputs:
         """
         values = [*divmod(stamp, 1_000_000_000)]
         for j, (x, y, theta) in enumerate(predicted.tolist(), start=1):
-            values += (*divmod(stamp + j * period_ns, 1_000_000_000), x, y, math.sin(0.5 * theta),
-                       math.cos(0.5 * theta))
+            values += (*divmod(stamp + j * period_ns, 1_000_000_000), x, y, *yaw_quaternion_zw(theta))
         publish_acknowledged(self.node, self.path_pub, self.path_cdr.pack(*values))
 
     # diagnostics --------------------------------------------------------------------------------

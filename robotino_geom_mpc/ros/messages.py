@@ -30,7 +30,7 @@ __all__ = [
     "BASE_FRAME", "CURRENT_LABEL", "ODOM_FRAME", "VOLTAGE_LABEL", "ns_to_stamp", "odometry_layout", "odometry_message", "point_values",
     "preview_layout", "preview_message", "preview_skeleton", "preview_template", "preview_values",
     "quaternion_to_yaw", "stamp_to_ns", "three_values", "three_values_layout", "three_values_template",
-    "yaw_to_quaternion",
+    "yaw_quaternion_zw", "yaw_to_quaternion",
 ]
 
 ODOM_FRAME = "odom"
@@ -58,10 +58,16 @@ def ns_to_stamp(ns: int) -> TimeMsg:
     return TimeMsg(sec=sec, nanosec=nanosec)
 
 
+def yaw_quaternion_zw(theta: float) -> tuple[float, float]:
+    """(z, w) of the rotation about z by `theta` (rad), whose x and y are 0 (the templates' yaw fields)."""
+    half = 0.5 * theta
+    return math.sin(half), math.cos(half)
+
+
 def yaw_to_quaternion(theta: float) -> Quaternion:
     """Rotation about z by `theta` (rad)."""
-    half = 0.5 * theta
-    return Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))
+    z, w = yaw_quaternion_zw(theta)
+    return Quaternion(x=0.0, y=0.0, z=z, w=w)
 
 
 def quaternion_to_yaw(q: Quaternion) -> float:

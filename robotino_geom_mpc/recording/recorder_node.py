@@ -149,7 +149,7 @@ class RecorderNode(Node):
         self._discover()
         steady = Clock(clock_type=ClockType.STEADY_TIME)  # not ROS time: with use_sim_time, /clock may not run yet
         self.create_timer(float(p("discovery_period_s").value), self._discover, clock=steady)
-        self.create_timer(float(p("flush_period_s").value), self.writer.flush, clock=steady)
+        self.create_timer(float(p("flush_period_s").value), self._flush, clock=steady)
         self.get_logger().info(f"recording into {Path(output).resolve()} ({compression})")
 
     def _store_run_parameters(self) -> None:
@@ -207,6 +207,12 @@ class RecorderNode(Node):
                               info.get("publication_sequence_number", 0))
 
         return on_message
+
+    def _flush(self) -> None:
+        """Hand the chunk to the OS with every sample received so far: those waiting for the next batched take
+        (`TAKE_PERIOD_S`) too, so that a kill loses at most the last flush period."""
+        self._take_all(self._recording_subs)
+        self.writer.flush()
 
     def _take_all(self, subscriptions: list[Any]) -> int:
         """Write every sample the readers of `subscriptions` hold now; returns the count."""

@@ -193,7 +193,17 @@ def _kill_and_restart(h, tmp_path, ns, victim):
         assert h.spin_until(lambda: len(tracking(restart_ns)) > 0, 60.0), restarted.stderr_tail()
         t0, kv = tracking(restart_ns)[0]
         T = float(kv["blend_remaining_s"])
-        assert h.spin_until(lambda: tracking()[-1][0] > t0 + (T + 3.0) * 1e9, 60.0)
+        if not h.spin_until(lambda: tracking()[-1][0] > t0 + (T + 3.0) * 1e9, 60.0):
+            seen = [(stamp_to_ns(d.header.stamp), _values(d)[0].message) for d in diagnostics]
+            runs = []
+            for stamp, message in seen:
+                if not runs or runs[-1][0] != message:
+                    runs.append([message, stamp, stamp, 0])
+                runs[-1][2] = stamp; runs[-1][3] += 1
+            alive = {name: n.popen.poll() for name, n in [*nodes.items(), ("restarted", restarted)]}
+            raise AssertionError(f"t0 {t0} T {T} restart {restart_ns} kill {kill_ns} exit codes {alive}: " + "; ".join(
+                f"{m} x{n} {a}..{b}" for m, a, b, n in runs[-12:]) + "\n" + nodes["controller_node"].stderr_tail()
+                + "\n" + restarted.stderr_tail())
         assert all(n.popen.poll() is None for n in [*nodes.values(), restarted] if n is not nodes[victim])
     zero = [stamp_to_ns(j.header.stamp) for j in joints if stamp_to_ns(j.header.stamp) > kill_ns
             and np.abs(_implied_voltages(j, robot)).max() < 0.5]

@@ -9,6 +9,7 @@
   current and the robot converges back to the reference.
 """
 
+import itertools
 import math
 import os
 import signal
@@ -162,6 +163,13 @@ def _implied_voltages(joint, robot):
             + robot.torque_constant_n_m_per_a * robot.gear_ratio * np.array(joint.velocity))
 
 
+def _status_runs(diagnostics: list) -> str:
+    """The last dozen runs of equal status messages: 'message xcount first..last stamp'."""
+    runs = [(message, [stamp for stamp, _ in group]) for message, group in itertools.groupby(
+        ((stamp_to_ns(d.header.stamp), _values(d)[0].message) for d in diagnostics), key=lambda sm: sm[1])]
+    return "; ".join(f"{message} x{len(stamps)} {stamps[0]}..{stamps[-1]}" for message, stamps in runs[-12:])
+
+
 def _kill_and_restart(h, tmp_path, ns, victim):
     """Plant, trajectory and controller in realtime on paper-circle; `victim` SIGKILLed after 5 s of tracking,
     restarted 1 s later. Returns what the test checks."""
@@ -194,16 +202,9 @@ def _kill_and_restart(h, tmp_path, ns, victim):
         t0, kv = tracking(restart_ns)[0]
         T = float(kv["blend_remaining_s"])
         if not h.spin_until(lambda: tracking()[-1][0] > t0 + (T + 3.0) * 1e9, 60.0):
-            seen = [(stamp_to_ns(d.header.stamp), _values(d)[0].message) for d in diagnostics]
-            runs = []
-            for stamp, message in seen:
-                if not runs or runs[-1][0] != message:
-                    runs.append([message, stamp, stamp, 0])
-                runs[-1][2] = stamp; runs[-1][3] += 1
-            alive = {name: n.popen.poll() for name, n in [*nodes.items(), ("restarted", restarted)]}
-            raise AssertionError(f"t0 {t0} T {T} restart {restart_ns} kill {kill_ns} exit codes {alive}: " + "; ".join(
-                f"{m} x{n} {a}..{b}" for m, a, b, n in runs[-12:]) + "\n" + nodes["controller_node"].stderr_tail()
-                + "\n" + restarted.stderr_tail())
+            exits = {name: n.popen.poll() for name, n in [*nodes.items(), ("restarted", restarted)]}
+            raise AssertionError(f"tracking stopped (t0 {t0} ns, T {T} s, exit codes {exits}): {_status_runs(diagnostics)}"
+                                 f"\n{nodes['controller_node'].stderr_tail()}\n{restarted.stderr_tail()}")
         assert all(n.popen.poll() is None for n in [*nodes.values(), restarted] if n is not nodes[victim])
     zero = [stamp_to_ns(j.header.stamp) for j in joints if stamp_to_ns(j.header.stamp) > kill_ns
             and np.abs(_implied_voltages(j, robot)).max() < 0.5]

@@ -182,9 +182,16 @@ def _kill_and_restart(h, tmp_path, ns, victim):
             "trajectory_node": ros_args(None, {"mode": "realtime", "scenario": "paper-circle"}) + remap,
             "controller_node": ros_args(None, {"mode": "realtime"}) + remap}
 
+    parsed, tracked = [0], []  # diagnostics parsed so far; (stamp, values) of the tracking ones
+
     def tracking(since_ns=0):
-        return [(stamp_to_ns(d.header.stamp), kv) for d in diagnostics for status, kv in [_values(d)]
-                if status.message == "tracking" and stamp_to_ns(d.header.stamp) > since_ns]
+        """Each diagnostic is parsed once: the waits ask after every message taken (300/s), and parsing all
+        of them each time grew quadratically until the harness fell behind the loop on a slow host."""
+        new = diagnostics[parsed[0]:]
+        parsed[0] += len(new)
+        tracked.extend((stamp_to_ns(d.header.stamp), kv) for d in new for status, kv in [_values(d)]
+                       if status.message == "tracking")
+        return [entry for entry in tracked if entry[0] > since_ns]
 
     with NodeGroup(log_dir=tmp_path / "first") as group, NodeGroup(log_dir=tmp_path / "second") as second:
         nodes = {name: group.start(name, a) for name, a in args.items()}

@@ -1,4 +1,4 @@
-"""The Fast DDS profile the nodes get with LOCALHOST discovery: when it is added, what it says, that Fast DDS takes it."""
+"""The Fast DDS profile the nodes get: when it is added, what it says, that Fast DDS takes it."""
 
 import os
 import subprocess
@@ -12,12 +12,13 @@ from robotino_geom_mpc.ros.processes import dds_environment
 NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 
 
-def test_added_only_for_localhost_discovery_without_a_profile_of_the_users():
-    assert dds_environment({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}) == {}
-    assert dds_environment({}) == {}
-    assert dds_environment({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-                            "FASTRTPS_DEFAULT_PROFILES_FILE": "/mine.xml"}) == {}
-    (path,) = dds_environment({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}).values()
+def test_added_for_every_discovery_range_unless_the_user_names_a_profile():
+    ranges = ({}, *({"ROS_AUTOMATIC_DISCOVERY_RANGE": r} for r in ("LOCALHOST", "SUBNET", "SYSTEM_DEFAULT")))
+    added = [dds_environment(env) for env in ranges]
+    assert all(a == added[0] and list(a) == ["FASTRTPS_DEFAULT_PROFILES_FILE"] for a in added)
+    for env in ranges:
+        assert dds_environment({**env, "FASTRTPS_DEFAULT_PROFILES_FILE": "/mine.xml"}) == {}
+    (path,) = added[0].values()
     # read by an XML parser of its own: the default participant profile announces every 0.1 s
     (profile,) = ET.parse(path).getroot().findall("f:participant", NS)
     assert profile.get("is_default_profile") == "true"
@@ -47,8 +48,11 @@ def test_a_lockstep_plant_settles_shorter_only_with_the_profile(monkeypatch):
     monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     assert settle(True) == [f"lockstep_settle_s:={PROFILE_SETTLE_S:g}"] and settle(False) == []
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET")
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET")  # a plain shell: the same profile, the same settle
+    assert settle(True) == [f"lockstep_settle_s:={PROFILE_SETTLE_S:g}"]
+    monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", "/mine.xml")  # the user's own profile: the plant's default
     assert settle(True) == []
+    monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE")
     # the nodes' environment decides, not the caller's: nodes given another profile (two hosts) keep the default
     udp = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "FASTRTPS_DEFAULT_PROFILES_FILE": "/udp.xml"}
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

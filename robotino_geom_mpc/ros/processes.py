@@ -47,7 +47,7 @@ def recorder_wait_for(command_interface: str = "voltages") -> list[str]:
     return [w.replace("wheel_voltages:", "cmd_vel:") for w in waits] + ["applied_voltages:1"]
 
 
-FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/
+FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/: the nodes' profile on one host (`dds_environment`)
 # the lockstep plant's ``lockstep_settle_s`` when the nodes get that profile (`dds_environment`): 4 of its 0.1 s
 # participant announcement periods, the longest two nodes' endpoints stay unmatched after the graph shows them
 # (the plant's default, 1 s, is for any DDS setup)
@@ -131,7 +131,7 @@ def node_arguments(
     With `goals_file` (scenario ``goals``) a ``goal_sender`` sends the file's
     goals and paths; a lockstep plant waits for its odom subscription too, so its times count from tick 0.
     `environ` is the environment the nodes will run in (`os.environ` if None, as for a `NodeGroup` without
-    ``env``): where `dds_environment` gives them the localhost profile, a lockstep plant settles
+    ``env``): where `dds_environment` gives them the package's profile, a lockstep plant settles
     `PROFILE_SETTLE_S` before tick 0 instead of its default.
     """
     from robotino_geom_mpc.core.params import load_params
@@ -162,8 +162,8 @@ def node_arguments(
         args[name] = ros_args(params_file, {**scenario_overrides[name], "mode": mode, **twist.get(name, {}),
                                             **interface.get(name, {}), **frames.get(name, {}), **extra.get(name, {})},
                               remaps)
-    localhost_profile = dds_environment(os.environ if environ is None else environ)
-    settle = {"lockstep_settle_s": PROFILE_SETTLE_S} if lockstep and localhost_profile else {}
+    own_profile = dds_environment(os.environ if environ is None else environ)
+    settle = {"lockstep_settle_s": PROFILE_SETTLE_S} if lockstep and own_profile else {}
     args["plant_node"] = ros_args(params_file, {
         **scenario_overrides["plant_node"],
         "mode": mode,
@@ -186,15 +186,17 @@ def node_arguments(
 
 
 def dds_environment(environ: Mapping[str, str]) -> dict[str, str]:
-    """DDS settings to add to `environ` for the nodes: with LOCALHOST discovery, config/fastdds_localhost.xml.
+    """DDS settings to add to `environ` for the nodes: config/fastdds_localhost.xml unless the user names a profile.
 
-    That Fast DDS profile announces each participant every 0.1 s instead of 3 s: with LOCALHOST discovery a
-    late participant is often matched only at the next announcement of an earlier one. Nothing is added when
-    discovery is not LOCALHOST or the user names a profile file already.
+    That Fast DDS profile announces each participant every 0.1 s instead of 3 s (and sends heartbeats every
+    0.1 s): a participant that starts after another's initial announcements is otherwise often matched only at
+    that one's next periodic announcement. It keeps the default transports, so it suits every discovery range
+    on one host (`ros2 launch` gives the nodes the same file); across hosts use config/fastdds_udp.xml. Nothing
+    is added when `FASTRTPS_DEFAULT_PROFILES_FILE` is set already.
     """
     from ..core.params import config_file
 
-    if environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") != "LOCALHOST" or "FASTRTPS_DEFAULT_PROFILES_FILE" in environ:
+    if "FASTRTPS_DEFAULT_PROFILES_FILE" in environ:
         return {}
     return {"FASTRTPS_DEFAULT_PROFILES_FILE": str(config_file(FASTDDS_PROFILE))}
 

@@ -35,7 +35,8 @@ Modes
 1 / ``physics_rate_hz``: each command and each publish first integrates it
 up to the last grid point before now with the command held so far (zero
 volts from the grid point at which that command is older than
-``command_timeout_s``, as a real drive's watchdog does), then applies the
+``command_timeout_s``, as a real drive's watchdog does: a throttled warning and
+``command_timeouts`` in the report), then applies the
 new command or sends the measurements. So there is no physics timer
 (nothing wakes the process between events) and a command takes effect at
 most one grid step late. A publish timer sends the measurements every
@@ -182,7 +183,8 @@ class PlantNode(Node):
         self.have_period = False  # a period has been integrated since the first measurement
         self._build_messages()
         self.command_time = -math.inf  # steady time of the last command (a refused one means zero volts)
-        self.counts = {"clamped_commands": 0, "refused_commands": 0}
+        self.counts = {"clamped_commands": 0, "refused_commands": 0, "command_timeouts": 0}
+        self.timed_out_at = -math.inf  # the command_time of the last command the watchdog stopped
         self.tick = 0
         duration = self.params["duration_s"]
         self.last_tick = max(1, int(round(duration / self.control.period_s))) - 1 if duration > 0 else None
@@ -372,13 +374,19 @@ class PlantNode(Node):
             peak = self._drive(self.voltages if fresh else _ZERO_VOLTS, (end - self.grid) * dt)
             self.peak_currents = np.maximum(self.peak_currents, peak)
             self.grid = end
+        if self.grid > stale and self.timed_out_at != self.command_time and math.isfinite(self.command_time):
+            self.timed_out_at = self.command_time
+            self.counts["command_timeouts"] += 1
+            self.get_logger().warn(f"no command for {timeout:g} s: zero volts (drive watchdog; "
+                                   f"{self.counts['command_timeouts']} so far)", throttle_duration_sec=1.0)
         return self.started_at + self.grid * dt
 
     def _publish_realtime(self) -> None:
         clock_ns, now = self.get_clock().now().nanoseconds, monotonic()
         if self.last_tick is not None and now - self.started_at >= self.params["duration_s"]:
             self.get_logger().info(f"realtime run over: {self.timing.summary()}; {self.counts['clamped_commands']} "
-                                   f"commands clamped, {self.counts['refused_commands']} refused")
+                                   f"commands clamped, {self.counts['refused_commands']} refused, "
+                                   f"{self.counts['command_timeouts']} timed out")
             simulated = self.grid / self.params["physics_rate_hz"]
             self._write_report(realtime_report(self.timing, self.ticks, simulated, now - self.started_at,
                                                self.busy_s, **self.counts))

@@ -25,7 +25,8 @@ every tick is answered, none missed; ``resent`` counts the resends);
 lockstep or without an answer); ``first_answer_steady_s`` steady time of
 the first answer; ``missed_ticks`` [[s after the first answer, s to the
 next odometry], ...] (the first `MISSES_KEPT`); ``clamped_commands``,
-``refused_commands`` commands clamped to the supply and refused.
+``refused_commands`` commands clamped to the supply and refused;
+``command_timeouts`` commands the drive watchdog stopped (realtime).
 """
 
 from __future__ import annotations
@@ -134,7 +135,7 @@ def lockstep_report(ticks: int, period_s: float, sent_at: float, first_answer_at
                     busy_s: float, wait_s: float, **counts: int) -> dict[str, Any]:
     """The timing report of a lockstep run of `ticks` ticks (steady times [s]; busy/wait summed over 1 .. n - 1).
 
-    `counts`: resent, clamped_commands, refused_commands.
+    `counts`: resent, clamped_commands, refused_commands, command_timeouts.
     """
     loop_ticks = ticks - 1
     simulated, wall = loop_ticks * period_s, last_answer_at - first_answer_at

@@ -32,15 +32,32 @@ next odometry], ...] (the first `MISSES_KEPT`); ``clamped_commands``,
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["MISSES_KEPT", "LoopTiming", "lockstep_report", "lockstep_line", "realtime_report", "write_report"]
+__all__ = ["MISSES_KEPT", "LockstepPace", "LoopTiming", "lockstep_report", "lockstep_line", "realtime_report", "write_report"]
 
 MISSES_KEPT = 100  # missed ticks whose times the summary names
+
+
+class LockstepPace:
+    """When a lockstep plant sends its next tick: at most `factor` simulated seconds per wall second (0: no cap).
+
+    A tick answered later than its slot goes out at once and the schedule restarts from it (no burst after a stall).
+    """
+
+    def __init__(self, factor: float, period_s: float) -> None:
+        self.step_s = period_s / factor if factor > 0.0 else 0.0
+        self.due = -math.inf
+
+    def delay(self, now: float) -> float:
+        """Seconds from steady time `now` [s] until the next tick may go out (0: now)."""
+        self.due = max(self.due + self.step_s, now)
+        return self.due - now
 
 
 class LoopTiming:

@@ -31,37 +31,29 @@ zero volts from its arrival, in both modes (a throttled warning, a count).
 
 Modes
 -----
-``realtime``: the plant runs on the steady clock, on a grid of
-1 / ``physics_rate_hz``: each command and each publish first integrates it
-up to the last grid point before now with the command held so far (zero
-volts from the grid point at which that command is older than
-``command_timeout_s``, as a real drive's watchdog does: a throttled warning and
-``command_timeouts`` in the report), then applies the
-new command or sends the measurements. So there is no physics timer
-(nothing wakes the process between events) and a command takes effect at
-most one grid step late. A publish timer sends the measurements every
-control period, stamped with the node-clock time of the grid point they
-belong to; after ``duration_s`` (if > 0) the node reports the loop's timing
-as it saw it (`loop_timing.LoopTiming`) and exits.
+``realtime``: the plant runs on the steady clock, on a grid of 1 / ``physics_rate_hz``: each command and each
+publish first integrates it up to the last grid point before now with the command held so far (zero volts once
+that command is older than ``command_timeout_s``, as a real drive's watchdog does: `command_hold`, a throttled
+warning, ``command_timeouts`` in the report), then applies the new command or sends the measurements. So there
+is no physics timer (nothing wakes the process between events) and a command takes effect at most one grid
+step late. A publish timer sends the measurements every control period, stamped with the node-clock time of
+the grid point they belong to; after ``duration_s`` (if > 0) the node reports the loop's timing as it saw it
+(`loop_timing.LoopTiming`) and exits.
 
-``lockstep``: the plant owns time and repeats `simulation.run_scenario`'s
-tick: tick k is the state at t_k = k Ts; it publishes the odometry (noise
-drawn from ``default_rng(seed)``, as the offline loop does), /clock and the
-other measurements of tick k, waits for the command of tick k, integrates
-one control period with it, and publishes tick k + 1. Startup handshake:
-tick 0 goes out once the subscriptions of ``lockstep_wait_for`` are there and
-have settled (`lockstep_start`; what is missing is logged). The current tick
-is published again (logged: which tick, since how long) when no command
-arrives within ``lockstep_resend_s``, so no discovery race can deadlock the
-loop (the controller answers a repeated tick only if its first answer could
-not be delivered, so no tick is answered twice). With ``duration_s`` > 0 the run
-has n = round(duration_s / Ts) ticks; when tick n - 1 is answered the node
-logs its real-time factor and exits (status 0). The factor is that of the
-running loop: ticks 1 .. n - 1, from the answer of tick 0 to the answer of
-the last tick; the wait for tick 0's answer (the end of discovery, which
-can take a Fast DDS announcement period of 3 s) is logged apart. The report
-at the end of a run is one log line and, if ``timing_report`` names a file,
-one JSON object there (`loop_timing` gives the keys and their meaning).
+``lockstep``: the plant owns time and repeats `simulation.run_scenario`'s tick: tick k is the state at t_k = k
+Ts; it publishes the odometry (noise drawn from ``default_rng(seed)``, as the offline loop does), /clock and
+the other measurements of tick k, waits for the command of tick k, integrates one control period with it, and
+publishes tick k + 1 (if ``lockstep_max_realtime_factor`` > 0, not before its slot). Startup handshake: tick 0
+goes out once the subscriptions of ``lockstep_wait_for`` are there and have settled (`lockstep_start`; what is
+missing is logged). The current tick is published again (logged: which tick, since how long) when no command
+arrives within ``lockstep_resend_s``, so no discovery race can deadlock the loop (the controller answers a
+repeated tick only if its first answer could not be delivered, so no tick is answered twice). With
+``duration_s`` > 0 the run has n = round(duration_s / Ts) ticks; when tick n - 1 is answered the node logs its
+real-time factor and exits (status 0). The factor is that of the running loop: ticks 1 .. n - 1, from the
+answer of tick 0 to the answer of the last tick; the wait for tick 0's answer (the end of discovery, which can
+take a Fast DDS announcement period of 3 s) is logged apart. The report at the end of a run is one log line
+and, if ``timing_report`` names a file, one JSON object there (`loop_timing` gives the keys and their
+meaning).
 
 Parameters: the robot/control parameters of config/*.yaml (``/**`` section;
 a plant-robot mismatch is the plant and the controller reading different
@@ -89,9 +81,10 @@ from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, three_v
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
+from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
 from robotino_sim_node.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source
 from robotino_sim_node.lockstep_start import StartHandshake
-from robotino_sim_node.loop_timing import LoopTiming, lockstep_line, lockstep_report, realtime_report, write_report
+from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, lockstep_line, lockstep_report, realtime_report, write_report
 from robotino_sim_node.plant import RobotinoPlant
 from robotino_sim_node.wheel_speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
 from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, AppliedVoltages, StateOutputs, odometry_template, \
@@ -109,6 +102,8 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("command_timeout_s", float, "Realtime: a command older than this means zero volts", "s", 0.0, 60.0, True),
     ParamSpec("lockstep_resend_s", float, "Lockstep: publish the current tick again after this long without a command",
               "s", 0.0, 60.0, True),
+    ParamSpec("lockstep_max_realtime_factor", float, "Lockstep: at most this many simulated seconds per wall second "
+              "(1: a deterministic run watched at real time); 0: as fast as the loop answers", "", 0.0, 1e6, False),
     ParamSpec("lockstep_settle_s", float, "Lockstep: send tick 0 this long after the start handshake is met, so "
               "that the other nodes' endpoints, shown by the graph, have matched each other too", "s", 0.0, 60.0, True),
     ParamSpec("odometry_noise.position_m", float, "Standard deviation of the odometry x, y noise", "m", 0.0, 1.0, False),
@@ -120,16 +115,14 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
-    "lockstep_resend_s": 0.5, "lockstep_settle_s": 1.0, "odometry_noise.position_m": 0.0,
+    "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0, "odometry_noise.position_m": 0.0,
     "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "", **ODOMETRY_DEFAULTS, **TF_DEFAULTS,
     **WHEEL_PI_DEFAULTS,
 }
 
 
 _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray")  # other layouts than the controller's
-_MAX_CHUNK = 10  # realtime: grid steps per plant step
 _MAX_BEHIND_S = 1.0  # realtime: a longer stall is skipped, not integrated
-_ZERO_VOLTS = np.zeros(3)
 
 
 class PlantNode(Node):
@@ -177,20 +170,19 @@ class PlantNode(Node):
             "joint_states": self.state_out.joint_pub, "/tf": self.state_out.tf_pub, "/clock": self.clock_pub,
             "clock": self.clock_pub, "applied_voltages": self.applied and self.applied.pub})
 
-        self.voltages = np.zeros(3)
         self.peak_currents = np.zeros(3)
         self.measurement: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         self.have_period = False  # a period has been integrated since the first measurement
         self._build_messages()
-        self.command_time = -math.inf  # steady time of the last command (a refused one means zero volts)
         self.counts = {"clamped_commands": 0, "refused_commands": 0, "command_timeouts": 0}
-        self.timed_out_at = -math.inf  # the command_time of the last command the watchdog stopped
         self.tick = 0
         duration = self.params["duration_s"]
         self.last_tick = max(1, int(round(duration / self.control.period_s))) - 1 if duration > 0 else None
         self.busy_s = 0.0  # in the callbacks (lockstep: ticks 1 ..)
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.steady = steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.lockstep:
+            self.pace = LockstepPace(self.params["lockstep_max_realtime_factor"], self.control.period_s)
+            self.pace_timer = None  # while the next tick waits for its slot
             self.started = False
             self.wait_s = 0.0  # waiting for commands (ticks 1 ..)
             self.published_at = self.tick_sent_at = monotonic()  # the last (re)send; the tick's first send
@@ -199,7 +191,7 @@ class PlantNode(Node):
             self.resend_timer = self.create_timer(self.params["lockstep_resend_s"] / 2, self._resend, clock=steady)
         else:
             self.started_at = monotonic()
-            self.grid = 0  # grid points integrated since started_at
+            self.hold = CommandHold(self.started_at, 1.0 / self.params["physics_rate_hz"])  # a refused one: 0 V
             self.ticks = 0  # published
             self.timing = LoopTiming()
             self.publish_timer = self.create_timer(self.control.period_s, self._publish_realtime, clock=steady)
@@ -213,6 +205,8 @@ class PlantNode(Node):
             self.plant = self._new_plant(robot, self.plant.state)
             self.odometry = self._new_odometry(self.odometry)
         self._build_messages()
+        if self.lockstep:
+            self.pace = LockstepPace(self.params["lockstep_max_realtime_factor"], self.control.period_s)
         if "seed" in changed:
             self.rng = np.random.default_rng(self.params["seed"])
 
@@ -220,8 +214,8 @@ class PlantNode(Node):
         """A plant at `state`; in realtime with the matrices of every step size `_advance` uses computed now."""
         plant = RobotinoPlant(robot, state0=state)
         if not self.lockstep:
-            for k in range(1, _MAX_CHUNK + 1):  # an uncached step size costs milliseconds of expm
-                plant.step(_ZERO_VOLTS, k / self.params["physics_rate_hz"])
+            for k in range(1, MAX_CHUNK + 1):  # an uncached step size costs milliseconds of expm
+                plant.step(ZERO_VOLTS, k / self.params["physics_rate_hz"])
             plant.reset(state)
         return plant
 
@@ -242,7 +236,8 @@ class PlantNode(Node):
 
     def _resend(self) -> None:
         now = monotonic()
-        if self.started and not self.done.done() and now - self.published_at > self.params["lockstep_resend_s"]:
+        if self.started and not self.done.done() and self.pace_timer is None \
+                and now - self.published_at > self.params["lockstep_resend_s"]:
             self.resent += 1
             self.get_logger().warn(
                 f"no command for tick {self.tick} (t = {self._time_ns() * 1e-9:.3f} s) for "
@@ -301,8 +296,7 @@ class PlantNode(Node):
             if valid:
                 self.timing.command(begin)
             self._advance(begin, ceil=True)  # the old command up to now; the new one from the next grid point
-            self.voltages = np.array(values)
-            self.command_time = begin
+            self.hold.hold(values, begin)
             self.busy_s += monotonic() - begin
             return
         if not self.started or self.done.done():
@@ -320,8 +314,18 @@ class PlantNode(Node):
             self.done.set_result(True)  # the last tick is answered: the run is over
             return
         self.tick += 1
-        self._publish_tick(fresh=True)
+        delay = self.pace.delay(monotonic())
+        if delay > 0.0:
+            self.pace_timer = self.create_timer(delay, self._paced_tick, clock=self.steady)
+        else:
+            self._publish_tick(fresh=True)
         self.busy_s += monotonic() - begin
+
+    def _paced_tick(self) -> None:
+        """The tick `lockstep_max_realtime_factor` held back, at its slot."""
+        self.destroy_timer(self.pace_timer)
+        self.pace_timer = None
+        self._publish_tick(fresh=True)
 
     def _clamp(self, values: tuple[float, ...]) -> tuple[float, ...]:
         """`values` clamped to the supply, as an H-bridge applies them; a throttled warning and a count."""
@@ -352,34 +356,23 @@ class PlantNode(Node):
 
     # realtime -----------------------------------------------------------------------------------
     def _advance(self, now: float, ceil: bool = False) -> float:
-        """Integrate up to the grid point before (`ceil`: after) steady time `now`; returns the plant's time.
-
-        One `RobotinoPlant.step` per stretch of constant voltage (at most `_MAX_CHUNK` grid steps, so few
-        step sizes are ever used and their matrices stay cached).
-        """
-        dt = 1.0 / self.params["physics_rate_hz"]
-        position = (now - self.started_at) / dt
+        """Integrate up to the grid point before (`ceil`: after) steady time `now`; returns the plant's time."""
+        hold = self.hold
+        position = (now - self.started_at) / hold.dt
         target = math.ceil(position) if ceil else math.floor(position)
-        if target - self.grid > _MAX_BEHIND_S / dt:  # the process stalled: skip rather than catch up
-            self.get_logger().warn(f"plant {((target - self.grid) * dt):.2f} s behind: skipping ahead",
+        if target - hold.grid > _MAX_BEHIND_S / hold.dt:  # the process stalled: skip rather than catch up
+            self.get_logger().warn(f"plant {((target - hold.grid) * hold.dt):.2f} s behind: skipping ahead",
                                    throttle_duration_sec=1.0)
-            self.grid = target
-        # the first grid point at which the held command is stale
+            hold.grid = target
         timeout = self.params["command_timeout_s"]
-        stale = math.floor((self.command_time + timeout - self.started_at) / dt) + 1 \
-            if math.isfinite(self.command_time) else self.grid
-        while self.grid < target:
-            fresh = self.grid < stale
-            end = min(min(target, stale) if fresh else target, self.grid + _MAX_CHUNK)
-            peak = self._drive(self.voltages if fresh else _ZERO_VOLTS, (end - self.grid) * dt)
-            self.peak_currents = np.maximum(self.peak_currents, peak)
-            self.grid = end
-        if self.grid > stale and self.timed_out_at != self.command_time and math.isfinite(self.command_time):
-            self.timed_out_at = self.command_time
+        if hold.advance(target, timeout, self._drive_for_peak):
             self.counts["command_timeouts"] += 1
             self.get_logger().warn(f"no command for {timeout:g} s: zero volts (drive watchdog; "
                                    f"{self.counts['command_timeouts']} so far)", throttle_duration_sec=1.0)
-        return self.started_at + self.grid * dt
+        return self.started_at + hold.grid * hold.dt
+
+    def _drive_for_peak(self, voltages: np.ndarray, dt: float) -> None:
+        self.peak_currents = np.maximum(self.peak_currents, self._drive(voltages, dt))
 
     def _publish_realtime(self) -> None:
         clock_ns, now = self.get_clock().now().nanoseconds, monotonic()
@@ -387,7 +380,7 @@ class PlantNode(Node):
             self.get_logger().info(f"realtime run over: {self.timing.summary()}; {self.counts['clamped_commands']} "
                                    f"commands clamped, {self.counts['refused_commands']} refused, "
                                    f"{self.counts['command_timeouts']} timed out")
-            simulated = self.grid / self.params["physics_rate_hz"]
+            simulated = self.hold.grid * self.hold.dt
             self._write_report(realtime_report(self.timing, self.ticks, simulated, now - self.started_at,
                                                self.busy_s, **self.counts))
             self.done.set_result(True)

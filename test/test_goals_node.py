@@ -1,9 +1,10 @@
 """Scenario goals over DDS: the real trajectory, controller and plant nodes, goals sent by the test.
 
-The loop runs in lockstep (``GOALS_TEST_MODE=realtime`` in the environment runs it in realtime): on this shared
-2-core machine a realtime plant or trajectory node stalled by the load (75 ms seen at load 13) makes the controller
-extrapolate a stale preview or odometry, and the recovery, not the goal motion, sets the peak current (1.09 A
-seen); lockstep has no such stalls, so the current check judges the motions. The done-when run in realtime is
+The loop runs in lockstep, paced to real time (``GOALS_TEST_MODE=realtime`` in the environment runs it in
+realtime): on this shared 2-core machine a realtime plant or trajectory node stalled by the load (75 ms seen at
+load 13) makes the controller stop the drives on a stale preview or odometry (zero volts: a turning wheel brakes
+with back-EMF / R), and that stop, not the goal motion, sets the peak current (1.09 A seen); lockstep has no
+such stalls, so the current check judges the motions. The done-when run in realtime is
 ``robotino-geom-mpc run --scenario goals --realtime --goals config/goals_example.yaml`` (README, "Goals and
 planner paths").
 
@@ -110,9 +111,12 @@ class GoalRun:
 
 @pytest.fixture(scope="module")
 def goal_run(tmp_path_factory):
-    # the lockstep loop runs on while the tests wait in wall time (6-8x real time): simulated time to spare, the
-    # nodes are stopped when the module's tests end (120 s ran out before the last path on a fast loop)
-    args = node_arguments("goals", default_params_file(), 1000.0, lockstep=MODE == "lockstep")
+    # the lockstep loop at most at real time: unpaced it ran up to 19x, ahead of this harness (which takes a few
+    # hundred ticks a second, fewer beside a busy core) by the DDS histories, some 10000 ticks; a goal sent then
+    # took effect 30-85 s of simulated time ahead of what the test had read, out of reach of its waits.
+    # Simulated time to spare: the nodes are stopped when the module's tests end
+    args = node_arguments("goals", default_params_file(), 1000.0, lockstep=MODE == "lockstep",
+                          overrides={"plant_node": {"lockstep_max_realtime_factor": 1.0}})
     with NodeGroup(log_dir=tmp_path_factory.mktemp("goals")) as group, Harness("goals_test") as h:
         run = GoalRun(h, group)
         for name in ("plant_node", "controller_node", "trajectory_node"):

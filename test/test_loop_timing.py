@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robotino_sim_node.loop_timing import LoopTiming
+from robotino_sim_node.loop_timing import LockstepPace, LoopTiming
 
 
 def test_counts_from_the_first_answered_tick():
@@ -50,3 +50,14 @@ def test_empty_and_bad_settings():
     assert np.isnan(LoopTiming().percentile_s(99))
     with pytest.raises(ValueError):
         LoopTiming(bin_s=0.2, max_s=0.1)
+
+
+def test_lockstep_pace_spaces_ticks_by_the_factor_and_restarts_after_a_stall():
+    pace = LockstepPace(2.0, 0.01)  # a tick every 5 ms at most
+    assert pace.delay(10.0) == 0.0  # the first goes out at once
+    assert pace.delay(10.001) == pytest.approx(0.004)  # its slot: 10.005
+    assert pace.delay(10.0051) == pytest.approx(0.0049)  # answered after its slot: the next is at 10.010
+    assert pace.delay(10.5) == 0.0  # a stall: at once, and the schedule starts again from there (no burst)
+    assert pace.delay(10.5001) == pytest.approx(0.0049)
+    unpaced = LockstepPace(0.0, 0.01)
+    assert [unpaced.delay(t) for t in (1.0, 1.0, 1.0001)] == [0.0, 0.0, 0.0]

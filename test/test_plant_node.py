@@ -152,12 +152,37 @@ def test_ends_after_the_last_tick_cleanly(plant_run):
     ({"odometry_model": "lidar"}, "odometry_model"),
     ({"encoder.counts_per_rev": 0}, "encoder.counts_per_rev"),
     ({"encoder.wheel_slip_std": 1.5}, "encoder.wheel_slip_std"),
+    ({"lockstep_max_realtime_factor": -1.0}, "lockstep_max_realtime_factor"),
 ])
 def test_refuses_to_start_with_a_bad_parameter(override, name):
     proc = subprocess.run([sys.executable, "-m", "robotino_sim_node.plant_node", *ros_args(None, override)],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert name in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_lockstep_max_realtime_factor_caps_the_loop(tmp_path):
+    """At most 0.5 simulated seconds a wall second: tick k + 1 goes out 2 Ts after tick k at the soonest (tick 1
+    at once), so the run's factor over ticks 1 .. n - 1 is at most 0.5 (n - 1) / (n - 2). Unpaced, this loop
+    answered by the harness runs tens of times faster than real time."""
+    _, control = load_params()
+    factor, n, Ts = 0.5, 21, control.period_s
+    report = tmp_path / "timing.json"
+    with NodeGroup(log_dir=tmp_path) as group, Harness("plant_pace_test") as h:
+        stamps = set()
+        h.node.create_subscription(Odometry, "odom", lambda m: stamps.add(stamp_to_ns(m.header.stamp)), PUBLISH_QOS)
+        pub = h.node.create_publisher(Float64MultiArray, "wheel_voltages", PUBLISH_QOS)
+        plant = group.start("plant_node", ros_args(None, {
+            "mode": "lockstep", "duration_s": n * Ts, "lockstep_wait_for": ["odom:1"],
+            "lockstep_max_realtime_factor": factor, "timing_report": str(report)}))
+        for k in range(n):
+            assert h.spin_until(lambda: round(k * Ts * 1e9) in stamps, 10.0), plant.stderr_tail()
+            pub.publish(Float64MultiArray(data=[1.0, 0.0, -1.0]))
+        assert group.wait(plant, 10.0) and plant.popen.returncode == 0, plant.stderr_tail()
+    timing = json.loads(report.read_text())
+    assert timing["ticks"] == n and timing["simulated_s"] == pytest.approx((n - 1) * Ts)
+    print(f"\nlockstep_max_realtime_factor {factor}: the run's factor {timing['realtime_factor']:.3f}")
+    assert timing["realtime_factor"] <= factor * (n - 1) / (n - 2)
 
 
 def test_encoder_odometry_is_published_and_drifts_from_the_ground_truth(tmp_path):

@@ -43,8 +43,9 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "blend_acceleration_radps2", "frame_prefix", "command_interface",
     ),
     "robotino_plant": _ROBOT_CONTROL + (
-        "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s", "lockstep_settle_s",
-        "odometry_noise.position_m", "odometry_noise.yaw_rad", "seed", "timing_report", "lockstep_wait_for",
+        "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s",
+        "lockstep_max_realtime_factor", "lockstep_settle_s", "odometry_noise.position_m", "odometry_noise.yaw_rad",
+        "seed", "timing_report", "lockstep_wait_for",
         "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std",
         "command_interface", "wheel_pi.kp", "wheel_pi.ki", "wheel_pi.rate_hz", "publish_tf", "frame_prefix",
     ),

@@ -4,7 +4,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from robotino_geom_mpc.core.errors import RobotinoError
@@ -41,14 +41,21 @@ def _simulated_growth(robot, control, seed=0):
     z0 = rng.normal(0.0, 1e-3, (3, 3))  # per axis: pos, vel, u(k-1)
     X, u = z0[:, :2].ravel().tolist(), z0[:, 2].tolist()
     Y_d = [[0.0, 0.0, 0.0]] * control.horizon
-    for k in range(1, STEPS + 1):
-        u = [ua + da for ua, da in zip(u, mpc.delta_u_floats(X, u, Y_d))]
-        X = [
+    grown, frozen = GROWN * np.abs(z0).max(), [False] * 3
+    for _ in range(STEPS):
+        u_next = [ua + da for ua, da in zip(u, mpc.delta_u_floats(X, u, Y_d))]
+        X_next = [
             value
-            for ((a00, a01), (a10, a11)), (b0, b1), p, v, ua in zip(*zip(*models), X[0::2], X[1::2], u)
+            for ((a00, a01), (a10, a11)), (b0, b1), p, v, ua in zip(*zip(*models), X[0::2], X[1::2], u_next)
             for value in (a00 * p + a01 * v + b0 * ua, a10 * p + a11 * v + b1 * ua)
         ]
-        if k % 100 == 0 and max(map(abs, X + u)) > GROWN * np.abs(z0).max():
+        # an axis that has grown stays where it is (no overflow); the others run on: the axes are decoupled, and
+        # stopping all at the first to grow cut a stable axis off in its transient (radius 0.973 judged grown)
+        for i in range(3):
+            if not frozen[i]:
+                X[2 * i:2 * i + 2], u[i] = X_next[2 * i:2 * i + 2], u_next[i]
+                frozen[i] = max(abs(X[2 * i]), abs(X[2 * i + 1]), abs(u[i])) > grown
+        if all(frozen):
             break
     z = np.column_stack((np.reshape(X, (3, 2)), u))
     return np.minimum(np.linalg.norm(z, axis=1) / np.linalg.norm(z0, axis=1), GROWN)
@@ -84,6 +91,7 @@ def test_q_x_of_two_is_refused_naming_the_axis_and_the_loop_grows(params):
     horizon=st.integers(1, 12),
     period_s=st.sampled_from([0.005, 0.01, 0.02]),
 )
+@example(log_q=7.15625, log_r=-0.5, horizon=3, period_s=0.005)  # x stable (0.973) beside fast-growing y, theta
 def test_poles_predict_growth_of_the_simulated_loop(params, log_q, log_r, horizon, period_s):
     """The loop grows iff the spectral radius is >= 1 (radius at least 2 % off 1, so 1500 steps decide)."""
     robot, control = params

@@ -39,7 +39,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MISSES_KEPT", "LockstepPace", "LoopTiming", "lockstep_report", "lockstep_line", "realtime_report", "write_report"]
+__all__ = ["MISSES_KEPT", "LockstepPace", "LoopTiming", "lockstep_report", "lockstep_line", "realtime_report",
+           "write_report"]
 
 MISSES_KEPT = 100  # missed ticks whose times the summary names
 

@@ -84,7 +84,8 @@ from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
 from robotino_sim_node.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source
 from robotino_sim_node.lockstep_start import StartHandshake
-from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, lockstep_line, lockstep_report, realtime_report, write_report
+from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, lockstep_line, lockstep_report, realtime_report, \
+    write_report
 from robotino_sim_node.plant import RobotinoPlant
 from robotino_sim_node.wheel_speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
 from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, AppliedVoltages, StateOutputs, odometry_template, \
@@ -115,9 +116,9 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
-    "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0, "odometry_noise.position_m": 0.0,
-    "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "", **ODOMETRY_DEFAULTS, **TF_DEFAULTS,
-    **WHEEL_PI_DEFAULTS,
+    "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0,
+    "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "",
+    **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS,
 }
 
 
@@ -179,10 +180,10 @@ class PlantNode(Node):
         duration = self.params["duration_s"]
         self.last_tick = max(1, int(round(duration / self.control.period_s))) - 1 if duration > 0 else None
         self.busy_s = 0.0  # in the callbacks (lockstep: ticks 1 ..)
-        self.steady = steady = Clock(clock_type=ClockType.STEADY_TIME)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.lockstep:
             self.pace = LockstepPace(self.params["lockstep_max_realtime_factor"], self.control.period_s)
-            self.pace_timer = None  # while the next tick waits for its slot
+            self.pace_timer = self.create_timer(1.0, self._paced_tick, clock=steady, autostart=False)  # per held tick
             self.started = False
             self.wait_s = 0.0  # waiting for commands (ticks 1 ..)
             self.published_at = self.tick_sent_at = monotonic()  # the last (re)send; the tick's first send
@@ -236,7 +237,7 @@ class PlantNode(Node):
 
     def _resend(self) -> None:
         now = monotonic()
-        if self.started and not self.done.done() and self.pace_timer is None \
+        if self.started and not self.done.done() and self.pace_timer.is_canceled() \
                 and now - self.published_at > self.params["lockstep_resend_s"]:
             self.resent += 1
             self.get_logger().warn(
@@ -316,15 +317,14 @@ class PlantNode(Node):
         self.tick += 1
         delay = self.pace.delay(monotonic())
         if delay > 0.0:
-            self.pace_timer = self.create_timer(delay, self._paced_tick, clock=self.steady)
+            self.pace_timer.timer_period_ns = max(1, int(delay * 1e9))
+            self.pace_timer.reset()
         else:
             self._publish_tick(fresh=True)
         self.busy_s += monotonic() - begin
 
-    def _paced_tick(self) -> None:
-        """The tick `lockstep_max_realtime_factor` held back, at its slot."""
-        self.destroy_timer(self.pace_timer)
-        self.pace_timer = None
+    def _paced_tick(self) -> None:  # the tick `lockstep_max_realtime_factor` held back, at its slot
+        self.pace_timer.cancel()
         self._publish_tick(fresh=True)
 
     def _clamp(self, values: tuple[float, ...]) -> tuple[float, ...]:

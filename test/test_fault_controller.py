@@ -227,19 +227,19 @@ def _kill_and_restart(h, tmp_path, ns, victim):
         T = float(kv["blend_remaining_s"])
         if not h.spin_until(lambda: settled(t0, T), 60.0):
             exits = {name: n.popen.poll() for name, n in [*nodes.items(), ("restarted", restarted)]}
-            raise AssertionError(f"tracking stopped (t0 {t0} ns, T {T} s, exit codes {exits}): {_status_runs(diagnostics)}"
-                                 f"\n{nodes['controller_node'].stderr_tail()}\n{restarted.stderr_tail()}")
+            raise AssertionError(f"tracking stopped (t0 {t0} ns, T {T} s, exit codes {exits}): "
+                                 f"{_status_runs(diagnostics)}\n{nodes['controller_node'].stderr_tail()}\n"
+                                 f"{restarted.stderr_tail()}")
         assert all(n.popen.poll() is None for n in [*nodes.values(), restarted] if n is not nodes[victim])
     plant_log = nodes["plant_node"].stderr_tail(200)  # complete: the group has stopped the nodes
     zero = [stamp_to_ns(j.header.stamp) for j in joints if stamp_to_ns(j.header.stamp) > kill_ns
             and np.abs(_implied_voltages(j, robot)).max() < 0.5]
-    episodes = _fail_safe_episodes([s for s in parse() if s[0] > t0], control.period_s, command_timeout_s)
+    episodes = _fail_safe_episodes([s for s in parse() if s[0] >= t0], control.period_s, command_timeout_s)
     errors = [(stamp, math.hypot(float(kv["error_x_m"]), float(kv["error_y_m"]))) for stamp, kv in tracking(t0)]
     after = [j for j in joints if stamp_to_ns(j.header.stamp) > restart_ns]
     return dict(robot=robot, period_s=control.period_s, kill_to_zero_s=(zero[0] - kill_ns) * 1e-9 if zero else None,
                 T=T, t0=t0, peak_after=max(np.abs(c.data).max() for c in currents[current_start:]),
-                joints_after=after, episodes=episodes, plant_log=plant_log, errors=errors, engagement=kv["blend_engagements"],
-                currents=currents[current_start:])
+                joints_after=after, episodes=episodes, plant_log=plant_log, errors=errors)
 
 
 def _within(stamp, episodes, after_s):
@@ -262,8 +262,9 @@ def test_a_node_killed_and_restarted_mid_circle_restarts_bumplessly(harness, tmp
                  and not any(start <= stamp <= end + (blend + 2.0) * 1e9 for start, end, blend in episodes)]
     print(f"\n{victim} SIGKILLed: zero volts at the plant {out['kill_to_zero_s']} s after the kill; after the restart "
           f"a blend of {out['T']:.2f} s, peak current {out['peak_after']:.3f} A ({max(commanded):.3f} A at the ticks "
-          f"the controller commanded), error {out['errors'][0][1] * 1e3:.1f} mm -> {max(converged, default=math.nan) * 1e3:.3f} mm "
-          f"from T + 2 s on; fail-safe stops since {[((s - out['t0']) * 1e-9, (e - s) * 1e-9) for s, e, _ in episodes]}"
+          f"the controller commanded), error {out['errors'][0][1] * 1e3:.1f} mm -> "
+          f"{max(converged, default=math.nan) * 1e3:.3f} mm from T + 2 s on; fail-safe stops (s after the restart, "
+          f"s long) {[((s - out['t0']) * 1e-9, (e - s) * 1e-9) for s, e, _ in episodes]}"
           f" (braking bound {braking:.3f} A)")
     assert max(commanded) <= robot.nominal_current_a
     # the period peaks: within the nominal current unless a fail-safe stop braked the wheels

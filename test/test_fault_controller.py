@@ -180,6 +180,16 @@ def _fail_safe_episodes(statuses: list, period_s: float, command_timeout_s: floa
             for (s0, m0, _), (s1, m1, kv1) in itertools.pairwise(statuses) if m0 != "tracking" or s1 - s0 > gap_ns]
 
 
+def _within(stamp, windows):
+    """Whether `stamp` [ns] falls in one of the (start, end) `windows` [ns]."""
+    return any(start <= stamp <= end for start, end in windows)
+
+
+def _reblends(episodes):
+    """(start, end) of each fail-safe stop until 2 s after its restart blend [ns]."""
+    return [(start, end + (blend + 2.0) * 1e9) for start, end, blend in episodes]
+
+
 def _kill_and_restart(h, tmp_path, ns, victim):
     """Plant, trajectory and controller in realtime on paper-circle; `victim` SIGKILLed after 5 s of tracking,
     restarted 1 s later. Returns what the test checks."""
@@ -206,9 +216,8 @@ def _kill_and_restart(h, tmp_path, ns, victim):
     def settled(t0, T):
         """Tracking 3 s past the blend and 2 s past the restart blend of any later fail-safe stop."""
         after = [s for s in parse() if s[0] >= t0]
-        due = max([t0 + (T + 3.0) * 1e9] + [end + (blend + 2.0) * 1e9 for _, end, blend in
-                                             _fail_safe_episodes(after, control.period_s, command_timeout_s)])
-        return after[-1][0] > due
+        reblends = _reblends(_fail_safe_episodes(after, control.period_s, command_timeout_s))
+        return after[-1][0] > max([t0 + (T + 3.0) * 1e9] + [end for _, end in reblends])
 
     with NodeGroup(log_dir=tmp_path / "first") as group, NodeGroup(log_dir=tmp_path / "second") as second:
         nodes = {name: group.start(name, a) for name, a in args.items()}
@@ -242,11 +251,6 @@ def _kill_and_restart(h, tmp_path, ns, victim):
                 joints_after=after, episodes=episodes, plant_log=plant_log, errors=errors)
 
 
-def _within(stamp, episodes, after_s):
-    """Whether `stamp` [ns] falls in an episode or less than `after_s` after its end."""
-    return any(start <= stamp <= end + after_s * 1e9 for start, end, *_ in episodes)
-
-
 @pytest.mark.parametrize("victim", ["controller_node", "trajectory_node"])
 def test_a_node_killed_and_restarted_mid_circle_restarts_bumplessly(harness, tmp_path_factory, victim):
     """The limit holds while the controller commands. A late input on a loaded host (0.1 s) stops the drives
@@ -255,11 +259,12 @@ def test_a_node_killed_and_restarted_mid_circle_restarts_bumplessly(harness, tmp
     out = _kill_and_restart(harness, tmp_path_factory.mktemp("kill"), f"kill_{victim.split('_')[0]}", victim)
     robot, episodes = out["robot"], out["episodes"]
     gear_km = robot.gear_ratio * robot.torque_constant_n_m_per_a
+    stops = [(start, end + 2 * out["period_s"] * 1e9) for start, end, _ in episodes]
     commanded = [np.abs(j.effort).max() / gear_km for j in out["joints_after"]
-                 if not _within(stamp_to_ns(j.header.stamp), episodes, 2 * out["period_s"])]
+                 if not _within(stamp_to_ns(j.header.stamp), stops)]
     braking = gear_km * max(np.abs(j.velocity).max() for j in out["joints_after"]) / robot.resistance_ohm
     converged = [e for stamp, e in out["errors"] if stamp > out["t0"] + (out["T"] + 2.0) * 1e9
-                 and not any(start <= stamp <= end + (blend + 2.0) * 1e9 for start, end, blend in episodes)]
+                 and not _within(stamp, _reblends(episodes))]
     print(f"\n{victim} SIGKILLed: zero volts at the plant {out['kill_to_zero_s']} s after the kill; after the restart "
           f"a blend of {out['T']:.2f} s, peak current {out['peak_after']:.3f} A ({max(commanded):.3f} A at the ticks "
           f"the controller commanded), error {out['errors'][0][1] * 1e3:.1f} mm -> "

@@ -173,11 +173,13 @@ def _status_runs(diagnostics: list) -> str:
 
 def _fail_safe_episodes(statuses: list, period_s: float, command_timeout_s: float) -> list:
     """(start, end, blend_s) of each stretch of zero volts in `statuses` ((stamp, message, values) of the
-    controller's diagnostics, in order): a watchdog status until the next tracking answer, or a gap in the answers
-    longer than the plant's command timeout (its drive watchdog); `blend_s` is the restart blend after it."""
+    controller's diagnostics, in order): a zero-volt status (watchdog, refused input, disabled) until the next
+    answer, or a gap in the answers longer than the plant's command timeout (its drive watchdog); `blend_s` is the
+    restart blend after it. A dropped input (stamped as that input, no answer) is neither."""
     gap_ns = (command_timeout_s - period_s) * 1e9
+    answers = [status for status in statuses if not status[1].startswith("dropped")]
     return [(s0, s1, float(kv1["blend_remaining_s"]) if m1 == "tracking" else 0.0)
-            for (s0, m0, _), (s1, m1, kv1) in itertools.pairwise(statuses) if m0 != "tracking" or s1 - s0 > gap_ns]
+            for (s0, m0, _), (s1, m1, kv1) in itertools.pairwise(answers) if m0 != "tracking" or s1 - s0 > gap_ns]
 
 
 def _within(stamp, windows):

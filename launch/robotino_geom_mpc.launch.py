@@ -95,14 +95,15 @@ def _has_robot_state_publisher() -> bool:
     return True
 
 
-def _description(plant_params: str, prefix: str, **common) -> Node:
-    """The robot description publisher: robot_state_publisher if installed, else the package's own."""
+def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
+    """The robot description publisher: robot_state_publisher if installed, else the package's own (with `mode`:
+    lockstep makes its joint_states and /tf keep-all; robot_state_publisher's stay keep-last)."""
     if _has_robot_state_publisher():
         robot, _ = load_params(plant_params)
         return Node(package="robot_state_publisher", executable="robot_state_publisher",
                     parameters=[{"robot_description": robotino_urdf(robot), "frame_prefix": prefix}], **common)
     return Node(package=PACKAGE, executable="robot_description_publisher",
-                parameters=[plant_params, {"frame_prefix": prefix}], **common)
+                parameters=[plant_params, {"frame_prefix": prefix, "mode": mode}], **common)
 
 
 def _nodes(context) -> list:
@@ -144,7 +145,7 @@ def _nodes(context) -> list:
              **common),
         Node(package=PACKAGE, executable="plant_node", name="robotino_plant",
              parameters=[config["plant_params"], plant], **common),
-        _description(config["plant_params"], prefix, **common),
+        _description(config["plant_params"], prefix, mode, **common),
     ]
     if record:
         nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",

@@ -143,6 +143,7 @@ def test_each_node_gets_its_scenarios_parameters(description, scenario):
     for name, node_overrides in by_node.items():
         assert node_overrides["mode"] == "lockstep"
         assert {k: v for k, v in node_overrides.items() if k in want[name]} == want[name]
+    assert nodes[DESCRIPTION].kwargs["parameters"][1]["mode"] == "lockstep"  # its joint_states and /tf keep-all
     assert {k: v for k, v in by_node["trajectory_node"].items() if k != "frame_prefix"} == \
         {"scenario": scenario, "mode": "lockstep"}
     plant = by_node["plant_node"]
@@ -240,13 +241,15 @@ def test_namespace_moves_every_node_as_run_does(description, lockstep):
         got = _overrides(nodes[name]).get("frame_prefix")
         assert got == _ros_args_parameter(args[name], "frame_prefix") == ("robot1/" if name in FRAME_PREFIX_NODES else None), name
     files, description_overrides = nodes[DESCRIPTION].kwargs["parameters"]
-    assert files == PARAMS and description_overrides == {"frame_prefix": "robot1/"}
+    mode = "lockstep" if lockstep == "true" else "realtime"
+    assert files == PARAMS and description_overrides == {"frame_prefix": "robot1/", "mode": mode}
+    assert _ros_args_parameter(args[DESCRIPTION], "mode") == mode  # as `run` gives it
 
 
 def test_an_explicit_frame_prefix_wins(description):
     nodes, _ = _launch(description, namespace="robot1", frame_prefix="left/")
     assert _overrides(nodes["plant_node"])["frame_prefix"] == "left/"
-    assert nodes[DESCRIPTION].kwargs["parameters"][1] == {"frame_prefix": "left/"}
+    assert nodes[DESCRIPTION].kwargs["parameters"][1] == {"frame_prefix": "left/", "mode": "realtime"}
     none, _ = _launch(description, namespace="robot1", frame_prefix="")
     assert _overrides(none["plant_node"])["frame_prefix"] == ""
 

@@ -8,6 +8,8 @@ mcap-ros2-support reading a ``run`` bag.
 
 import glob
 import math
+import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -24,7 +26,7 @@ from harness import Harness
 from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.ros.messages import stamp_to_ns
 from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
-from robotino_geom_mpc.ros.qos import PUBLISH_QOS
+from robotino_geom_mpc.ros.qos import LOCKSTEP_PUBLISH_QOS, PUBLISH_QOS
 
 tf2_msgs = pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs not installed ('make setup' builds it)")
 
@@ -212,3 +214,34 @@ def test_wheel_tf_of_other_joint_state_layouts(tmp_path):
             np.testing.assert_allclose([tr.x, tr.y, tr.z], [l * math.cos(beta), l * math.sin(beta), r], atol=1e-12)
             expected = Rotation.from_euler("z", beta) * Rotation.from_rotvec([-position, 0.0, 0.0])
             assert abs(abs(np.dot([q.x, q.y, q.z, q.w], expected.as_quat())) - 1.0) < 1e-12
+
+
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_stalled_description_publisher_loses_no_wheel_tf_in_lockstep(tmp_path, mode):
+    """The publisher stopped (SIGSTOP) while BURST joint_states are sent, then resumed: in lockstep its keep-all
+    reader and /tf writer turn every one into /tf, in order; in realtime its keep-last 100 reader cannot hold
+    the burst DDS delivers at once on resume, so some are lost (what a `run` bag lost under a busy core)."""
+    burst = 1000
+    with NodeGroup(log_dir=tmp_path) as group, Harness(f"tf_stall_{mode}") as h:
+        tf = h.collect("/tf", tf2_msgs.TFMessage, LOCKSTEP_PUBLISH_QOS)
+        pub = h.node.create_publisher(JointState, "joint_states", LOCKSTEP_PUBLISH_QOS)
+        node = group.start("robot_description_publisher", ros_args(None, {"mode": mode}))
+        assert h.spin_until(lambda: pub.get_subscription_count() > 0 and h.node.count_publishers("/tf") > 0,
+                            30.0), node.stderr_tail()
+        h.spin_for(1.0)  # the /tf reader matched on both sides
+        names = ["wheel0_joint", "wheel1_joint", "wheel2_joint"]
+        os.kill(node.popen.pid, signal.SIGSTOP)
+        try:
+            for k in range(burst):
+                msg = JointState(name=names, position=[0.001 * k] * 3, velocity=[0.0] * 3, effort=[0.0] * 3)
+                msg.header.stamp.sec = k + 1
+                pub.publish(msg)
+        finally:
+            os.kill(node.popen.pid, signal.SIGCONT)
+        h.spin_until(lambda: tf and tf[-1].transforms[0].header.stamp.sec == burst, 20.0)  # the last one
+        h.spin_for(0.5)  # anything after it would show
+    stamps = [m.transforms[0].header.stamp.sec for m in tf]
+    if mode == "lockstep":
+        assert stamps == list(range(1, burst + 1)), node.stderr_tail()
+    else:
+        assert len(stamps) < burst and stamps == sorted(stamps) and stamps[-1] == burst

@@ -59,7 +59,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",
         "scenario",
     ),
-    "robot_description_publisher": _ROBOT_CONTROL + ("frame_prefix",),
+    "robot_description_publisher": _ROBOT_CONTROL + ("frame_prefix", "mode"),
     "robotino_goal_sender": ("goals_file", "mode"),
 }
 """The parameters each node of the package declares (besides rclpy's), by node name; a test compares them

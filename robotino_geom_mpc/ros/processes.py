@@ -126,7 +126,7 @@ def node_arguments(
     `LOCKSTEP_WAIT_FOR`, or `recorder_wait_for(command_interface)` with a recorder);
     `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`)
     and gives the nodes of `FRAME_PREFIX_NODES` its `frame_prefix`.
-    A ``robot_description_publisher`` publishes the URDF and the wheels' TF. `command_interface`
+    A ``robot_description_publisher`` publishes the URDF and the wheels' TF (lossless in lockstep, its ``mode``). `command_interface`
     cmd_vel goes to the controller and the plant (voltages, their default, is left to them).
     With `goals_file` (scenario ``goals``) a ``goal_sender`` sends the file's
     goals and paths; a lockstep plant waits for its odom subscription too, so its times count from tick 0.
@@ -178,7 +178,7 @@ def node_arguments(
     }, remaps)
     # the URDF on robot_description and the wheels' TF, from the same robot parameters as the plant
     args["robot_description_publisher"] = ros_args(params_file, {
-        **({"frame_prefix": frame_prefix(namespace)} if namespace else {}),
+        "mode": mode, **({"frame_prefix": frame_prefix(namespace)} if namespace else {}),
         **extra.get("robot_description_publisher", {})}, remaps)
     if goals_file is not None:
         args["goal_sender"] = ros_args(None, {"goals_file": str(goals_file), "mode": mode}, remaps)

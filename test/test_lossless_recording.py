@@ -1,6 +1,7 @@
 """A recorded lockstep run loses nothing while a CPU-bound process holds one core: one message per tick per topic.
 
-The run is `robotino-geom-mpc run` itself (recorder, trajectory, controller, plant as processes); the bag is
+The run is `robotino-geom-mpc run` itself (recorder, trajectory, controller, plant, description publisher as
+processes, tick 0 one announcement period after the recorder's subscriptions show: `PROFILE_SETTLE_S`); the bag is
 counted with `mcap`'s own reader, independent of the package's bag code.
 """
 
@@ -17,7 +18,8 @@ from robotino_geom_mpc.core.params import load_params
 
 DURATION_S = 5.0
 LOOP_TOPICS = ("/odom", "/clock", "/ground_truth/odom", "/wheel_currents", "/joint_states", "/reference_preview",
-               "/wheel_voltages", "/diagnostics")
+               "/wheel_voltages", "/diagnostics", "/tf")
+PER_TICK = {"/tf": 2}  # odom -> base_link (the plant) and the wheels (the description publisher)
 
 
 def _busy() -> None:
@@ -56,4 +58,4 @@ def counts(tmp_path_factory):
 def test_every_tick_is_recorded(counts, topic):
     ticks = round(DURATION_S / load_params()[1].period_s)
     # the trajectory's previews run one tick ahead: ticks 0 .. n, n + 1 of them
-    assert counts[topic] == ticks + (topic == "/reference_preview"), dict(counts)
+    assert counts[topic] == PER_TICK.get(topic, 1) * ticks + (topic == "/reference_preview"), dict(counts)

@@ -48,10 +48,11 @@ def recorder_wait_for(command_interface: str = "voltages") -> list[str]:
 
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/: the nodes' profile on one host (`dds_environment`)
-# the lockstep plant's ``lockstep_settle_s`` when the nodes get that profile (`dds_environment`): 4 of its 0.1 s
-# participant announcement periods, the longest two nodes' endpoints stay unmatched after the graph shows them
-# (the plant's default, 1 s, is for any DDS setup)
-PROFILE_SETTLE_S = 0.4
+# the lockstep plant's ``lockstep_settle_s`` when the nodes get that profile (`dds_environment`): one of its 0.1 s
+# participant announcement periods, in which an announcement lost at the start is repeated (the plant's default,
+# 1 s, is for any DDS setup). It was 0.4 s; with a settle of 1 ms, 21 runs (15 beside a busy core) each recorded
+# every message of every loop topic from tick 0 (test_lossless_recording counts a run's bag)
+PROFILE_SETTLE_S = 0.1
 
 # the nodes that declare ``frame_prefix`` (their frame ids: odometry, /tf, paths)
 FRAME_PREFIX_NODES = ("plant_node", "controller_node", "trajectory_node", "robot_description_publisher")

@@ -5,11 +5,12 @@ import math
 import os
 import subprocess
 import sys
+import time
 
 import pytest
 import yaml
 
-from robotino_geom_mpc.ros.processes import node_arguments
+from robotino_geom_mpc.ros.processes import node_arguments, wait_for_exit
 from robotino_geom_mpc.core.params import default_params_file, load_params
 from robotino_geom_mpc.results import compute_metrics
 from robotino_geom_mpc.simulation import run_scenario
@@ -75,6 +76,25 @@ def test_a_failing_node_is_named_and_nothing_is_left_running(tmp_path):
     assert proc.returncode == 1
     assert "controller_node exited with status 2" in proc.stderr and "mode" in proc.stderr
     assert _no_node_left(out)
+
+
+def test_wait_for_exit_wakes_at_an_exit_and_else_at_its_timeout():
+    """`wait_for_exit` (the run's waits for its nodes) returns when one of the processes ends, not at the end of
+    its 60 s timeout (woken, not timed out: well under half of it), and with none ending after its timeout."""
+    quick = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(0.3)"])
+    slow = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    try:
+        start = time.monotonic()
+        wait_for_exit([slow, quick], 60.0)
+        woken_after = time.monotonic() - start
+        assert quick.poll() == 0 and slow.poll() is None and woken_after < 30.0
+        start = time.monotonic()
+        wait_for_exit([slow, quick], 0.2)  # the quick one is reaped: only the slow one is waited for
+        assert slow.poll() is None and time.monotonic() - start >= 0.2
+    finally:
+        slow.kill()
+        slow.wait()
+        quick.wait()
 
 
 def test_each_node_gets_its_scenarios_overrides():

@@ -6,9 +6,11 @@ as separate processes (``python -m MODULE --ros-args ...``, each in its own
 process group, output in DIR/logs/), waits for the
 plant to end the run (it knows the duration), stops every node (SIGINT, then
 SIGTERM and SIGKILL after a grace period; also on Ctrl-C or when a node
-fails, which is reported with its stderr tail and exit status 1), and writes
-DIR/metrics.json and the figures from the recording (DIR/bag) through
-`recording.report.report_bag`, the code behind ``report``.
+fails, which is reported with its stderr tail and exit status 1): the loop's
+other nodes first, the recorder once they are gone; and writes DIR/metrics.json
+and the figures from the recording (DIR/bag) through
+`recording.report.report_bag`, the code behind ``report``, as soon as the
+recorder has closed the bag (while its process exits).
 
 In ``--lockstep`` (the default) the plant owns /clock and waits, before tick
 0, for every subscription of the loop and of the recorder, so the recording
@@ -32,10 +34,14 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
 from .simulate import add_command_interface_argument, add_odometry_argument, add_scenario_argument
+
+if TYPE_CHECKING:
+    from ..ros.processes import NodeGroup, NodeProcess
 
 __all__ = ["add_parser", "run"]
 
@@ -43,10 +49,11 @@ GRACE_S = 5.0
 # the recorder's: its drain limit (recorder_node.DRAIN_LIMIT_S, 60 s: a recorder behind the loop drains at stop)
 # and the bag's close, before SIGTERM (then SIGKILL, which would lose the bag's summary)
 RECORDER_GRACE_S = 70.0
+BAG_CLOSE_POLL_S = 0.005  # how often the stop looks for the recorder's closed bag
 TIMING_REPORT = "plant_timing.json"  # in DIR/logs: the plant's timing report (loop_timing), e.g. for bench
 # imported in a thread while the nodes start and run (the cores idle during discovery and the settle)
 REPORT_MODULES = ("robotino_geom_mpc.recording.bag", "robotino_geom_mpc.recording.report",
-                  "robotino_geom_mpc.cli.reindex")
+                  "robotino_geom_mpc.cli.reindex", "rosbags.typesys.stores.ros2_jazzy")  # the last: the bag's types
 GOALS_SETTLE_S = 3.0  # --goals: the run goes on this long after the last motion ends (the loop settles)
 REALTIME_START_S = 2.0  # realtime: the reference starts this much after the first odometry (start_settle_s + discovery)
 
@@ -106,6 +113,29 @@ def _import_in_background(modules: tuple[str, ...]) -> threading.Thread:
     thread = threading.Thread(target=load, name="report-imports", daemon=True)
     thread.start()
     return thread
+
+
+def _stopped_cleanly(group: NodeGroup, node: NodeProcess, grace_s: float) -> None:
+    """Stop `node` (`NodeGroup.stop_node`); `NodeFailed` unless it exits with 0 (or by SIGINT)."""
+    from ..ros.processes import NodeFailed
+
+    if group.stop_node(node, grace_s) not in (0, -signal.SIGINT):
+        raise NodeFailed(f"{node.name} did not stop cleanly:\n{node.stderr_tail()}")
+
+
+def _close_recording(group: NodeGroup, recorder: NodeProcess, bag: Path) -> None:
+    """SIGINT the recorder and wait until its bag is closed: metadata.yaml, the last file `BagWriter.close`
+    writes, is there, or the recorder exits (its status is checked then). A recorder that closed its bag still
+    exits (Fast DDS alone sleeps 0.1 s in its participant factory's destructor) while the report reads the bag;
+    `run` checks its status after the report."""
+    from ..ros.processes import wait_for_exit
+
+    recorder.popen.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + RECORDER_GRACE_S
+    while recorder.popen.poll() is None and not (bag / "metadata.yaml").exists() and time.monotonic() < deadline:
+        wait_for_exit([recorder.popen], BAG_CLOSE_POLL_S)
+    if recorder.popen.poll() is not None or not (bag / "metadata.yaml").exists():
+        _stopped_cleanly(group, recorder, GRACE_S)  # its status now; a recorder that hangs gets SIGTERM, SIGKILL
 
 
 def _goals_duration(args: argparse.Namespace, params_file: Path) -> float:
@@ -169,33 +199,34 @@ def run(args: argparse.Namespace) -> int:
         others = [name for name in nodes if name not in ("plant_node", "recorder_node")]
         for name in others:
             nodes[name].popen.send_signal(signal.SIGINT)  # all at once; `stop_node` escalates per node
-        for name in [*others, "recorder_node"]:
-            grace = RECORDER_GRACE_S if name == "recorder_node" else GRACE_S
-            if name in nodes and group.stop_node(nodes[name], grace) not in (0, -signal.SIGINT):
-                raise NodeFailed(f"{name} did not stop cleanly:\n{nodes[name].stderr_tail()}")
+        for name in others:
+            _stopped_cleanly(group, nodes[name], GRACE_S)
+        if bag is not None:
+            _close_recording(group, nodes["recorder_node"], bag)
+        stopped = time.monotonic()
+        print(f"  {duration:g} s run in {stopped - start:.1f} s wall: {ended - start:.1f} s until the plant ended "
+              f"(startup, discovery, the loop), {stopped - ended:.1f} s to stop the nodes and close the recording")
+        if bag is None:
+            print("  not recorded (--no-record): no metrics or figures")
+            return 0
+        from ..recording.bag import BagError, BagReader, damage_report
+        from ..recording.report import report_bag
+        from .reindex import warn_damage
+
+        try:
+            reader = BagReader(bag)
+            warn_damage("run", damage_report(reader))
+            metrics = report_bag(reader, out, params_file)
+        except BagError as exc:
+            print(f"robotino-geom-mpc run: error: {exc}", file=sys.stderr)
+            return 1
+        _stopped_cleanly(group, nodes["recorder_node"], RECORDER_GRACE_S)  # it exits while the report runs
     except NodeFailed as exc:
         print(f"robotino-geom-mpc run: error: {exc}", file=sys.stderr)
         return 1
     finally:
         group.stop(GRACE_S)
         signal.signal(signal.SIGTERM, previous)
-    stopped = time.monotonic()
-    print(f"  {duration:g} s run in {stopped - start:.1f} s wall: {ended - start:.1f} s until the plant ended "
-          f"(startup, discovery, the loop), {stopped - ended:.1f} s to stop the nodes and close the recording")
-    if bag is None:
-        print("  not recorded (--no-record): no metrics or figures")
-        return 0
-    from ..recording.bag import BagError, BagReader, damage_report
-    from ..recording.report import report_bag
-    from .reindex import warn_damage
-
-    try:
-        reader = BagReader(bag)
-        warn_damage("run", damage_report(reader))
-        metrics = report_bag(reader, out, params_file)
-    except BagError as exc:
-        print(f"robotino-geom-mpc run: error: {exc}", file=sys.stderr)
-        return 1
     print(f"  position error after settle: rms {metrics['rms_position_error_m']:.3g} m, "
           f"max {metrics['max_position_error_m']:.3g} m; peak current {metrics['peak_current_a']:.3g} A, "
           f"peak voltage {metrics['peak_voltage_v']:.3g} V")

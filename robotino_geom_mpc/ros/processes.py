@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -23,6 +24,7 @@ from typing import Any
 
 __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR",
            "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment",
+           "wait_for_exit",
            "frame_prefix", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.core.errors import RobotinoError
@@ -229,6 +231,23 @@ def ros_args(params_file: str | os.PathLike | None = None, overrides: dict[str, 
     return args
 
 
+def wait_for_exit(popens: list[subprocess.Popen], timeout_s: float) -> None:
+    """Block until one of `popens` exits or `timeout_s` passes (Linux: on pidfds, woken at the exit itself;
+    elsewhere a 20 ms poll). Reaps nothing: `Popen.poll` then tells which one ended."""
+    running = [p for p in popens if p.poll() is None]
+    if not running or timeout_s <= 0.0:
+        return
+    if not hasattr(os, "pidfd_open"):
+        time.sleep(min(timeout_s, 0.02))
+        return
+    fds = [os.pidfd_open(p.pid) for p in running]  # not reaped yet: the pids are still these processes'
+    try:
+        select.select(fds, [], [], timeout_s)
+    finally:
+        for fd in fds:
+            os.close(fd)
+
+
 @dataclass
 class NodeProcess:
     """One running node: its name, the Popen, and the files holding its output."""
@@ -310,16 +329,17 @@ class NodeGroup:
             if code not in (None, 0):
                 raise NodeFailed(f"{node.name} exited with status {code}:\n{node.stderr_tail()}")
 
-    def wait(self, node: NodeProcess, timeout_s: float | None = None, poll_s: float = 0.05) -> bool:
+    def wait(self, node: NodeProcess, timeout_s: float | None = None) -> bool:
         """Wait until `node` exits (True) or `timeout_s` passes (False); raise `NodeFailed` if any node fails."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             self.check()
             if node.popen.poll() is not None:
                 return True
-            if deadline is not None and time.monotonic() > deadline:
+            left = 1.0 if deadline is None else deadline - time.monotonic()
+            if left <= 0.0:
                 return False
-            time.sleep(poll_s)
+            wait_for_exit([n.popen for n in self.nodes], min(left, 1.0))
 
     def stop(self, grace_s: float = 5.0) -> None:
         """SIGINT every running node, then SIGTERM, then SIGKILL, each after `grace_s`; reap all."""
@@ -334,7 +354,7 @@ class NodeGroup:
                     pass
             deadline = time.monotonic() + grace_s
             while time.monotonic() < deadline and any(n.popen.poll() is None for n in running):
-                time.sleep(0.02)
+                wait_for_exit([n.popen for n in running if n.popen.poll() is None], deadline - time.monotonic())
         for node in self.nodes:
             if node.popen.poll() is None:
                 node.popen.wait()
@@ -348,10 +368,7 @@ class NodeGroup:
                 os.killpg(node.popen.pid, sig)
             except ProcessLookupError:
                 pass
-            try:
-                node.popen.wait(timeout=grace_s)
-            except subprocess.TimeoutExpired:
-                continue
+            wait_for_exit([node.popen], grace_s)
         return node.popen.wait()
 
     def __enter__(self) -> NodeGroup:

@@ -50,7 +50,7 @@ from .warm_qp import WarmDaqp
 __all__ = ["ConstrainedMPC"]
 
 _VIOLATION_TOL = 1e-6  # relative to the limit: larger slack means infeasible
-_max = np.maximum.reduce  # ndarray.max without its Python wrapper
+_min = np.minimum.reduce  # ndarray.min without its Python wrapper
 _ONE = np.ones(1)  # the constant entry of the parameter vector
 
 
@@ -141,7 +141,9 @@ class ConstrainedMPC:
         A = A[order]  # the angles of the factors
         # one product for the factors' angles, the extended signals at the closed form z* = K p, and z*
         self._closed_form_map = np.concatenate((A, F_ext + Fz_ext @ K, K))
-        self._B_both = np.concatenate((B_ext, -B_ext))  # max over both signs in one call
+        # the rows' margins 1 - rows and 1 + rows (all >= 0: the limits hold) in one product, the constant last
+        ones = np.ones((len(B_ext), 1))
+        self._B_margins = np.block([[-B_ext, ones], [B_ext, ones]])
         self._screen = LimitScreen(mpc, A, F_ext + Fz_ext @ K, B_ext, n_sig, self._n_rate)
         # G = B_ext diag(factors) Fz_ext = sum over the distinct factors (4N + 1 cos, 2N theta' cos) of
         # the factor times a fixed matrix: rows of equal angle (and theta' or not) share a factor
@@ -204,17 +206,15 @@ class ConstrainedMPC:
         self._map_out = np.empty(len(self._closed_form_map))
         self._angles, self._signals_z = self._map_out[:n_sig], self._map_out[n_sig : n_sig + n_ext]
         self._z_star = self._map_out[n_sig + n_ext :]
-        self._ext_factors, self._ext_product = np.empty(n_ext), np.empty(n_ext)
+        self._ext_factors, self._ext_product_one = np.empty(n_ext), np.ones(n_ext + 1)
+        self._ext_product = self._ext_product_one[:n_ext]  # its last entry stays 1: the margins' constant
         self._factors = self._ext_factors[:n_sig]  # cos of the angles
         self._rate_factors = self._ext_factors[n_sig - self._n_rate : n_sig]
         self._theta_factors = self._ext_factors[n_sig:]  # theta' times the rate rows' factors
-        self._rows_both = np.empty(2 * m)
-        self._rows = self._rows_both[:m]  # at z*
         self._distinct_factors, self._G_flat = np.empty(len(self._distinct)), np.zeros(m * nz)
         self._G = self._G_flat.reshape(m, nz)
-        self._bounds = np.empty((2, m))
-        self._upper, self._lower = self._bounds  # 1 - rows, -1 - rows: (1, -1) + (-rows) in one call
-        self._negative_rows, self._plus_minus_one = self._rows_both[m:].reshape(1, m), np.array([[1.0], [-1.0]])
+        self._margins = np.empty(2 * m)  # 1 - rows, 1 + rows (rows at z*)
+        self._upper, self._lower = self._margins[:m], np.empty(m)  # the QP's bounds: 1 - rows, -1 - rows
 
     def reset(self) -> None:
         """Drop the warm start (the last active set) and the screen's reference."""
@@ -231,15 +231,23 @@ class ConstrainedMPC:
 
         Five calls on fixed buffers: the factors' angles and the extended
         signals at z* = K p in one product; the cos of the angles; theta' times
-        the rate rows' factors; their products with the signals; the rows of
-        both signs (B_ext and -B_ext); then their largest.
+        the rate rows' factors; their products with the signals; the rows'
+        margins 1 - rows and 1 + rows; then whether the least is >= 0.
         """
         np.dot(self._closed_form_map, self._p, self._map_out)
         np.cos(self._angles, out=self._factors)
         np.multiply(self._rate_factors, w, out=self._theta_factors)
         np.multiply(self._ext_factors, self._signals_z, out=self._ext_product)
-        np.dot(self._B_both, self._ext_product, self._rows_both)
-        return bool(_max(self._rows_both) <= 1.0)
+        np.dot(self._B_margins, self._ext_product_one, self._margins)
+        return bool(_min(self._margins) >= 0.0)
+
+    def _rows(self) -> np.ndarray:
+        """The scaled rows at z* of the last check (from its margins)."""
+        return 1.0 - self._upper
+
+    def _rows_max(self) -> float:
+        """max |rows| at z* of the last check."""
+        return 1.0 - float(_min(self._margins))
 
     def _constraint_matrix(self) -> None:
         """G for the factors in the buffers (`_closed_form_check` first): the distinct factors times one matrix."""
@@ -249,7 +257,7 @@ class ConstrainedMPC:
     def closed_form_rows(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray) -> np.ndarray:
         """The scaled constraint rows (9N,) at the closed form (56); feasible iff all lie in [-1, 1]."""
         self._closed_form_check(X, u_prev, Y_d, i_start)
-        return self._rows.copy()
+        return self._rows()
 
     def constraint_rows(
         self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray, i_start: np.ndarray
@@ -267,7 +275,7 @@ class ConstrainedMPC:
         self._closed_form_check(X, u_prev, Y_d, i_start)
         self._constraint_matrix()
         G, z = self._G.copy(), self._z_star
-        return self._P, -(self._P @ z), self._rows - G @ z, G
+        return self._P, -(self._P @ z), self._rows() - G @ z, G
 
     def solve_increments(
         self,
@@ -302,27 +310,28 @@ class ConstrainedMPC:
         """
         if self._closed_form_check(X, u_prev, Y_d, i_start) and use_closed_form:
             return self.mpc.solve(X.reshape(3, 2), u_prev, Y_d), False
-        return self._solve_qp()
+        d, infeasible = self._solve_qp()
+        return (self._z_star + d).reshape(self.N, 3), infeasible
 
     def _solve_qp(self) -> tuple[np.ndarray, bool]:
-        """The QP for the p and factors in the buffers (`_closed_form_check` first), from the closed form.
+        """d of the QP for the p and factors in the buffers (`_closed_form_check` first): Delta U = z* + d.
 
         With z = z* + d the cost (54) is 1/2 d'Pd plus a constant (its gradient
         vanishes at z*) and the rows are r* + G d, r* those at z*: the QP has
-        no linear cost, and its bounds are 1 -/+ r*.
+        no linear cost, and its bounds are +-1 - r* (the check's margins).
         """
         self._constraint_matrix()
-        G, rows = self._G, self._rows
-        np.add(self._plus_minus_one, self._negative_rows, out=self._bounds)
+        G = self._G
+        np.negative(self._margins[len(G):], out=self._lower)
         ok, d = self._daqp.solve(G, self._lower, self._upper)
         infeasible = False
         if not ok:
-            d_lp, slack = self._least_violation(G, rows)
+            d_lp, slack = self._least_violation(G, self._rows())
             infeasible = bool(slack.max() > _VIOLATION_TOL)
             ok, d = self._daqp.solve(G, self._lower - slack - 1e-9, self._upper + slack + 1e-9)
             if not ok:  # numerically stuck: the LP's point itself has the least violation
                 d = d_lp
-        return (self._z_star + d).reshape(self.N, 3), infeasible
+        return d, infeasible
 
     def _least_violation(self, G: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A point z and slack s >= 0 of least sum with |G z + h| <= 1 + s (row-wise).
@@ -350,8 +359,8 @@ class ConstrainedMPC:
         """
         if self._closed_form_check(X, u_prev, Y_d, i_start):
             return u_prev + np.array(self.mpc.delta_u_floats(X.tolist(), u_prev.tolist(), Y_d.tolist())), False
-        delta_U, infeasible = self._solve_qp()
-        return u_prev + delta_U[0], infeasible
+        d, infeasible = self._solve_qp()
+        return u_prev + (self._z_star[:3] + d[:3]), infeasible
 
     def solve_floats(
         self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]], i_start: Sequence[float]
@@ -366,9 +375,9 @@ class ConstrainedMPC:
             self._p[:] = [*chain.from_iterable(Y_d), *X, *u_prev, *i_start, 1.0]
             if not self._check(X[5]):
                 self._screen.reset()
-                delta_U, infeasible = self._solve_qp()
-                du_x, du_y, du_theta = delta_U[0].tolist()
+                d, infeasible = self._solve_qp()
+                du_x, du_y, du_theta = (self._z_star[:3] + d[:3]).tolist()
                 return [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta], infeasible
-            self._screen.set_reference(X, u_prev, i_start, self._p, self._signals_z, float(_max(self._rows_both)))
+            self._screen.set_reference(X, u_prev, i_start, self._p, self._signals_z, self._rows_max())
         du_x, du_y, du_theta = self.mpc.delta_u_floats(X, u_prev, Y_d)
         return [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta], False

@@ -85,13 +85,13 @@ def publish_acknowledged(node: Node, publisher: Publisher, message: Any) -> None
     max_blocking_time; it is retried, with a throttled warning naming the topic and the time waited,
     until it goes out or the node's context shuts down. Failures of other writers are raised.
     """
+    since = time.monotonic()  # the failed write blocked for max_blocking_time: the wait counts from before it
     try:
         publisher.publish(message)
         return
     except RCLError:
         if publisher.qos_profile.history != HistoryPolicy.KEEP_ALL:
             raise
-    since = time.monotonic()
     while node.context.ok():
         node.get_logger().warn(
             f"{publisher.topic_name}: a subscriber has not acknowledged the writer's history for "

@@ -115,10 +115,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         # the last samples die with the process: let every reader (a recorder behind the loop) acknowledge them
         finished = done is not None and done.done()
         own = [pub for pub in node.publishers if pub.topic_name not in _RCLPY_TOPICS]
-        _t0 = time.monotonic()
         wait_acknowledged(node, own, FINISHED_ACK_WAIT_S if finished else STOPPED_ACK_WAIT_S)
-        print('TIMING ack', time.monotonic() - _t0, file=sys.stderr, flush=True)
-        _t0 = time.monotonic()
     except NodeStartError as exc:
         print(f"{_prog()}: error: {exc}", file=sys.stderr)
         status = 2
@@ -129,7 +126,6 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-        print('TIMING teardown', time.monotonic() - _t0 if '_t0' in dir() else -1, file=sys.stderr, flush=True)
     return status
 
 

@@ -53,7 +53,7 @@ real-time factor and exits (status 0). The factor is that of the running loop: t
 answer of tick 0 to the answer of the last tick; the wait for tick 0's answer (the end of discovery, which can
 take a Fast DDS announcement period of 3 s) is logged apart. The report at the end of a run is one log line
 and, if ``timing_report`` names a file, one JSON object there (`loop_timing` gives the keys and their
-meaning).
+meaning), written once every reader has acknowledged the run's samples.
 
 Parameters: the robot/control parameters of config/*.yaml (``/**`` section;
 a plant-robot mismatch is the plant and the controller reading different
@@ -79,8 +79,8 @@ from robotino_geom_mpc.description.urdf import JOINT_NAMES, DescriptionError, ch
 from robotino_geom_mpc.ros.cdr import CdrTemplate, MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, three_values_layout, three_values_template
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
-from robotino_geom_mpc.ros.spin import monotonic, run_node
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos, wait_acknowledged
+from robotino_geom_mpc.ros.spin import FINISHED_ACK_WAIT_S, data_publishers, monotonic, run_node
 from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
 from robotino_sim_node.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source
 from robotino_sim_node.lockstep_start import StartHandshake
@@ -92,7 +92,6 @@ from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, AppliedVoltages, St
     odometry_values
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
-
 
 PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("mode", str, "realtime: wall timers; lockstep: advance one control period per command, publish /clock",
@@ -120,7 +119,6 @@ _PLANT_DEFAULTS = {
     "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "",
     **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS,
 }
-
 
 _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray")  # other layouts than the controller's
 _MAX_BEHIND_S = 1.0  # realtime: a longer stall is skipped, not integrated
@@ -346,8 +344,10 @@ class PlantNode(Node):
         self._write_report(report)
 
     def _write_report(self, report: dict) -> None:
-        """Write the timing report to ``timing_report`` (if set); a failure is logged and the exit status 1."""
+        """Write the timing report to ``timing_report`` (if set) when the readers have the run's samples (so `run`
+        may stop the other nodes once it is there); a failure is logged and the exit status 1."""
         if self.params["timing_report"]:
+            wait_acknowledged(self, data_publishers(self), FINISHED_ACK_WAIT_S)
             try:
                 write_report(self.params["timing_report"], report)
             except OSError as exc:

@@ -4,7 +4,8 @@ Starts the recorder (unless ``--no-record``), the trajectory, the controller,
 the plant simulator and the robot description publisher (URDF, wheels' TF)
 as separate processes (``python -m MODULE --ros-args ...``, each in its own
 process group, output in DIR/logs/), waits for the
-plant to end the run (it knows the duration), stops every node (SIGINT, then
+plant to end the run (it knows the duration; its timing report, written
+once every reader has its samples, marks the end), stops every node (SIGINT, then
 SIGTERM and SIGKILL after a grace period; also on Ctrl-C or when a node
 fails, which is reported with its stderr tail and exit status 1): the loop's
 other nodes first, the recorder once they are gone; and writes DIR/metrics.json
@@ -50,6 +51,7 @@ GRACE_S = 5.0
 # and the bag's close, before SIGTERM (then SIGKILL, which would lose the bag's summary)
 RECORDER_GRACE_S = 70.0
 BAG_CLOSE_POLL_S = 0.005  # how often the stop looks for the recorder's closed bag
+RUN_END_POLL_S = 0.01  # how often `run` looks for the plant's timing report (the end of the run)
 TIMING_REPORT = "plant_timing.json"  # in DIR/logs: the plant's timing report (loop_timing), e.g. for bench
 # imported in a thread while the nodes start and run (the cores idle during discovery and the settle)
 REPORT_MODULES = ("robotino_geom_mpc.recording.bag", "robotino_geom_mpc.recording.report",
@@ -123,6 +125,22 @@ def _stopped_cleanly(group: NodeGroup, node: NodeProcess, grace_s: float) -> Non
         raise NodeFailed(f"{node.name} did not stop cleanly:\n{node.stderr_tail()}")
 
 
+def _run_ended(group: NodeGroup, plant: NodeProcess, report: Path, limit_s: float) -> bool:
+    """Wait until the plant has written its timing report (its readers have every sample: `plant_node` writes it
+    after their acknowledgements) or has exited; False after `limit_s`. `NodeFailed` if a node fails."""
+    from ..ros.processes import wait_for_exit
+
+    deadline = time.monotonic() + limit_s
+    while True:
+        group.check()
+        if plant.popen.poll() is not None or report.exists():
+            return True
+        left = deadline - time.monotonic()
+        if left <= 0.0:
+            return False
+        wait_for_exit([n.popen for n in group.nodes], min(left, RUN_END_POLL_S))
+
+
 def _close_recording(group: NodeGroup, recorder: NodeProcess, bag: Path) -> None:
     """SIGINT the recorder and wait until its bag is closed: metadata.yaml, the last file `BagWriter.close`
     writes, is there, or the recorder exits (its status is checked then). A recorder that closed its bag still
@@ -166,17 +184,19 @@ def run(args: argparse.Namespace) -> int:
         duration = _goals_duration(args, params_file) if args.duration is None else duration
     out = args.out if args.out is not None else Path("out") / f"run-{args.scenario}"
     bag = None if args.no_record else out.resolve() / "bag"
+    report = out.resolve() / "logs" / TIMING_REPORT
     try:
         out.mkdir(parents=True, exist_ok=True)
         if bag is not None and bag.exists():
             shutil.rmtree(bag)  # the previous run's recording
+        report.unlink(missing_ok=True)  # and its plant's timing report
     except OSError as exc:
         raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
 
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
                                odometry=args.odometry, command_interface=args.command_interface,
                                goals_file=None if args.goals is None else args.goals.resolve(),
-                               overrides={"plant_node": {"timing_report": str(out.resolve() / "logs" / TIMING_REPORT)}})
+                               overrides={"plant_node": {"timing_report": str(report)}})
     mode = "lockstep" if args.lockstep else "realtime"
     print(f"run {args.scenario} over DDS ({mode}, {duration:g} s, Ts = {control.period_s:g} s); logs in {out / 'logs'}")
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
@@ -189,17 +209,17 @@ def run(args: argparse.Namespace) -> int:
             _import_in_background(REPORT_MODULES)
         # the plant ends the run; lockstep may be slower than real time on a loaded machine
         limit = duration + 60.0 if not args.lockstep else 60.0 + 20.0 * duration
-        if not group.wait(nodes["plant_node"], limit):
+        if not _run_ended(group, nodes["plant_node"], report, limit):
             print(f"robotino-geom-mpc run: error: the run did not end within {limit:g} s", file=sys.stderr)
             return 1
         ended = time.monotonic()
         group.check()
-        # the plant exited once every reader had acknowledged its samples, and each other node does so on
+        # every reader has the plant's samples, and each other node waits for its readers' acknowledgements on
         # SIGINT before it exits (`ros.spin.run_node`): once they are gone, the recorder holds every message
         others = [name for name in nodes if name not in ("plant_node", "recorder_node")]
         for name in others:
             nodes[name].popen.send_signal(signal.SIGINT)  # all at once; `stop_node` escalates per node
-        for name in others:
+        for name in [*others, "plant_node"]:  # the plant ends by itself (a SIGINT in its exit is ignored)
             _stopped_cleanly(group, nodes[name], GRACE_S)
         if bag is not None:
             _close_recording(group, nodes["recorder_node"], bag)

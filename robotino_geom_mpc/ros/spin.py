@@ -19,7 +19,8 @@ from robotino_geom_mpc.ros.parameters import NodeStartError
 from robotino_geom_mpc.ros.qos import wait_acknowledged
 from robotino_geom_mpc.ros.signals import STOP, ignore_stop_signals, stop_on_signals
 
-__all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "monotonic", "params_files", "run_node", "start_rclpy"]
+__all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "data_publishers", "monotonic", "params_files", "run_node",
+           "start_rclpy"]
 
 # before exiting, the longest a node waits for its readers to acknowledge what it published: after a run it
 # ended itself (the lockstep plant; a recorder can be thousands of samples behind), and when stopped by a
@@ -114,8 +115,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         status = getattr(node, "exit_status", 0)
         # the last samples die with the process: let every reader (a recorder behind the loop) acknowledge them
         finished = done is not None and done.done()
-        own = [pub for pub in node.publishers if pub.topic_name not in _RCLPY_TOPICS]
-        wait_acknowledged(node, own, FINISHED_ACK_WAIT_S if finished else STOPPED_ACK_WAIT_S)
+        wait_acknowledged(node, data_publishers(node), FINISHED_ACK_WAIT_S if finished else STOPPED_ACK_WAIT_S)
     except NodeStartError as exc:
         print(f"{_prog()}: error: {exc}", file=sys.stderr)
         status = 2
@@ -127,6 +127,11 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             node.destroy_node()
         rclpy.try_shutdown()
     return status
+
+
+def data_publishers(node: Node) -> list:
+    """The node's publishers of its data: all but its own /rosout and /parameter_events."""
+    return [pub for pub in node.publishers if pub.topic_name not in _RCLPY_TOPICS]
 
 
 def monotonic() -> float:

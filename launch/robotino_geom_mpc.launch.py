@@ -38,7 +38,8 @@ record         true: also start the MCAP recorder (bag in ``bag``)
 bag            recording directory (default: rosbag2_<date> in the working directory)
 
 The robot description (the URDF from the plant's parameters, `description.urdf.robotino_urdf`) is
-published by robot_state_publisher where it is installed, else by the package's
+published in realtime by robot_state_publisher where it is installed, else (and always in lockstep, where its
+keep-all ``mode`` records every wheel transform; robot_state_publisher's /tf is keep-last) by the package's
 ``robot_description_publisher``. Every node gets ``OPENBLAS_NUM_THREADS=1`` (as `processes.NodeGroup`).
 
 The scenario is resolved when the launch runs (an ``OpaqueFunction``): an unknown name, a bad namespace
@@ -96,9 +97,9 @@ def _has_robot_state_publisher() -> bool:
 
 
 def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
-    """The robot description publisher: robot_state_publisher if installed, else the package's own (with `mode`:
-    lockstep makes its joint_states and /tf keep-all; robot_state_publisher's stay keep-last)."""
-    if _has_robot_state_publisher():
+    """The robot description publisher: in realtime robot_state_publisher if installed, else the package's own
+    (with `mode`: lockstep makes its joint_states and /tf keep-all, robot_state_publisher's are keep-last)."""
+    if mode == "realtime" and _has_robot_state_publisher():
         robot, _ = load_params(plant_params)
         return Node(package="robot_state_publisher", executable="robot_state_publisher",
                     parameters=[{"robot_description": robotino_urdf(robot), "frame_prefix": prefix}], **common)

@@ -262,6 +262,9 @@ def test_robot_state_publisher_publishes_the_plants_urdf_where_installed(descrip
     assert rsp.kwargs["package"] == "robot_state_publisher" and rsp.kwargs["namespace"] == "/robot2"
     robot, _ = load_params(PARAMS)
     assert rsp.kwargs["parameters"] == [{"robot_description": robotino_urdf(robot), "frame_prefix": "robot2/"}]
+    lockstep, _ = _launch(description, namespace="robot2", lockstep="true")  # the package's: lossless /tf
+    assert "robot_state_publisher" not in lockstep
+    assert lockstep[DESCRIPTION].kwargs["parameters"][1] == {"frame_prefix": "robot2/", "mode": "lockstep"}
 
 
 @pytest.mark.parametrize("interface", ["voltages", "cmd_vel"])

@@ -125,22 +125,6 @@ def _stopped_cleanly(group: NodeGroup, node: NodeProcess, grace_s: float) -> Non
         raise NodeFailed(f"{node.name} did not stop cleanly:\n{node.stderr_tail()}")
 
 
-def _run_ended(group: NodeGroup, plant: NodeProcess, report: Path, limit_s: float) -> bool:
-    """Wait until the plant has written its timing report (its readers have every sample: `plant_node` writes it
-    after their acknowledgements) or has exited; False after `limit_s`. `NodeFailed` if a node fails."""
-    from ..ros.processes import wait_for_exit
-
-    deadline = time.monotonic() + limit_s
-    while True:
-        group.check()
-        if plant.popen.poll() is not None or report.exists():
-            return True
-        left = deadline - time.monotonic()
-        if left <= 0.0:
-            return False
-        wait_for_exit([n.popen for n in group.nodes], min(left, RUN_END_POLL_S))
-
-
 def _close_recording(group: NodeGroup, recorder: NodeProcess, bag: Path) -> None:
     """SIGINT the recorder and wait until its bag is closed: metadata.yaml, the last file `BagWriter.close`
     writes, is there, or the recorder exits (its status is checked then). A recorder that closed its bag still
@@ -209,7 +193,8 @@ def run(args: argparse.Namespace) -> int:
             _import_in_background(REPORT_MODULES)
         # the plant ends the run; lockstep may be slower than real time on a loaded machine
         limit = duration + 60.0 if not args.lockstep else 60.0 + 20.0 * duration
-        if not _run_ended(group, nodes["plant_node"], report, limit):
+        # the end: the plant's timing report (written once every reader has acknowledged its samples), or its exit
+        if not group.wait(nodes["plant_node"], limit, done=report.exists, poll_s=RUN_END_POLL_S):
             print(f"robotino-geom-mpc run: error: the run did not end within {limit:g} s", file=sys.stderr)
             return 1
         ended = time.monotonic()

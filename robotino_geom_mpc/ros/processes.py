@@ -17,7 +17,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -329,17 +329,19 @@ class NodeGroup:
             if code not in (None, 0):
                 raise NodeFailed(f"{node.name} exited with status {code}:\n{node.stderr_tail()}")
 
-    def wait(self, node: NodeProcess, timeout_s: float | None = None) -> bool:
-        """Wait until `node` exits (True) or `timeout_s` passes (False); raise `NodeFailed` if any node fails."""
+    def wait(self, node: NodeProcess, timeout_s: float | None = None, done: Callable[[], bool] | None = None,
+             poll_s: float = 1.0) -> bool:
+        """Wait until `node` exits or `done()` is true (True), or `timeout_s` passes (False); raise `NodeFailed`
+        if any node fails. Woken at once by an exit; `done` is looked at every `poll_s`."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             self.check()
-            if node.popen.poll() is not None:
+            if node.popen.poll() is not None or (done is not None and done()):
                 return True
-            left = 1.0 if deadline is None else deadline - time.monotonic()
+            left = poll_s if deadline is None else deadline - time.monotonic()
             if left <= 0.0:
                 return False
-            wait_for_exit([n.popen for n in self.nodes], min(left, 1.0))
+            wait_for_exit([n.popen for n in self.nodes], min(left, poll_s))
 
     def stop(self, grace_s: float = 5.0) -> None:
         """SIGINT every running node, then SIGTERM, then SIGKILL, each after `grace_s`; reap all."""

@@ -130,14 +130,10 @@ def _close_recording(group: NodeGroup, recorder: NodeProcess, bag: Path) -> None
     writes, is there, or the recorder exits (its status is checked then). A recorder that closed its bag still
     exits (Fast DDS alone sleeps 0.1 s in its participant factory's destructor) while the report reads the bag;
     `run` checks its status after the report."""
-    from ..ros.processes import wait_for_exit
-
     recorder.popen.send_signal(signal.SIGINT)
-    deadline = time.monotonic() + RECORDER_GRACE_S
-    while recorder.popen.poll() is None and not (bag / "metadata.yaml").exists() and time.monotonic() < deadline:
-        wait_for_exit([recorder.popen], BAG_CLOSE_POLL_S)
-    if recorder.popen.poll() is not None or not (bag / "metadata.yaml").exists():
-        _stopped_cleanly(group, recorder, GRACE_S)  # its status now; a recorder that hangs gets SIGTERM, SIGKILL
+    ended = group.wait(recorder, RECORDER_GRACE_S, done=(bag / "metadata.yaml").exists, poll_s=BAG_CLOSE_POLL_S)
+    if not ended or recorder.popen.poll() is not None:  # exited: its status now; hung: SIGTERM, then SIGKILL
+        _stopped_cleanly(group, recorder, GRACE_S)
 
 
 def _goals_duration(args: argparse.Namespace, params_file: Path) -> float:

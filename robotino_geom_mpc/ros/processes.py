@@ -356,7 +356,7 @@ class NodeGroup:
                     pass
             deadline = time.monotonic() + grace_s
             while time.monotonic() < deadline and any(n.popen.poll() is None for n in running):
-                wait_for_exit([n.popen for n in running if n.popen.poll() is None], deadline - time.monotonic())
+                wait_for_exit([n.popen for n in running], deadline - time.monotonic())
         for node in self.nodes:
             if node.popen.poll() is None:
                 node.popen.wait()

@@ -214,7 +214,8 @@ class ConstrainedMPC:
         self._distinct_factors, self._G_flat = np.empty(len(self._distinct)), np.zeros(m * nz)
         self._G = self._G_flat.reshape(m, nz)
         self._margins = np.empty(2 * m)  # 1 - rows, 1 + rows (rows at z*)
-        self._upper, self._lower = self._margins[:m], np.empty(m)  # the QP's bounds: 1 - rows, -1 - rows
+        self._upper, self._plus = self._margins[:m], self._margins[m:]
+        self._lower = np.empty(m)  # the QP's bounds: upper 1 - rows, lower -1 - rows
 
     def reset(self) -> None:
         """Drop the warm start (the last active set) and the screen's reference."""
@@ -322,7 +323,7 @@ class ConstrainedMPC:
         """
         self._constraint_matrix()
         G = self._G
-        np.negative(self._margins[len(G):], out=self._lower)
+        np.negative(self._plus, out=self._lower)
         ok, d = self._daqp.solve(G, self._lower, self._upper)
         infeasible = False
         if not ok:

@@ -270,16 +270,14 @@ class MotionController:
 
         Eq. (50), Y = G_p x(k) + F_1p Delta U + F_2p u(k-1) (F_1p, F_2p with erratum 3), under the optimal
         increments Delta U of eq. (56) for the state (filtered pose), u(k-1) and preview of the last
-        `step`. Computed on demand (a few hundred multiply-adds), so a step does not pay for it.
+        `step`. Computed on demand (`DecoupledMPC.predicted_floats`, one product), so a step does not pay for it.
 
         Raises
         ------
         ControllerInputError
             Before the first step after construction or `reset`.
         """
-        x, u_prev, y = self._last_step()
-        x, u_prev, Y_d = np.reshape(x, (3, 2)), np.array(u_prev), np.array(y)
-        return self.mpc.predict(x, u_prev, self.mpc.solve(x, u_prev, Y_d))
+        return self.mpc.predicted_floats(*self._last_step())
 
     def next_velocity(self) -> tuple[float, float, float]:
         """The body velocity (v_x, v_y, theta') in base_link the model predicts at t + Ts under the applied u(k).

@@ -20,6 +20,7 @@ horizon) can make the loop unstable, which a controller must refuse.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import chain
 import math
 from operator import mul
 
@@ -177,6 +178,9 @@ class DecoupledMPC:
     stacked_gain : ndarray, shape (3, 3N + 9)
         Delta u(k) = stacked_gain @ (Y_d.ravel(), X, u(k-1)): the first row of
         the gain folded with G_p and F_2p, for the three axes at once.
+    prediction_map : ndarray, shape (3N, 3N + 9)
+        Y(k).ravel() = prediction_map @ (Y_d.ravel(), X, u(k-1)): eq. (50) under
+        the optimal increments of eq. (56), both linear in that vector.
 
     Notes
     -----
@@ -224,6 +228,13 @@ class DecoupledMPC:
         self._state_gains = tuple(
             (float(K[a, 3 * N + 2 * a]), float(K[a, 3 * N + 2 * a + 1]), float(K[a, 3 * N + 6 + a])) for a in range(3)
         )
+        self.prediction_map = np.column_stack([self._predicted_of(e) for e in np.eye(3 * N + 9)])
+
+    def _predicted_of(self, z: np.ndarray) -> np.ndarray:
+        """Y(k).ravel() under the optimal increments for z = (Y_d.ravel(), X, u(k-1)) (eqs. 50, 56)."""
+        N = self.horizon
+        x, u_prev = z[3 * N : 3 * N + 6].reshape(3, 2), z[3 * N + 6 :]
+        return self.predict(x, u_prev, self.solve(x, u_prev, z[: 3 * N].reshape(N, 3))).ravel()
 
     def predict(self, x: np.ndarray, u_prev: np.ndarray, delta_U: np.ndarray) -> np.ndarray:
         """Predicted outputs Y(k) (eq. 50), shape (N, 3).
@@ -269,6 +280,15 @@ class DecoupledMPC:
         inputs once); this is the per-tick fast path.
         """
         return self.stacked_gain @ np.concatenate((Y_d.ravel(), x.ravel(), u_prev))
+
+    def predicted_floats(
+        self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]]
+    ) -> np.ndarray:
+        """`predict` under the increments of `solve` (eq. 50 under eq. 56) from a step's floats, shape (N, 3).
+
+        One product of `prediction_map` (the same numbers up to rounding); the arguments as for `delta_u_floats`.
+        """
+        return (self.prediction_map @ [*chain.from_iterable(Y_d), *X, *u_prev]).reshape(self.horizon, 3)
 
     def delta_u_floats(
         self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]]

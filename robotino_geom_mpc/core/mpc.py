@@ -228,13 +228,13 @@ class DecoupledMPC:
         self._state_gains = tuple(
             (float(K[a, 3 * N + 2 * a]), float(K[a, 3 * N + 2 * a + 1]), float(K[a, 3 * N + 6 + a])) for a in range(3)
         )
-        self.prediction_map = np.column_stack([self._predicted_of(e) for e in np.eye(3 * N + 9)])
-
-    def _predicted_of(self, z: np.ndarray) -> np.ndarray:
-        """Y(k).ravel() under the optimal increments for z = (Y_d.ravel(), X, u(k-1)) (eqs. 50, 56)."""
-        N = self.horizon
-        x, u_prev = z[3 * N : 3 * N + 6].reshape(3, 2), z[3 * N + 6 :]
-        return self.predict(x, u_prev, self.solve(x, u_prev, z[: 3 * N].reshape(N, 3))).ravel()
+        # Eq. (50) under eq. (56): Y = M Y_d + (I - M)(G_p x + F_2p u(k-1)) per axis, M = F_1p gain
+        self.prediction_map = np.zeros((3 * N, 3 * N + 9))
+        for a in range(3):
+            M = self.F_1p[a] @ self.gain[a]
+            self.prediction_map[a::3, a : 3 * N : 3] = M
+            self.prediction_map[a::3, 3 * N + 2 * a : 3 * N + 2 * a + 2] = (np.eye(N) - M) @ self.G_p[a]
+            self.prediction_map[a::3, 3 * N + 6 + a] = (np.eye(N) - M) @ self.F_2p[a]
 
     def predict(self, x: np.ndarray, u_prev: np.ndarray, delta_U: np.ndarray) -> np.ndarray:
         """Predicted outputs Y(k) (eq. 50), shape (N, 3).

@@ -12,7 +12,15 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from robotino_geom_mpc.bench.constrained import bench_constrained, constrained_inputs, qp_calls
+from robotino_geom_mpc.bench.constrained import (
+    _OSQP_TOLERANCES,
+    OsqpConstrainedQP,
+    bench_constrained,
+    constrained_inputs,
+    fastest_agreeing,
+    qp_arguments,
+    qp_calls,
+)
 from robotino_geom_mpc.core.constrained import ConstrainedMPC
 from robotino_geom_mpc.core.mpc import DecoupledMPC
 from robotino_geom_mpc.core.params import load_params
@@ -93,12 +101,42 @@ def test_warm_start_from_the_last_active_set_saves_iterations_and_keeps_the_answ
 def test_benchmark_reports_its_figures_with_osqp_agreeing():
     figures = bench_constrained(quick=True)
     for key in ("constrained_step_us", "constrained_step_worst_us", "constrained_step_speedup_vs_osqp",
-                "constrained_over_closed_form"):
+                "constrained_over_closed_form", "constrained_paced_binding_step_us",
+                "constrained_paced_speedup_vs_osqp"):
         assert np.isfinite(figures[key]) and figures[key] > 0.0
     assert figures["constrained_step_worst_us"] >= figures["constrained_step_us"]
     assert 0.0 < figures["constrained_step_speedup_vs_osqp_worst"] <= figures["constrained_step_speedup_vs_osqp"]
     assert figures["constrained_osqp_max_u_difference"] <= 1e-6 * 10.0  # |u| reaches ~10 m/s^2 in the position step
+    assert figures["constrained_osqp_eps"] in _OSQP_TOLERANCES
     assert figures["constrained_binding_ticks"] >= 10
+
+
+def test_osqp_peer_is_the_loosest_polished_tolerance_that_agrees():
+    """The benchmark's OSQP peer: polished, the loosest tolerance giving u to 1e-6; a looser one does not.
+
+    The truth is the tight OSQP (1e-12, no polishing) on the same QPs; the
+    circle at full speed from rest is where OSQP's polishing at 1e-3 misses (after its 60th tick).
+    """
+    _, control = load_params()
+    name = "circle-step"
+    transient = constrained_inputs(1, 100)[name]
+    calls = {name: qp_calls(transient, control)}
+    model = transient.model
+    qp = ConstrainedMPC(model, replace(control, mode="constrained"), DecoupledMPC(model, control))
+    problems = {name: [qp_arguments(qp, call) for call in calls[name]]}
+    tight = OsqpConstrainedQP(qp)
+    truth = np.array([call.u_prev + tight.solve(*problem)[:3] for call, problem in zip(calls[name], problems[name])])
+    scale = max(1.0, float(np.abs(truth).max()))
+
+    def difference(eps: float) -> float:
+        peer = OsqpConstrainedQP(qp, eps=eps, polishing=True)
+        u = np.array([call.u_prev + peer.solve(*problem)[:3] for call, problem in zip(calls[name], problems[name])])
+        return float(np.abs(u - truth).max()) / scale
+
+    eps, _ = fastest_agreeing({name: qp}, calls, problems)
+    looser = [tol for tol in _OSQP_TOLERANCES if tol > eps]
+    assert difference(eps) <= 1.1e-6
+    assert looser and difference(min(looser)) > 1e-6  # the next looser one misses
 
 
 class _CountingChecks(ConstrainedMPC):

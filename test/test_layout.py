@@ -18,8 +18,8 @@ MAX_LINES = 450
 ALLOWED_PREFIXES = ("robotino_geom_mpc.nodes.", "robotino_geom_mpc.ros.", "robotino_geom_mpc.recording.recorder_node",
                     "robotino_sim_node.plant_node", "robotino_sim_node.lockstep_start",
                     "robotino_sim_node.outputs")
-# modules of ros/ that need no ROS at all (decoders of message values, the process launcher)
-PLAIN_ROS_MODULES = ("robotino_geom_mpc.ros.decode", "robotino_geom_mpc.ros.processes")
+# modules of ros/ that need no ROS at all (decoders of message values, the process launcher, the SHM cleaner)
+PLAIN_ROS_MODULES = ("robotino_geom_mpc.ros.decode", "robotino_geom_mpc.ros.processes", "robotino_geom_mpc.ros.shm")
 
 
 def _modules() -> list[str]:

@@ -28,6 +28,7 @@ __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR",
            "frame_prefix", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.core.errors import RobotinoError
+from robotino_geom_mpc.ros.shm import remove_zombie_segments
 from robotino_geom_mpc.ros.signals import NODE_MODULES  # executable name -> module run with `python -m`
 
 # the lockstep plant's ``lockstep_wait_for`` (subscriptions ``topic:count`` it waits for before tick 0):
@@ -289,6 +290,7 @@ class NodeGroup:
     nodes: list[NodeProcess] = field(default_factory=list)
 
     def __post_init__(self) -> None:
+        self._started = time.time()  # the zombie Fast DDS segments `stop` removes are those created since
         if self.log_dir is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="robotino_nodes_")
             self.log_dir = Path(self._tmp.name)
@@ -360,6 +362,7 @@ class NodeGroup:
         for node in self.nodes:
             if node.popen.poll() is None:
                 node.popen.wait()
+        remove_zombie_segments(self._started)  # a node killed (here or by anyone) leaves its segment in RAM
 
     def stop_node(self, node: NodeProcess, grace_s: float = 5.0) -> int:
         """Stop one node the same way; returns its exit status."""
@@ -371,7 +374,9 @@ class NodeGroup:
             except ProcessLookupError:
                 pass
             wait_for_exit([node.popen], grace_s)
-        return node.popen.wait()
+        status = node.popen.wait()
+        remove_zombie_segments(self._started)
+        return status
 
     def __enter__(self) -> NodeGroup:
         return self

@@ -17,7 +17,7 @@ import pytest
 
 from robotino_geom_mpc.bench import registry as benchmarks
 from robotino_geom_mpc.bench import BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
-from robotino_geom_mpc.bench.controller_step import OsqpMPC
+from robotino_geom_mpc.bench.controller_step import OSQP_TOLERANCES, OsqpMPC
 from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.core.mpc import DecoupledMPC
 from robotino_geom_mpc.core.params import load_params
@@ -42,6 +42,7 @@ def test_bench_json_quick_last_line():
         assert figures[key] > 0, key
     # the two sides of the comparison agreed on u (the benchmark checks it; the figure says by how much)
     assert figures["osqp_max_u_difference"] < 1e-3
+    assert figures["osqp_mpc_eps"] in OSQP_TOLERANCES  # OSQP at the loosest tolerance that agrees
     assert "Traceback" not in proc.stderr
 
 

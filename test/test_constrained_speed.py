@@ -13,7 +13,6 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from robotino_geom_mpc.bench.constrained import (
-    _OSQP_TOLERANCES,
     OsqpConstrainedQP,
     bench_constrained,
     constrained_inputs,
@@ -21,6 +20,7 @@ from robotino_geom_mpc.bench.constrained import (
     qp_arguments,
     qp_calls,
 )
+from robotino_geom_mpc.bench.controller_step import OSQP_TOLERANCES
 from robotino_geom_mpc.core.constrained import ConstrainedMPC
 from robotino_geom_mpc.core.mpc import DecoupledMPC
 from robotino_geom_mpc.core.params import load_params
@@ -107,7 +107,7 @@ def test_benchmark_reports_its_figures_with_osqp_agreeing():
     assert figures["constrained_step_worst_us"] >= figures["constrained_step_us"]
     assert 0.0 < figures["constrained_step_speedup_vs_osqp_worst"] <= figures["constrained_step_speedup_vs_osqp"]
     assert figures["constrained_osqp_max_u_difference"] <= 1e-6 * 10.0  # |u| reaches ~10 m/s^2 in the position step
-    assert figures["constrained_osqp_eps"] in _OSQP_TOLERANCES
+    assert figures["constrained_osqp_eps"] in OSQP_TOLERANCES
     assert figures["constrained_binding_ticks"] >= 10
 
 
@@ -134,7 +134,7 @@ def test_osqp_peer_is_the_loosest_polished_tolerance_that_agrees():
         return float(np.abs(u - truth).max()) / scale
 
     eps, _ = fastest_agreeing({name: qp}, calls, problems)
-    looser = [tol for tol in _OSQP_TOLERANCES if tol > eps]
+    looser = [tol for tol in OSQP_TOLERANCES if tol > eps]
     assert difference(eps) <= 1.1e-6
     assert looser and difference(min(looser)) > 1e-6  # the next looser one misses
 

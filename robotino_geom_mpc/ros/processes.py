@@ -374,9 +374,7 @@ class NodeGroup:
             except ProcessLookupError:
                 pass
             wait_for_exit([node.popen], grace_s)
-        status = node.popen.wait()
-        remove_zombie_segments(self._started)
-        return status
+        return node.popen.wait()
 
     def __enter__(self) -> NodeGroup:
         return self

@@ -13,7 +13,7 @@ start currents (`drive.ZOHDrive`, whose relations are linear). The heading is
 the measured one for the first period (at mid-period, as the controller
 applies it) and the reference's for the later ones. Only the headings enter
 non-linearly, through planar rotations: so the per-axis signals (u, v and
-the body-frame motor-speed rate u - (k/M) v + theta' (-v_y, v_x, 0)) are
+the body-frame motor-speed rate u - (k/M) v + theta' (v_y, -v_x, 0)) are
 fixed matrices times (preview, state, u(k-1), z), rotated by the headings, and
 a fixed matrix maps the rotated signals and the start currents to the rows.
 

@@ -303,7 +303,7 @@ class InverseDrive:
             only when a voltage is clipped, since the body then accelerates
             less than commanded, which changes the back-EMF and thus the
             current; the mean current is found by fixed-point iteration (the
-            map contracts by about Km gear^2 Ts / (2 R r^2 M) ~ 0.03 per pass).
+            map contracts by about Km^2 gear^2 Ts / (2 R r^2 M) ~ 0.02 per pass).
 
         Returns
         -------

@@ -124,7 +124,7 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "control.current_limit_a",
         float,
-        "Wheel current limit of the closed-form mode (core.drive.InverseDrive.limit_factor): when a wheel's "
+        "Wheel current limit of the closed-form mode (core.drive.InverseDrive.limited_step): when a wheel's "
         "period-average or end current would exceed it, or a voltage the supply, the commanded accelerations u are "
         "scaled by one factor (direction kept); 0 = no limit, voltages clipped per wheel (the paper)",
         "A",

@@ -66,8 +66,7 @@ _TF_FIELDS = tuple(f"transforms[0].{field}" for field in STAMP_FIELDS + (
 def plant_odometry(sigma_position: float, sigma_yaw: float, frame_prefix: str = "") -> Odometry:
     """The plant's Odometry, values zero: frames and covariances set (pose variance from the noise,
     z/roll/pitch certain: planar; twist from noise-free wheel speeds)."""
-    msg = odometry_message()
-    msg.header.frame_id, msg.child_frame_id = frame_prefix + ODOM_FRAME, frame_prefix + BASE_LINK
+    msg = odometry_message(frame_prefix)
     pose_var = (max(sigma_position**2, _CERTAIN),) * 2 + (_CERTAIN,) * 3 + (max(sigma_yaw**2, _CERTAIN),)
     msg.pose.covariance = np.diag(pose_var).ravel()
     msg.twist.covariance = np.diag([_CERTAIN] * 6).ravel()

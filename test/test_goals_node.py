@@ -13,7 +13,8 @@ non-unit quaternion, an empty path) are refused with a warning naming the reason
 exactly; three goals are each reached (the plant's ground truth after the motion, against the goal) within
 1 mm and 1 mrad; a goal sent during a motion takes over without a jump in the streamed reference's velocity
 or acceleration; a Nav2-style path ends at its last pose within 1 mm and 1 mrad; the peak wheel current of the
-whole run stays at or below the nominal 0.86 A; limits and frame prefix are validated on set.
+whole run stays at or below the nominal 0.86 A; limits and frame prefix are validated on set; other
+parameter sets keep the goal, and a new frame prefix moves the preview, the path and the goals' frame.
 """
 
 from __future__ import annotations
@@ -192,6 +193,35 @@ def test_limits_and_frame_prefix_are_validated(goal_run):
         assert not result[0].successful, values
     assert h.set_parameters("robotino_trajectory", {"goals.max_velocity_mps": 0.3})[0].successful
     assert h.get_parameters("robotino_trajectory", ["goals.max_velocity_mps"]) == [0.3]
+
+
+def test_parameter_sets_keep_the_goal_and_a_prefix_moves_preview_and_path(goal_run):
+    """Only a new scenario or waypoints make a new reference; a set of another parameter or of the same
+    scenario (``ros2 param load``) keeps the goal. A new ``frame_prefix`` puts the preview, the path and the
+    accepted goals in ``<prefix>odom``."""
+    run, h = goal_run, goal_run.h
+    goal = np.array([0.25, -0.15, 0.4])
+    run.goal_pub.publish(_pose(*goal))
+    run.wait_at_rest_at(goal)
+    for values in ({"robot.mass_kg": 23.0}, {"scenario": "goals"}, {"control.q_x": 2.0e6}):
+        assert h.set_parameters("robotino_trajectory", values)[0].successful, values
+    paths = h.collect("reference_path", Path)
+    assert h.set_parameters("robotino_trajectory", {"frame_prefix": "robot1/"})[0].successful
+    count = len(run.previews)
+    assert h.spin_until(lambda: len(run.previews) > count + 100, 20.0)
+    latest = run.previews[-1]
+    assert (latest.header.frame_id, latest.joint_names) == ("robot1/odom", ["robot1/base_link"])
+    p, v, _ = _point0(latest)
+    assert np.abs(p[:2] - goal[:2]).max() < 1e-9 and _angle_error(p[2], goal[2]) < 1e-9 and np.abs(v).max() < 1e-9
+    assert h.spin_until(lambda: any(m.header.frame_id == "robot1/odom" for m in paths), 10.0)
+    path = next(m for m in paths if m.header.frame_id == "robot1/odom")
+    assert {pose.header.frame_id for pose in path.poses} == {"robot1/odom"}
+    run.goal_pub.publish(_pose(*goal[:2], 0.0))  # in odom: refused now
+    moved = np.array([0.1, 0.0, 0.0])
+    run.goal_pub.publish(_pose(*moved, frame="robot1/odom"))
+    run.wait_at_rest_at(moved)
+    assert h.set_parameters("robotino_trajectory", {"frame_prefix": ""})[0].successful
+    assert "goal refused (frame)" in run.log()
 
 
 # --------------------------------------------------------------------------- goal files (no DDS)

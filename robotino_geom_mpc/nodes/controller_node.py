@@ -151,8 +151,8 @@ class ControllerNode(Node):
                                          prefix, self.params["command_interface"])
         self.enabled = True
         self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
-        self.odom_layout = odometry_layout()
-        self.preview_layout = preview_layout(self.control.period_s, self.control.horizon)
+        self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
+        self.preview_layout = preview_layout(self.control.period_s, self.control.horizon, prefix)
         self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, CONTROL_QOS, raw=True)
         self.preview_sub = self.create_subscription(
             MultiDOFJointTrajectory, "reference_preview", self._on_preview, CONTROL_QOS, raw=True

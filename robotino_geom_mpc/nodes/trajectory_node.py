@@ -4,14 +4,15 @@ Topics (relative names)
 -----------------------
 publishes  ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory, `publish_qos(lockstep)` (lockstep:
                                   keep-all, a slow reader holds the loop back, `publish_acknowledged`):
-                                  header.stamp = the tick time t_k, frame ``odom``, one joint ``base_link``
+                                  header.stamp = the tick time t_k, frame ``<frame_prefix>odom``, one joint
+                                  ``<frame_prefix>base_link``
                                   (the planar pose of the robot), N + 1 points j = 0..N with
                                   time_from_start = j Ts: transforms (x_d, y_d, yaw quaternion of theta_d),
                                   velocities and accelerations (linear x, y and angular z, in ``odom``).
                                   Point 0 is the reference at t_k itself (tracking error, recording);
                                   points 1..N are `core.trajectory.preview` (x_d(k+1) .. x_d(k+N)).
-           ``reference_path``     nav_msgs/Path, `LATCHED_QOS` (transient local), the whole reference
-                                  sampled every control period, published once.
+           ``reference_path``     nav_msgs/Path in ``<frame_prefix>odom``, `LATCHED_QOS` (transient local), the
+                                  whole reference sampled every control period, published once.
 subscribes ``/clock``             rosgraph_msgs/Clock (lockstep only, reliable).
            ``goal_pose``, ``plan``  geometry_msgs/PoseStamped, nav_msgs/Path (scenario ``goals`` only:
                                   `nodes.goal_inputs`, which checks them and replans the reference).
@@ -24,6 +25,8 @@ In scenario ``goals`` the reference is a `core.goal_reference.GoalReference`: it
 the reference's state there. The reference_path is published again after each (the new motion only, a
 pose every `_GOAL_PATH_STEP` periods), the lockstep table
 (`_grid_values`) is rebuilt; the limits (``goals.*``) and ``frame_prefix`` may change while running.
+Only a change of ``scenario`` or ``waypoints`` makes a new reference (and drops the goals): a set of
+any other parameter, or of these to their current values, leaves the motion alone.
 
 Timing
 ------
@@ -133,11 +136,10 @@ class TrajectoryNode(Node):
             ),
         )
         self.add_on_set_parameters_callback(self._check_waypoints)
-        self.add_post_set_parameters_callback(
-            lambda params: self._on_params({}) if any(p.name == "waypoints" for p in params) else None
-        )
+        self.add_post_set_parameters_callback(self._on_waypoints)
         try:
-            self.reference = self._make_reference(self.params["scenario"], self._waypoints())
+            self.waypoints = self._waypoints()
+            self.reference = self._make_reference(self.params["scenario"], self.waypoints)
         except TrajectoryError as exc:
             raise NodeStartError(str(exc)) from None
         self.lockstep = self.params["mode"] == "lockstep"
@@ -204,9 +206,26 @@ class TrajectoryNode(Node):
         return SetParametersResult(successful=True)
 
     def _on_params(self, changed: dict) -> None:
-        if changed and set(changed) <= set(GOAL_DEFAULTS):
-            return  # new limits or frame prefix: read at the next goal; the goals so far stay
-        self.reference = self._make_reference(self.params["scenario"], self._waypoints())
+        """A new reference for a new scenario; previews and path in the frame of a new prefix.
+
+        New limits are read at the next goal; other parameters (the robot's, the controller's weights)
+        do not touch the reference.
+        """
+        if "frame_prefix" in changed:
+            self.preview_cdr = None  # built again in the new frame
+        if "scenario" in changed:
+            self._new_reference()
+        elif "frame_prefix" in changed:
+            self._replanned(self.reference)
+
+    def _on_waypoints(self, params: list[Parameter]) -> None:
+        """A new reference when ``waypoints`` changed value (checked by `_check_waypoints`)."""
+        if any(p.name == "waypoints" for p in params) and not np.array_equal(self._waypoints(), self.waypoints):
+            self._new_reference()  # (None: the scenario's default)
+
+    def _new_reference(self) -> None:
+        self.waypoints = self._waypoints()
+        self.reference = self._make_reference(self.params["scenario"], self.waypoints)
         self.goals.attach(self.reference)
         self._replanned(self.reference)
 
@@ -251,7 +270,7 @@ class TrajectoryNode(Node):
     def _publish_preview(self, t_ns: int, reference_t_ns: int) -> None:
         period_s, horizon = self.params["control.period_s"], self.params["control.horizon"]
         if self.preview_cdr is None:
-            self.preview_cdr = preview_template(period_s, horizon)
+            self.preview_cdr = preview_template(period_s, horizon, self.params["frame_prefix"])
         values = self._grid_values(reference_t_ns) if self.lockstep else None
         if values is None:
             values = preview_values(self.reference, reference_t_ns, period_s, horizon)
@@ -317,11 +336,11 @@ class TrajectoryNode(Node):
         times = np.arange(from_s, self.reference.duration_s + 0.5 * period, period)
         pos = self.reference.position(times)
         path = Path()
-        path.header.frame_id = ODOM_FRAME
+        path.header.frame_id = odom = self.params["frame_prefix"] + ODOM_FRAME
         path.header.stamp = ns_to_stamp(self.start_ns)
         for t, (x, y, theta) in zip(times, pos):
             pose = PoseStamped()
-            pose.header.frame_id = ODOM_FRAME
+            pose.header.frame_id = odom
             pose.header.stamp = ns_to_stamp(self.start_ns + int(round(t * 1e9)))
             pose.pose.position.x, pose.pose.position.y = float(x), float(y)
             pose.pose.orientation = yaw_to_quaternion(float(theta))

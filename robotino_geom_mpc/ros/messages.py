@@ -91,16 +91,16 @@ def three_values_layout(label: str) -> CdrLayout:
     return CdrLayout(three_values(label), _THREE)
 
 
-def odometry_message() -> Odometry:
-    """An Odometry ``odom`` -> ``base_link`` (REP-105), all values zero."""
+def odometry_message(frame_prefix: str = "") -> Odometry:
+    """An Odometry ``<frame_prefix>odom`` -> ``<frame_prefix>base_link`` (REP-105), all values zero."""
     msg = Odometry()
-    msg.header.frame_id, msg.child_frame_id = ODOM_FRAME, BASE_FRAME
+    msg.header.frame_id, msg.child_frame_id = frame_prefix + ODOM_FRAME, frame_prefix + BASE_FRAME
     return msg
 
 
-def odometry_layout() -> CdrLayout:
+def odometry_layout(frame_prefix: str = "") -> CdrLayout:
     """The odometry the plant sends (REP-105 frames), read in place: the values of `decode.ODOM_FIELDS`."""
-    return CdrLayout(odometry_message(), ODOM_FIELDS)
+    return CdrLayout(odometry_message(frame_prefix), ODOM_FIELDS)
 
 
 def point_values(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> np.ndarray:
@@ -120,11 +120,11 @@ def preview_values(reference, t_ns: int, period_s: float, horizon: int) -> list[
     return point_values(pos, vel, acc).ravel().tolist()
 
 
-def preview_skeleton(period_s: float, horizon: int) -> MultiDOFJointTrajectory:
+def preview_skeleton(period_s: float, horizon: int, frame_prefix: str = "") -> MultiDOFJointTrajectory:
     """The constant part of a preview: frame, joint, N + 1 points with one transform each and their times."""
     msg = MultiDOFJointTrajectory()
-    msg.header.frame_id = ODOM_FRAME
-    msg.joint_names = [BASE_FRAME]
+    msg.header.frame_id = frame_prefix + ODOM_FRAME
+    msg.joint_names = [frame_prefix + BASE_FRAME]
     period_ns = int(round(period_s * 1e9))
     for j in range(horizon + 1):
         sec, nanosec = divmod(j * period_ns, 1_000_000_000)
@@ -150,15 +150,15 @@ def preview_message(reference, t_ns: int, period_s: float, horizon: int) -> Mult
     return msg
 
 
-def preview_template(period_s: float, horizon: int) -> CdrTemplate:
+def preview_template(period_s: float, horizon: int, frame_prefix: str = "") -> CdrTemplate:
     """`CdrTemplate` of the preview: `pack(sec, nanosec, *preview_values(...))` are the bytes of `preview_message`."""
     paths = ("header.stamp.sec", "header.stamp.nanosec") + tuple(
         f"points[{j}].{field}" for j in range(horizon + 1) for field in _WRITTEN_POINT_FIELDS
     )
-    return CdrTemplate(preview_skeleton(period_s, horizon), paths)
+    return CdrTemplate(preview_skeleton(period_s, horizon, frame_prefix), paths)
 
 
-def preview_layout(period_s: float, horizon: int) -> CdrLayout:
+def preview_layout(period_s: float, horizon: int, frame_prefix: str = "") -> CdrLayout:
     """The preview the trajectory node sends, read in place: stamp, then `decode.POINT_FIELDS` of each point."""
-    return CdrLayout(preview_skeleton(period_s, horizon), STAMP_FIELDS + tuple(
+    return CdrLayout(preview_skeleton(period_s, horizon, frame_prefix), STAMP_FIELDS + tuple(
         f"points[{j}].{f}" for j in range(horizon + 1) for f in POINT_FIELDS))

@@ -73,7 +73,8 @@ class SpecParameters:
         Default value per name; the robot/control defaults come from the
         default preset when not given.
     on_change
-        Called with the dict of accepted new values after a successful set.
+        Called after a successful set with the values it changed (name: new value); a set to the
+        current values (``ros2 param load`` of the same file) changes nothing and calls nothing.
     fixed
         Names that cannot change while the node runs (a set is refused with that reason).
     check
@@ -150,7 +151,8 @@ class SpecParameters:
         return SetParametersResult(successful=reason is None, reason=reason or "")
 
     def _applied(self, params: list[Parameter]) -> None:
-        changed = {p.name: validate_value(self.specs[p.name], p.value) for p in params if p.name in self.specs}
+        accepted = {p.name: validate_value(self.specs[p.name], p.value) for p in params if p.name in self.specs}
+        changed = {name: value for name, value in accepted.items() if value != self.values[name]}
         if not changed:
             return
         self.values.update(changed)

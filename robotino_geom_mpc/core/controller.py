@@ -27,6 +27,10 @@ __all__ = ["ControllerInputError", "ControlOutput", "MotionController", "odometr
 
 _FLOAT64 = np.dtype(np.float64)
 _FLOAT_TYPE = {float}  # the element types of an X the fast path takes as it is
+# a measured state is refused beyond these: no wheel turns faster than its motor's no-load speed at the supply
+# voltage, U_supply / Km, unless the robot is pushed; twice that is no measurement of a robot on its wheels
+PLAUSIBLE_SPEED_FACTOR = 2.0
+MAX_POSITION_M = 1.0e6  # a pose 1000 km from the odom origin is garbage (float resolution there is still 1e-10 m)
 
 
 class ControllerInputError(RobotinoError, ValueError):
@@ -114,6 +118,7 @@ class MotionController:
         self.mpc = DecoupledMPC(robot, control)
         self.field = DecouplingField(robot)
         self.kinematics = MotorKinematics(robot)
+        self.max_motor_speed = PLAUSIBLE_SPEED_FACTOR * robot.supply_voltage_v / robot.torque_constant_n_m_per_a
         self.drive = InverseDrive(robot, self.period_s)
         self._damping = axis_dampings(robot)
         self._damping_rates = tuple(self._damping.tolist())
@@ -174,6 +179,24 @@ class MotionController:
                 raise ControllerInputError(f"X must be finite and of physical magnitude, got {x}")
             raise ControllerInputError("preview must be finite and of physical magnitude")
         return x, y
+
+    def state_problem(self, X: np.ndarray) -> str | None:
+        """Why a finite measured state X (eq. 2) cannot be the robot's, or None.
+
+        A position beyond `MAX_POSITION_M`, or a velocity that needs a motor speed W(theta) (x', y', theta')
+        above `PLAUSIBLE_SPEED_FACTOR` times the no-load speed U_supply / Km. Such a state (a corrupt or
+        misscaled odometry) would otherwise drive the controller to full voltage, and a bumpless restart
+        would blend in from it for minutes.
+        """
+        x, vx, y, vy, theta, w = X.tolist()
+        if max(abs(x), abs(y)) > MAX_POSITION_M:
+            return f"position ({x:.4g}, {y:.4g}) m is beyond {MAX_POSITION_M:g} m"
+        speeds = self.kinematics.speeds_and_rates_floats(theta, (vx, vy, w), (0.0, 0.0, 0.0))[0]
+        fastest = max(map(abs, speeds))
+        if fastest > self.max_motor_speed:
+            return (f"velocity ({vx:.4g} m/s, {vy:.4g} m/s, {w:.4g} rad/s) needs a motor speed of {fastest:.4g} rad/s, "
+                    f"beyond {PLAUSIBLE_SPEED_FACTOR:g} x the no-load speed U_supply / Km")
+        return None
 
     @staticmethod
     def _interval(dt_s: object) -> float:

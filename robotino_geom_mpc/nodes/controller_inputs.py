@@ -2,6 +2,47 @@
 
 Plain Python (no rclpy), so each piece is a few float operations on values
 the node has already read; `controller_node` wires them to the topics.
+
+Bad input (`ros.decode` and `core.controller.MotionController.state_problem` check the values read):
+
+* refused, with zero volts, an ERROR diagnostic naming the reason key, a
+  throttled warning and ``rejected`` counted: non-finite values
+  (``non_finite``), a wrongly sized preview (``size``), undecodable bytes
+  (``malformed``), a stamp that is no time (``stamp``: sec < 0 or nanosec
+  outside [0, 1e9)), a quaternion whose norm is off 1 by more than
+  ``quaternion_norm_tolerance`` (``quaternion_norm``: the all-zero one, or
+  (0, 0, 0.5, 0.5)) or that tilts the robot by more than
+  ``tilt_tolerance_rad`` (``quaternion_tilt``), on odometry and on every
+  preview point; a measurement no robot on its wheels gives (``implausible``:
+  a twist whose motor speeds exceed twice the no-load speed U_supply / Km, a
+  pose or preview position beyond 1000 km); in realtime, a stamp older than
+  ``odom_timeout_s`` (preview: ``reference_timeout_s``) against the node clock
+  (``stale``: an hour old, or zero) or ahead of it by more than
+  ``future_tolerance_s`` (``future``). In lockstep a refused preview makes the
+  tick of its stamp get zero volts (reason ``preview_<reason>``). A step that
+  fails all the same (a bug) gives zero volts, an ERROR log with the traceback
+  (reason ``internal_error``) and a bumpless restart at the next tick;
+* dropped, counted (``dropped_duplicate``, ``dropped_old``), with a WARN
+  diagnostic and no output (a newer input was used already): an odometry
+  (realtime: also a preview) whose stamp equals the last used one
+  (``duplicate``; in lockstep the plant's resend, answered again only if the
+  first answer could not be delivered, also as soon as a subscription
+  matches the wheel_voltages publisher) or is older (``old``: a late
+  message). If nothing valid follows, the watchdog gives zero volts after
+  the timeout.
+
+Stale data: a steady-clock watchdog checks the arrival age of the accepted
+odometry and preview: older than ``odom_timeout_s`` / ``reference_timeout_s``
+means (realtime) zero volts, a throttled warning, the watchdog state in the
+diagnostics, and a bumpless restart when data return; the stamps used so far
+are forgotten then, so inputs stamped before them are taken (a clock that went
+back: a simulator reset, a bag replayed in a loop). In lockstep the plant
+holds the time, so the watchdog only reports, and a controller that has heard
+nothing for a timeout (no odometry, or an odometry waiting for its preview)
+logs what it waits for (every 5 s).
+
+Stop: a realtime controller that stops (SIGINT, SIGTERM, or a failed
+callback) sends zero volts (a zero twist) as its last command.
 """
 
 from __future__ import annotations
@@ -12,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from robotino_geom_mpc.core.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2
+from robotino_geom_mpc.core.controller import MotionController
 from robotino_geom_mpc.core.errors import RobotinoError
 from robotino_geom_mpc.core.mpc import check_closed_loop
 from robotino_geom_mpc.core.params import ParamSpec, params_from_values
@@ -58,10 +100,22 @@ FIXED_WHILE_RUNNING = ("mode", "frame_prefix", "command_interface", "control.per
 
 
 def closed_loop_problem(values: dict[str, Any]) -> str | None:
-    """Why the candidate parameter values cannot run (an unstable nominal closed loop, ...), or None."""
+    """Why the candidate parameter values cannot run, or None.
+
+    A timeout shorter than two control periods (every tick's input would be stale, and the
+    watchdog's timer would run at half of it), an unstable nominal closed loop, or a model the
+    controller cannot be built on (e.g. a singular T(theta)): refused before the node takes them.
+    """
+    period = values["control.period_s"]
+    for name in ("odom_timeout_s", "reference_timeout_s"):
+        if values[name] < 2.0 * period:
+            return (f"parameter '{name}' = {values[name]:g} s is shorter than two control periods "
+                    f"({2.0 * period:g} s): every input would be stale")
     try:
-        check_closed_loop(*params_from_values(values, "parameters of the controller"))
-    except RobotinoError as exc:  # UnstableClosedLoopError, ParamError
+        robot, control = params_from_values(values, "parameters of the controller")
+        check_closed_loop(robot, control)
+        MotionController(robot, control)
+    except RobotinoError as exc:  # UnstableClosedLoopError, ParamError, GeometryError, ...
         return str(exc)
     return None
 

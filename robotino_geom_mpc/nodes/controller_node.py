@@ -40,36 +40,7 @@ one used (None when it is exactly one period, and after a (re)start).
 Time: the stamps of the inputs; in realtime the node clock (``use_sim_time``
 honoured) is read once per input to check its stamp.
 
-Bad input (`ros.decode` does the checks on the values already read):
-
-* refused, with zero volts, an ERROR diagnostic naming the reason key, a
-  throttled warning and ``rejected`` counted: non-finite values
-  (``non_finite``), a wrongly sized preview (``size``), undecodable bytes
-  (``malformed``), a quaternion whose norm is off 1 by more than
-  ``quaternion_norm_tolerance`` (``quaternion_norm``: the all-zero one, or
-  (0, 0, 0.5, 0.5)) or that tilts the robot by more than
-  ``tilt_tolerance_rad`` (``quaternion_tilt``), on odometry and on every
-  preview point; in realtime, a stamp older than ``odom_timeout_s``
-  (preview: ``reference_timeout_s``) against the node clock (``stale``: an
-  hour old, or zero) or ahead of it by more than ``future_tolerance_s``
-  (``future``). In lockstep a refused preview makes the tick of its stamp
-  get zero volts (reason ``preview_<reason>``);
-* dropped, counted (``dropped_duplicate``, ``dropped_old``), with a WARN
-  diagnostic and no output (a newer input was used already): an odometry
-  (realtime: also a preview) whose stamp equals the last used one
-  (``duplicate``; in lockstep the plant's resend, answered again only if the
-  first answer could not be delivered, also as soon as a subscription
-  matches the wheel_voltages publisher) or is older (``old``: a late
-  message, a clock that went back). If nothing valid follows, the watchdog
-  gives zero volts after the timeout.
-
-Stale data: a steady-clock watchdog checks the arrival age of the accepted
-odometry and preview: older than ``odom_timeout_s`` / ``reference_timeout_s``
-means (realtime) zero volts, a throttled warning, the watchdog state in the
-diagnostics, and a bumpless restart when data return. In lockstep the plant
-holds the time, so the watchdog only reports, and a controller that has heard
-nothing for a timeout (no odometry, or an odometry waiting for its preview)
-logs what it waits for (every 5 s).
+Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagnostic naming the reason).
 
 Bumpless (re)start (`core.blend.BlendEngagement`): at
 the first tick (except tick t = 0 of a lockstep run, where robot and
@@ -86,14 +57,17 @@ stays within ``blend_acceleration_mps2`` / ``blend_acceleration_radps2``.
 
 Parameters: the robot/control parameters of config/*.yaml (``/**`` section)
 plus `controller_inputs.CONTROLLER_SPECS`. A set is refused with the reason
-when its nominal closed loop is unstable (`core.mpc.check_closed_loop`, also
-at start: exit status 2) and for ``mode``, ``frame_prefix``, ``command_interface``,
+when the values cannot run (`controller_inputs.closed_loop_problem`: a timeout
+under two periods, an unstable nominal closed loop, a model the controller
+cannot be built on; also at start: exit status 2) and for ``mode``, ``frame_prefix``, ``command_interface``,
 ``control.period_s`` and ``control.horizon`` (the last two must agree with the trajectory
 node: restart instead); any other accepted change of a robot/control parameter rebuilds the
 controller with a bumpless restart.
 """
 
 from __future__ import annotations
+
+import traceback
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -103,8 +77,8 @@ from rclpy.node import Node
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.blend import BlendEngagement
-from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, step_interval
+from robotino_geom_mpc.core.blend import BlendEngagement, BlendError
+from robotino_geom_mpc.core.controller import MAX_POSITION_M, ControllerInputError, MotionController, step_interval
 from robotino_geom_mpc.core.params import ALL_SPECS
 from robotino_geom_mpc.core.trajectory import shift_preview
 from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix
@@ -113,7 +87,7 @@ from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTR
 from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
-    stamp_problem, state_of_odometry
+    stamp_problem, state_of_odometry, time_ns
 from robotino_geom_mpc.ros.messages import odometry_layout, preview_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS
@@ -202,6 +176,14 @@ class ControllerNode(Node):
             self.blend.request("parameters")  # the new controller starts from u(k-1) = 0: blend from the state
             self.get_logger().info(f"parameters {sorted(changed)} changed: controller rebuilt, bumpless restart")
 
+    def on_stop(self) -> None:
+        """Realtime: leave the drives at zero volts (a base at zero twist) as the node stops (`ros.spin.run_node`).
+
+        Lockstep does not: the plant holds the time and pairs every command with its tick.
+        """
+        if not self.lockstep:
+            self.outputs.send_zero()
+
     def _on_enable(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
         """~/enable: false holds (zero output every tick, the controller untouched); true re-engages bumplessly."""
         if request.data != self.enabled:
@@ -237,10 +219,10 @@ class ControllerNode(Node):
             values = self.preview_layout.read(data)
             if values is None:
                 msg = _read_preview(data)
-                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                stamp = time_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)  # a wrong size is refused for it
                 values = (msg.header.stamp.sec, msg.header.stamp.nanosec,
                           *preview_point_values(msg, self.control.horizon))
-            stamp = values[0] * 1_000_000_000 + values[1]
+            stamp = time_ns(values[0], values[1])
             latest = self.latest_preview
             if not self.lockstep:  # lockstep: the trajectory resends previews on purpose, keyed by stamp
                 problem = stamp_problem(stamp, None if latest is None else latest[0], self._now_ns(),
@@ -251,6 +233,8 @@ class ControllerNode(Node):
                 if problem is not None:
                     raise InputRejected(f"stamp {stamp} ns is {problem}", problem)
             arrays = preview_of_values(values[2:], self.theta, *self.tolerances)
+            if np.abs(arrays[0][:, :2]).max() > MAX_POSITION_M:
+                raise InputRejected(f"reference_preview has a position beyond {MAX_POSITION_M:g} m", "implausible")
         except (MalformedMessage, InputRejected) as exc:
             self._refuse_preview(stamp, getattr(exc, "reason", "malformed"), str(exc))
             return
@@ -288,10 +272,10 @@ class ControllerNode(Node):
             values = self.odom_layout.read(data)
             if values is None:
                 values = odometry_values(_read_odom(data))
-        except MalformedMessage as exc:
-            self._reject(None, "odom", "malformed", repr(exc))
+            stamp = time_ns(values[0], values[1])
+        except (MalformedMessage, InputRejected) as exc:
+            self._reject(None, "odom", getattr(exc, "reason", "malformed"), str(exc))
             return
-        stamp = values[0] * 1_000_000_000 + values[1]
         problem = stamp_problem(stamp, self.last_odom_ns, self._now_ns(), self.odom_timeout_ns, self.future_ns)
         if problem is not None:
             if problem == "duplicate" and self.lockstep:
@@ -303,6 +287,9 @@ class ControllerNode(Node):
             return
         try:
             X = state_of_odometry(values[2:], self.theta, *self.tolerances)
+            problem = self.controller.state_problem(X)
+            if problem is not None:
+                raise InputRejected(f"odom {problem}", "implausible")
         except InputRejected as exc:
             self._reject(stamp, "odom", exc.reason, str(exc))
             return
@@ -346,19 +333,25 @@ class ControllerNode(Node):
         if reason == "start" and self.lockstep and stamp == 0:
             self.blend.reason = reason = None  # t = 0 of a lockstep run: robot and reference start together
             self.controller.start_at(*positions[0].tolist())
-        if reason is not None:
-            self._engage(stamp, X, positions[0], velocities[0], accelerations[0], reason)
-            dt_s = None  # the controller starts over
-        else:  # None: one period exactly, or the first tick
-            dt_s = step_interval(stamp, self.last_odom_ns, self.period_ns)
-        preview = positions[1:]
-        offsets = self.blend.offsets(stamp)
-        if offsets is not None:
-            preview = preview + offsets
         try:
+            if reason is not None:
+                self._engage(stamp, X, positions[0], velocities[0], accelerations[0], reason)
+                dt_s = None  # the controller starts over
+            else:  # None: one period exactly, or the first tick
+                dt_s = step_interval(stamp, self.last_odom_ns, self.period_ns)
+            preview = positions[1:]
+            offsets = self.blend.offsets(stamp)
+            if offsets is not None:
+                preview = preview + offsets
             out = self.controller.step(X, preview, dt_s)
-        except ControllerInputError as exc:
+        except (ControllerInputError, BlendError) as exc:
             self._reject(stamp, "input", "controller", str(exc))
+            return
+        except Exception as exc:  # a bug must not leave the drives at the last voltages: zero, and start over
+            self.get_logger().error(f"control step failed: {exc!r}\n{traceback.format_exc()}",
+                                    throttle_duration_sec=1.0)
+            self.blend.request("error")
+            self._reject(stamp, "input", "internal_error", repr(exc))
             return
         self.last_odom_ns = stamp
         self.outputs.answer(stamp, list(self.controller.next_velocity() if self.outputs.cmd_vel else out.voltages))
@@ -424,6 +417,8 @@ class ControllerNode(Node):
         if state == "ok" or self.lockstep:
             return
         self.blend.request("watchdog")  # data that return restart the tracking bumplessly
+        # and are taken on any fresh stamp, also one before the last used (a sim clock reset, a bag replayed in a loop)
+        self.last_odom_ns, self.latest_preview = None, None
         self.get_logger().warn(f"watchdog: {state.replace('_', ' ')}; zero volts", throttle_duration_sec=1.0)
         self.outputs.send_zero()
         self.outputs.diagnose(None, DiagnosticStatus.WARN, f"watchdog: {state}")

@@ -20,7 +20,7 @@ from robotino_geom_mpc.core.errors import RobotinoError
 __all__ = [
     "InputRejected", "ODOM_FIELDS", "POINT_FIELDS", "QUATERNION_NORM_TOLERANCE", "STAMP_FIELDS", "TILT_TOLERANCE_RAD",
     "check_yaw_quaternion", "odometry_state", "odometry_values", "preview_arrays", "preview_of_values",
-    "preview_point_values", "stamp_ns", "stamp_problem", "state_of_odometry", "unwrap_near", "yaw_of",
+    "preview_point_values", "stamp_ns", "stamp_problem", "state_of_odometry", "time_ns", "unwrap_near", "yaw_of",
 ]
 
 STAMP_FIELDS = ("header.stamp.sec", "header.stamp.nanosec")
@@ -114,6 +114,20 @@ def stamp_problem(stamp_ns: int, last_ns: int | None, now_ns: int | None, timeou
 def stamp_ns(stamp) -> int:
     """A decoded builtin_interfaces/Time (rclpy's, rosbags' or mcap's) as integer nanoseconds."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def time_ns(sec: int, nanosec: int) -> int:
+    """An input's header stamp (sec, nanosec) as integer nanoseconds.
+
+    Raises
+    ------
+    InputRejected
+        With reason ``stamp`` for a time ROS does not have: sec < 0 or nanosec outside [0, 1e9)
+        (``sec = 2^31 - 1, nanosec = 2^32 - 1`` would otherwise overflow the stamps of the answers).
+    """
+    if sec < 0 or not 0 <= nanosec < 1_000_000_000:
+        raise InputRejected(f"stamp ({sec} s, {nanosec} ns) is no time: sec >= 0 and 0 <= nanosec < 1e9", "stamp")
+    return sec * 1_000_000_000 + nanosec
 
 
 def yaw_of(x: float, y: float, z: float, w: float) -> float:

@@ -88,7 +88,9 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     (`gc.freeze`): a full collection of the ~70 000 objects rclpy, numpy and
     scipy leave takes ~45 ms, long enough to miss several control periods;
     what the loop allocates later is still collected. A node that ends its
-    own run sets a `Future` attribute ``done`` and may set ``exit_status``.
+    own run sets a `Future` attribute ``done`` and may set ``exit_status``; a
+    node's ``on_stop()``, if it has one, runs once as the loop ends, however it
+    ends (the controller's zero command), before the acknowledgement wait.
     A bad parameter file (see `start_rclpy`) or a `NodeStartError` (bad
     parameter) is reported in one line on stderr with exit status 2.
     """
@@ -113,6 +115,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         while not STOP.is_set() and rclpy.ok() and not (done is not None and done.done()):
             executor.spin_once(timeout_sec=0.1)
         status = getattr(node, "exit_status", 0)
+        _stopping(node)
         # the last samples die with the process: let every reader (a recorder behind the loop) acknowledge them
         finished = done is not None and done.done()
         wait_acknowledged(node, data_publishers(node), FINISHED_ACK_WAIT_S if finished else STOPPED_ACK_WAIT_S)
@@ -124,9 +127,22 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     finally:
         ignore_stop_signals()
         if node is not None:
+            _stopping(node)  # the loop ended by an exception (a failed callback)
             node.destroy_node()
         rclpy.try_shutdown()
     return status
+
+
+def _stopping(node: Node) -> None:
+    """Call the node's ``on_stop()`` (if it has one) the first time only; a failure is reported, not raised."""
+    on_stop = getattr(node, "on_stop", None)
+    if on_stop is None or getattr(node, "_stop_called", False):
+        return
+    node._stop_called = True
+    try:
+        on_stop()
+    except Exception as exc:  # e.g. the context already shut down: the process ends anyway
+        print(f"{_prog()}: {node.get_name()}: on_stop failed: {exc!r}", file=sys.stderr)
 
 
 def data_publishers(node: Node) -> list:

@@ -417,7 +417,9 @@ class PlantNode(Node):
         `stamp` is (sec, nanosec). The currents of the period just integrated go out after this tick's
         odometry and before its ground truth, so in publish order they follow the previous tick's ground truth.
         The currents, the ground truth and the joints are built only while a subscription is matched (the
-        odometry and /clock always go out: they drive the loop).
+        odometry and /clock always go out: they drive the loop). A resent tick (not `fresh`) is its odometry
+        and /clock only: /tf, the joints and the ground truth of a stamp go out once (tf2 refuses a
+        repeated stamp, TF_REPEATED_DATA).
         """
         if fresh or self.measurement is None:
             noise = (self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"])
@@ -425,7 +427,9 @@ class PlantNode(Node):
         publish_acknowledged(self, self.odom_pub, self.odom_cdr.pack(*stamp, *odometry_values(*self.measurement)))
         if clock:
             publish_acknowledged(self, self.clock_pub, self.clock_cdr.pack(*stamp))
-        if fresh and self.have_period:
+        if not fresh:
+            return
+        if self.have_period:
             self._publish_currents()
         if self.truth_pub.get_subscription_count():
             publish_acknowledged(self, self.truth_pub,

@@ -12,6 +12,7 @@ from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+from tf2_msgs.msg import TFMessage
 
 from robotino_geom_mpc.core.params import load_params
 from robotino_geom_mpc.ros.messages import quaternion_to_yaw, stamp_to_ns
@@ -42,6 +43,7 @@ def plant_run(tmp_path_factory):
         clock = h.collect("/clock", Clock)
         currents = h.collect("wheel_currents", Float64MultiArray)
         joints = h.collect("joint_states", JointState)
+        tf = h.collect("/tf", TFMessage)
         pub = h.node.create_publisher(Float64MultiArray, "wheel_voltages", PUBLISH_QOS)
         plant = group.start("plant_node", ros_args(None, {
             "mode": "lockstep", "duration_s": 4 * Ts, "lockstep_wait_for": ["odom:1", "/clock:1"],
@@ -54,13 +56,13 @@ def plant_run(tmp_path_factory):
         graph = dict(h.node.get_topic_names_and_types())
         infos = h.node.get_publishers_info_by_topic("/odom")
         for k, command in enumerate(commands):
-            h.spin_until(lambda: len(truth) >= k + 2, 5.0)  # tick k (plus the resent tick 0)
+            h.spin_until(lambda: len(truth) >= k + 1, 5.0)  # tick k (a resent tick has no new ground truth)
             pub.publish(Float64MultiArray(data=command))
             assert h.spin_until(lambda: len(currents) >= k + 1, 10.0), plant.stderr_tail()
         assert group.wait(plant, 10.0)
         h.spin_for(0.2)
         return dict(robot=robot, Ts=Ts, commands=commands, odom=odom, truth=truth, clock=clock,
-                    currents=currents, joints=joints, graph=graph, infos=infos, status=plant.popen.returncode,
+                    currents=currents, joints=joints, tf=tf, graph=graph, infos=infos, status=plant.popen.returncode,
                     stderr=plant.stderr_tail(50), report=json.loads(report.read_text()))
 
 
@@ -98,12 +100,17 @@ def test_stamps_clock_frames_and_resend(plant_run):
     assert [stamp_to_ns(c.clock) for c in plant_run["clock"]] == stamps
     for msg in odom + plant_run["truth"]:
         assert (msg.header.frame_id, msg.child_frame_id) == ("odom", "base_link")
+    # the resend is odometry and /clock only: tf2 refuses a transform stamped again (TF_REPEATED_DATA)
+    ticks = [k * Ts_ns for k in range(4)]
+    assert [stamp_to_ns(m.header.stamp) for m in plant_run["truth"]] == ticks
+    assert [stamp_to_ns(m.header.stamp) for m in plant_run["joints"]] == ticks
+    assert [stamp_to_ns(t.header.stamp) for m in plant_run["tf"] for t in m.transforms] == ticks
 
 
 def test_states_match_an_offline_plant_with_bad_commands_as_zero_volts(plant_run):
     robot, Ts = plant_run["robot"], plant_run["Ts"]
     offline = RobotinoPlant(robot)
-    truth = [m for i, m in enumerate(plant_run["truth"]) if i != 1]  # drop the resent tick 0
+    truth = plant_run["truth"]
     applied = [[2.0, -1.0, 0.5], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 3.0, -3.0]]
     for k, U in enumerate(applied):
         assert np.allclose(_pose(truth[k]), offline.pose, rtol=0, atol=1e-12)
@@ -130,7 +137,7 @@ def test_odometry_noise_and_covariance(plant_run):
     rng = np.random.default_rng(SEED)  # the noise stream of simulation.run_scenario
     sigma = np.array([NOISE[0], NOISE[0], NOISE[1]])
     odom = [m for i, m in enumerate(plant_run["odom"]) if i != 1]
-    truth = [m for i, m in enumerate(plant_run["truth"]) if i != 1]
+    truth = plant_run["truth"]  # one per tick: the resend repeats only the odometry
     for o, t in zip(odom, truth):
         expected = rng.normal(0.0, sigma)
         assert np.allclose(_pose(o) - _pose(t), expected, rtol=1e-9, atol=1e-12)

@@ -26,13 +26,14 @@ namespace      ROS namespace of every node (``robot1``; default none): the topic
 frame_prefix   prefix of the frame ids (odometry, /tf, the URDF's links), given to the nodes that declare
                it (`processes.FRAME_PREFIX_NODES`) and to the description publisher; ``auto`` (default):
                ``<namespace>/`` with a namespace, else none, so robots keep their frames apart on /tf
-fastdds_profile  Fast DDS profile file of the nodes (FASTRTPS_DEFAULT_PROFILES_FILE; default:
-               config/fastdds_localhost.xml, quick announcements; config/fastdds_udp.xml across hosts);
-               empty: the environment's
+fastdds_profile  Fast DDS profile file of the nodes (FASTRTPS_DEFAULT_PROFILES_FILE; default: the one
+               the environment sets, else config/fastdds_localhost.xml, quick announcements;
+               config/fastdds_udp.xml across hosts); empty: none set by the launch
 command_interface  voltages (default): the controller sends wheel_voltages to the plant's drives; cmd_vel:
                a base_link geometry_msgs/Twist on cmd_vel, held by the plant's wheel-speed PI loops (as a real
                Robotino's driver does). Given to the controller and the plant
-duration       run length [s]; 0 runs until stopped
+duration       run length [s] of the plant; 0 runs until stopped. The plant ends the run: when it exits
+               (its duration, or a failure) the launch shuts the other nodes down, as ``run`` stops them
 seed           seed of the plant's odometry noise
 record         true: also start the MCAP recorder (bag in ``bag``)
 bag            recording directory (default: rosbag2_<date> in the working directory)
@@ -52,8 +53,10 @@ from the recording.
 import math
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+from launch.event_handlers import OnProcessExit
+from launch.events import Shutdown
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
@@ -108,7 +111,8 @@ def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
 
 
 def _nodes(context) -> list:
-    """The nodes of the run, each with its scenario's overrides (`scenarios.node_parameters`)."""
+    """The nodes of the run, each with its scenario's overrides (`scenarios.node_parameters`), and the
+    handler that shuts the launch down when the plant exits."""
     config = context.launch_configurations
     scenario, params_file = config["scenario"], config["params_file"]
     robot, _ = load_params(params_file)
@@ -136,6 +140,8 @@ def _nodes(context) -> list:
              "seed": _number(config, "seed", int), **command, **own("plant_node")}
     if record:  # the lockstep plant also waits for the recorder's subscriptions
         plant["lockstep_wait_for"] = recorder_wait_for(interface)
+    plant_node = Node(package=PACKAGE, executable="plant_node", name="robotino_plant",
+                      parameters=[config["plant_params"], plant], **common)
     nodes = [
         Node(package=PACKAGE, executable="trajectory_node", name="robotino_trajectory",
              parameters=[params_file, {**overrides["trajectory_node"], "mode": mode, **own("trajectory_node")}],
@@ -144,14 +150,14 @@ def _nodes(context) -> list:
              parameters=[params_file, {**overrides["controller_node"], "mode": mode, **command,
                                        **own("controller_node")}],
              **common),
-        Node(package=PACKAGE, executable="plant_node", name="robotino_plant",
-             parameters=[config["plant_params"], plant], **common),
+        plant_node,
         _description(config["plant_params"], prefix, mode, **common),
     ]
     if record:
         nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
                           parameters=[params_file, {"output": config["bag"], "scenario": scenario}], **common))
-    return nodes
+    ended = EmitEvent(event=Shutdown(reason="the plant ended the run"))
+    return [*nodes, RegisterEventHandler(OnProcessExit(target_action=plant_node, on_exit=[ended]))]
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -167,11 +173,15 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("namespace", default_value="", description="ROS namespace of the robot's nodes"),
         DeclareLaunchArgument("frame_prefix", default_value="auto",
                               description="frame id prefix; auto: '<namespace>/' with a namespace, else none"),
-        DeclareLaunchArgument("fastdds_profile", default_value=default_profile,
-                              description="Fast DDS profile of the nodes; empty: the environment's"),
+        DeclareLaunchArgument("fastdds_profile",
+                              default_value=EnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE",
+                                                                default_value=default_profile),
+                              description="Fast DDS profile of the nodes (default: $FASTRTPS_DEFAULT_PROFILES_FILE "
+                              "if set, else config/fastdds_localhost.xml); empty: none set by the launch"),
         DeclareLaunchArgument("command_interface", default_value="voltages",
                               description="voltages: wheel_voltages to the drives; cmd_vel: a base_link Twist"),
-        DeclareLaunchArgument("duration", default_value="0.0", description="run length [s], 0: until stopped"),
+        DeclareLaunchArgument("duration", default_value="0.0",
+                              description="run length [s], 0: until stopped; the plant's exit ends the launch"),
         DeclareLaunchArgument("seed", default_value="0", description="seed of the odometry noise"),
         DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),
         DeclareLaunchArgument("bag", default_value="", description="recording directory"),

@@ -50,9 +50,12 @@ def _kind(name: str) -> type:
 
 STAND_INS = {
     "launch": {"LaunchDescription": _kind("LaunchDescription")},
-    "launch.actions": {"DeclareLaunchArgument": _kind("DeclareLaunchArgument"),
-                       "OpaqueFunction": _kind("OpaqueFunction")},
-    "launch.substitutions": {n: _kind(n) for n in ("LaunchConfiguration", "PathJoinSubstitution")},
+    "launch.actions": {n: _kind(n) for n in ("DeclareLaunchArgument", "EmitEvent", "OpaqueFunction",
+                                             "RegisterEventHandler")},
+    "launch.event_handlers": {"OnProcessExit": _kind("OnProcessExit")},
+    "launch.events": {"Shutdown": _kind("Shutdown")},
+    "launch.substitutions": {n: _kind(n) for n in ("EnvironmentVariable", "LaunchConfiguration",
+                                                   "PathJoinSubstitution")},
     "launch_ros": {},
     "launch_ros.actions": {"Node": _kind("Node")},
     "launch_ros.substitutions": {"FindPackageShare": _kind("FindPackageShare")},
@@ -102,7 +105,8 @@ def _of(kind: str, items) -> list[Recorded]:
 
 
 def _defaults(description) -> dict[str, str]:
-    """The declared arguments' defaults, as launch would perform them (the file paths set here)."""
+    """The declared arguments' defaults, as launch would perform them (the file paths set here; the profile
+    as without FASTRTPS_DEFAULT_PROFILES_FILE in the environment)."""
     files = {"params_file": PARAMS, "plant_params": PARAMS, "fastdds_profile": PROFILE}
     values = {a.args[0]: a.kwargs["default_value"] for a in _of("DeclareLaunchArgument", description)}
     assert all(isinstance(v, str) for k, v in values.items() if k not in files)
@@ -113,8 +117,9 @@ def _launch(description, **arguments: str) -> tuple[dict[str, Recorded], Context
     """Evaluate the file's OpaqueFunction with `arguments` over the defaults: nodes by executable, context."""
     (opaque,) = _of("OpaqueFunction", description)
     context = Context({**_defaults(description), **arguments})
-    nodes = {n.kwargs["executable"]: n for n in opaque.kwargs["function"](context)}
-    assert all(type(n).__name__ == "Node" for n in nodes.values())
+    actions = opaque.kwargs["function"](context)
+    nodes = {n.kwargs["executable"]: n for n in _of("Node", actions)}
+    assert len(nodes) == len(actions) - 1  # and the handler of the plant's exit (`test_the_plants_exit_ends_...`)
     return nodes, context
 
 
@@ -282,3 +287,25 @@ def test_command_interface_reaches_controller_and_plant_as_run_gives_it(descript
     assert (f"{'cmd_vel' if interface == 'cmd_vel' else 'wheel_voltages'}:2") in waiting
     default, _ = _launch(description)
     assert all("command_interface" not in _overrides(default[name]) for name in LOOP)
+
+
+def test_the_plants_exit_ends_the_launch(description):
+    """The plant ends the run (its duration): launch then shuts the other nodes down, as `run` stops them."""
+    opaque, = _of("OpaqueFunction", description)
+    actions = opaque.kwargs["function"](Context({**_defaults(description), "duration": "20"}))
+    (handler,) = _of("RegisterEventHandler", actions)
+    (on_exit,) = handler.args
+    assert type(on_exit).__name__ == "OnProcessExit"
+    assert on_exit.kwargs["target_action"].kwargs["executable"] == "plant_node"
+    (emit,) = on_exit.kwargs["on_exit"]
+    assert type(emit).__name__ == "EmitEvent" and type(emit.kwargs["event"]).__name__ == "Shutdown"
+
+
+def test_the_profile_default_is_the_environments_then_the_packages(description):
+    """A user's FASTRTPS_DEFAULT_PROFILES_FILE (the UDP profile, a discovery server) is kept by default."""
+    (profile,) = [a for a in _of("DeclareLaunchArgument", description) if a.args[0] == "fastdds_profile"]
+    default = profile.kwargs["default_value"]
+    assert type(default).__name__ == "EnvironmentVariable" and default.args == ("FASTRTPS_DEFAULT_PROFILES_FILE",)
+    package = default.kwargs["default_value"]
+    assert type(package).__name__ == "PathJoinSubstitution" and package.args[0][1:] == ["config",
+                                                                                         "fastdds_localhost.xml"]

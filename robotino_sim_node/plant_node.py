@@ -412,15 +412,10 @@ class PlantNode(Node):
         self.peak_currents = np.zeros(3)
 
     def _publish_measurements(self, stamp: tuple[int, int], fresh: bool, clock: bool = False) -> None:
-        """Odom (noisy; the same measurement again when not `fresh`), /clock, currents, ground truth, joints.
-
-        `stamp` is (sec, nanosec). The currents of the period just integrated go out after this tick's
-        odometry and before its ground truth, so in publish order they follow the previous tick's ground truth.
-        The currents, the ground truth and the joints are built only while a subscription is matched (the
-        odometry and /clock always go out: they drive the loop). A resent tick (not `fresh`) is its odometry
-        and /clock only: /tf, the joints and the ground truth of a stamp go out once (tf2 refuses a
-        repeated stamp, TF_REPEATED_DATA).
-        """
+        """Odom (noisy), /clock, currents, ground truth, joints at `stamp` (sec, nanosec); a resent tick (not
+        `fresh`): odom and /clock only (they drive the loop; tf2 refuses a repeated stamp on /tf). The others are
+        built only while a subscription is matched; the currents of the period just integrated follow this
+        tick's odometry, before its ground truth."""
         if fresh or self.measurement is None:
             noise = (self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"])
             self.measurement = self.odometry.odometry_floats(self.rng, noise)

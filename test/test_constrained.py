@@ -1,5 +1,6 @@
 """Constrained mode: QP against the closed form, limits checked with the model, optimality against quadprog."""
 
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -8,7 +9,7 @@ import quadprog
 from scipy.integrate import solve_ivp
 
 from robotino_geom_mpc.core import model
-from robotino_geom_mpc.core.constrained import ConstrainedMPC
+from robotino_geom_mpc.core.constrained import ConstrainedMPC, ConstrainedModeError
 from robotino_geom_mpc.core.controller import MotionController
 from robotino_geom_mpc.core.decoupling import DecouplingField
 from robotino_geom_mpc.core.drive import MotorKinematics, ZOHDrive
@@ -221,3 +222,15 @@ def test_solve_equals_osqp_on_the_same_qp_and_the_closed_form_where_no_limit_bin
     # the limits bind through the transients (the QP is exercised) and hardly on the nominal runs
     assert binding["circle-step"] >= 5 and binding["position-step"] >= 5
     assert binding["paper-circle"] == 0
+
+
+def test_without_daqp_the_constrained_mode_says_what_to_install(monkeypatch):
+    """daqp has no rosdep key: on a ROS install without it the constrained mode stops with the pip line."""
+    robot, control = load_params()
+    control = replace(control, mode="constrained")
+    monkeypatch.setitem(sys.modules, "daqp", None)  # import daqp raises ImportError
+    monkeypatch.delitem(sys.modules, "robotino_geom_mpc.core.warm_qp", raising=False)
+    with pytest.raises(ConstrainedModeError, match=r"pip install 'daqp"):
+        ConstrainedMPC(robot, control, DecoupledMPC(robot, control))
+    with pytest.raises(ConstrainedModeError):
+        MotionController(robot, control)

@@ -80,3 +80,22 @@ def test_no_package_file_over_the_line_limit():
     files = sorted((ROOT / "robotino_geom_mpc").rglob("*.py")) + sorted((ROOT / "robotino_sim_node").rglob("*.py"))
     long = {str(p.relative_to(ROOT)): n for p in files if (n := len(p.read_text().splitlines())) > MAX_LINES}
     assert long == {}
+
+
+def test_the_nodes_import_no_pip_only_solver():
+    """daqp (the constrained mode) and osqp (the benchmarks) have no rosdep key: a ROS install via rosdep
+    lacks them, so no node may import them at start; the constrained mode imports daqp when built."""
+    nodes = ["robotino_sim_node.plant_node", "robotino_geom_mpc.nodes.trajectory_node",
+             "robotino_geom_mpc.nodes.controller_node", "robotino_geom_mpc.nodes.robot_description_node",
+             "robotino_geom_mpc.nodes.goal_sender", "robotino_geom_mpc.recording.recorder_node"]
+    script = ("import importlib, sys\nfor m in sys.argv[1:]: importlib.import_module(m)\n"
+              "print(sorted(m for m in ('daqp', 'osqp') if m in sys.modules))\n"
+              "from robotino_geom_mpc.core.controller import MotionController\n"
+              "from robotino_geom_mpc.core.params import load_params\n"
+              "from dataclasses import replace\n"
+              "robot, control = load_params()\n"
+              "MotionController(robot, replace(control, mode='constrained'))\n"
+              "print('daqp' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", script, *nodes], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["[]", "True"]

@@ -42,12 +42,16 @@ import numpy as np
 
 from .decoupling import DecouplingField
 from .drive import MotorKinematics, ZOHDrive
+from .errors import RobotinoError
 from .limit_screen import LimitScreen
 from .mpc import DecoupledMPC, axis_dampings
 from .params import ControlParams, RobotinoParams
-from .warm_qp import WarmDaqp
 
-__all__ = ["ConstrainedMPC"]
+__all__ = ["ConstrainedMPC", "ConstrainedModeError"]
+
+
+class ConstrainedModeError(RobotinoError, RuntimeError):
+    """The constrained mode cannot run here: its QP solver (the daqp package) is not installed."""
 
 _VIOLATION_TOL = 1e-6  # relative to the limit: larger slack means infeasible
 _min = np.minimum.reduce  # ndarray.min without its Python wrapper
@@ -90,6 +94,11 @@ class ConstrainedMPC:
 
     def __init__(self, robot: RobotinoParams, control: ControlParams, mpc: DecoupledMPC) -> None:
         from scipy.optimize import linprog  # here: 0.65 s of import the closed-form nodes need not pay
+        try:  # here too: daqp (pip only, no rosdep key) is needed by the constrained mode alone
+            from .warm_qp import WarmDaqp
+        except ImportError as exc:
+            raise ConstrainedModeError(
+                f"control.mode constrained needs the daqp package (pip install 'daqp>=0.11,<1'): {exc}") from None
         self._linprog = linprog
         self.mpc = mpc
         self.N = N = int(control.horizon)

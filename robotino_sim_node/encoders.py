@@ -42,6 +42,7 @@ __all__ = [
     "wheel_speeds_from_counts",
     "body_twist",
     "integrate_pose",
+    "twist_covariance",
     "EncoderOdometry",
     "odometry_source",
 ]
@@ -90,6 +91,24 @@ def body_twist(wheel_speeds: np.ndarray, p: RobotinoParams) -> np.ndarray:
     """
     kinematics = np.column_stack((wheel_directions(0.0), np.full(3, p.l)))
     return np.linalg.solve(kinematics, p.r * np.asarray(wheel_speeds, dtype=float))
+
+
+def twist_covariance(p: RobotinoParams, counts_per_rev: int, slip_std: float, period_s: float) -> np.ndarray:
+    """A bound of the covariance (3, 3) of the encoders' twist (v_x, v_y, omega in the robot frame), each a mean
+    over one period: what ``odom``'s twist covariance reports with ``odometry_model`` encoders.
+
+    Wheel i's speed is its count difference times q / Ts (q = 2 pi / (gear counts_per_rev), a count in wheel
+    angle). A difference of two floors is off the true advance by a variance of at most a quarter count
+    squared (f (1 - f) for a steady wheel whose advance per period has the fractional part f, 1/6 on average);
+    slip adds ``slip_std`` times the wheel speed, taken at the motors' nominal speed. The twist is r K^-1 times
+    the wheel speeds (`body_twist`), so with the wheels' errors independent its covariance is
+    r^2 K^-1 diag(sigma^2) K^-T.
+    """
+    quantum = 2.0 * math.pi / (p.gear_ratio * counts_per_rev * period_s)  # one count per period [rad/s]
+    nominal = p.nominal_speed_rpm * 2.0 * math.pi / 60.0 / p.gear_ratio  # wheel speed [rad/s]
+    variance = 0.25 * quantum**2 + (slip_std * nominal) ** 2
+    inverse = p.r * np.linalg.inv(np.column_stack((wheel_directions(0.0), np.full(3, p.l))))
+    return variance * inverse @ inverse.T
 
 
 def integrate_pose(pose: Pose, twist_body: tuple[float, float, float], dt: float) -> Pose:

@@ -1,7 +1,10 @@
 """The plant's measurement messages: odometry templates, the wheels on ``joint_states``, odom -> base_link on /tf.
 
 The odometry (`odometry_template`, `odometry_values`): frames ``<frame_prefix>odom`` -> child
-``<frame_prefix>base_link``, pose variance from the noise settings, z/roll/pitch and twist certain.
+``<frame_prefix>base_link``, pose variance from the noise settings, z/roll/pitch certain, the twist certain
+(ideal) or with the encoders' bound (`encoders.twist_covariance`). The encoders' pose is dead reckoning
+whose drift grows with the path: its covariance does not follow it (fuse the twist, as robot_localization
+advises for wheel odometry).
 
 ``joint_states`` (sensor_msgs/JointState): joints ``wheel0_joint`` .. ``wheel2_joint`` of the URDF
 (`description.urdf`): angle [rad] (rim distance / r integrated by the plant, positive rolling along the
@@ -53,6 +56,7 @@ TF_DEFAULTS = {"publish_tf": True, "frame_prefix": ""}
 
 # variance for the planar-motion axes (z, roll, pitch known to be 0) and for noise-free quantities
 _CERTAIN = 1e-12
+_PLANAR = [0, 1, 5]  # x, y and yaw in a 6x6 covariance
 
 ODOM_FIELDS = STAMP_FIELDS + (
     "pose.pose.position.x", "pose.pose.position.y", "pose.pose.orientation.z", "pose.pose.orientation.w",
@@ -63,19 +67,24 @@ _TF_FIELDS = tuple(f"transforms[0].{field}" for field in STAMP_FIELDS + (
     "transform.translation.x", "transform.translation.y", "transform.rotation.z", "transform.rotation.w"))
 
 
-def plant_odometry(sigma_position: float, sigma_yaw: float, frame_prefix: str = "") -> Odometry:
+def plant_odometry(sigma_position: float, sigma_yaw: float, frame_prefix: str = "",
+                   twist_covariance: np.ndarray | None = None) -> Odometry:
     """The plant's Odometry, values zero: frames and covariances set (pose variance from the noise,
-    z/roll/pitch certain: planar; twist from noise-free wheel speeds)."""
+    z/roll/pitch certain: planar; the twist's (3, 3) covariance of v_x, v_y, omega, None: noise-free)."""
     msg = odometry_message(frame_prefix)
     pose_var = (max(sigma_position**2, _CERTAIN),) * 2 + (_CERTAIN,) * 3 + (max(sigma_yaw**2, _CERTAIN),)
     msg.pose.covariance = np.diag(pose_var).ravel()
-    msg.twist.covariance = np.diag([_CERTAIN] * 6).ravel()
+    twist = np.diag([_CERTAIN] * 6)
+    if twist_covariance is not None:
+        twist[np.ix_(_PLANAR, _PLANAR)] = twist_covariance
+    msg.twist.covariance = twist.ravel()
     return msg
 
 
-def odometry_template(sigma_position: float, sigma_yaw: float, frame_prefix: str) -> CdrTemplate:
+def odometry_template(sigma_position: float, sigma_yaw: float, frame_prefix: str,
+                      twist_covariance: np.ndarray | None = None) -> CdrTemplate:
     """`plant_odometry` as a template of `ODOM_FIELDS` (values: stamp, then `odometry_values`)."""
-    return CdrTemplate(plant_odometry(sigma_position, sigma_yaw, frame_prefix), ODOM_FIELDS)
+    return CdrTemplate(plant_odometry(sigma_position, sigma_yaw, frame_prefix, twist_covariance), ODOM_FIELDS)
 
 
 def odometry_values(pose: tuple[float, ...], twist_body: tuple[float, ...]) -> tuple[float, ...]:

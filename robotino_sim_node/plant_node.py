@@ -6,10 +6,9 @@ subscribes ``wheel_voltages``      std_msgs/Float64MultiArray, 3 values [V] (for
            or ``cmd_vel``         geometry_msgs/Twist in base_link (``command_interface`` cmd_vel: held by the
                                   per-wheel PI speed loops of `wheel_speed_loop`, gains ``wheel_pi.*``)
 publishes  ``odom``                nav_msgs/Odometry, frame ``odom`` -> child ``base_link`` (REP-105; both with
-                                   ``frame_prefix``, `outputs`), true pose (or
-                                   with ``odometry_model`` encoders dead-reckoned, `encoders`) plus the odometry
-                                   noise, twist in ``base_link`` (true, or from encoder counts), covariances: x, y, yaw
-                                   variance from the noise settings, z/roll/pitch and twist 1e-12 (planar, exact)
+                                   ``frame_prefix``), true pose (``odometry_model`` encoders: dead-reckoned) plus
+                                   the odometry noise, twist in ``base_link`` (true, or from encoder counts);
+                                   covariances in `outputs`
            ``ground_truth/odom``   nav_msgs/Odometry, the noise-free state (for metrics)
            ``wheel_currents``      std_msgs/Float64MultiArray, 3 values [A], layout label ``wheel_current_a``: per
                                    drive the largest |armature current| over the control period that followed the
@@ -55,9 +54,8 @@ take a Fast DDS announcement period of 3 s) is logged apart. The report at the e
 and, if ``timing_report`` names a file, one JSON object there (`loop_timing` gives the keys and their
 meaning), written once every reader has acknowledged the run's samples.
 
-Parameters: the robot/control parameters of config/*.yaml (``/**`` section;
-a plant-robot mismatch is the plant and the controller reading different
-files or overrides) plus those in `PLANT_SPECS`.
+Parameters: the robot/control parameters of config/*.yaml (``/**`` section; a plant-robot mismatch is the
+plant and the controller reading different files or overrides) plus those in `PLANT_SPECS`.
 """
 
 from __future__ import annotations
@@ -82,7 +80,7 @@ from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spe
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos, wait_acknowledged
 from robotino_geom_mpc.ros.spin import FINISHED_ACK_WAIT_S, data_publishers, monotonic, run_node
 from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
-from robotino_sim_node.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source
+from robotino_sim_node.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source, twist_covariance
 from robotino_sim_node.lockstep_start import StartHandshake
 from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, lockstep_line, lockstep_report, realtime_report, \
     write_report
@@ -395,9 +393,12 @@ class PlantNode(Node):
     # measurements -------------------------------------------------------------------------------
     def _build_messages(self) -> None:
         """Serialized templates (frames, names, covariances set once) patched each tick (`CdrTemplate`)."""
-        sp, sy = self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"]
-        self.odom_cdr = odometry_template(sp, sy, self.frame_prefix)
-        self.truth_cdr = self.odom_cdr if sp == sy == 0.0 else odometry_template(0.0, 0.0, self.frame_prefix)
+        p = self.params
+        twist = None if p["odometry_model"] == "ideal" else twist_covariance(
+            self.robot, p["encoder.counts_per_rev"], p["encoder.wheel_slip_std"], self.control.period_s)
+        self.odom_cdr = odometry_template(p["odometry_noise.position_m"], p["odometry_noise.yaw_rad"],
+                                          self.frame_prefix, twist)
+        self.truth_cdr = odometry_template(0.0, 0.0, self.frame_prefix)
         self.current_cdr = three_values_template(CURRENT_LABEL)
         self.clock_cdr = CdrTemplate(ClockMsg(), ("clock.sec", "clock.nanosec"))
         self.effort_per_a = self.robot.gear_ratio * self.robot.torque_constant_n_m_per_a

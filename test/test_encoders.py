@@ -15,6 +15,7 @@ from robotino_sim_node.encoders import (
     body_twist,
     integrate_pose,
     odometry_source,
+    twist_covariance,
 )
 from robotino_sim_node.plant import RobotinoPlant
 
@@ -142,6 +143,49 @@ def test_slip_scatters_the_measured_wheel_speeds_by_the_fraction():
         ratios.append(wheel_rim_speeds(0.0, np.array(twist), ROBOT) / ROBOT.r / wheels.speeds)
     scatter = np.std(np.array(ratios) - 1.0, axis=0)
     assert np.all(np.abs(scatter - 0.05) < 0.01)
+
+
+def _twist_errors(speeds: np.ndarray, slip_std: float, seed: int, periods: int = 400) -> np.ndarray:
+    """Encoder twist minus the true (constant) twist of wheels turning at `speeds`, per period."""
+    wheels = ConstantWheels(speeds)
+    wheels.time_s = np.random.default_rng(seed).uniform(0.0, 1.0)  # a random phase of the counts
+    odometry = EncoderOdometry(wheels, CPR, slip_std=slip_std, seed=seed)
+    start, errors = wheels.time_s, []
+    true = np.linalg.solve(np.column_stack((np.sin(PHI), np.cos(PHI), np.full(3, ROBOT.l))), ROBOT.r * wheels.speeds)
+    for k in range(1, periods + 1):
+        wheels.time_s = start + k * TS
+        errors.append(np.array(odometry.update()[1]) - true)
+    return np.array(errors)
+
+
+@pytest.mark.parametrize("advance, ratio", [("random", 2.0 / 3.0), ("half a count", 1.0)])
+def test_twist_covariance_bounds_the_quantisation_and_is_reached_at_half_a_count(advance, ratio):
+    """A steady wheel's count difference is off by f (1 - f) counts squared in variance (f: the fractional part
+    of its advance per period): 1/6 on average over f, 1/4 at f = 1/2, which the bound takes for every wheel
+    (the wheels' errors independent: over phases, on average)."""
+    bound = np.diag(twist_covariance(ROBOT, CPR, 0.0, TS))
+    count_speed = 2.0 * math.pi / (ROBOT.gear_ratio * CPR * TS)  # one count per period [rad/s]
+    rng = np.random.default_rng(7)
+    errors = []
+    for seed in range(2000):  # many speeds and phases: within one, f and the wheels' error signs stay
+        if advance == "random":
+            speeds = rng.uniform(-300.0, 300.0, 3) * count_speed
+        else:
+            speeds = (rng.integers(-300, 300, 3) + 0.5) * count_speed
+        errors.append(_twist_errors(speeds, 0.0, seed, 10))
+    variance = np.concatenate(errors).var(axis=0)
+    assert np.all(np.abs(variance / bound - ratio) < 0.1 * ratio), variance / bound
+
+
+def test_twist_covariance_takes_the_slip_at_the_nominal_speed():
+    """Wheels at the motors' nominal speed advance a whole number of counts a period here (no quantisation
+    error to speak of), so the scatter is the slip's: slip_std times the nominal wheel speed."""
+    nominal = ROBOT.nominal_speed_rpm * 2.0 * math.pi / 60.0 / ROBOT.gear_ratio
+    speeds = np.array([1.0, -1.0, 1.0]) * nominal
+    errors = np.concatenate([_twist_errors(speeds, 0.02, seed, 800) for seed in range(5)])
+    bound = np.diag(twist_covariance(ROBOT, CPR, 0.02, TS))
+    slip_only = bound - np.diag(twist_covariance(ROBOT, CPR, 0.0, TS))
+    assert np.all(np.abs(errors.var(axis=0) / slip_only - 1.0) < 0.1), errors.var(axis=0) / slip_only
 
 
 def test_pose_noise_is_the_ideal_models_draws():

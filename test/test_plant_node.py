@@ -194,7 +194,7 @@ def test_lockstep_max_realtime_factor_caps_the_loop(tmp_path):
 
 def test_encoder_odometry_is_published_and_drifts_from_the_ground_truth(tmp_path):
     """A lockstep plant with ``odometry_model: encoders``: odom is the offline dead reckoning, the truth is not."""
-    from robotino_sim_node.encoders import EncoderOdometry
+    from robotino_sim_node.encoders import EncoderOdometry, twist_covariance
 
     robot, control = load_params()
     Ts, ticks = control.period_s, 30
@@ -223,6 +223,10 @@ def test_encoder_odometry_is_published_and_drifts_from_the_ground_truth(tmp_path
                            offline.odometry()[1], rtol=0, atol=1e-12)
         offline.step(np.array([6.0 + 0.2 * k, -4.0, 3.0 - 0.3 * k]), Ts)
     assert np.abs(_pose(odom[-1]) - _pose(truth[-1])).max() > 1e-6  # 512 counts: visibly off the truth
+    # the twist's covariance is the encoders' bound (x, y, yaw), the ground truth's stays certain
+    bound = twist_covariance(robot, 512, 0.0, Ts)
+    assert np.array_equal(np.array(odom[0].twist.covariance).reshape(6, 6)[np.ix_([0, 1, 5], [0, 1, 5])], bound)
+    assert np.allclose(np.array(truth[0].twist.covariance), np.diag([1e-12] * 6).ravel(), rtol=0, atol=0)
 
 
 def _full_state(truth: Odometry, joints: JointState, effort_per_a: float) -> np.ndarray:

@@ -107,8 +107,13 @@ def twist_covariance(p: RobotinoParams, counts_per_rev: int, slip_std: float, pe
     quantum = 2.0 * math.pi / (p.gear_ratio * counts_per_rev * period_s)  # one count per period [rad/s]
     nominal = p.nominal_speed_rpm * 2.0 * math.pi / 60.0 / p.gear_ratio  # wheel speed [rad/s]
     variance = 0.25 * quantum**2 + (slip_std * nominal) ** 2
-    inverse = p.r * np.linalg.inv(np.column_stack((wheel_directions(0.0), np.full(3, p.l))))
+    inverse = _twist_of_wheel_speeds(p)
     return variance * inverse @ inverse.T
+
+
+def _twist_of_wheel_speeds(p: RobotinoParams) -> np.ndarray:
+    """r K^-1 (3, 3): the body twist of the wheel speeds [rad/s], K the rows (d_i(0), l) of `body_twist`."""
+    return p.r * np.linalg.inv(np.column_stack((wheel_directions(0.0), np.full(3, p.l))))
 
 
 def integrate_pose(pose: Pose, twist_body: tuple[float, float, float], dt: float) -> Pose:
@@ -157,8 +162,7 @@ class EncoderOdometry:
         # per-call overhead dominates on 3-vectors): the counts' scale and the inverse kinematics r K^-1 by rows.
         self._count_scale = p.gear_ratio * self.counts_per_rev / (2.0 * math.pi)
         self._gear_counts = p.gear_ratio * self.counts_per_rev
-        kinematics = np.column_stack((wheel_directions(0.0), np.full(3, p.l)))
-        self._twist_rows = (p.r * np.linalg.inv(kinematics)).tolist()
+        self._twist_rows = _twist_of_wheel_speeds(p).tolist()
         self._angles = plant.wheel_angles.tolist()  # true wheel angles at the last measurement
         self._seen = list(self._angles)  # the angles the encoders saw (true + slip)
         self._counts = np.array([math.floor(a * self._count_scale) for a in self._seen])  # as `encoder_counts`

@@ -219,10 +219,11 @@ class ControllerNode(Node):
             values = self.preview_layout.read(data)
             if values is None:
                 msg = _read_preview(data)
-                stamp = time_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)  # a wrong size is refused for it
-                values = (msg.header.stamp.sec, msg.header.stamp.nanosec,
-                          *preview_point_values(msg, self.control.horizon))
-            stamp = time_ns(values[0], values[1])
+                sec, nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec
+                stamp = time_ns(sec, nanosec)  # first: a wrongly sized preview is refused for its tick
+                values = (sec, nanosec, *preview_point_values(msg, self.control.horizon))
+            else:
+                stamp = time_ns(values[0], values[1])
             latest = self.latest_preview
             if not self.lockstep:  # lockstep: the trajectory resends previews on purpose, keyed by stamp
                 problem = stamp_problem(stamp, None if latest is None else latest[0], self._now_ns(),

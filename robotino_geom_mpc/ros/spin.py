@@ -101,7 +101,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     status = start_rclpy(args)
     if status is not None:
         return status
-    node, status = None, 0
+    node, status, stopped = None, 0, False
     try:
         if STOP.is_set():  # a signal during rclpy.init
             return 0
@@ -116,6 +116,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             executor.spin_once(timeout_sec=0.1)
         status = getattr(node, "exit_status", 0)
         _stopping(node)
+        stopped = True
         # the last samples die with the process: let every reader (a recorder behind the loop) acknowledge them
         finished = done is not None and done.done()
         wait_acknowledged(node, data_publishers(node), FINISHED_ACK_WAIT_S if finished else STOPPED_ACK_WAIT_S)
@@ -127,18 +128,18 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     finally:
         ignore_stop_signals()
         if node is not None:
-            _stopping(node)  # the loop ended by an exception (a failed callback)
+            if not stopped:  # the loop ended by an exception (a failed callback)
+                _stopping(node)
             node.destroy_node()
         rclpy.try_shutdown()
     return status
 
 
 def _stopping(node: Node) -> None:
-    """Call the node's ``on_stop()`` (if it has one) the first time only; a failure is reported, not raised."""
+    """Call the node's ``on_stop()`` if it has one; a failure is reported, not raised."""
     on_stop = getattr(node, "on_stop", None)
-    if on_stop is None or getattr(node, "_stop_called", False):
+    if on_stop is None:
         return
-    node._stop_called = True
     try:
         on_stop()
     except Exception as exc:  # e.g. the context already shut down: the process ends anyway

@@ -2,24 +2,14 @@
 
 from glob import glob
 
-from setuptools import setup
+from setuptools import find_packages, setup
 
 PACKAGE = "robotino_geom_mpc"
 
 setup(
     name=PACKAGE,
     version="0.1.0",
-    packages=[
-        PACKAGE,
-        f"{PACKAGE}.core",
-        f"{PACKAGE}.description",
-        f"{PACKAGE}.cli",
-        f"{PACKAGE}.nodes",
-        f"{PACKAGE}.recording",
-        f"{PACKAGE}.ros",
-        f"{PACKAGE}.bench",
-        "robotino_sim_node",
-    ],
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*", "robotino_sim_node"]),
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -60,9 +60,9 @@ from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PathJ
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
-from robotino_geom_mpc.ros.processes import FRAME_PREFIX_NODES, frame_prefix, namespace_remaps, recorder_wait_for, \
+from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, frame_prefix, namespace_remaps, recorder_wait_for, \
     ros_namespace
 from robotino_geom_mpc.scenarios import node_parameters
 

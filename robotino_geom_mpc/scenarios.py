@@ -3,11 +3,11 @@
 A scenario is the one place that says, for a name given to ``simulate``,
 ``run``, the trajectory node or the launch file:
 
-* the reference it tracks: a key of `core.trajectory.REFERENCES` plus options
+* the reference it tracks: a key of `reference.trajectories.REFERENCES` plus options
   of that reference's class;
 * the controller's model mismatch: factors on mass, yaw inertia and body
   friction of the controller's model over the true robot
-  (`core.params.RobotinoParams.scaled`), or none;
+  (`params.specs.RobotinoParams.scaled`), or none;
 * the odometry noise: standard deviations of the measured position [m] and
   yaw [rad] (the plant's Gaussian noise);
 * the default run length: the reference's own duration.
@@ -17,7 +17,7 @@ rest (no ramp-in), the start transient of its Fig. 6.
 
 ``goals`` holds the start pose until goals (geometry_msgs/PoseStamped on
 ``goal_pose``) and planner paths (nav_msgs/Path on ``plan``) arrive at the
-trajectory node (`core.goal_reference.GoalReference`; offline, without goals,
+trajectory node (`reference.goals.GoalReference`; offline, without goals,
 it holds for its 10 s).
 
 ``robustness`` runs paper-circle with a controller whose model is off:
@@ -36,10 +36,10 @@ import difflib
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from .core.errors import RobotinoError
-from .core.params import ROBOT_SPECS, RobotinoParams
-from .core.goal_reference import GoalReference
-from .core.trajectory import Reference, make_reference
+from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.params.specs import ROBOT_SPECS, RobotinoParams
+from robotino_geom_mpc.reference.goals import GoalReference
+from robotino_geom_mpc.reference.trajectories import Reference, make_reference
 
 __all__ = [
     "ScenarioError",
@@ -84,7 +84,7 @@ class Scenario:
     description
         One line for help texts.
     reference
-        The tracked reference: a key of `core.trajectory.REFERENCES`, or ``goals`` (`GoalReference`).
+        The tracked reference: a key of `reference.trajectories.REFERENCES`, or ``goals`` (`GoalReference`).
     reference_options
         (option, value) pairs for that reference's class; empty: its defaults.
     mismatch

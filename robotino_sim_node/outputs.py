@@ -36,7 +36,7 @@ from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from robotino_geom_mpc.core.params import ParamSpec
+from robotino_geom_mpc.params.specs import ParamSpec
 from robotino_geom_mpc.description.urdf import BASE_LINK, JOINT_NAMES, check_frame_prefix
 from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.decode import STAMP_FIELDS

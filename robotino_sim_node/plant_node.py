@@ -72,7 +72,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from geometry_msgs.msg import Twist
 from std_msgs.msg import Float64MultiArray
 
-from robotino_geom_mpc.core.params import ParamSpec
+from robotino_geom_mpc.params.specs import ParamSpec
 from robotino_geom_mpc.description.urdf import JOINT_NAMES, DescriptionError, check_frame_prefix
 from robotino_geom_mpc.ros.cdr import CdrTemplate, MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, three_values_layout, three_values_template
@@ -80,12 +80,12 @@ from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spe
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos, wait_acknowledged
 from robotino_geom_mpc.ros.spin import FINISHED_ACK_WAIT_S, data_publishers, monotonic, run_node
 from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
-from robotino_sim_node.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source, twist_covariance
+from robotino_geom_mpc.model.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source, twist_covariance
 from robotino_sim_node.lockstep_start import StartHandshake
 from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, lockstep_line, lockstep_report, realtime_report, \
     write_report
-from robotino_sim_node.plant import RobotinoPlant
-from robotino_sim_node.wheel_speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
+from robotino_geom_mpc.model.plant import RobotinoPlant
+from robotino_geom_mpc.model.speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
 from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, AppliedVoltages, StateOutputs, odometry_template, \
     odometry_values
 
@@ -436,7 +436,7 @@ class PlantNode(Node):
 
 
 def _all_specs() -> tuple[ParamSpec, ...]:
-    from robotino_geom_mpc.core.params import ALL_SPECS
+    from robotino_geom_mpc.params.specs import ALL_SPECS
 
     return ALL_SPECS + PLANT_SPECS
 

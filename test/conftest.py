@@ -19,7 +19,7 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 
-from robotino_geom_mpc.ros.processes import dds_environment  # noqa: E402  (after the variables it reads)
+from robotino_geom_mpc.system.processes import dds_environment  # noqa: E402  (after the variables it reads)
 
 os.environ.update(dds_environment(os.environ))
 
@@ -28,7 +28,7 @@ _SESSION_START = time.time()
 
 def pytest_sessionfinish(session, exitstatus):
     """Remove the zombie Fast DDS segments of this session (the tests SIGKILL nodes on purpose)."""
-    from robotino_geom_mpc.ros.shm import remove_zombie_segments
+    from robotino_geom_mpc.system.shm import remove_zombie_segments
 
     remove_zombie_segments(_SESSION_START)
 

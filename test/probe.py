@@ -14,7 +14,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.decode import unwrap_near
 from robotino_geom_mpc.ros.messages import quaternion_to_yaw, stamp_to_ns
 
@@ -63,7 +63,7 @@ class LoopProbe(Node):
 
     def run_data(self, scenario: str, params_file: str | os.PathLike | None = None):
         """The lockstep run as `results.RunData` (one sample per tick; plant currents, controller voltages)."""
-        from robotino_geom_mpc.results import RunData
+        from robotino_geom_mpc.offline.results import RunData
 
         robot, control = load_params(params_file)
         stamps = sorted(self.truth)

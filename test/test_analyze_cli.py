@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from robotino_geom_mpc.cli import main
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -40,7 +40,7 @@ def test_json_has_the_computed_orders_and_residuals(analysis):
 
 
 def test_json_decoupling_field_inverts_the_model(analysis):
-    from robotino_geom_mpc.core.model import acceleration_block
+    from robotino_geom_mpc.model.dynamics import acceleration_block
 
     path, report = analysis
     robot = load_params(REPO / path)[0]

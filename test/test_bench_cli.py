@@ -19,8 +19,8 @@ from robotino_geom_mpc.bench import registry as benchmarks
 from robotino_geom_mpc.bench import BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
 from robotino_geom_mpc.bench.controller_step import OSQP_TOLERANCES, OsqpMPC
 from robotino_geom_mpc.cli import main
-from robotino_geom_mpc.core.mpc import DecoupledMPC
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.control.mpc import DecoupledMPC
+from robotino_geom_mpc.params.files import load_params
 
 REQUIRED_KEYS = ("controller_step_speedup_vs_osqp", "offline_sim_realtime_factor")
 

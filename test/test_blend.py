@@ -1,4 +1,4 @@
-"""core.blend: the bumpless-restart offset against its defining properties, checked analytically and numerically."""
+"""control.blend: the bumpless-restart offset against its defining properties, checked analytically and numerically."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numpy.polynomial import Polynomial
 
-from robotino_geom_mpc.core.blend import BlendError, ReferenceBlend
+from robotino_geom_mpc.control.blend import BlendError, ReferenceBlend
 
 PERIOD = 0.01
 CASES = [  # dp, dv, da, linear limit, angular limit

@@ -20,8 +20,8 @@ from sensor_msgs.msg import JointState, RegionOfInterest
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.core.trajectory import make_reference
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.reference.trajectories import make_reference
 from robotino_geom_mpc.ros import decode, messages
 from robotino_geom_mpc.ros.cdr import CdrTemplate, CdrTemplateError
 from robotino_geom_mpc.ros.messages import preview_message, preview_template, preview_values, three_values_layout, \

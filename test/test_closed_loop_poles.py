@@ -7,8 +7,8 @@ import pytest
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
-from robotino_geom_mpc.core.errors import RobotinoError
-from robotino_geom_mpc.core.mpc import (
+from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.control.mpc import (
     DecoupledMPC,
     MPCError,
     UnstableClosedLoopError,
@@ -17,7 +17,8 @@ from robotino_geom_mpc.core.mpc import (
     closed_loop_poles,
     discretize_axis,
 )
-from robotino_geom_mpc.core.params import ParamError, load_params
+from robotino_geom_mpc.params.specs import ParamError
+from robotino_geom_mpc.params.files import load_params
 
 STEPS = 1500
 GROWN = 1e9  # a norm this many times the start's is growth

@@ -15,14 +15,15 @@ import pytest
 from mcap_ros2.reader import read_ros2_messages
 
 from probe import ProbeSpinner
-from robotino_geom_mpc.core.controller import MotionController
-from robotino_geom_mpc.core.params import default_params_file, load_params
+from robotino_geom_mpc.control.motion_controller import MotionController
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.recording.bag import BagError, BagWriter
 from robotino_geom_mpc.recording.regress import regress_bag
 from robotino_geom_mpc.recording.report import run_data_from_bag
-from robotino_geom_mpc.results import compute_metrics
-from robotino_geom_mpc.ros.processes import RECORDER_WAIT_FOR, NodeGroup, node_arguments, recorder_wait_for
-from robotino_geom_mpc.simulation import run_scenario
+from robotino_geom_mpc.offline.results import compute_metrics
+from robotino_geom_mpc.system.processes import RECORDER_WAIT_FOR, NodeGroup, node_arguments, recorder_wait_for
+from robotino_geom_mpc.offline.simulation import run_scenario
 
 DURATION_S = 3.0
 # the probe's subscriptions; the plant subscribes cmd_vel (no wheel_voltages reader in this loop)

@@ -11,10 +11,10 @@ from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.qos import LATCHED_QOS, PUBLISH_QOS
 from harness import Harness
-from robotino_geom_mpc.ros.processes import ros_args
+from robotino_geom_mpc.system.processes import ros_args
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = "robotino_geom_mpc"

@@ -8,13 +8,13 @@ import pytest
 import quadprog
 from scipy.integrate import solve_ivp
 
-from robotino_geom_mpc.core import model
-from robotino_geom_mpc.core.constrained import ConstrainedMPC, ConstrainedModeError
-from robotino_geom_mpc.core.controller import MotionController
-from robotino_geom_mpc.core.decoupling import DecouplingField
-from robotino_geom_mpc.core.drive import MotorKinematics, ZOHDrive
-from robotino_geom_mpc.core.mpc import DecoupledMPC, axis_dampings
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.model import dynamics as model
+from robotino_geom_mpc.control.constrained import ConstrainedMPC, ConstrainedModeError
+from robotino_geom_mpc.control.motion_controller import MotionController
+from robotino_geom_mpc.geometric.decoupling import DecouplingField
+from robotino_geom_mpc.control.inverse_drive import MotorKinematics, ZOHDrive
+from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.scenarios import get_scenario
 
 
@@ -229,7 +229,7 @@ def test_without_daqp_the_constrained_mode_says_what_to_install(monkeypatch):
     robot, control = load_params()
     control = replace(control, mode="constrained")
     monkeypatch.setitem(sys.modules, "daqp", None)  # import daqp raises ImportError
-    monkeypatch.delitem(sys.modules, "robotino_geom_mpc.core.warm_qp", raising=False)
+    monkeypatch.delitem(sys.modules, "robotino_geom_mpc.control.warm_qp", raising=False)
     with pytest.raises(ConstrainedModeError, match=r"pip install 'daqp"):
         ConstrainedMPC(robot, control, DecoupledMPC(robot, control))
     with pytest.raises(ConstrainedModeError):

@@ -21,9 +21,9 @@ from robotino_geom_mpc.bench.constrained import (
     qp_calls,
 )
 from robotino_geom_mpc.bench.controller_step import OSQP_TOLERANCES
-from robotino_geom_mpc.core.constrained import ConstrainedMPC
-from robotino_geom_mpc.core.mpc import DecoupledMPC
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.control.constrained import ConstrainedMPC
+from robotino_geom_mpc.control.mpc import DecoupledMPC
+from robotino_geom_mpc.params.files import load_params
 
 
 @pytest.fixture(scope="module")

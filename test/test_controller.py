@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from robotino_geom_mpc.core import model
-from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, state_from_odometry
-from robotino_geom_mpc.core.decoupling import DecouplingField
-from robotino_geom_mpc.core.mpc import DecoupledMPC, axis_dampings
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.simulation import run_scenario
-from robotino_sim_node.plant import RobotinoPlant
+from robotino_geom_mpc.model import dynamics as model
+from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController, state_from_odometry
+from robotino_geom_mpc.geometric.decoupling import DecouplingField
+from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.model.plant import RobotinoPlant
 
 
 @pytest.fixture(scope="module")
@@ -213,7 +213,7 @@ def test_filter_keeps_odometry_noise_out_of_the_currents_in_closed_loop(params):
 
 
 def test_step_interval_is_one_period_unless_the_stamps_say_otherwise():
-    from robotino_geom_mpc.core.controller import step_interval
+    from robotino_geom_mpc.control.motion_controller import step_interval
 
     period = 10_000_000
     assert step_interval(5 * period, None, period) is None  # the first measurement

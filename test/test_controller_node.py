@@ -12,14 +12,14 @@ from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.blend import ReferenceBlend
-from robotino_geom_mpc.core.controller import MotionController, odometry_state_floats
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.core.trajectory import make_reference, preview
+from robotino_geom_mpc.control.blend import ReferenceBlend
+from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.reference.trajectories import make_reference, preview
 from robotino_geom_mpc.ros.messages import ns_to_stamp, stamp_to_ns, yaw_to_quaternion
 from robotino_geom_mpc.ros.qos import PUBLISH_QOS
 from harness import Harness
-from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
+from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.messages import preview_message
 
 NODE = "robotino_controller"
@@ -44,13 +44,13 @@ def moving_odometry(stamp_ns, reference, t_s, dx=0.0):
 
 
 def start_blend(reference, X, t0, control, limits=(0.3, 1.0)):
-    """The blend a controller engages at its first tick t0 (`core.blend`, itself tested against its definition)."""
+    """The blend a controller engages at its first tick t0 (`control.blend`, itself tested against its definition)."""
     pos, vel, acc, _ = reference.sample(np.array([t0]))
     return ReferenceBlend.engage(t0, X[0::2] - pos[0], X[1::2] - vel[0], -acc[0], *limits, control.period_s)
 
 
 def blended_preview(reference, blend, t, control):
-    """`core.trajectory.preview` at t plus the blend's offsets at t + j Ts."""
+    """`reference.trajectories.preview` at t plus the blend's offsets at t + j Ts."""
     times = t + control.period_s * np.arange(1, control.horizon + 1)
     return preview(reference, t, control.period_s, control.horizon) + blend.offset(times)
 

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from robotino_geom_mpc.core import model
-from robotino_geom_mpc.core.controller import MotionController
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.results import compute_metrics
-from robotino_geom_mpc.simulation import run_scenario
+from robotino_geom_mpc.model import dynamics as model
+from robotino_geom_mpc.control.motion_controller import MotionController
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.offline.results import compute_metrics
+from robotino_geom_mpc.offline.simulation import run_scenario
 
 X0 = np.array([0.01, 0.15, -0.02, -0.1, 0.4, 0.3])  # (x, x', y, y', theta, theta')
 TOLERANCE = 1.02  # issue 16: the peak current at most the nominal plus 2 %

@@ -13,8 +13,8 @@ from robotino_geom_mpc.bench import dds as dds_bench
 from robotino_geom_mpc.bench.dds import bench_lockstep, bench_realtime, missed_ticks, read_timing_report
 from robotino_geom_mpc.bench.host_steal import PROC_STAT
 from robotino_geom_mpc.bench.registry import BenchmarkError
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.ros.processes import NodeProcess
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.system.processes import NodeProcess
 from robotino_sim_node.loop_timing import LoopTiming
 
 PERIOD_S = load_params()[1].period_s

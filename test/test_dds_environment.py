@@ -7,7 +7,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from robotino_geom_mpc.ros.processes import dds_environment
+from robotino_geom_mpc.system.processes import dds_environment
 
 NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 
@@ -38,8 +38,8 @@ def test_fast_dds_loads_the_profile_without_complaint():
 
 def test_a_lockstep_plant_settles_shorter_only_with_the_profile(monkeypatch):
     """`node_arguments` gives the plant PROFILE_SETTLE_S when the nodes get the profile; otherwise the plant's own."""
-    from robotino_geom_mpc.core.params import default_params_file
-    from robotino_geom_mpc.ros.processes import PROFILE_SETTLE_S, node_arguments
+    from robotino_geom_mpc.params.presets import default_params_file
+    from robotino_geom_mpc.system.processes import PROFILE_SETTLE_S, node_arguments
 
     def settle(lockstep: bool) -> list[str]:
         argv = node_arguments("paper-circle", default_params_file(), 1.0, lockstep)["plant_node"]

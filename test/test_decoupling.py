@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from robotino_geom_mpc.core import decoupling as dec
-from robotino_geom_mpc.core import geometry as geo
-from robotino_geom_mpc.core.model import A_matrix, acceleration_block, g_theta
-from robotino_geom_mpc.core.params import load_params, preset_file
+from robotino_geom_mpc.geometric import decoupling as dec
+from robotino_geom_mpc.geometric import subspaces as geo
+from robotino_geom_mpc.model.dynamics import A_matrix, acceleration_block, g_theta
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import preset_file
 
 PRESETS = ("robotino3", "robotino2")
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from robotino_geom_mpc.core import model
-from robotino_geom_mpc.core.drive import DriveError, InverseDrive, MotorKinematics, ZOHDrive
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.model import dynamics as model
+from robotino_geom_mpc.control.inverse_drive import DriveError, InverseDrive, MotorKinematics, ZOHDrive
+from robotino_geom_mpc.params.files import load_params
 
 Ts = 0.01
 

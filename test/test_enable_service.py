@@ -14,9 +14,9 @@ from std_srvs.srv import SetBool
 from harness import Harness
 from probe import PROBE_WAIT_FOR, ProbeSpinner
 from robotino_geom_mpc.bench.dds import lockstep_nodes
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.messages import stamp_to_ns
-from robotino_geom_mpc.ros.processes import NodeGroup
+from robotino_geom_mpc.system.processes import NodeGroup
 
 DURATION_S = 22.0  # the whole circle
 DISABLE_AT_S = 1.5  # simulated time at which the test asks to disable (the service acts a few ticks later)

@@ -1,4 +1,4 @@
-"""Encoder odometry (robotino_sim_node.encoders) against analytical truths and the plant's own wheel angles."""
+"""Encoder odometry (robotino_geom_mpc.model.encoders) against analytical truths and the plant's own wheel angles."""
 
 import math
 from dataclasses import replace
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from robotino_geom_mpc.core.model import wheel_rim_speeds
-from robotino_geom_mpc.core.params import load_params
-from robotino_sim_node.encoders import (
+from robotino_geom_mpc.model.dynamics import wheel_rim_speeds
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.model.encoders import (
     EncoderError,
     EncoderOdometry,
     body_twist,
@@ -17,12 +17,12 @@ from robotino_sim_node.encoders import (
     odometry_source,
     twist_covariance,
 )
-from robotino_sim_node.plant import RobotinoPlant
+from robotino_geom_mpc.model.plant import RobotinoPlant
 
 ROBOT, CONTROL = load_params()
 TS = CONTROL.period_s
 CPR = 2048
-PHI = (0.0, 2.0 * math.pi / 3.0, -2.0 * math.pi / 3.0)  # the wheels' mounting angles (core.model conventions)
+PHI = (0.0, 2.0 * math.pi / 3.0, -2.0 * math.pi / 3.0)  # the wheels' mounting angles (model.dynamics conventions)
 
 
 class ConstantWheels:
@@ -227,8 +227,8 @@ def test_ideal_source_is_the_plant():
 def test_period_mean_filter_reproduces_the_encoder_pose_and_the_trapezoid_lags():
     """Noise-free encoder odometry of a plant under varying voltages: the pose filter with the period_mean
     predictor predicts each dead-reckoned pose exactly (estimate = measured pose to 1e-12), the trapezoid not."""
-    from robotino_geom_mpc.core.controller import odometry_state_floats
-    from robotino_geom_mpc.core.estimator import OdometryFilter
+    from robotino_geom_mpc.control.motion_controller import odometry_state_floats
+    from robotino_geom_mpc.control.estimator import OdometryFilter
 
     plant = RobotinoPlant(ROBOT)
     odometry = EncoderOdometry(plant, CPR)
@@ -247,8 +247,8 @@ def test_period_mean_filter_reproduces_the_encoder_pose_and_the_trapezoid_lags()
 
 def test_paper_circle_with_encoder_odometry_meets_the_issue_16_target():
     """Issue 16, item 3: odom-frame RMS tracking error <= 0.3 mm, peak current <= nominal + 2 % (0.877 A)."""
-    from robotino_geom_mpc.results import compute_metrics
-    from robotino_geom_mpc.simulation import run_scenario
+    from robotino_geom_mpc.offline.results import compute_metrics
+    from robotino_geom_mpc.offline.simulation import run_scenario
 
     m = compute_metrics(run_scenario("paper-circle", ROBOT, CONTROL, odometry="encoders"))
     assert m["rms_position_error_odom_m"] <= 0.3e-3
@@ -257,9 +257,9 @@ def test_paper_circle_with_encoder_odometry_meets_the_issue_16_target():
 
 def test_encoder_odometry_gives_the_controller_the_period_mean_predictor(monkeypatch):
     """run_scenario and node_arguments set control.odometry_twist = period_mean with encoders, and only then."""
-    import robotino_geom_mpc.simulation as simulation
-    from robotino_geom_mpc.core.params import default_params_file
-    from robotino_geom_mpc.ros.processes import node_arguments
+    import robotino_geom_mpc.offline.simulation as simulation
+    from robotino_geom_mpc.params.presets import default_params_file
+    from robotino_geom_mpc.system.processes import node_arguments
 
     seen = []
     real = simulation.MotionController
@@ -284,9 +284,9 @@ def test_lockstep_loop_with_encoder_odometry_equals_the_offline_loop(tmp_path):
     import time
 
     from probe import PROBE_WAIT_FOR, ProbeSpinner
-    from robotino_geom_mpc.core.params import default_params_file
-    from robotino_geom_mpc.ros.processes import NodeGroup, node_arguments
-    from robotino_geom_mpc.simulation import run_scenario
+    from robotino_geom_mpc.params.presets import default_params_file
+    from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
+    from robotino_geom_mpc.offline.simulation import run_scenario
 
     duration = 3.0
     probe = ProbeSpinner()

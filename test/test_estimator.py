@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 
-from robotino_geom_mpc.core.estimator import EstimatorError, OdometryFilter, filter_gain, noise_std_ratio
-from robotino_geom_mpc.core.mpc import discretize_axis
+from robotino_geom_mpc.control.estimator import EstimatorError, OdometryFilter, filter_gain, noise_std_ratio
+from robotino_geom_mpc.control.mpc import discretize_axis
 
 TS = 0.01
 

@@ -24,12 +24,12 @@ from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from harness import Harness
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.core.trajectory import make_reference
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.reference.trajectories import make_reference
 from robotino_geom_mpc.ros.messages import ns_to_stamp, preview_message, stamp_to_ns, yaw_to_quaternion
-from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
+from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.qos import PUBLISH_QOS
-from robotino_sim_node.plant import RobotinoPlant
+from robotino_geom_mpc.model.plant import RobotinoPlant
 
 TICKS = 260
 DISTURBANCES = {120: "skip", 160: "late", 200: "duplicate"}

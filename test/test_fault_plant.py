@@ -16,11 +16,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from harness import Harness
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.messages import stamp_to_ns
-from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
+from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.qos import PUBLISH_QOS
-from robotino_sim_node.plant import RobotinoPlant
+from robotino_geom_mpc.model.plant import RobotinoPlant
 from test_plant_node import _full_state, _offline
 
 SUPPLY_V = load_params()[0].supply_voltage_v

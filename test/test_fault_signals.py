@@ -6,7 +6,7 @@ after the start, and while the system runs (every node answers its parameter ser
 signal falls into the shutdown. Every node must exit with status 0 and print no traceback.
 
 "After the start" counts from the package's start in the process: its handlers visible in /proc/PID/status
-(`ros.signals.stop_signals_early`, the package's first import), or at the latest numpy mapped in
+(`system.signals.stop_signals_early`, the package's first import), or at the latest numpy mapped in
 /proc/PID/maps (each node's first heavy import, so a missing or late handler still fails). Before that the
 interpreter itself is starting (site, .pth files: ~50 ms on an idle machine, far longer under load) and
 no code of the package can run: a SIGINT there kills any Python program.
@@ -20,8 +20,8 @@ from pathlib import Path
 import pytest
 from harness import Harness
 
-from robotino_geom_mpc.core.params import preset_file
-from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
+from robotino_geom_mpc.params.presets import preset_file
+from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 
 NODES = {  # executable -> node name
     "plant_node": "robotino_plant",

@@ -5,11 +5,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robotino_geom_mpc.core import functional as fc
-from robotino_geom_mpc.core import geometry as geo
-from robotino_geom_mpc.core.decoupling import B_decoupled
-from robotino_geom_mpc.core.model import A_matrix, C_matrix, coupled_rhs
-from robotino_geom_mpc.core.params import load_params, preset_file
+from robotino_geom_mpc.geometric import functional as fc
+from robotino_geom_mpc.geometric import subspaces as geo
+from robotino_geom_mpc.geometric.decoupling import B_decoupled
+from robotino_geom_mpc.model.dynamics import A_matrix, C_matrix, coupled_rhs
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import preset_file
 
 PROPS = settings(max_examples=60, deadline=None)
 

@@ -6,7 +6,7 @@ import scipy.linalg as sla
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robotino_geom_mpc.core import geometry as geo
+from robotino_geom_mpc.geometric import subspaces as geo
 
 PROPS = settings(max_examples=60, deadline=None)
 

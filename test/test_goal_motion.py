@@ -1,7 +1,7 @@
-"""Goal motions (core.goal_motion) and the goals reference (core.goal_reference) against independent truths.
+"""Goal motions (reference.goal_motion) and the goals reference (reference.goals) against independent truths.
 
-Truths: the septic smoothstep of core.time_law (a rest-to-rest goal motion is exactly it), finite differences
-of the sampled positions (the analytic derivatives), a dense resampling with `core.model.wheel_rim_speeds`
+Truths: the septic smoothstep of reference.time_law (a rest-to-rest goal motion is exactly it), finite differences
+of the sampled positions (the analytic derivatives), a dense resampling with `model.dynamics.wheel_rim_speeds`
 per sample (the limits), and the goal itself (the end).
 """
 
@@ -12,12 +12,13 @@ import math
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.core.goal_motion import GoalError, MotionLimits, PolynomialMotion, nominal_rim_speed
-from robotino_geom_mpc.core.goal_reference import GoalReference
-from robotino_geom_mpc.core.model import wheel_rim_speeds
-from robotino_geom_mpc.core.params import default_params_file, load_params
-from robotino_geom_mpc.core.time_law import septic
-from robotino_geom_mpc.core.trajectory import preview
+from robotino_geom_mpc.reference.goal_motion import GoalError, MotionLimits, PolynomialMotion, nominal_rim_speed
+from robotino_geom_mpc.reference.goals import GoalReference
+from robotino_geom_mpc.model.dynamics import wheel_rim_speeds
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import default_params_file
+from robotino_geom_mpc.reference.time_law import septic
+from robotino_geom_mpc.reference.trajectories import preview
 
 ROBOT, _ = load_params(default_params_file())
 

@@ -31,10 +31,10 @@ from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from harness import Harness
-from robotino_geom_mpc.core.params import default_params_file
+from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.nodes.goal_inputs import GOAL_QOS
 from robotino_geom_mpc.ros.messages import quaternion_to_yaw, stamp_to_ns, yaw_to_quaternion
-from robotino_geom_mpc.ros.processes import NodeGroup, node_arguments
+from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
 
 NOMINAL_CURRENT_A = 0.86
 MODE = os.environ.get("GOALS_TEST_MODE", "lockstep")
@@ -228,9 +228,10 @@ def test_parameter_sets_keep_the_goal_and_a_prefix_moves_preview_and_path(goal_r
 
 
 def test_example_goal_file_has_three_goals_and_a_path_and_plans_like_the_reference(tmp_path):
-    from robotino_geom_mpc.core.goal_file import LIMIT_DEFAULTS, load_goal_file, motion_limits, planned_end_s
-    from robotino_geom_mpc.core.goal_reference import GoalReference
-    from robotino_geom_mpc.core.params import config_file, read_parameter_file
+    from robotino_geom_mpc.reference.goal_file import LIMIT_DEFAULTS, load_goal_file, motion_limits, planned_end_s
+    from robotino_geom_mpc.reference.goals import GoalReference
+    from robotino_geom_mpc.params.files import read_parameter_file
+    from robotino_geom_mpc.params.presets import config_file
 
     items = load_goal_file(config_file("goals_example.yaml"))
     assert [i.is_path for i in items] == [False, False, False, True]
@@ -254,8 +255,8 @@ def test_example_goal_file_has_three_goals_and_a_path_and_plans_like_the_referen
     ("{", "cannot read"),
 ])
 def test_bad_goal_files_are_refused_naming_the_item(tmp_path, text, match):
-    from robotino_geom_mpc.core.goal_file import load_goal_file
-    from robotino_geom_mpc.core.goal_motion import GoalError
+    from robotino_geom_mpc.reference.goal_file import load_goal_file
+    from robotino_geom_mpc.reference.goal_motion import GoalError
 
     path = tmp_path / "goals.yaml"
     path.write_text(text)

@@ -19,13 +19,15 @@ import pytest
 
 import ament_index_python.packages
 
-from robotino_geom_mpc.core.params import ALL_SPECS, config_file, default_params_file, load_params, \
+from robotino_geom_mpc.params.specs import ALL_SPECS, \
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import config_file, default_params_file
     params_from_values, read_parameter_file
 from robotino_geom_mpc.description.urdf import DescriptionError, robotino_urdf
-from robotino_geom_mpc.ros.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, NamespaceError, node_arguments, \
+from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, NamespaceError, node_arguments, \
     recorder_wait_for
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
-from robotino_geom_mpc.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import run_scenario
 
 LAUNCH_FILE = Path(__file__).resolve().parents[1] / "launch" / "robotino_geom_mpc.launch.py"
 PARAMS = str(default_params_file())

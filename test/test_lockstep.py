@@ -6,12 +6,12 @@ import time
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 from probe import PROBE_WAIT_FOR, ProbeSpinner
 from robotino_geom_mpc.bench.dds import lockstep_nodes
-from robotino_geom_mpc.ros.processes import NodeGroup
-from robotino_geom_mpc.results import compute_metrics
-from robotino_geom_mpc.simulation import run_scenario
+from robotino_geom_mpc.system.processes import NodeGroup
+from robotino_geom_mpc.offline.results import compute_metrics
+from robotino_geom_mpc.offline.simulation import run_scenario
 
 DURATION_S = 5.0
 WALL_CLOCK_KEYS = ("compute_time",)  # measured, not simulated

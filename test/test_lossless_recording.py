@@ -14,7 +14,7 @@ import pytest
 from mcap.reader import make_reader
 
 from robotino_geom_mpc.cli import main
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 
 DURATION_S = 5.0
 LOOP_TOPICS = ("/odom", "/clock", "/ground_truth/odom", "/wheel_currents", "/joint_states", "/reference_preview",

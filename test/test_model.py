@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.core import model
-from robotino_geom_mpc.core.params import load_params, preset_file
+from robotino_geom_mpc.model import dynamics as model
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import preset_file
 
 
 @pytest.fixture(scope="module", params=("robotino3", "robotino2"))

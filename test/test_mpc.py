@@ -8,14 +8,14 @@ import quadprog
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from robotino_geom_mpc.core.mpc import (
+from robotino_geom_mpc.control.mpc import (
     DecoupledMPC,
     MPCError,
     axis_dampings,
     discretize_axis,
     prediction_matrices,
 )
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from robotino_geom_mpc.core.params import ParamError, ROBOT_SPECS, CONTROL_SPECS, load_params, preset_file
+from robotino_geom_mpc.params.specs import ParamError, ROBOT_SPECS, CONTROL_SPECS
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import preset_file
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -142,7 +144,7 @@ def stand_in():
     from rclpy.context import Context
     from rclpy.node import Node
 
-    from robotino_geom_mpc.core.params import ALL_SPECS
+    from robotino_geom_mpc.params.specs import ALL_SPECS
     from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
 
     context = Context()

@@ -1,8 +1,8 @@
-"""Timed planner paths (core.path_timing, through core.goal_reference) against independent truths.
+"""Timed planner paths (reference.path_timing, through reference.goals) against independent truths.
 
 Truths: the path's poses (the trajectory passes through each and rests at the last), finite differences
 of the sampled positions (the analytic derivatives, C^3), dense resampling with
-`core.model.wheel_rim_speeds` (the limits), and the reference state before a switch (continuity).
+`model.dynamics.wheel_rim_speeds` (the limits), and the reference state before a switch (continuity).
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from test_goal_motion import limits, usage
 
-from robotino_geom_mpc.core.goal_motion import GoalError
-from robotino_geom_mpc.core.goal_reference import GoalReference
+from robotino_geom_mpc.reference.goal_motion import GoalError
+from robotino_geom_mpc.reference.goals import GoalReference
 
 POSES = np.array([[0.3, 0.0, 0.0], [0.6, 0.3, 0.8], [0.6, 0.6, 1.6], [0.3, 0.6, 1.6], [0.0, 0.3, 0.5]])
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from robotino_geom_mpc.core.model import coupled_rhs, wheel_rim_speeds
-from robotino_geom_mpc.core.params import load_params
-from robotino_sim_node.plant import PlantError, RobotinoPlant
+from robotino_geom_mpc.model.dynamics import coupled_rhs, wheel_rim_speeds
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.model.plant import PlantError, RobotinoPlant
 
 DT = 0.01
 ROBOT, _ = load_params()

@@ -14,12 +14,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from tf2_msgs.msg import TFMessage
 
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.messages import quaternion_to_yaw, stamp_to_ns
 from robotino_geom_mpc.ros.qos import PUBLISH_QOS
 from harness import Harness
-from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
-from robotino_sim_node.plant import RobotinoPlant
+from robotino_geom_mpc.system.processes import NodeGroup, ros_args
+from robotino_geom_mpc.model.plant import RobotinoPlant
 
 NOISE = (0.002, 0.003)
 SEED = 7
@@ -194,7 +194,7 @@ def test_lockstep_max_realtime_factor_caps_the_loop(tmp_path):
 
 def test_encoder_odometry_is_published_and_drifts_from_the_ground_truth(tmp_path):
     """A lockstep plant with ``odometry_model: encoders``: odom is the offline dead reckoning, the truth is not."""
-    from robotino_sim_node.encoders import EncoderOdometry, twist_covariance
+    from robotino_geom_mpc.model.encoders import EncoderOdometry, twist_covariance
 
     robot, control = load_params()
     Ts, ticks = control.period_s, 30

@@ -7,8 +7,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.plots import DPI, FIGURE_SIZES_IN, write_plots
-from robotino_geom_mpc.results import RunData
+from robotino_geom_mpc.offline.plots import DPI, FIGURE_SIZES_IN, write_plots
+from robotino_geom_mpc.offline.results import RunData
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from robotino_geom_mpc.plots import FIGURE_SIZES_IN, write_plots
-from robotino_geom_mpc.results import RunData
+from robotino_geom_mpc.offline.plots import FIGURE_SIZES_IN, write_plots
+from robotino_geom_mpc.offline.results import RunData
 
 
 def _run() -> RunData:

@@ -1,6 +1,6 @@
 """predicted_path: the MPCs' prediction (eqs. 50-53 under the optimal increments of eq. 56), core and node.
 
-The truth of the core test is independent of `core.mpc`: each axis is integrated in closed form over
+The truth of the core test is independent of `control.mpc`: each axis is integrated in closed form over
 each period (pos'' = -d pos' + u, u held), the optimal increments come from a least-squares solve of the
 cost on that simulation's superposition. The node test runs the lockstep loop (real processes) and
 compares the published paths with the core controller stepped offline as `simulate` steps it, and checks
@@ -18,12 +18,12 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from harness import DEEP_QOS, Harness
 from robotino_geom_mpc.bench.dds import lockstep_nodes
-from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, odometry_state_floats
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController, odometry_state_floats
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.messages import quaternion_to_yaw, stamp_to_ns
-from robotino_geom_mpc.ros.processes import LOCKSTEP_WAIT_FOR, NodeGroup
+from robotino_geom_mpc.system.processes import LOCKSTEP_WAIT_FOR, NodeGroup
 from robotino_geom_mpc.scenarios import get_scenario
-from robotino_sim_node.plant import RobotinoPlant
+from robotino_geom_mpc.model.plant import RobotinoPlant
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 

@@ -11,11 +11,11 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robotino_geom_mpc.core import model
-from robotino_geom_mpc.core.decoupling import DecouplingField
-from robotino_geom_mpc.core.params import load_params
-from robotino_sim_node.encoders import EncoderOdometry
-from robotino_sim_node.plant import RobotinoPlant
+from robotino_geom_mpc.model import dynamics as model
+from robotino_geom_mpc.geometric.decoupling import DecouplingField
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.model.encoders import EncoderOdometry
+from robotino_geom_mpc.model.plant import RobotinoPlant
 
 ROBOT, CONTROL = load_params()
 TS = CONTROL.period_s

@@ -14,11 +14,12 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 
 from robotino_geom_mpc.cli import main
-from robotino_geom_mpc.core.params import default_params_file, read_parameter_file
-from robotino_geom_mpc.plots import FIGURE_SIZES_IN
+from robotino_geom_mpc.params.files import read_parameter_file
+from robotino_geom_mpc.params.presets import default_params_file
+from robotino_geom_mpc.offline.plots import FIGURE_SIZES_IN
 from robotino_geom_mpc.recording.bag import RUN_METADATA, BagWriter
 from robotino_geom_mpc.recording.report import report_bag, run_data_from_bag
-from robotino_geom_mpc.results import RunData, compute_metrics, read_metrics
+from robotino_geom_mpc.offline.results import RunData, compute_metrics, read_metrics
 
 TS = 0.01
 HORIZON = 4

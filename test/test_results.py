@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.results import (
+from robotino_geom_mpc.offline.results import (
     METRIC_KEYS,
     MetricsError,
     RunData,

@@ -10,7 +10,7 @@ import pytest
 
 from robotino_geom_mpc.bench.registry import BenchmarkError
 from robotino_geom_mpc.bench.roundtrip import bench_roundtrip, nearest_rank, read_roundtrip_report, roundtrip_figures
-from robotino_geom_mpc.ros.processes import NodeGroup
+from robotino_geom_mpc.system.processes import NodeGroup
 
 
 def test_figures_are_the_nearest_rank_median_and_p99_in_us():

@@ -10,10 +10,11 @@ import time
 import pytest
 import yaml
 
-from robotino_geom_mpc.ros.processes import node_arguments, wait_for_exit
-from robotino_geom_mpc.core.params import default_params_file, load_params
-from robotino_geom_mpc.results import compute_metrics
-from robotino_geom_mpc.simulation import run_scenario
+from robotino_geom_mpc.system.processes import node_arguments, wait_for_exit
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import default_params_file
+from robotino_geom_mpc.offline.results import compute_metrics
+from robotino_geom_mpc.offline.simulation import run_scenario
 
 DURATION_S = 3.0
 

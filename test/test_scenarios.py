@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 import yaml
 
-from robotino_geom_mpc.core.errors import RobotinoError
-from robotino_geom_mpc.core.params import ALL_SPECS, default_params_file, load_params
-from robotino_geom_mpc.core.trajectory import REFERENCES, make_reference
+from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.params.specs import ALL_SPECS
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import default_params_file
+from robotino_geom_mpc.reference.trajectories import REFERENCES, make_reference
 from robotino_geom_mpc.nodes.trajectory_node import TRAJECTORY_SPECS
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
 from robotino_sim_node.plant_node import PLANT_SPECS

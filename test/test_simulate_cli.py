@@ -11,8 +11,8 @@ import matplotlib.image as mpimg
 import pytest
 
 from robotino_geom_mpc.cli import main
-from robotino_geom_mpc.plots import FIGURE_SIZES_IN
-from robotino_geom_mpc.results import METRIC_KEYS, compute_metrics, load_run, read_metrics
+from robotino_geom_mpc.offline.plots import FIGURE_SIZES_IN
+from robotino_geom_mpc.offline.results import METRIC_KEYS, compute_metrics, load_run, read_metrics
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:

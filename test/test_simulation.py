@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.core import model
-from robotino_geom_mpc.core.decoupling import DecouplingField
-from robotino_geom_mpc.core.mpc import axis_dampings
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.core.trajectory import make_reference
+from robotino_geom_mpc.model import dynamics as model
+from robotino_geom_mpc.geometric.decoupling import DecouplingField
+from robotino_geom_mpc.control.mpc import axis_dampings
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.reference.trajectories import make_reference
 from robotino_geom_mpc.scenarios import ScenarioError, get_scenario
-from robotino_geom_mpc.simulation import SimulationError, run_scenario
+from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
 
 
 @pytest.fixture(scope="module")
@@ -96,8 +96,8 @@ def test_bad_settings_raise(params, kwargs, error, match):
 def test_each_tick_measures_then_previews_then_steps(params, monkeypatch):
     """The documented per-tick order: the controller sees the true state (no noise) and preview(t_k)."""
     robot, control = params
-    from robotino_geom_mpc.core import controller as controller_module
-    from robotino_geom_mpc.core.trajectory import preview
+    from robotino_geom_mpc.control import motion_controller as controller_module
+    from robotino_geom_mpc.reference.trajectories import preview
 
     seen = []
     original = controller_module.MotionController.step
@@ -118,8 +118,8 @@ def test_each_tick_measures_then_previews_then_steps(params, monkeypatch):
 def test_encoder_odometry_is_what_the_controller_tracks(params, monkeypatch):
     """With encoders the controller sees the dead-reckoned pose (recorded as `odometry`), not the truth."""
     robot, control = params
-    from robotino_geom_mpc.core import controller as controller_module
-    from robotino_sim_node.encoders import integrate_pose
+    from robotino_geom_mpc.control import motion_controller as controller_module
+    from robotino_geom_mpc.model.encoders import integrate_pose
 
     seen = []
     original = controller_module.MotionController.step

@@ -11,10 +11,10 @@ behaviour) fails the same bound.
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.core.controller import MotionController, odometry_state_floats
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.core.trajectory import make_reference
-from robotino_sim_node.plant import RobotinoPlant
+from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.reference.trajectories import make_reference
+from robotino_geom_mpc.model.plant import RobotinoPlant
 
 FAULT_TICK = 500  # 5 s: well after the start transient
 AFTER_S = 3.0  # the old filter error decayed over ~2.8 s

@@ -20,10 +20,10 @@ import pytest
 
 from robotino_geom_mpc.bench import REGISTRY
 from robotino_geom_mpc.cli import main
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.results import compute_metrics
-from robotino_geom_mpc.simulation import run_scenario
-from robotino_geom_mpc.study import (
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.offline.results import compute_metrics
+from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.study import (
     COLUMNS, DRAW_FIELDS, METRICS, STATISTICS, Draw, StudyError, draw_runs, read_rows, run_study, write_study,
 )
 

@@ -1,7 +1,7 @@
 """The study's fast paths against the paths they replace, computed here step by step.
 
 * `EncoderOdometry.update` (Python floats) against the numpy functions of
-  `robotino_sim_node.encoders` (`encoder_counts`, `wheel_speeds_from_counts`,
+  `robotino_geom_mpc.model.encoders` (`encoder_counts`, `wheel_speeds_from_counts`,
   `body_twist`, `integrate_pose`) applied to the plant's wheel angles, with slip;
 * the run's pose noise drawn at once (`simulation.run_scenario`) against one
   `RobotinoPlant.pose_noise` draw per tick, bit for bit;
@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.simulation import run_scenario
-from robotino_sim_node import plant as plant_module
-from robotino_sim_node.encoders import (
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.model import plant as plant_module
+from robotino_geom_mpc.model.encoders import (
     EncoderOdometry, body_twist, encoder_counts, integrate_pose, wheel_speeds_from_counts,
 )
-from robotino_sim_node.plant import RobotinoPlant
+from robotino_geom_mpc.model.plant import RobotinoPlant
 
 ROBOT, CONTROL = load_params()
 TS = CONTROL.period_s

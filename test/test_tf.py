@@ -23,9 +23,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 
 from harness import Harness
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.messages import stamp_to_ns
-from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
+from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.qos import LOCKSTEP_PUBLISH_QOS, PUBLISH_QOS
 
 tf2_msgs = pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs not installed ('make setup' builds it)")

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robotino_geom_mpc.core.trajectory import (
+from robotino_geom_mpc.reference.trajectories import (
     REFERENCES,
     PointToPointReference,
     TrajectoryError,

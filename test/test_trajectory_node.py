@@ -11,12 +11,12 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.core.trajectory import make_reference
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.reference.trajectories import make_reference
 from robotino_geom_mpc.ros.messages import ns_to_stamp, quaternion_to_yaw, stamp_to_ns
 from robotino_geom_mpc.ros.qos import LATCHED_QOS, PUBLISH_QOS
 from harness import DEEP_QOS, Harness
-from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
+from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 
 NODE = "robotino_trajectory"
 WAYPOINTS = [0.3, 0.1, 0.0, 0.3, 0.1, 1.0]

@@ -21,11 +21,12 @@ import numpy as np
 import pytest
 
 from robotino_geom_mpc.bench.dds import read_timing_report
-from robotino_geom_mpc.core.params import config_file, default_params_file, load_params
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import config_file, default_params_file
 from robotino_geom_mpc.recording.report import run_data_from_bag
-from robotino_geom_mpc.results import compute_metrics
-from robotino_geom_mpc.ros.processes import NodeGroup, node_arguments
-from robotino_geom_mpc.simulation import run_scenario
+from robotino_geom_mpc.offline.results import compute_metrics
+from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
+from robotino_geom_mpc.offline.simulation import run_scenario
 
 pytestmark = pytest.mark.skipif(os.geteuid() != 0 or shutil.which("ip") is None,
                                 reason="needs root and iproute2 (ip netns)")

@@ -18,9 +18,10 @@ from tf2_msgs.msg import TFMessage
 
 from harness import Harness
 from probe import PROBE_WAIT_FOR, LoopProbe, ProbeSpinner
-from robotino_geom_mpc.core.params import default_params_file, load_params
-from robotino_geom_mpc.ros.processes import NodeGroup, node_arguments
-from robotino_geom_mpc.simulation import run_scenario
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import default_params_file
+from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
+from robotino_geom_mpc.offline.simulation import run_scenario
 
 DURATION_S = 3.0
 ROBOTS = {"robot1": "paper-circle", "robot2": "lemniscate"}

@@ -9,7 +9,8 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from robotino_geom_mpc.core.params import default_params_file, load_params, preset_file
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import default_params_file, preset_file
 from robotino_geom_mpc.description.urdf import DescriptionError, UrdfJoint, check_frame_prefix, joint_transform, \
     robotino_urdf, urdf_joints
 

@@ -1,11 +1,11 @@
-"""core.warm_qp.WarmDaqp against quadprog (Goldfarb-Idnani, an independent dual active-set code), warm and cold."""
+"""control.warm_qp.WarmDaqp against quadprog (Goldfarb-Idnani, an independent dual active-set code), warm and cold."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robotino_geom_mpc.core.warm_qp import WarmDaqp
+from robotino_geom_mpc.control.warm_qp import WarmDaqp
 
 quadprog = pytest.importorskip("quadprog")
 

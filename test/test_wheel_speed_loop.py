@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.core.params import load_params
-from robotino_geom_mpc.results import compute_metrics
-from robotino_geom_mpc.simulation import SimulationError, run_scenario
-from robotino_sim_node.plant import RobotinoPlant
-from robotino_sim_node.wheel_speed_loop import DEFAULT_KI, DEFAULT_KP, SPEED_LOOP_TIME_CONSTANT_S, WheelSpeedLoop, \
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.offline.results import compute_metrics
+from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
+from robotino_geom_mpc.model.plant import RobotinoPlant
+from robotino_geom_mpc.model.speed_loop import DEFAULT_KI, DEFAULT_KP, SPEED_LOOP_TIME_CONSTANT_S, WheelSpeedLoop, \
     WheelSpeedLoopError, tuned_gains
 
 

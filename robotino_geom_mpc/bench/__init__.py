@@ -15,7 +15,7 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
 * `cdr`: the CDR fast path (`ros.cdr` templates and layouts) against
   rclpy's (de)serialization and rosbags' decoder, per message of the loop.
 * `study`: the aggregate real-time factor of a short Monte-Carlo study
-  (`robotino_geom_mpc.study`) on all cores, beside `offline`'s one run.
+  (`robotino_geom_mpc.offline.study`) on all cores, beside `offline`'s one run.
 * `end_to_end`: ``robotino-geom-mpc run`` on 20 s of paper-circle as a
   user starts it (``run_end_to_end_s``) and its loop with the recorder,
   beside the loop without it and a bare rclpy process start.

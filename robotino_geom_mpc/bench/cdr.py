@@ -99,7 +99,7 @@ def bench_cdr(quick: bool) -> dict[str, float]:
         from rclpy.serialization import deserialize_message, serialize_message
     except ImportError as exc:
         raise BenchmarkSkipped(f"ROS 2 not available: {exc}") from None
-    from robotino_geom_mpc.core.params import load_params
+    from robotino_geom_mpc.params.files import load_params
 
     rounds, repeats = (50, 5) if quick else (500, 15)
     rng = random.Random(1)

@@ -19,7 +19,7 @@ import numpy as np
 
 from robotino_geom_mpc.bench.controller_step import step_inputs
 from robotino_geom_mpc.bench.registry import BenchmarkError, median_per_call
-from robotino_geom_mpc.core.controller import MotionController
+from robotino_geom_mpc.control.motion_controller import MotionController
 
 __all__ = ["compare_step", "load_controller_class", "main"]
 
@@ -35,11 +35,11 @@ def load_controller_class(source_root: str | Path) -> type:
     Raises
     ------
     BenchmarkError
-        If `source_root` holds no ``robotino_geom_mpc/core/controller.py``.
+        If `source_root` holds no ``robotino_geom_mpc/control/motion_controller.py``.
     """
     package_dir = Path(source_root) / "robotino_geom_mpc"
     if not (package_dir / "core" / "controller.py").is_file():
-        raise BenchmarkError(f"{source_root}: no robotino_geom_mpc/core/controller.py")
+        raise BenchmarkError(f"{source_root}: no robotino_geom_mpc/control/motion_controller.py")
     if _OTHER_PACKAGE not in sys.modules:
         spec = importlib.util.spec_from_file_location(
             _OTHER_PACKAGE, package_dir / "__init__.py", submodule_search_locations=[str(package_dir)]

@@ -36,10 +36,10 @@ except ImportError:  # pragma: no cover - depends on the installation
 
 from robotino_geom_mpc.bench.controller_step import OSQP_TOLERANCES, step_inputs
 from robotino_geom_mpc.bench.registry import BenchmarkError, benchmark
-from robotino_geom_mpc.core.constrained import ConstrainedMPC
-from robotino_geom_mpc.core.controller import MotionController
-from robotino_geom_mpc.core.params import ControlParams, RobotinoParams
-from robotino_geom_mpc.core.trajectory import CircleReference, preview
+from robotino_geom_mpc.control.constrained import ConstrainedMPC
+from robotino_geom_mpc.control.motion_controller import MotionController
+from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.reference.trajectories import CircleReference, preview
 from robotino_geom_mpc.scenarios import get_scenario
 
 __all__ = [

@@ -9,10 +9,11 @@ import osqp
 import scipy.sparse as sp
 
 from robotino_geom_mpc.bench.registry import BenchmarkError, benchmark, median_per_call
-from robotino_geom_mpc.core.controller import MotionController
-from robotino_geom_mpc.core.mpc import DecoupledMPC
-from robotino_geom_mpc.core.params import ControlParams, RobotinoParams, load_params
-from robotino_geom_mpc.core.trajectory import make_reference, preview
+from robotino_geom_mpc.control.motion_controller import MotionController
+from robotino_geom_mpc.control.mpc import DecoupledMPC
+from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.reference.trajectories import make_reference, preview
 
 __all__ = ["OSQP_TOLERANCES", "OsqpMPC", "bench_controller_step", "step_inputs"]
 

@@ -35,8 +35,9 @@ import numpy as np
 from robotino_geom_mpc.bench.host_steal import StealSampler
 from robotino_geom_mpc.bench.registry import BenchmarkError, wait_for_run
 from robotino_geom_mpc.bench.roundtrip import bench_roundtrip
-from robotino_geom_mpc.core.params import default_params_file, load_params
-from robotino_geom_mpc.ros.processes import LOCKSTEP_WAIT_FOR, NodeGroup, node_arguments
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import default_params_file
+from robotino_geom_mpc.system.processes import LOCKSTEP_WAIT_FOR, NodeGroup, node_arguments
 
 __all__ = ["LOCKSTEP_RUNS", "ROUNDTRIPS", "TIMING_REPORT", "lockstep_nodes", "bench_lockstep", "bench_realtime",
            "dds_benchmarks", "missed_ticks", "read_timing_report"]

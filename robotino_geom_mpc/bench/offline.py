@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from robotino_geom_mpc.bench.registry import BenchmarkSkipped, benchmark, median_per_call
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 
 __all__ = ["bench_dds", "bench_offline_sim"]
 
@@ -11,7 +11,7 @@ __all__ = ["bench_dds", "bench_offline_sim"]
 @benchmark("offline_sim", "offline closed loop (plant + controller + reference) on paper-circle, real-time factor")
 def bench_offline_sim(quick: bool) -> dict[str, float]:
     """Simulated seconds per wall-clock second of `simulation.run_scenario` on paper-circle."""
-    from robotino_geom_mpc.simulation import run_scenario
+    from robotino_geom_mpc.offline.simulation import run_scenario
 
     duration_s, repeats = (5.0, 1) if quick else (60.0, 3)
     robot, control = load_params()

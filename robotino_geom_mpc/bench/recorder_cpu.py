@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from robotino_geom_mpc.bench.registry import BenchmarkError, BenchmarkSkipped, benchmark, wait_for_run
-from robotino_geom_mpc.ros.processes import NodeGroup, ros_args
+from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 
 __all__ = ["READERS", "bench_recorder_cpu"]
 

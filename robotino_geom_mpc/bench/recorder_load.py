@@ -132,7 +132,7 @@ def _take(args: argparse.Namespace) -> int:
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.signals import SignalHandlerOptions
 
-    from robotino_geom_mpc.ros.signals import STOP, stop_on_signals
+    from robotino_geom_mpc.system.signals import STOP, stop_on_signals
 
     stop_on_signals()
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)

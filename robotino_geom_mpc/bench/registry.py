@@ -14,8 +14,8 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from robotino_geom_mpc.core.errors import RobotinoError
-from robotino_geom_mpc.ros.processes import NodeFailed, NodeGroup, NodeProcess
+from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.system.processes import NodeFailed, NodeGroup, NodeProcess
 
 __all__ = ["Benchmark", "BenchmarkError", "BenchmarkSkipped", "REGISTRY", "benchmark", "median_per_call",
            "run_benchmarks", "wait_for_run"]

@@ -34,7 +34,7 @@ import sys
 from pathlib import Path
 
 from robotino_geom_mpc.bench.registry import BenchmarkError, wait_for_run
-from robotino_geom_mpc.ros.processes import NodeGroup
+from robotino_geom_mpc.system.processes import NodeGroup
 
 __all__ = ["ANSWER_TOPIC", "ODOM_TOPIC", "bench_roundtrip", "main", "nearest_rank", "read_roundtrip_report",
            "roundtrip_figures"]

@@ -6,7 +6,7 @@ import os
 import time
 
 from robotino_geom_mpc.bench.registry import benchmark
-from robotino_geom_mpc.core.params import load_params
+from robotino_geom_mpc.params.files import load_params
 
 __all__ = ["bench_study"]
 
@@ -23,7 +23,7 @@ def bench_study(quick: bool) -> dict[str, float]:
     ``study_speedup_vs_serial`` is the study's factor over it (at most about
     the number of cores; 600x on 2 cores needs 300x per core, 73 ms per 22 s run).
     """
-    from robotino_geom_mpc.study import draw_runs, run_one, run_study, summarize
+    from robotino_geom_mpc.offline.study import draw_runs, run_one, run_study, summarize
 
     workers = os.cpu_count() or 1
     per_core, duration_s = (2, 5.0) if quick else (8, None)

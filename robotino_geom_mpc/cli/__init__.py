@@ -13,8 +13,8 @@ import math
 import os
 import sys
 
-from robotino_geom_mpc.core.errors import RobotinoError
-from robotino_geom_mpc.core.params import ParamError
+from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.params.specs import ParamError
 
 __all__ = ["UsageError", "main", "VERBS", "positive_float", "seed_value"]
 

@@ -12,10 +12,12 @@ from scipy.linalg import expm
 from scipy.optimize import brentq
 
 from robotino_geom_mpc.cli import VERBS, UsageError
-from robotino_geom_mpc.core.decoupling import B_decoupled, DecouplingField, check_decoupling
-from robotino_geom_mpc.core.functional import functional_controllability
-from robotino_geom_mpc.core.model import acceleration_block, g_theta
-from robotino_geom_mpc.core.params import ControlParams, RobotinoParams, default_params_file, load_params
+from robotino_geom_mpc.geometric.decoupling import B_decoupled, DecouplingField, check_decoupling
+from robotino_geom_mpc.geometric.functional import functional_controllability
+from robotino_geom_mpc.model.dynamics import acceleration_block, g_theta
+from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.presets import default_params_file
 
 __all__ = ["add_parser", "run", "printed_acceleration_block", "body_frame_turn", "errata", "build_report"]
 

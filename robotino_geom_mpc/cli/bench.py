@@ -33,7 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmarks and print their figures; returns the exit status."""
-    from ..bench import REGISTRY, BenchmarkError, run_benchmarks
+    from robotino_geom_mpc.bench import REGISTRY, BenchmarkError, run_benchmarks
 
     if args.only is not None:
         unknown = [name for name in args.only if name not in REGISTRY]

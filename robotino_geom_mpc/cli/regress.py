@@ -14,7 +14,7 @@ import math
 from pathlib import Path
 
 from . import VERBS, UsageError
-from .reindex import warn_damage
+from robotino_geom_mpc.cli.reindex import warn_damage
 
 __all__ = ["add_parser", "run"]
 

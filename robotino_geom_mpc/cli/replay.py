@@ -12,7 +12,7 @@ import argparse
 from pathlib import Path
 
 from . import VERBS, UsageError, positive_float
-from .reindex import warn_damage
+from robotino_geom_mpc.cli.reindex import warn_damage
 
 __all__ = ["add_parser", "run"]
 

@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 
 from . import VERBS, UsageError
-from .reindex import warn_damage
+from robotino_geom_mpc.cli.reindex import warn_damage
 
 __all__ = ["add_parser", "run"]
 

@@ -37,12 +37,12 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..scenarios import SCENARIOS
+from robotino_geom_mpc.scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
-from .simulate import add_command_interface_argument, add_odometry_argument, add_scenario_argument
+from robotino_geom_mpc.cli.simulate import add_command_interface_argument, add_odometry_argument, add_scenario_argument
 
 if TYPE_CHECKING:
-    from ..ros.processes import NodeGroup, NodeProcess
+    from robotino_geom_mpc.system.processes import NodeGroup, NodeProcess
 
 __all__ = ["add_parser", "run"]
 
@@ -119,7 +119,7 @@ def _import_in_background(modules: tuple[str, ...]) -> threading.Thread:
 
 def _stopped_cleanly(group: NodeGroup, node: NodeProcess, grace_s: float) -> None:
     """Stop `node` (`NodeGroup.stop_node`); `NodeFailed` unless it exits with 0 (or by SIGINT)."""
-    from ..ros.processes import NodeFailed
+    from robotino_geom_mpc.system.processes import NodeFailed
 
     if group.stop_node(node, grace_s) not in (0, -signal.SIGINT):
         raise NodeFailed(f"{node.name} did not stop cleanly:\n{node.stderr_tail()}")
@@ -138,9 +138,10 @@ def _close_recording(group: NodeGroup, recorder: NodeProcess, bag: Path) -> None
 
 def _goals_duration(args: argparse.Namespace, params_file: Path) -> float:
     """The run length for a goal file: its motions planned offline with the trajectory node's limits, + 3 s."""
-    from ..core.goal_file import LIMIT_DEFAULTS, load_goal_file, motion_limits, planned_end_s
-    from ..core.goal_motion import GoalError
-    from ..core.params import ParamError, read_parameter_file
+    from robotino_geom_mpc.reference.goal_file import LIMIT_DEFAULTS, load_goal_file, motion_limits, planned_end_s
+    from robotino_geom_mpc.reference.goal_motion import GoalError
+    from robotino_geom_mpc.params.specs import ParamError
+    from robotino_geom_mpc.params.files import read_parameter_file
 
     if args.scenario != "goals":
         raise UsageError(f"--goals needs --scenario goals, not {args.scenario!r}")
@@ -154,8 +155,9 @@ def _goals_duration(args: argparse.Namespace, params_file: Path) -> float:
 
 def run(args: argparse.Namespace) -> int:
     """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
-    from ..core.params import default_params_file, load_params
-    from ..ros.processes import NodeFailed, NodeGroup, node_arguments
+    from robotino_geom_mpc.params.files import load_params
+    from robotino_geom_mpc.params.presets import default_params_file
+    from robotino_geom_mpc.system.processes import NodeFailed, NodeGroup, node_arguments
 
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)
@@ -210,9 +212,9 @@ def run(args: argparse.Namespace) -> int:
         if bag is None:
             print("  not recorded (--no-record): no metrics or figures")
             return 0
-        from ..recording.bag import BagError, BagReader, damage_report
-        from ..recording.report import report_bag
-        from .reindex import warn_damage
+        from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
+        from robotino_geom_mpc.recording.report import report_bag
+        from robotino_geom_mpc.cli.reindex import warn_damage
 
         try:
             reader = BagReader(bag)

@@ -11,9 +11,9 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from robotino_sim_node.encoders import ODOMETRY_MODELS
+from robotino_geom_mpc.model.encoders import ODOMETRY_MODELS
 
-from ..scenarios import SCENARIOS, ScenarioError, get_scenario
+from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario
 from . import VERBS, UsageError, positive_float, seed_value
 
 __all__ = ["add_parser", "add_scenario_argument", "add_odometry_argument", "run"]
@@ -47,7 +47,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def _current_limit(text: str) -> float:
     """argparse type: a value of control.current_limit_a, checked against its spec."""
-    from ..core.params import CONTROL_SPECS, ParamError, validate_value
+    from robotino_geom_mpc.params.specs import CONTROL_SPECS, ParamError, validate_value
 
     spec = next(s for s in CONTROL_SPECS if s.name == "control.current_limit_a")
     try:
@@ -90,10 +90,10 @@ def _fmt(value: float | None, unit: str) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the scenario, write the outputs, print a summary; returns the exit status."""
-    from ..core.params import load_params
-    from ..plots import write_plots
-    from ..results import compute_metrics, save_run, write_metrics
-    from ..simulation import run_scenario
+    from robotino_geom_mpc.params.files import load_params
+    from robotino_geom_mpc.offline.plots import write_plots
+    from robotino_geom_mpc.offline.results import compute_metrics, save_run, write_metrics
+    from robotino_geom_mpc.offline.simulation import run_scenario
 
     robot, control = load_params(args.params)
     if args.current_limit is not None:

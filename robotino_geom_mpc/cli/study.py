@@ -12,7 +12,7 @@ import argparse
 from pathlib import Path
 
 from . import VERBS, UsageError, positive_float, seed_value
-from .simulate import SETTLE_TIME_S, add_scenario_argument
+from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_scenario_argument
 
 __all__ = ["add_parser", "run"]
 
@@ -55,10 +55,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the study, write its outputs, print the summary; returns the exit status."""
-    from robotino_sim_node.encoders import ODOMETRY_MODELS
+    from robotino_geom_mpc.model.encoders import ODOMETRY_MODELS
 
-    from ..core.params import load_params
-    from ..study import draw_runs, run_study, write_study
+    from robotino_geom_mpc.params.files import load_params
+    from robotino_geom_mpc.offline.study import draw_runs, run_study, write_study
 
     robot, control = load_params(args.params)
     try:

@@ -5,10 +5,10 @@ The model (REP-103 axes, REP-105 frame names) is what RViz and Foxglove draw:
 * ``base_link`` on the floor under the robot's centre, with a cylinder of the body (`BASE_RADIUS_M`) drawn
   above the wheels;
 * ``wheel0_link`` .. ``wheel2_link``, cylinders of the wheel radius r, on continuous joints
-  ``wheel0_joint`` .. ``wheel2_joint`` at the wheels' positions `core.model.wheel_positions` (eq. 9's
+  ``wheel0_joint`` .. ``wheel2_joint`` at the wheels' positions `model.dynamics.wheel_positions` (eq. 9's
   l, beta_i = -phi_i), the wheel centre r above the floor. Each joint frame is turned by beta_i (its x
   axis points away from the centre) and turns about -x, the axle pointing inwards, so that a positive
-  joint angle rolls the wheel along its rolling direction d_i(0) (`core.model.wheel_rolling_directions`),
+  joint angle rolls the wheel along its rolling direction d_i(0) (`model.dynamics.wheel_rolling_directions`),
   the sign of the plant's wheel angles (angular velocity -x turns the contact-to-centre lever r z into a
   centre velocity r (-x) x z = r y = d_i(0)).
 """
@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robotino_geom_mpc.core.errors import RobotinoError
-from robotino_geom_mpc.core.model import wheel_positions
-from robotino_geom_mpc.core.params import RobotinoParams
+from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.model.dynamics import wheel_positions
+from robotino_geom_mpc.params.specs import RobotinoParams
 
 __all__ = [
     "BASE_LINK", "BASE_RADIUS_M", "JOINT_NAMES", "WHEEL_LINKS", "DescriptionError", "UrdfJoint",

@@ -3,7 +3,7 @@
 Plain Python (no rclpy), so each piece is a few float operations on values
 the node has already read; `controller_node` wires them to the topics.
 
-Bad input (`ros.decode` and `core.controller.MotionController.state_problem` check the values read):
+Bad input (`ros.decode` and `control.motion_controller.MotionController.state_problem` check the values read):
 
 * refused, with zero volts, an ERROR diagnostic naming the reason key, a
   throttled warning and ``rejected`` counted: non-finite values
@@ -52,12 +52,12 @@ from typing import Any
 
 import numpy as np
 
-from robotino_geom_mpc.core.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2
-from robotino_geom_mpc.core.controller import MotionController
-from robotino_geom_mpc.core.errors import RobotinoError
-from robotino_geom_mpc.core.mpc import check_closed_loop
-from robotino_geom_mpc.core.params import ParamSpec, params_from_values
-from robotino_geom_mpc.core.trajectory import shift_preview
+from robotino_geom_mpc.control.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2
+from robotino_geom_mpc.control.motion_controller import MotionController
+from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.control.mpc import check_closed_loop
+from robotino_geom_mpc.params.specs import ParamSpec, params_from_values
+from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.ros.decode import QUATERNION_NORM_TOLERANCE, TILT_TOLERANCE_RAD
 
 __all__ = ["CONTROLLER_DEFAULTS", "CONTROLLER_SPECS", "FIXED_WHILE_RUNNING", "InputCounters",
@@ -126,7 +126,7 @@ def reference_jump(previous: tuple[int, np.ndarray, np.ndarray, np.ndarray] | No
 
     `previous` is (stamp, positions, velocities, accelerations) of the last preview; a jump is a
     position more than `jump_m` or a heading more than `jump_rad` away from its Taylor step
-    (`core.trajectory.shift_preview`), e.g. a trajectory node restarted at the origin.
+    (`reference.trajectories.shift_preview`), e.g. a trajectory node restarted at the origin.
     """
     if previous is None:
         return None

@@ -33,7 +33,7 @@ Each odometry message is one control tick: the node computes on its arrival.
 The preview used is the one whose stamp equals the odometry stamp in
 ``lockstep`` (the odometry waits for it if it comes first), the freshest in
 ``realtime``, moved in time from its stamp to the odometry's with its
-velocities and accelerations (`core.trajectory.shift_preview`). The step gets
+velocities and accelerations (`reference.trajectories.shift_preview`). The step gets
 ``dt_s`` = the interval between the stamps of this odometry and of the last
 one used (None when it is exactly one period, and after a (re)start).
 
@@ -42,7 +42,7 @@ honoured) is read once per input to check its stamp.
 
 Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagnostic naming the reason).
 
-Bumpless (re)start (`core.blend.BlendEngagement`): at
+Bumpless (re)start (`control.blend.BlendEngagement`): at
 the first tick (except tick t = 0 of a lockstep run, where robot and
 reference start together as in `simulate`), at the first tick after the
 watchdog saw stale data or ``~/enable`` turned the controller on again, at the tick
@@ -77,10 +77,10 @@ from rclpy.node import Node
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.blend import BlendEngagement, BlendError
-from robotino_geom_mpc.core.controller import MAX_POSITION_M, ControllerInputError, MotionController, step_interval
-from robotino_geom_mpc.core.params import ALL_SPECS
-from robotino_geom_mpc.core.trajectory import shift_preview
+from robotino_geom_mpc.control.blend import BlendEngagement, BlendError
+from robotino_geom_mpc.control.motion_controller import MAX_POSITION_M, ControllerInputError, MotionController, step_interval
+from robotino_geom_mpc.params.specs import ALL_SPECS
+from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix
 from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
     InputCounters, closed_loop_problem, reference_jump

@@ -7,7 +7,7 @@ Topics (relative names), subscribed only while the scenario is ``goals``
                rest at the last.
 
 Both reliable, keep-last 10, volatile (RViz's and Nav2's publishers). A goal or path starts a new motion of
-`core.goal_reference.GoalReference` at the node's current reference time from the reference's full state there
+`reference.goals.GoalReference` at the node's current reference time from the reference's full state there
 (`GoalReference.go_to`, `GoalReference.follow`), so a goal during a motion takes over without a jump in
 position, velocity or acceleration. Headings (yaw of the poses' quaternions) are unwrapped to the nearest
 turn: a goal's to the reference's heading (the shorter rotation), a path's pose by pose.
@@ -15,12 +15,12 @@ turn: a goal's to the reference's heading (the shorter rotation), a path's pose 
 Refused, with a warning naming the reason and the reference unchanged (the robot holds or goes on): a frame
 other than ``<frame_prefix>odom`` (this node has no transforms; an empty frame_id is refused too), a
 non-finite position, a quaternion that is not a unit rotation about z (`ros.decode.check_yaw_quaternion`), an
-empty path, and a motion no duration up to 600 s keeps within the limits (`core.goal_motion.GoalError`).
+empty path, and a motion no duration up to 600 s keeps within the limits (`reference.goal_motion.GoalError`).
 
-Limits (`GOAL_SPECS`: `core.goal_file.LIMIT_SPECS` and ``frame_prefix``): per axis velocity, acceleration and jerk (x and y share the linear ones) and the
+Limits (`GOAL_SPECS`: `reference.goal_file.LIMIT_SPECS` and ``frame_prefix``): per axis velocity, acceleration and jerk (x and y share the linear ones) and the
 wheels' rim speed; ``goals.max_rim_speed_mps`` = 0 takes the motor's nominal speed at the rim
-(`core.goal_motion.nominal_rim_speed`, 0.94 m/s on Robotino 3); the defaults and their currents are
-`core.goal_file`'s.
+(`reference.goal_motion.nominal_rim_speed`, 0.94 m/s on Robotino 3); the defaults and their currents are
+`reference.goal_file`'s.
 """
 
 from __future__ import annotations
@@ -35,10 +35,10 @@ from nav_msgs.msg import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from robotino_geom_mpc.core.goal_file import LIMIT_DEFAULTS, LIMIT_SPECS, motion_limits
-from robotino_geom_mpc.core.goal_motion import GoalError
-from robotino_geom_mpc.core.goal_reference import GoalReference
-from robotino_geom_mpc.core.params import ParamError, ParamSpec
+from robotino_geom_mpc.reference.goal_file import LIMIT_DEFAULTS, LIMIT_SPECS, motion_limits
+from robotino_geom_mpc.reference.goal_motion import GoalError
+from robotino_geom_mpc.reference.goals import GoalReference
+from robotino_geom_mpc.params.specs import ParamError, ParamSpec
 from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix
 from robotino_geom_mpc.ros.decode import InputRejected, check_yaw_quaternion, unwrap_near, yaw_of
 from robotino_geom_mpc.ros.messages import ODOM_FRAME

@@ -3,7 +3,7 @@
 ``run --scenario goals --goals FILE`` starts it beside the loop, so the trajectory node's goal topics are
 exercised over DDS. Publishes ``goal_pose`` (geometry_msgs/PoseStamped) and ``plan`` (nav_msgs/Path),
 reliable, keep-last 10, volatile (`nodes.goal_inputs.GOAL_QOS`); subscribes ``odom`` (best effort, depth 1:
-never holds the loop back) for the time: an item of `core.goal_file` is sent at the first odometry stamped
+never holds the loop back) for the time: an item of `reference.goal_file` is sent at the first odometry stamped
 ``t`` after the run's start (lockstep: the simulated time 0; realtime: the first odometry it receives).
 Headers are stamped with that odometry stamp and carry the item's ``frame``.
 
@@ -19,9 +19,9 @@ from nav_msgs.msg import Odometry, Path
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from robotino_geom_mpc.core.goal_file import GoalItem, load_goal_file
-from robotino_geom_mpc.core.goal_motion import GoalError
-from robotino_geom_mpc.core.params import ParamSpec
+from robotino_geom_mpc.reference.goal_file import GoalItem, load_goal_file
+from robotino_geom_mpc.reference.goal_motion import GoalError
+from robotino_geom_mpc.params.specs import ParamSpec
 from robotino_geom_mpc.nodes.goal_inputs import GOAL_QOS
 from robotino_geom_mpc.ros.messages import stamp_to_ns, yaw_to_quaternion
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters
@@ -30,7 +30,7 @@ from robotino_geom_mpc.ros.spin import run_node
 __all__ = ["SENDER_SPECS", "GoalSender", "main"]
 
 SENDER_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("goals_file", str, "Goal file (YAML or JSON, see core.goal_file) whose items the node sends"),
+    ParamSpec("goals_file", str, "Goal file (YAML or JSON, see reference.goal_file) whose items the node sends"),
     ParamSpec("mode", str, "lockstep: item times from simulated time 0; realtime: from the first odometry",
               choices=("realtime", "lockstep")),
 )

@@ -41,7 +41,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from builtin_interfaces.msg import Time as TimeMsg
 
-from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
+from robotino_geom_mpc.params.specs import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix, joint_transform, \
     robotino_urdf, urdf_joints
 from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate, MalformedMessage, cdr_reader

@@ -10,7 +10,7 @@ publishes  ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory, `publ
                                   time_from_start = j Ts: transforms (x_d, y_d, yaw quaternion of theta_d),
                                   velocities and accelerations (linear x, y and angular z, in ``odom``).
                                   Point 0 is the reference at t_k itself (tracking error, recording);
-                                  points 1..N are `core.trajectory.preview` (x_d(k+1) .. x_d(k+N)).
+                                  points 1..N are `reference.trajectories.preview` (x_d(k+1) .. x_d(k+N)).
            ``reference_path``     nav_msgs/Path in ``<frame_prefix>odom``, `LATCHED_QOS` (transient local), the
                                   whole reference sampled every control period, published once.
 subscribes ``/clock``             rosgraph_msgs/Clock (lockstep only, reliable).
@@ -19,7 +19,7 @@ subscribes ``/clock``             rosgraph_msgs/Clock (lockstep only, reliable).
 
 Goals
 -----
-In scenario ``goals`` the reference is a `core.goal_reference.GoalReference`: it holds the start pose
+In scenario ``goals`` the reference is a `reference.goals.GoalReference`: it holds the start pose
 (the origin) until a goal or path arrives, which starts a C^3 motion at the current reference time
 (realtime: node clock minus the start, 0 before the start; lockstep: the latest tick published) from
 the reference's state there. The reference_path is published again after each (the new motion only, a
@@ -85,10 +85,10 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from robotino_geom_mpc.core.goal_reference import GoalReference
-from robotino_geom_mpc.core.params import ALL_SPECS, ParamSpec
+from robotino_geom_mpc.reference.goals import GoalReference
+from robotino_geom_mpc.params.specs import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.nodes.goal_inputs import GOAL_DEFAULTS, GOAL_SPECS, GoalInputs, goal_params_problem
-from robotino_geom_mpc.core.trajectory import Reference, TrajectoryError
+from robotino_geom_mpc.reference.trajectories import Reference, TrajectoryError
 from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, ns_to_stamp, point_values, preview_template, preview_values, \
     yaw_to_quaternion

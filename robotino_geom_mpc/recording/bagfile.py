@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Iterable
 
-from robotino_geom_mpc.core.errors import RobotinoError
+from robotino_geom_mpc.errors import RobotinoError
 
 __all__ = [
     "BagError",

@@ -61,7 +61,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
-from robotino_geom_mpc.core.params import ALL_SPECS
+from robotino_geom_mpc.params.specs import ALL_SPECS
 from robotino_geom_mpc.recording.bag import (
     BagError,
     BagWriter,
@@ -70,7 +70,7 @@ from robotino_geom_mpc.recording.bag import (
     message_class,
 )
 from robotino_geom_mpc.ros.bag_qos import adapt_request_to_offers, profile_to_dict
-from robotino_geom_mpc.ros.signals import STOP, ignore_stop_signals
+from robotino_geom_mpc.system.signals import STOP, ignore_stop_signals
 from robotino_geom_mpc.ros.spin import start_rclpy
 
 __all__ = ["DRAIN_LIMIT_S", "TAKE_PERIOD_S", "WAIT_TIMEOUT_NS", "RecorderNode", "main"]

@@ -1,13 +1,13 @@
 """Replay regression: a recording's odometry and reference previews through a fresh controller.
 
-A fresh `core.controller.MotionController`, built from the run parameters
+A fresh `control.motion_controller.MotionController`, built from the run parameters
 the recording stores (or a parameter file), is stepped once per recorded
 control tick with exactly what the controller node got: the ``odom``
 message of the tick converted by the node's own `odometry_state` and the
 ``reference_preview`` of the same stamp converted by its
 `preview_arrays` (lockstep; in realtime mode the preview whose stamp the
 node's diagnostics name, else the latest one published before the next
-odometry, moved to the tick's stamp by `core.trajectory.shift_preview` as
+odometry, moved to the tick's stamp by `reference.trajectories.shift_preview` as
 the node does; the ticks before the first preview, or before the first
 one the diagnostics name, are not stepped: the node had no preview yet).
 Its voltages are compared with the recorded ``wheel_voltages`` answer of
@@ -29,7 +29,7 @@ behind a fast lockstep loop can have lost samples; the ticks before the gap
 are still compared.
 
 The node's time steps (``dt_s``: the interval between the odometry stamps
-it used) and its bumpless restarts (`core.blend.BlendEngagement`, engaged
+it used) and its bumpless restarts (`control.blend.BlendEngagement`, engaged
 where the diagnostics' ``blend_engagements`` count goes up) are replayed as
 the node ran them, with the default blend limits (the recording does not
 store the controller node's own parameters). Limits: a parameter change
@@ -47,9 +47,9 @@ from typing import Any
 
 import numpy as np
 
-from robotino_geom_mpc.core.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2, BlendEngagement
-from robotino_geom_mpc.core.controller import ControllerInputError, MotionController, step_interval
-from robotino_geom_mpc.core.trajectory import shift_preview
+from robotino_geom_mpc.control.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2, BlendEngagement
+from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController, step_interval
+from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
 from robotino_geom_mpc.recording.bag import BagError, BagReader
 from robotino_geom_mpc.recording.report import (

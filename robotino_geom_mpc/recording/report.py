@@ -43,8 +43,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from robotino_geom_mpc.core.params import ParamError, load_params, params_from_values
-from robotino_geom_mpc.plots import write_plots
+from robotino_geom_mpc.params.specs import ParamError, params_from_values
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.offline.plots import write_plots
 from robotino_geom_mpc.recording.bag import RUN_METADATA, BagError, BagMessage, BagReader
 from robotino_geom_mpc.recording.cdr_values import (
     diagnostics_with,
@@ -58,7 +59,7 @@ from robotino_geom_mpc.recording.cdr_values import (
     values_of,
 )
 from robotino_geom_mpc.recording.definitions import _typestore
-from robotino_geom_mpc.results import RunData, compute_metrics, write_metrics
+from robotino_geom_mpc.offline.results import RunData, compute_metrics, write_metrics
 from robotino_geom_mpc.ros.decode import stamp_ns, yaw_of
 
 __all__ = [

@@ -21,7 +21,7 @@ from typing import Any
 
 from rclpy.serialization import deserialize_message, serialize_message
 
-from robotino_geom_mpc.core.errors import RobotinoError
+from robotino_geom_mpc.errors import RobotinoError
 
 __all__ = ["CdrLayout", "CdrTemplate", "CdrTemplateError", "MalformedMessage", "cdr_reader", "field_setter"]
 

@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from robotino_geom_mpc.core.controller import odometry_state_floats
-from robotino_geom_mpc.core.errors import RobotinoError
+from robotino_geom_mpc.control.motion_controller import odometry_state_floats
+from robotino_geom_mpc.errors import RobotinoError
 
 __all__ = [
     "InputRejected", "ODOM_FIELDS", "POINT_FIELDS", "QUATERNION_NORM_TOLERANCE", "STAMP_FIELDS", "TILT_TOLERANCE_RAD",
@@ -152,7 +152,7 @@ def state_of_odometry(values: tuple, previous_theta: float, norm_tolerance: floa
     """Body state X = (x, x', y, y', theta, theta') (eq. 2) of `odometry_values` (without the stamp).
 
     theta is unwrapped next to `previous_theta`; the base_link twist is
-    rotated into ``odom`` by the measured heading (`core.controller.odometry_state_floats`).
+    rotated into ``odom`` by the measured heading (`control.motion_controller.odometry_state_floats`).
 
     Raises
     ------

@@ -22,7 +22,7 @@ from nav_msgs.msg import Odometry
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 
-from robotino_geom_mpc.core.trajectory import preview
+from robotino_geom_mpc.reference.trajectories import preview
 from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate
 from robotino_geom_mpc.ros.decode import ODOM_FIELDS, POINT_FIELDS, STAMP_FIELDS, yaw_of
 
@@ -112,7 +112,7 @@ def point_values(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> np.ndarra
 def preview_values(reference, t_ns: int, period_s: float, horizon: int) -> list[float]:
     """The values of the N + 1 preview points of tick time `t_ns`, flat, point after point.
 
-    Point 0 is the reference at t itself, points 1..N `core.trajectory.preview` (eq. 54).
+    Point 0 is the reference at t itself, points 1..N `reference.trajectories.preview` (eq. 54).
     """
     t = t_ns * 1e-9
     pos, vel, acc, _ = reference.sample(t + period_s * np.arange(horizon + 1))

@@ -1,7 +1,7 @@
-"""ROS parameters declared from the `core.params` specs: descriptor, range, default, validation on start and on set.
+"""ROS parameters declared from the `params.specs` specs: descriptor, range, default, validation on start and on set.
 
 Each parameter gets a `ParameterDescriptor` with its description, unit and
-range, its default from the default preset (`core.params.default_params_file()`),
+range, its default from the default preset (`params.presets.default_params_file()`),
 and is validated on start and on every set; a refused set keeps the old value.
 """
 
@@ -15,16 +15,16 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from robotino_geom_mpc.core.params import (
+from robotino_geom_mpc.params.specs import (
     ALL_SPECS,
     ParamError,
     ParamSpec,
-    default_params_file,
     params_from_values,
-    read_parameter_file,
     validate_value,
 )
-from robotino_geom_mpc.core.errors import RobotinoError
+from robotino_geom_mpc.params.files import read_parameter_file
+from robotino_geom_mpc.params.presets import default_params_file
+from robotino_geom_mpc.errors import RobotinoError
 
 __all__ = ["NodeStartError", "SpecParameters", "preset_defaults", "spec_defaults"]
 

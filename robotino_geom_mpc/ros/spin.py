@@ -13,18 +13,18 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
-from robotino_geom_mpc.core.param_files import check_parameter_files
-from robotino_geom_mpc.core.params import ParamError
+from robotino_geom_mpc.params.files import check_parameter_files
+from robotino_geom_mpc.params.specs import ParamError
 from robotino_geom_mpc.ros.parameters import NodeStartError
 from robotino_geom_mpc.ros.qos import wait_acknowledged
-from robotino_geom_mpc.ros.signals import STOP, ignore_stop_signals, stop_on_signals
+from robotino_geom_mpc.system.signals import STOP, ignore_stop_signals, stop_on_signals
 
 __all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "data_publishers", "monotonic", "params_files", "run_node",
            "start_rclpy"]
 
 # before exiting, the longest a node waits for its readers to acknowledge what it published: after a run it
 # ended itself (the lockstep plant; a recorder can be thousands of samples behind), and when stopped by a
-# signal (shorter than the grace before SIGTERM of `ros.processes.NodeGroup.stop` and of `ros2 launch`)
+# signal (shorter than the grace before SIGTERM of `system.processes.NodeGroup.stop` and of `ros2 launch`)
 FINISHED_ACK_WAIT_S = 30.0
 STOPPED_ACK_WAIT_S = 3.0
 _RCLPY_TOPICS = ("/rosout", "/parameter_events")  # every node's own publishers of these, not its data
@@ -50,7 +50,7 @@ def start_rclpy(args: list[str] | None = None) -> int | None:
 
     Returns None to go on, or the exit status to end with: 0 when a signal
     came already, 2 when a ``--params-file`` fails
-    `core.param_files.check_parameter_files` (checked before rcl reads it,
+    `params.files.check_parameter_files` (checked before rcl reads it,
     whose YAML errors would be a traceback) or rcl refuses the arguments,
     after one line on stderr naming the file and the key.
     """
@@ -78,7 +78,7 @@ def _prog() -> str:
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """Start (`start_rclpy`), build the node, spin it with the events executor until a signal; returns the status.
 
-    SIGINT and SIGTERM only set a flag (`ros.signals.STOP`; in a node process
+    SIGINT and SIGTERM only set a flag (`system.signals.STOP`; in a node process
     from the package's first import on) that is checked before `rclpy.init`
     and by the spin loop (at least every 0.1 s), so no import, callback or
     construction is interrupted half-way; once the loop has ended they are

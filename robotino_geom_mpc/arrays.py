@@ -1,0 +1,43 @@
+"""The one array check every module makes at its boundary: shape and finiteness, named in the error."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from robotino_geom_mpc.errors import RobotinoError
+
+__all__ = ["checked_array"]
+
+
+def checked_array(
+    value: object, shape: tuple[int, ...], name: str, error: type[Exception] = RobotinoError, *, finite: bool = True
+) -> np.ndarray:
+    """`value` as a float array of `shape`, else `error` naming `name`, the expected and the actual shape.
+
+    Parameters
+    ----------
+    value
+        Anything `numpy.asarray` takes.
+    shape
+        The expected shape, e.g. ``(3,)``.
+    name
+        The argument's name, used in the message.
+    error
+        The exception class to raise (the caller module's own error class).
+    finite
+        Also refuse NaN and infinities.
+
+    Raises
+    ------
+    error
+        For a value that does not convert, has another shape, or (with `finite`) a non-finite entry.
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise error(f"{name} must be an array of shape {shape}: {exc}") from None
+    if arr.shape != tuple(shape):
+        raise error(f"{name} must have shape {tuple(shape)}, got {arr.shape}")
+    if finite and not np.isfinite(arr).all():
+        raise error(f"{name} must be finite, got {arr.tolist()}")
+    return arr

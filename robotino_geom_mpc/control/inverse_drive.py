@@ -1,0 +1,404 @@
+"""Inverse DC drive: wheel voltages for commanded currents, U = R i + L di/dt + Km omega (eq. 10).
+
+The controller holds each voltage over one control period Ts (zero-order
+hold) while the armature current answers with tau = L / R (about 1.5 ms
+against Ts = 10 ms), so the continuous formula needs a discrete reading.
+The MPC model (eq. 49) holds the acceleration u, hence the wheel force and
+the current, constant over the period: what moves the body is the current's
+*average* over the period. This module chooses the voltage that makes that
+average equal the commanded current.
+
+Derivation (one drive, period [0, Ts], U held, back-EMF e(t) = Km (omega +
+omega' t) with the motor speed omega measured at the tick and its rate
+omega' from the commanded acceleration): L i' = U - R i - e(t) gives, with
+alpha = exp(-Ts / tau) and phi = (tau / Ts)(1 - alpha),
+
+    mean:  i_mean = phi i_0 + (1 - phi)(U - Km omega)/R - (Km omega'/R)(Ts/2 - tau (1 - phi))
+    end:   i_end  = alpha i_0 + (1 - alpha)(U - Km omega)/R - (Km omega'/R)(Ts - tau (1 - alpha))
+
+Solving i_mean = i* for U keeps the physical structure:
+
+    U = R i* + L_d (i* - i_0)/Ts + Km (omega + t_e omega'),
+    L_d = L (1 - alpha)/(1 - phi),   t_e = Ts / (2 (1 - phi)) - tau,
+
+i.e. di/dt is the planned change of the current over the period (from its
+value i_0 at the start towards the command i*), with an effective inductance
+L_d (-> L when Ts >> tau, -> 2 L when Ts << tau, the linear-ramp limit) and
+the back-EMF taken at the effective time t_e inside the period. i_0 is not
+measured: the drive predicts it with the `end` formula from the voltage it
+actually applied (after saturation), so there is no difference of noisy
+measurements; its error decays by alpha (~1e-3) per period.
+
+For the Robotino 3 preset at Ts = 10 ms: tau = 1.50 ms, L_d = 10.45 mH
+(1.17 L), t_e = 4.38 ms. On the coupled plant a current ramp of 20 mA per
+period is tracked to 0.06 mA, where the textbook reading
+L (i*_k - i*_{k-1})/Ts with the back-EMF at the tick lags by 9.5 mA
+(test/test_drive.py).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.arrays import checked_array
+from robotino_geom_mpc.model.dynamics import wheel_directions
+from robotino_geom_mpc.params.specs import RobotinoParams
+
+__all__ = ["DriveError", "ZOHDrive", "InverseDrive", "MotorKinematics"]
+
+_SATURATION_PASSES = 4  # fixed-point passes for the mean current under clipped voltages
+
+
+class DriveError(RobotinoError, ValueError):
+    """A drive input with the wrong shape or a non-finite value."""
+
+
+class ZOHDrive:
+    """Exact zero-order-hold relations of one armature circuit over a period (see the module notes).
+
+    All methods are linear in their array arguments and accept any common
+    shape, so the constrained mode applies them to affine coefficient arrays.
+
+    Parameters
+    ----------
+    resistance_ohm, inductance_h, torque_constant
+        R, L and Km of eq. (10).
+    period_s
+        Ts, the period over which the voltage is held.
+
+    Attributes
+    ----------
+    tau_s
+        L / R.
+    alpha
+        exp(-Ts / tau): the share of the start current left at the end of the period.
+    phi
+        (tau / Ts)(1 - alpha): the start current's weight in the period average.
+    effective_inductance_h
+        L_d = L (1 - alpha)/(1 - phi).
+    emf_time_s
+        t_e = Ts / (2 (1 - phi)) - tau: when in the period the back-EMF is taken.
+    """
+
+    def __init__(self, resistance_ohm: float, inductance_h: float, torque_constant: float, period_s: float) -> None:
+        for name, value in (
+            ("resistance_ohm", resistance_ohm),
+            ("inductance_h", inductance_h),
+            ("torque_constant", torque_constant),
+            ("period_s", period_s),
+        ):
+            if not (math.isfinite(value) and value > 0.0):
+                raise DriveError(f"{name} must be finite and > 0, got {value!r}")
+        self.resistance_ohm = float(resistance_ohm)
+        self.inductance_h = float(inductance_h)
+        self.torque_constant = float(torque_constant)
+        self.period_s = float(period_s)
+        self.tau_s = self.inductance_h / self.resistance_ohm
+        ratio = self.period_s / self.tau_s
+        self.alpha = math.exp(-ratio)
+        self.phi = -math.expm1(-ratio) / ratio
+        self.effective_inductance_h = self.inductance_h * (1.0 - self.alpha) / (1.0 - self.phi)
+        self.emf_time_s = self.period_s / (2.0 * (1.0 - self.phi)) - self.tau_s
+        # coefficients of the three relations
+        R, Km, tau = self.resistance_ohm, self.torque_constant, self.tau_s
+        self._v_step = self.effective_inductance_h / self.period_s
+        self._v_cmd = R + self._v_step
+        self._v_rate = Km * self.emf_time_s
+        self._m_volt = (1.0 - self.phi) / R
+        self._m_rate = Km / R * (0.5 * self.period_s - tau * (1.0 - self.phi))
+        self._e_volt = (1.0 - self.alpha) / R
+        self._e_rate = Km / R * (self.period_s - tau * (1.0 - self.alpha))
+
+    def voltage(self, i_cmd, i_start, omega, omega_rate):
+        """U = R i* + L_d (i* - i_0)/Ts + Km (omega + t_e omega'): the period average of i equals i*."""
+        return self._v_cmd * i_cmd - self._v_step * i_start + self.torque_constant * omega + self._v_rate * omega_rate
+
+    def mean_current(self, i_start, U, omega, omega_rate):
+        """Average of the current over the period for a held voltage U."""
+        return self.phi * i_start + self._m_volt * (U - self.torque_constant * omega) - self._m_rate * omega_rate
+
+    def end_current(self, i_start, U, omega, omega_rate, elapsed_s: float | None = None):
+        """Current at the end of the period, or after `elapsed_s` [s] > 0, for a held voltage U."""
+        alpha, e_volt, e_rate = (
+            (self.alpha, self._e_volt, self._e_rate) if elapsed_s is None else self.end_coefficients(elapsed_s)
+        )
+        return alpha * i_start + e_volt * (U - self.torque_constant * omega) - e_rate * omega_rate
+
+    def end_coefficients(self, elapsed_s: float) -> tuple[float, float, float]:
+        """(alpha, (1 - alpha)/R, Km/R (t - tau (1 - alpha))) of the `end` relation over t = `elapsed_s` [s] > 0.
+
+        Raises
+        ------
+        DriveError
+            For a non-finite or non-positive `elapsed_s`.
+        """
+        if not (math.isfinite(elapsed_s) and elapsed_s > 0.0):
+            raise DriveError(f"elapsed_s must be finite and > 0, got {elapsed_s!r}")
+        R, Km, tau = self.resistance_ohm, self.torque_constant, self.tau_s
+        decay = -math.expm1(-elapsed_s / tau)  # 1 - alpha, exact for small t
+        return 1.0 - decay, decay / R, Km / R * (elapsed_s - tau * decay)
+
+
+class InverseDrive:
+    """The three inverse drives with their current predictor and the supply limit.
+
+    Parameters
+    ----------
+    p
+        Motor parameters R, L, Km and the supply voltage.
+    period_s
+        Control period Ts over which each voltage is held.
+    """
+
+    def __init__(self, p: RobotinoParams, period_s: float) -> None:
+        if not (math.isfinite(period_s) and period_s > 0.0):
+            raise DriveError(f"period_s must be finite and > 0, got {period_s!r}")
+        self.zoh = ZOHDrive(p.resistance_ohm, p.inductance_h, p.torque_constant_n_m_per_a, float(period_s))
+        self.period_s = self.zoh.period_s
+        self.supply_voltage_v = p.supply_voltage_v
+        self.current_per_force = p.r / (p.gear_ratio * p.torque_constant_n_m_per_a)  # i = F r / (gear Km) [A/N]
+        # The relations are linear: their coefficients over (i*, i_0, omega, omega'), read off the
+        # basis, give an unclipped period in a few scalar products per wheel.
+        basis = np.eye(4)
+        voltage_row = self.zoh.voltage(*basis)
+        self._voltage_row = tuple(voltage_row.tolist())
+        self._end_row = tuple(self.zoh.end_current(basis[1], voltage_row, basis[2], basis[3]).tolist())
+        self.reset()
+
+    @property
+    def current_estimate(self) -> np.ndarray:
+        """Predicted currents at the start of the next period [A] (one period after the last, or as `advance` set)."""
+        return np.array(self._i0)
+
+    @property
+    def current_estimate_floats(self) -> list[float]:
+        """`current_estimate` as three Python floats (the controller's per-tick path)."""
+        return list(self._i0)
+
+    def reset(self, currents: np.ndarray | None = None) -> None:
+        """Start again from known currents (default zero: a robot at rest, drives off)."""
+        self._i0 = [0.0, 0.0, 0.0] if currents is None else self._vec(currents, "currents").tolist()
+        self._last: tuple[Sequence[float], ...] | None = None  # (i_0, U, omega, omega') of the last period
+        self._one_period = self._i0  # the step's own prediction, one period on
+
+    def currents_floats(self, forces: Sequence[float]) -> list[float]:
+        """Wheel currents i = F r / (gear Km) [A] for wheel forces F [N] (erratum 4), on Python floats."""
+        k = self.current_per_force
+        return [k * forces[0], k * forces[1], k * forces[2]]
+
+    def advance(self, elapsed_s: float) -> None:
+        """Re-predict the start currents for a next tick `elapsed_s` [s] after the last one instead of one period.
+
+        The last voltages were held until the next command, so the start
+        current is the `end` relation over the time that really elapsed
+        (e.g. 2 Ts after a lost tick, ~0 after a duplicated one), with the
+        back-EMF ramp of that period continued. A no-op before the first
+        period; exactly one period restores the step's own prediction.
+
+        Raises
+        ------
+        DriveError
+            For a non-finite or non-positive `elapsed_s`.
+        """
+        if elapsed_s == self.period_s:
+            self._i0 = self._one_period
+            return
+        alpha, e_volt, e_rate = self.zoh.end_coefficients(elapsed_s)
+        if self._last is None:
+            return
+        Km = self.zoh.torque_constant
+        self._i0 = [
+            alpha * i + e_volt * (U - Km * w) - e_rate * r for i, U, w, r in zip(*self._last)
+        ]
+
+    def limited_step(
+        self,
+        i_cmd: Sequence[float],
+        omega: Sequence[float],
+        omega_rate: Sequence[float],
+        rate_at_rest: Callable[[], Sequence[float]],
+        current_limit: float,
+        rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[Sequence[float], bool, Sequence[float], float]:
+        """`step` with the commanded currents scaled by one factor s in (0, 1] to keep the limits.
+
+        Parameters
+        ----------
+        i_cmd, omega, omega_rate, rate_of_current
+            As for `step`; `omega_rate` is the motor-speed rate under the full command.
+        rate_at_rest
+            The motor-speed rate under a zero command (friction and the turning frame only).
+            Called only when a limit binds: the rate is affine in s between the two.
+        current_limit
+            I_max [A] > 0 on the period-average and the end-of-period current of every wheel.
+
+        Returns
+        -------
+        voltages, saturated, mean_current
+            As for `step`, for the scaled command.
+        scale : float
+            s: 1 when the command keeps |i*| <= I_max, |i_end| <= I_max and |U| <= supply;
+            otherwise the largest s for which all hold, so the largest wheel sits at its limit.
+
+        Notes
+        -----
+        The period average i* is the command itself; the current relaxes from
+        i_0 towards the end value (`ZOHDrive.end_current`), so with |i_0| and
+        |i_end| at most I_max the current stays within I_max over the period
+        up to the small hump where the back-EMF rises inside it. Every bounded
+        quantity is affine in s, a + s b: the binding s is (+-I_max - a) / b.
+        A row already beyond its limit at s = 0 (e.g. a back-EMF above the
+        supply) cannot be helped by scaling and is left to the supply clip of `step`.
+        """
+        i0, last, one_period = self._i0, self._last, self._one_period
+        voltages, saturated, mean = self.step(i_cmd, omega, omega_rate, rate_of_current)
+        end = self._i0
+        if not saturated and max(abs(i_cmd[0]), abs(i_cmd[1]), abs(i_cmd[2]), abs(end[0]), abs(end[1]), abs(end[2])) <= current_limit:
+            return voltages, saturated, mean, 1.0
+        self._i0, self._last, self._one_period = i0, last, one_period
+        rest = rate_at_rest()
+        ec, es, ew, er = self._end_row
+        vc, vs, vw, vr = self._voltage_row
+        supply, scale = self.supply_voltage_v, 1.0
+        for c, s0, w, r0, r1 in zip(i_cmd, i0, omega, rest, omega_rate):
+            dr = r1 - r0
+            for a, b, bound in (
+                (0.0, c, current_limit),
+                (es * s0 + ew * w + er * r0, ec * c + er * dr, current_limit),
+                (vs * s0 + vw * w + vr * r0, vc * c + vr * dr, supply),
+            ):
+                full = a + b
+                if abs(full) > bound and abs(a) < bound:
+                    scale = min(scale, (math.copysign(bound, full) - a) / b)
+        scaled_rate = [r0 + scale * (r1 - r0) for r0, r1 in zip(rest, omega_rate)]
+        voltages, saturated, mean = self.step([scale * c for c in i_cmd], omega, scaled_rate, rate_of_current)
+        return voltages, saturated, mean, scale
+
+    @staticmethod
+    def _vec(value: object, name: str) -> np.ndarray:
+        return checked_array(value, (3,), name, DriveError)
+
+    def step(
+        self,
+        i_cmd: Sequence[float],
+        omega: Sequence[float],
+        omega_rate: Sequence[float],
+        rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[Sequence[float], bool, Sequence[float]]:
+        """Voltages for one period and the current they give.
+
+        Parameters
+        ----------
+        i_cmd
+            Commanded (period-average) currents i* [A], i = F r / (gear Km).
+        omega
+            Motor speeds at the tick [rad/s] (model.motor_speeds of the measured velocity).
+        omega_rate
+            Their rate over the period [rad/s^2] under the commanded acceleration.
+        rate_of_current
+            Optional: the motor-speed rate a given mean current causes. Used
+            only when a voltage is clipped, since the body then accelerates
+            less than commanded, which changes the back-EMF and thus the
+            current; the mean current is found by fixed-point iteration (the
+            map contracts by about Km^2 gear^2 Ts / (2 R r^2 M) ~ 0.02 per pass).
+
+        Returns
+        -------
+        voltages : sequence of 3 floats
+            Clipped to +-supply.
+        saturated : bool
+            True when any voltage was clipped.
+        mean_current : sequence of 3 floats
+            The period-average current the clipped voltages give (i_cmd itself unless saturated).
+        """
+        vc, vs, vw, vr = self._voltage_row
+        (c0, c1, c2), (s0, s1, s2), (w0, w1, w2), (r0, r1, r2) = i_cmd, self._i0, omega, omega_rate
+        U = [vc * c0 + vs * s0 + vw * w0 + vr * r0, vc * c1 + vs * s1 + vw * w1 + vr * r1, vc * c2 + vs * s2 + vw * w2 + vr * r2]
+        limit = self.supply_voltage_v
+        if max(abs(U[0]), abs(U[1]), abs(U[2])) <= limit:
+            self._last = (self._i0, U, omega, omega_rate)
+            ec, es, ew, er = self._end_row
+            self._i0 = [
+                ec * c0 + es * s0 + ew * w0 + er * r0,
+                ec * c1 + es * s1 + ew * w1 + er * r1,
+                ec * c2 + es * s2 + ew * w2 + er * r2,
+            ]
+            self._one_period = self._i0
+            return U, False, i_cmd
+        i0 = self._i0
+        zoh, i0_arr = self.zoh, np.array(i0)
+        omega, omega_rate = np.asarray(omega, dtype=float), np.asarray(omega_rate, dtype=float)
+        U = np.clip(U, -limit, limit)
+        mean = zoh.mean_current(i0_arr, U, omega, omega_rate)
+        if rate_of_current is not None:
+            for _ in range(_SATURATION_PASSES):
+                omega_rate = np.asarray(rate_of_current(mean), dtype=float)
+                mean = zoh.mean_current(i0_arr, U, omega, omega_rate)
+        self._i0 = zoh.end_current(i0_arr, U, omega, omega_rate).tolist()
+        self._last = (i0, U.tolist(), omega.tolist(), omega_rate.tolist())
+        self._one_period = self._i0
+        return U.tolist(), True, mean.tolist()
+
+
+class MotorKinematics:
+    """Motor speeds omega = W(theta) v and their rate, the per-tick form of `model.motor_speeds`.
+
+    W(theta) = (gear / r) [d_i(theta), l] with d_i(theta) = R(theta) d_i(0)
+    (R the planar rotation), so W(theta) = W(0) diag(R(theta)^T, 1): the
+    odom-frame velocity turned into the body frame, one small product per
+    tick instead of rebuilding the wheel directions.
+
+    Parameters
+    ----------
+    p
+        Wheel radius, wheel distance l and gear ratio.
+    """
+
+    def __init__(self, p: RobotinoParams) -> None:
+        self.W0 = p.gear_ratio / p.r * np.column_stack((wheel_directions(0.0), np.full(3, p.l)))
+        self._W0 = tuple(map(tuple, self.W0.tolist()))
+
+    def matrix(self, theta: float) -> np.ndarray:
+        """W(theta), shape (3, 3): omega = W(theta) (x', y', theta')."""
+        c, s = math.cos(theta), math.sin(theta)
+        return self.W0 @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    def speeds_and_rates(
+        self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Motor speeds omega and their rate omega' for a body velocity and acceleration.
+
+        Parameters
+        ----------
+        theta
+            Heading [rad].
+        velocity, acceleration
+            (x', y', theta') and (x'', y'', theta'') in the odom frame.
+
+        Returns
+        -------
+        omega, omega_rate : ndarray, shape (3,)
+            omega' = W(theta) a + theta' W'(theta) v, where W'(theta) v = W(theta) (y', -x', 0).
+        """
+        omega, rate = self.speeds_and_rates_floats(theta, velocity, acceleration)
+        return np.array(omega), np.array(rate)
+
+    def speeds_and_rates_floats(
+        self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
+    ) -> tuple[list[float], list[float]]:
+        """`speeds_and_rates` on Python floats, for the per-tick path."""
+        vx, vy, w = velocity[0], velocity[1], velocity[2]
+        ax, ay, aw = acceleration[0], acceleration[1], acceleration[2]
+        c, s = math.cos(theta), math.sin(theta)
+        bx, by = ax + w * vy, ay - w * vx
+        px, py = c * vx + s * vy, c * vy - s * vx
+        qx, qy = c * bx + s * by, c * by - s * bx
+        (a0, b0, e0), (a1, b1, e1), (a2, b2, e2) = self._W0
+        return (
+            [a0 * px + b0 * py + e0 * w, a1 * px + b1 * py + e1 * w, a2 * px + b2 * py + e2 * w],
+            [a0 * qx + b0 * qy + e0 * aw, a1 * qx + b1 * qy + e1 * aw, a2 * qx + b2 * qy + e2 * aw],
+        )

@@ -1,1 +1,0 @@
-"""The math core: plain numpy/scipy, never rclpy."""

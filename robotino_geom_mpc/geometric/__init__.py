@@ -1,0 +1,1 @@
+"""Section III-IV: Basile-Marro subspace algebra, the decoupling field T(theta), functional controllability."""

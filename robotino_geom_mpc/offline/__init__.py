@@ -1,0 +1,1 @@
+"""Offline closed loop: simulation, Monte-Carlo study, run results, metrics and figures (no ROS)."""

@@ -1,0 +1,175 @@
+"""The figures of a run: the paper's Figs. 4-6 (path, theta, currents) plus voltages and tracking errors.
+
+Figures are drawn with matplotlib's object API on the Agg canvas (no
+display, no pyplot global state) and written as PNG; on a machine with
+several cores, by forked worker processes (a figure costs 0.2-0.5 s of
+CPU, mostly layout and rasterising, and `run` waits for them).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+
+from robotino_geom_mpc.offline.results import RunData
+
+__all__ = ["DPI", "FIGURE_SIZES_IN", "write_plots"]
+
+DPI = 100
+# file stem -> figure size (width, height) in inches; the PNG is DPI times larger
+FIGURE_SIZES_IN: dict[str, tuple[float, float]] = {
+    "xy_path": (6.0, 6.0),
+    "theta": (8.0, 4.0),
+    "currents": (8.0, 4.5),
+    "voltages": (8.0, 4.5),
+    "errors": (8.0, 6.0),
+}
+_WHEEL_COLOURS = ("tab:blue", "tab:orange", "tab:green")
+_PREFIXES = (("", 1.0), ("m", 1e3), ("\u00b5", 1e6), ("n", 1e9))
+
+
+def _prefix(values: np.ndarray) -> tuple[str, float]:
+    """The SI prefix (and its factor) that shows the largest |value| between 1 and 1000."""
+    peak = float(np.abs(values).max())
+    for prefix, factor in _PREFIXES:
+        if peak * factor >= 1.0:
+            return prefix, factor
+    return _PREFIXES[-1] if peak > 0.0 else _PREFIXES[1]
+
+
+def _figure(stem: str) -> Figure:
+    fig = Figure(figsize=FIGURE_SIZES_IN[stem], dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _xy_path(run: RunData, fig: Figure) -> None:
+    ax = fig.add_subplot()
+    ax.plot(run.reference[:, 0], run.reference[:, 1], "k--", lw=1.2, label="reference")
+    ax.plot(run.pose[:, 0], run.pose[:, 1], color="tab:red", lw=1.0, label="robot")
+    ax.plot(*run.pose[0, :2], "o", color="tab:red", ms=5, label="start")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{run.scenario}: path in the plane (cf. paper Fig. 4)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best")
+
+
+def _theta(run: RunData, fig: Figure) -> None:
+    ax = fig.add_subplot()
+    ax.plot(run.t, run.reference[:, 2], "k--", lw=1.2, label=r"reference $\theta_d$")
+    ax.plot(run.t, run.pose[:, 2], color="tab:red", lw=1.0, label=r"robot $\theta$")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(r"$\theta$ [rad]")
+    ax.set_title(f"{run.scenario}: heading (cf. paper Fig. 5)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best")
+
+
+def _limited(
+    run: RunData, fig: Figure, series: np.ndarray, limit: float, what: str, unit: str, limit_label: str
+) -> Axes:
+    ax = fig.add_subplot()
+    for k in range(3):
+        ax.plot(run.t, series[:, k], color=_WHEEL_COLOURS[k], lw=1.0, label=f"wheel {k + 1}")
+    for sign in (1.0, -1.0):
+        ax.axhline(sign * limit, color="k", ls="--", lw=1.0, label=limit_label if sign > 0 else None)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(f"{what} [{unit}]")
+    ax.grid(True, alpha=0.3)
+    top = 1.4 * max(limit, float(np.abs(series).max()))  # headroom above the limit lines for the legend
+    ax.set_ylim(-top, top)
+    ax.legend(loc="upper center", ncols=4, fontsize="small")
+    return ax
+
+
+def _currents(run: RunData, fig: Figure) -> None:
+    ax = _limited(run, fig, run.currents, run.nominal_current_a, "current", "A",
+                  rf"$\pm I_{{nom}}$ = {run.nominal_current_a:g} A")
+    ax.set_title(f"{run.scenario}: wheel currents (cf. paper Fig. 6)")
+
+
+def _voltages(run: RunData, fig: Figure) -> None:
+    ax = _limited(run, fig, run.voltages, run.supply_voltage_v, "voltage", "V",
+                  rf"$\pm U_{{supply}}$ = {run.supply_voltage_v:g} V")
+    ax.set_title(f"{run.scenario}: wheel voltages")
+
+
+def _errors(run: RunData, fig: Figure, settle_time_s: float) -> None:
+    err = run.errors()
+    pos_prefix, pos_factor = _prefix(err[:, :2])
+    theta_prefix, theta_factor = _prefix(err[:, 2])
+    ax_pos, ax_theta = fig.subplots(2, 1, sharex=True)
+    ax_pos.plot(run.t, pos_factor * err[:, 0], color="tab:blue", lw=1.0, label=r"$x - x_d$")
+    ax_pos.plot(run.t, pos_factor * err[:, 1], color="tab:orange", lw=1.0, label=r"$y - y_d$")
+    ax_pos.set_ylabel(f"position error [{pos_prefix}m]")
+    ax_pos.set_title(f"{run.scenario}: tracking errors")
+    ax_theta.plot(run.t, theta_factor * err[:, 2], color="tab:green", lw=1.0, label=r"$\theta - \theta_d$")
+    ax_theta.set_ylabel(f"heading error [{theta_prefix}rad]")
+    ax_theta.set_xlabel("time [s]")
+    for ax in (ax_pos, ax_theta):
+        ax.axvline(run.t[0] + settle_time_s, color="k", ls=":", lw=1.0, label=f"settle time {settle_time_s:g} s")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize="small")
+
+
+# file stem -> drawing function, in the order of `write_plots` (the error plot also takes the settle time)
+_DRAW = {"xy_path": _xy_path, "theta": _theta, "currents": _currents, "voltages": _voltages, "errors": _errors}
+
+
+def _write(stem: str, run: RunData, path: Path, settle_time_s: float) -> Path:
+    fig = _figure(stem)
+    if stem == "errors":
+        _errors(run, fig, settle_time_s)
+    else:
+        _DRAW[stem](run, fig)
+    # the constrained layout once, then fixed: savefig with a layout engine draws the figure twice (a draw to
+    # lay it out, then the one rendered), 10-15 % of a figure's time; the PNG is the same byte for byte
+    fig.get_layout_engine().execute(fig)
+    fig.set_layout_engine("none")
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def write_plots(run: RunData, out_dir: str | os.PathLike, settle_time_s: float = 1.0,
+                workers: int | None = None) -> list[Path]:
+    """Write the PNGs of a run into `out_dir` (created if needed).
+
+    Parameters
+    ----------
+    run
+        The run.
+    out_dir
+        Output folder.
+    settle_time_s
+        Marked in the error plot: metrics count position errors after it.
+    workers
+        Processes drawing the figures (default: the usable cores, at most 3); with 1, or where `fork`
+        is not available, this process draws them all. The files are the same either way.
+
+    Returns
+    -------
+    list of Path
+        ``xy_path.png`` (paper Fig. 4), ``theta.png`` (Fig. 5),
+        ``currents.png`` with +-I_nom (Fig. 6), ``voltages.png`` with
+        +-supply, ``errors.png`` (x, y, theta errors), in that order.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    stems = list(_DRAW)
+    paths = [out / f"{stem}.png" for stem in stems]
+    if workers is None:
+        workers = min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 3)
+    if workers > 1 and "fork" in multiprocessing.get_all_start_methods():
+        # forked: the workers start with matplotlib imported and its fonts loaded
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+            return list(pool.map(_write, stems, [run] * len(stems), paths, [settle_time_s] * len(stems)))
+    return [_write(stem, run, path, settle_time_s) for stem, path in zip(stems, paths)]

@@ -1,0 +1,207 @@
+"""Offline closed loop (Fig. 3): reference -> controller -> simulated Robotino, one control period at a time.
+
+This engine is the reference the ROS 2 nodes reproduce (to 1e-6), so each
+tick k (t_k = k Ts, k = 0 .. n-1) does exactly, in this order:
+
+1. measure: ``pose, twist = plant.odometry(rng, noise)`` (pose plus Gaussian
+   noise drawn from the run's seeded generator, all ticks' at once,
+   noise-free body-frame twist;
+   with ``odometry="encoders"`` the pose integrated from the wheel-encoder
+   counts plus the same noise, and the encoder twist: `encoders`),
+   ``X = state_from_odometry(pose, twist)`` (both on Python floats here:
+   `RobotinoPlant.noisy_odometry_floats`, `odometry_state_floats`);
+2. ``Y_d`` = the reference positions at t_{k+1} .. t_{k+N} (eq. 54), sampled
+   for the whole run at once: rows k+1 .. k+N of ``reference.position(j Ts)``,
+   equal to ``preview(reference, t_k, Ts, N)`` to rounding (1e-14);
+3. ``out = controller.step(X, Y_d)``;
+4. record t_k, the true pose, the measured pose, the reference at t_k, ``out.voltages``;
+5. ``plant.step(out.voltages, Ts)`` and record the largest |current| of each
+   drive over that period (the plant's substeps), signed like the current
+   at the period's end.
+
+The loop keeps numpy out of its per-tick bookkeeping (a call on a 3-vector
+costs about as much as a dozen float operations): it collects the ticks'
+values and turns them into arrays once, at the end.
+
+A scenario (`scenarios.SCENARIOS`) names the reference, the controller's
+model (`scenarios.Scenario.controller_model`: the robot, or a mismatched one in ``robustness``)
+and the odometry noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, replace
+
+import numpy as np
+from tqdm import tqdm
+
+from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST, DEFAULT_COUNTS_PER_REV, EncoderError, odometry_source
+from robotino_geom_mpc.model.plant import RobotinoPlant
+from robotino_geom_mpc.model.speed_loop import DEFAULT_KI, DEFAULT_KP, DEFAULT_RATE_HZ, WheelSpeedLoop, \
+    WheelSpeedLoopError
+
+from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
+from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.offline.results import RunData
+from robotino_geom_mpc.scenarios import get_scenario
+
+__all__ = ["SimulationError", "run_scenario"]
+
+
+class SimulationError(RobotinoError, ValueError):
+    """A bad run setting, named in the message."""
+
+
+def run_scenario(
+    scenario: str,
+    robot: RobotinoParams,
+    control: ControlParams,
+    *,
+    duration_s: float | None = None,
+    seed: int = 0,
+    progress: bool = False,
+    plant_robot: RobotinoParams | None = None,
+    odometry_noise: tuple[float, float] | None = None,
+    odometry: str = "ideal",
+    encoder_counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
+    wheel_slip_std: float = 0.0,
+    command_interface: str = "voltages",
+    wheel_pi: tuple[float, float, float] | None = None,
+) -> RunData:
+    """Simulate one scenario in closed loop.
+
+    Parameters
+    ----------
+    scenario
+        A name of `scenarios.SCENARIOS`.
+    robot
+        The true robot (the plant), from which the scenario's controller model is made.
+    control
+        Controller settings (period, horizon, weights, mode).
+    duration_s
+        Simulated time; the reference's duration if None.
+    seed
+        Seed of the odometry noise generator.
+    progress
+        Show a tqdm progress bar.
+    plant_robot
+        A different true robot for the plant (mismatch studies); `robot` if None.
+    odometry_noise
+        (position [m], heading [rad]) noise std; None means the scenario's.
+    odometry
+        ``ideal`` (the true pose plus the noise, the true twist) or ``encoders``
+        (`robotino_geom_mpc.model.encoders`: dead reckoning from the wheel encoders; the
+        controller then gets ``control.odometry_twist = period_mean``).
+    encoder_counts_per_rev, wheel_slip_std
+        The encoders' counts per motor revolution and the wheel slip (std as
+        a fraction of the wheel speed; its generator is seeded by `seed`).
+    command_interface
+        ``voltages`` (the controller's wheel voltages drive the plant) or ``cmd_vel`` (the controller's
+        base_link velocity for the next period, `MotionController.next_velocity`, is held by the
+        wheel-speed PI loops of `robotino_geom_mpc.model.speed_loop` on the same drives; the voltages
+        kept are each period's mean of the PI's).
+    wheel_pi
+        (kp [V s/rad], ki [V/rad], rate [Hz]) of those loops; None: the plant node's defaults
+        (`wheel_speed_loop.DEFAULT_KP`, ...: `tuned_gains` of the Robotino 3 preset, 1 kHz).
+
+    Returns
+    -------
+    RunData
+        One sample per control period; flags ``saturated`` and ``infeasible``,
+        the controller's compute times, and meta (seed, mode, noise, mismatch).
+
+    Raises
+    ------
+    scenarios.ScenarioError
+        Unknown scenario.
+    SimulationError
+        Non-positive duration, negative noise or a bad odometry setting.
+    """
+    spec = get_scenario(scenario)
+    if odometry_noise is None:
+        odometry_noise = (spec.noise.position_m, spec.noise.yaw_rad)
+    noise = tuple(float(v) for v in odometry_noise)
+    if len(noise) != 2 or not all(math.isfinite(v) and v >= 0.0 for v in noise):
+        raise SimulationError(f"odometry_noise must be two non-negative numbers, got {odometry_noise!r}")
+    reference = spec.make_reference()
+    duration = reference.duration_s if duration_s is None else float(duration_s)
+    if not (math.isfinite(duration) and duration > 0.0):
+        raise SimulationError(f"duration_s must be positive, got {duration_s!r}")
+    Ts, N = control.period_s, control.horizon
+    n = max(1, int(round(duration / Ts)))
+
+    plant = RobotinoPlant(plant_robot if plant_robot is not None else robot)
+    try:
+        source = odometry_source(plant, odometry, encoder_counts_per_rev, wheel_slip_std, seed)
+    except EncoderError as exc:
+        raise SimulationError(str(exc)) from None
+    if command_interface not in ("voltages", "cmd_vel"):
+        raise SimulationError(f"command_interface must be 'voltages' or 'cmd_vel', got {command_interface!r}")
+    speed_loop = None
+    if command_interface == "cmd_vel":
+        try:
+            speed_loop = WheelSpeedLoop(plant.params, *(wheel_pi or (DEFAULT_KP, DEFAULT_KI, DEFAULT_RATE_HZ)))
+        except WheelSpeedLoopError as exc:
+            raise SimulationError(str(exc)) from None
+    if odometry in CONTROLLER_TWIST:
+        control = replace(control, odometry_twist=CONTROLLER_TWIST[odometry])
+    controller = MotionController(spec.controller_model(robot), control)
+    controller.start_at(*reference.position(np.zeros(1))[0].tolist())  # robot and reference start together
+    # The run's pose noise drawn at once: the same values as one `RobotinoPlant.pose_noise` draw per tick.
+    std_position, std_yaw = noise
+    draws = (np.random.default_rng(seed).normal(0.0, (std_position, std_position, std_yaw), (n, 3)).tolist()
+             if std_position or std_yaw else [None] * n)
+
+    t = np.arange(n) * Ts
+    targets = reference.position(np.arange(n + N + 1) * Ts)  # row j: the reference at j Ts
+    # Only floats and arrays are kept per tick (no tuples): nothing for the garbage collector to scan.
+    poses, measured, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], [], []
+    measure, control_step, plant_step = source.noisy_odometry_floats, controller.step, plant.step
+    for k in tqdm(range(n), desc=scenario, unit="tick", disable=not progress, mininterval=0.5):
+        pose_measured, twist_measured = measure(draws[k])
+        out = control_step(odometry_state_floats(pose_measured, twist_measured), targets[k + 1 : k + N + 1])
+        poses += plant.pose_floats()
+        measured += pose_measured
+        voltages += out.voltages
+        saturated.append(out.saturated)
+        infeasible.append(out.infeasible)
+        compute.append(out.compute_time_s)
+        if speed_loop is None:
+            plant_step(out.voltages, Ts)
+            substep_currents.append(plant.substep_currents)
+        else:
+            held, trace = speed_loop.run(plant, controller.next_velocity(), Ts)
+            voltages[-3:] = held.mean(axis=0).tolist()
+            substep_currents.append(trace)
+    pose = np.array(poses).reshape(n, 3)
+    trace = np.array(substep_currents)  # (n, substeps + 1, 3); the last row is the current at the period's end
+    currents = np.copysign(np.abs(trace).max(axis=1), trace[:, -1])
+
+    return RunData(
+        scenario=scenario,
+        t=t,
+        pose=pose,
+        reference=targets[:n],
+        odometry=np.array(measured).reshape(n, 3),
+        currents=currents,
+        voltages=np.array(voltages).reshape(n, 3),
+        control_period_s=Ts,
+        horizon=N,
+        nominal_current_a=robot.nominal_current_a,
+        supply_voltage_v=robot.supply_voltage_v,
+        flags={"saturated": np.array(saturated, dtype=bool), "infeasible": np.array(infeasible, dtype=bool)},
+        compute_time_s=np.array(compute),
+        meta={
+            "seed": int(seed),
+            "mode": control.mode,
+            "odometry_noise": list(noise),
+            "odometry": odometry,
+            "command_interface": command_interface,
+            **({"encoder_counts_per_rev": int(encoder_counts_per_rev), "wheel_slip_std": float(wheel_slip_std)}
+               if odometry == "encoders" else {}),
+            "controller_mismatch": None if spec.mismatch is None else asdict(spec.mismatch),
+            "plant_params": "plant_robot" if plant_robot is not None else "robot",
+        },
+    )

@@ -1,0 +1,256 @@
+"""The check of ROS 2 parameter files every entry point makes: the nodes before `rclpy.init`, the command line.
+
+A node started with ``--ros-args --params-file FILE ...`` and ``robotino-geom-mpc VERB --params FILE``
+refuse the same files with the same one-line `ParamError` naming the file and the key:
+
+* a file that cannot be read, is not YAML, or whose sections are not ``name: {ros__parameters: {...}}``
+  (a namespace may nest: ``ns: {node: {ros__parameters: ...}}`` is node ``ns/node``);
+* an **unknown key**: a key of a section that no node the section applies to declares (`NODE_PARAMETERS`)
+  and that rclpy does not own (`RCLPY_PARAMETERS`, ``qos_overrides.*``); with "did you mean" the closest
+  name. A ``/**`` section applies to every node of the package, a node section (its last name component,
+  ``*`` wildcards allowed) to the nodes it names. A section naming none of them belongs to another
+  package and is not checked, unless its name is close to one of ours (a misspelt node name);
+* a **missing key**: a node that gets any robot/control parameter (`ALL_SPECS`) from the files must get
+  every one of those it declares (``/**`` sections merged over the files in order, like rcl, plus its
+  own sections); otherwise it would run on the preset's value for the rest without a word. Files that
+  give no robot/control parameter at all (e.g. ``/**: {mode: lockstep}``) leave the preset in place;
+* a robot/control value of the wrong type or out of range (`validate_value`).
+
+Values are read as rcl reads them (``1e6`` is a number, which YAML 1.1 would read as a string).
+"""
+
+from __future__ import annotations
+
+import difflib
+import fnmatch
+import os
+import re
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from robotino_geom_mpc.params.presets import default_params_file
+from robotino_geom_mpc.params.specs import (
+    ALL_SPECS,
+    CONTROL_SPECS,
+    ROBOT_SPECS,
+    ControlParams,
+    ParamError,
+    RobotinoParams,
+    params_from_values,
+    validate_value,
+)
+
+__all__ = [
+    "NODE_PARAMETERS",
+    "RCLPY_PARAMETERS",
+    "check_parameter_files",
+    "load_params",
+    "parse_parameter_file",
+    "read_parameter_file",
+]
+
+_ROBOT_CONTROL = tuple(s.name for s in ALL_SPECS)
+
+RCLPY_PARAMETERS: tuple[str, ...] = ("use_sim_time", "start_type_description_service")
+"""Parameters rclpy declares in every node (and ``qos_overrides.<topic>...`` for overridable QoS)."""
+
+NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
+    "robotino_controller": _ROBOT_CONTROL + (
+        "mode", "odom_timeout_s", "reference_timeout_s", "future_tolerance_s", "quaternion_norm_tolerance",
+        "tilt_tolerance_rad", "reference_jump_m", "reference_jump_rad", "blend_acceleration_mps2",
+        "blend_acceleration_radps2", "frame_prefix", "command_interface",
+    ),
+    "robotino_plant": _ROBOT_CONTROL + (
+        "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s",
+        "lockstep_max_realtime_factor", "lockstep_settle_s", "odometry_noise.position_m", "odometry_noise.yaw_rad",
+        "seed", "timing_report", "lockstep_wait_for",
+        "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std",
+        "command_interface", "wheel_pi.kp", "wheel_pi.ki", "wheel_pi.rate_hz", "publish_tf", "frame_prefix",
+    ),
+    "robotino_trajectory": _ROBOT_CONTROL + (
+        "scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints", "goals.max_velocity_mps",
+        "goals.max_acceleration_mps2", "goals.max_jerk_mps3", "goals.max_angular_velocity_radps",
+        "goals.max_angular_acceleration_radps2", "goals.max_angular_jerk_radps3", "goals.max_rim_speed_mps",
+        "frame_prefix",
+    ),
+    "recorder": _ROBOT_CONTROL + (
+        "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",
+        "scenario",
+    ),
+    "robot_description_publisher": _ROBOT_CONTROL + ("frame_prefix", "mode"),
+    "robotino_goal_sender": ("goals_file", "mode"),
+}
+"""The parameters each node of the package declares (besides rclpy's), by node name; a test compares them
+with what the nodes declare."""
+
+_GLOBAL = ("/**", "**")
+_SECTION_CUTOFF = 0.85  # a section name this close to one of our node names is taken as a misspelling
+
+
+def _nodes_of(section: str) -> tuple[str, ...]:
+    """Our nodes a section applies to (by its last name component, wildcards allowed)."""
+    if section.strip("/") in ("**", ""):
+        return tuple(NODE_PARAMETERS)
+    last = section.rstrip("/").rsplit("/", 1)[-1]
+    return tuple(n for n in NODE_PARAMETERS if fnmatch.fnmatchcase(n, last) or last == "**")
+
+
+def _suggestion(word: str, candidates: Iterable[str], cutoff: float = 0.6) -> str:
+    close = difflib.get_close_matches(word, list(candidates), n=1, cutoff=cutoff)
+    return f"; did you mean '{close[0]}'?" if close else ""
+
+
+def _known(name: str, nodes: Sequence[str]) -> bool:
+    return (
+        name in RCLPY_PARAMETERS
+        or name.startswith("qos_overrides.")
+        or any(name in NODE_PARAMETERS[n] for n in nodes)
+    )
+
+
+def check_parameter_files(paths: Sequence[str | os.PathLike]) -> None:
+    """Check parameter files as one node list would read them (in order, later files win); see the module doc.
+
+    Raises
+    ------
+    ParamError
+        One line naming the file, the section where it matters, and the key.
+    """
+    got: dict[str, dict[str, Path]] = {n: {} for n in NODE_PARAMETERS}  # node -> robot/control key -> file
+    for raw in paths:
+        path = Path(raw)
+        for section, values in parse_parameter_file(path).items():
+            nodes = _nodes_of(section)
+            if not nodes:
+                last = section.rstrip("/").rsplit("/", 1)[-1]
+                hint = _suggestion(last, NODE_PARAMETERS, _SECTION_CUTOFF)
+                if hint:
+                    raise ParamError(f"section '{section}' in {path} names no node of robotino_geom_mpc{hint}")
+                continue
+            for name in values:
+                if not _known(name, nodes):
+                    hint = _suggestion(name, {p for n in nodes for p in NODE_PARAMETERS[n]} | set(RCLPY_PARAMETERS))
+                    raise ParamError(f"unknown parameter '{name}' in {path} (section '{section}'){hint}")
+            for spec in ALL_SPECS:
+                if spec.name in values:
+                    validate_value(spec, values[spec.name], str(path))
+                    for node in nodes:
+                        if spec.name in NODE_PARAMETERS[node]:
+                            got[node][spec.name] = path
+    for node, given in got.items():
+        wanted = [n for n in NODE_PARAMETERS[node] if n in _ROBOT_CONTROL]
+        missing = [n for n in wanted if n not in given]
+        if given and missing:
+            files = ", ".join(sorted({str(p) for p in given.values()}))
+            raise ParamError(
+                f"parameter '{missing[0]}' missing in {files} (node '{node}' gets other robot/control parameters "
+                "from it: all of them or none)"
+            )
+
+
+class _RclLoader(yaml.SafeLoader):
+    """YAML as rcl reads parameter files: ``1e6`` and ``-2.5E-3`` are numbers (YAML 1.1 wants a dot)."""
+
+
+_RclLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9][0-9_]*)?\.?[0-9]*[eE][-+]?[0-9]+$"), list("-+0123456789.")
+)
+
+
+def _flatten(tree: dict, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def _sections(path: Path, tree: dict, prefix: str = "") -> dict[str, dict[str, Any]]:
+    out: dict[str, dict[str, Any]] = {}
+    for key, body in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(body, dict) and "ros__parameters" in body and isinstance(body["ros__parameters"], dict):
+            out[name] = _flatten(body["ros__parameters"])
+        elif isinstance(body, dict) and body and "ros__parameters" not in body and all(
+            isinstance(v, dict) for v in body.values()
+        ):
+            out.update(_sections(path, body, name.rstrip("/") + "/"))  # a namespace level
+        else:
+            raise ParamError(f"{path}: section '{name}' must contain a 'ros__parameters' mapping")
+    return out
+
+
+def parse_parameter_file(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
+    """Every section of a ROS 2 parameter file: node name (namespaces joined by '/') -> flat dotted values.
+
+    Raises
+    ------
+    ParamError
+        If the file cannot be read, is not YAML, or is not in the
+        ``node_name: ros__parameters:`` form.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ParamError(f"cannot read parameter file {path}: {exc.strerror or exc}") from None
+    try:
+        doc = yaml.load(text, Loader=_RclLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f" at line {mark.line + 1}" if mark is not None else ""
+        raise ParamError(f"{path}{line}: not valid YAML") from None
+    if not isinstance(doc, dict):
+        raise ParamError(f"{path}: expected a mapping of node names to 'ros__parameters'")
+    return _sections(path, doc)
+
+
+def read_parameter_file(path: str | os.PathLike, node: str | None = None) -> dict[str, Any]:
+    """Read a ROS 2 parameter file into flat dotted names.
+
+    The `/**` section applies to every node; the section named `node` (if
+    given and present) overrides it, as rcl does.
+
+    Raises
+    ------
+    ParamError
+        As `parse_parameter_file`, or if neither section is there.
+    """
+    sections = parse_parameter_file(path)
+    values: dict[str, Any] = {}
+    for section in ("/**", node):
+        values.update(sections.get(section, {}) if section is not None else {})
+    if not values:
+        raise ParamError(f"{path}: no '/**' section with 'ros__parameters' found")
+    return values
+
+
+def load_params(
+    path: str | os.PathLike | None = None, node: str | None = None
+) -> tuple[RobotinoParams, ControlParams]:
+    """Load and validate the robot and control parameters of a ROS 2 parameter file.
+
+    Parameters
+    ----------
+    path
+        The file; None means the default preset (Robotino 3).
+    node
+        Optional node section whose values override `/**`.
+
+    Raises
+    ------
+    ParamError
+        A one-line message naming the key and the file; the file is checked
+        as a node checks it (`params.files.check_parameter_files`).
+    """
+    path = Path(path) if path is not None else default_params_file()
+    check_parameter_files([path])
+    values = read_parameter_file(path, node)
+    where = str(path)
+    return params_from_values(values, where)

@@ -1,0 +1,289 @@
+"""Parameters of the Robotino and of its controller: the one spec of every name, type, unit, range and description.
+
+The spec (`ROBOT_SPECS`, `CONTROL_SPECS`) is the single source of truth for
+names, types, ranges and descriptions: the loader validates a YAML file
+against it and the ROS nodes declare their parameters from it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Any
+
+
+from robotino_geom_mpc.errors import RobotinoError
+
+__all__ = [
+    "TWIST_MODELS",
+    "ParamSpec",
+    "ParamError",
+    "ROBOT_SPECS",
+    "CONTROL_SPECS",
+    "ALL_SPECS",
+    "RobotinoParams",
+    "ControlParams",
+    "params_from_values",
+    "validate_value",
+]
+
+
+TWIST_MODELS = ("instantaneous", "period_mean")
+"""How the odometry's twist was measured (`OdometryFilter`'s predictor): the velocity at the measurement's
+instant (a state estimate, the simulated ideal odometry) or its mean over the interval since the previous
+measurement (wheel-encoder count differences, as the Robotino's odometry and `robotino_geom_mpc.model.encoders`)."""
+
+
+class ParamError(RobotinoError, ValueError):
+    """A parameter file or value that is missing, mistyped or out of range."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: dotted ROS name, type, unit, allowed range and description.
+
+    Bounds are inclusive unless `min_exclusive` is set; `choices` restricts a
+    string parameter.
+    """
+
+    name: str
+    type: type
+    description: str
+    unit: str = ""
+    min: float | None = None
+    max: float | None = None
+    min_exclusive: bool = True
+    choices: tuple[str, ...] = ()
+
+    @property
+    def attr(self) -> str:
+        """Field name in the dataclass (the last component of the dotted name)."""
+        return self.name.rsplit(".", 1)[-1]
+
+
+def _pos(name: str, description: str, unit: str, max_value: float | None = None) -> ParamSpec:
+    return ParamSpec(name, float, description, unit, min=0.0, max=max_value, min_exclusive=True)
+
+
+ROBOT_SPECS: tuple[ParamSpec, ...] = (
+    _pos("robot.mass_kg", "Body mass M (eq. 3, 9)", "kg", 1000.0),
+    _pos("robot.yaw_inertia_kg_m2", "Body yaw inertia J (eq. 3, 9)", "kg m^2", 100.0),
+    _pos("robot.wheel_radius_m", "Omni-wheel radius r", "m", 1.0),
+    _pos("robot.wheel_distance_m", "Distance l from the centre to each wheel (eq. 9)", "m", 5.0),
+    _pos("robot.gear_ratio", "Motor-to-wheel gear ratio (erratum 4)", "", 1000.0),
+    ParamSpec("robot.body_friction_x_n_s_per_m", float, "Body viscous friction k_x (eq. 3)", "N s/m", 0.0, 1e4, False),
+    ParamSpec("robot.body_friction_y_n_s_per_m", float, "Body viscous friction k_y (eq. 3)", "N s/m", 0.0, 1e4, False),
+    ParamSpec("robot.body_friction_theta_n_m_s", float, "Body viscous friction k_theta (eq. 3)", "N m s", 0.0, 1e4, False),
+    _pos("motor.resistance_ohm", "Armature resistance R (eq. 10)", "ohm", 1e3),
+    _pos("motor.inductance_h", "Armature inductance L (eq. 10)", "H", 10.0),
+    _pos("motor.torque_constant_n_m_per_a", "Torque and back-EMF constant Km (eq. 10)", "N m/A", 10.0),
+    ParamSpec("motor.rotor_inertia_kg_m2", float, "Rotor inertia (reflected into M and J)", "kg m^2", 0.0, 1.0, False),
+    ParamSpec("motor.viscous_friction_n_m_s", float, "Motor viscous friction K (eq. 10)", "N m s/rad", 0.0, 1.0, False),
+    _pos("motor.nominal_current_a", "Nominal (continuous) motor current", "A", 100.0),
+    _pos("motor.supply_voltage_v", "Supply voltage, the limit on |U|", "V", 1000.0),
+    _pos("motor.nominal_speed_rpm", "Nominal motor speed", "rpm", 1e6),
+)
+
+CONTROL_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("control.period_s", float, "Control period Ts", "s", 0.0, 1.0, True),
+    ParamSpec("control.horizon", int, "MPC prediction horizon N (eqs. 50-53)", "", 1, 200, False),
+    ParamSpec("control.q_x", float, "Output weight Q_p of the x MPC (eq. 54)", "1/m^2", 0.0, 1e15, True),
+    ParamSpec("control.q_y", float, "Output weight Q_p of the y MPC (eq. 54)", "1/m^2", 0.0, 1e15, True),
+    ParamSpec("control.q_theta", float, "Output weight Q_p of the theta MPC (eq. 54)", "1/rad^2", 0.0, 1e15, True),
+    ParamSpec("control.r_x", float, "Input-increment weight R_p of the x MPC (eq. 54)", "s^4/m^2", 0.0, 1e15, True),
+    ParamSpec("control.r_y", float, "Input-increment weight R_p of the y MPC (eq. 54)", "s^4/m^2", 0.0, 1e15, True),
+    ParamSpec("control.r_theta", float, "Input-increment weight R_p of the theta MPC (eq. 54)", "s^4/rad^2", 0.0, 1e15, True),
+    ParamSpec(
+        "control.mode",
+        str,
+        "closed_form: unconstrained MPC (eq. 56); constrained: QP with wheel current and voltage limits",
+        choices=("closed_form", "constrained"),
+    ),
+    ParamSpec(
+        "control.odometry_filter_time_constant_s",
+        float,
+        "Time constant tau of the odometry pose filter (control.estimator): the position the MPCs see follows the "
+        "measured pose through a first-order lag tau, carried by the measured velocity; 0 = raw pose (the paper)",
+        "s",
+        0.0,
+        60.0,
+        False,
+    ),
+    ParamSpec(
+        "control.odometry_twist",
+        str,
+        "How the odometry's twist is measured, hence the pose filter's predictor (control.estimator): "
+        "instantaneous (velocity at the stamp: trapezoid) or period_mean (mean since the previous message, "
+        "as wheel-encoder odometry: the pose advance that built the measured pose)",
+        choices=TWIST_MODELS,
+    ),
+    ParamSpec(
+        "control.current_limit_a",
+        float,
+        "Wheel current limit of the closed-form mode (control.inverse_drive.InverseDrive.limited_step): when a wheel's "
+        "period-average or end current would exceed it, or a voltage the supply, the commanded accelerations u are "
+        "scaled by one factor (direction kept); 0 = no limit, voltages clipped per wheel (the paper)",
+        "A",
+        0.0,
+        100.0,
+        False,
+    ),
+)
+
+ALL_SPECS: tuple[ParamSpec, ...] = ROBOT_SPECS + CONTROL_SPECS
+
+
+def validate_value(spec: ParamSpec, value: Any, where: str = "") -> Any:
+    """Check one value against its spec; return it converted (int -> float where a float is wanted).
+
+    Raises
+    ------
+    ParamError
+        Naming the parameter (and `where`, e.g. the file) when the type or range is wrong.
+    """
+    at = f" in {where}" if where else ""
+    if spec.type is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ParamError(f"parameter '{spec.name}'{at} must be a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ParamError(f"parameter '{spec.name}'{at} must be finite, got {value!r}")
+    elif spec.type is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ParamError(f"parameter '{spec.name}'{at} must be an integer, got {value!r}")
+    elif spec.type is str:
+        if not isinstance(value, str):
+            raise ParamError(f"parameter '{spec.name}'{at} must be a string, got {value!r}")
+        if spec.choices and value not in spec.choices:
+            raise ParamError(f"parameter '{spec.name}'{at} must be one of {', '.join(spec.choices)}, got {value!r}")
+        return value
+    if spec.min is not None:
+        if value < spec.min or (spec.min_exclusive and value == spec.min):
+            op = ">" if spec.min_exclusive else ">="
+            raise ParamError(f"parameter '{spec.name}'{at} must be {op} {spec.min:g}, got {value!r}")
+    if spec.max is not None and value > spec.max:
+        raise ParamError(f"parameter '{spec.name}'{at} must be <= {spec.max:g}, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class RobotinoParams:
+    """Physical parameters of the Robotino (SI units), as in config/*.yaml.
+
+    `M` and `J` are the effective mass and yaw inertia the body equations
+    (eqs. 1-9) use: the body's plus the three rotors' inertia reflected through
+    the gear (no-slip wheels: per wheel J_rotor gear^2 / r^2 along its drive
+    direction; the three directions sum to 1.5 I in the plane and to 3 l^2 in yaw).
+    """
+
+    mass_kg: float
+    yaw_inertia_kg_m2: float
+    wheel_radius_m: float
+    wheel_distance_m: float
+    gear_ratio: float
+    body_friction_x_n_s_per_m: float
+    body_friction_y_n_s_per_m: float
+    body_friction_theta_n_m_s: float
+    resistance_ohm: float
+    inductance_h: float
+    torque_constant_n_m_per_a: float
+    rotor_inertia_kg_m2: float
+    viscous_friction_n_m_s: float
+    nominal_current_a: float
+    supply_voltage_v: float
+    nominal_speed_rpm: float
+
+    @property
+    def rotor_mass_equivalent_kg(self) -> float:
+        """Rotor inertia seen at one wheel's rim, J_rotor gear^2 / r^2."""
+        return self.rotor_inertia_kg_m2 * self.gear_ratio**2 / self.wheel_radius_m**2
+
+    @property
+    def M(self) -> float:
+        """Effective translational mass (body + reflected rotors)."""
+        return self.mass_kg + 1.5 * self.rotor_mass_equivalent_kg
+
+    @property
+    def J(self) -> float:
+        """Effective yaw inertia (body + reflected rotors)."""
+        return self.yaw_inertia_kg_m2 + 3.0 * self.wheel_distance_m**2 * self.rotor_mass_equivalent_kg
+
+    @property
+    def k_x(self) -> float:
+        return self.body_friction_x_n_s_per_m
+
+    @property
+    def k_y(self) -> float:
+        return self.body_friction_y_n_s_per_m
+
+    @property
+    def k_theta(self) -> float:
+        return self.body_friction_theta_n_m_s
+
+    @property
+    def r(self) -> float:
+        return self.wheel_radius_m
+
+    @property
+    def l(self) -> float:  # noqa: E743 - the paper's name
+        return self.wheel_distance_m
+
+    @property
+    def tau_electrical_s(self) -> float:
+        """Electrical time constant L / R of a drive."""
+        return self.inductance_h / self.resistance_ohm
+
+    def scaled(self, mass: float = 1.0, inertia: float = 1.0, friction: float = 1.0) -> RobotinoParams:
+        """A copy with mass, yaw inertia and body friction multiplied (for mismatch studies)."""
+        return replace(
+            self,
+            mass_kg=self.mass_kg * mass,
+            yaw_inertia_kg_m2=self.yaw_inertia_kg_m2 * inertia,
+            body_friction_x_n_s_per_m=self.body_friction_x_n_s_per_m * friction,
+            body_friction_y_n_s_per_m=self.body_friction_y_n_s_per_m * friction,
+            body_friction_theta_n_m_s=self.body_friction_theta_n_m_s * friction,
+        )
+
+
+@dataclass(frozen=True)
+class ControlParams:
+    """Controller settings: period, horizon, per-axis weights, mode, odometry filter and twist, current limit."""
+
+    period_s: float
+    horizon: int
+    q_x: float
+    q_y: float
+    q_theta: float
+    r_x: float
+    r_y: float
+    r_theta: float
+    mode: str
+    odometry_filter_time_constant_s: float
+    odometry_twist: str
+    current_limit_a: float
+
+    @property
+    def q(self) -> tuple[float, float, float]:
+        """Output weights (x, y, theta)."""
+        return (self.q_x, self.q_y, self.q_theta)
+
+    @property
+    def r(self) -> tuple[float, float, float]:
+        """Input-increment weights (x, y, theta)."""
+        return (self.r_x, self.r_y, self.r_theta)
+
+
+def _build(cls: type, specs: tuple[ParamSpec, ...], values: dict[str, Any], where: str) -> Any:
+    kwargs = {}
+    for spec in specs:
+        if spec.name not in values:
+            raise ParamError(f"parameter '{spec.name}' missing in {where}")
+        kwargs[spec.attr] = validate_value(spec, values[spec.name], where)
+    assert set(kwargs) == {f.name for f in fields(cls)}
+    return cls(**kwargs)
+
+
+def params_from_values(values: dict[str, Any], where: str = "parameters") -> tuple[RobotinoParams, ControlParams]:
+    """Build validated parameters from flat dotted names (e.g. a ROS node's parameters)."""
+    return _build(RobotinoParams, ROBOT_SPECS, values, where), _build(ControlParams, CONTROL_SPECS, values, where)
+

@@ -1,0 +1,114 @@
+"""The ``goals`` reference: hold a pose, then follow goal motions and timed paths as they arrive, C^3 throughout.
+
+`GoalReference` is a `reference.trajectories.Reference` (the protocol `preview` and
+the trajectory node stream), built from pieces: before the first piece it
+holds its start pose; piece k runs from its start time until the next
+piece's start (or for ever, at rest at its end pose). `go_to` and `follow`
+start a new piece at a time t from the reference's full state at t
+(p, v, a, j): the new piece is a `goal_motion.PolynomialMotion` or a
+`path_timing.PathMotion` that starts from exactly that state, so the
+stitched reference has no jump in position, velocity, acceleration or jerk
+(replanning, a new goal during a motion). A refused goal (`GoalError`)
+leaves the reference unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from robotino_geom_mpc.arrays import checked_array
+from robotino_geom_mpc.reference.goal_motion import GoalError, MotionLimits, PolynomialMotion
+from robotino_geom_mpc.reference.path_timing import PathMotion
+from robotino_geom_mpc.reference.time_law import _Scalar
+from robotino_geom_mpc.reference.trajectories import Reference
+
+__all__ = ["GoalReference"]
+
+
+class GoalReference(Reference):
+    """Hold `start`, then the pieces `go_to` and `follow` add (see the module docstring).
+
+    Parameters
+    ----------
+    start
+        The pose (x, y, theta) held until the first goal.
+    hold_s
+        The least `duration_s` (the run length a scenario gives when no goal is known in advance).
+
+    Attributes
+    ----------
+    duration_s
+        max(hold_s, the end of the last piece): after it the reference rests.
+    """
+
+    def __init__(self, start: tuple[float, float, float] = (0.0, 0.0, 0.0), hold_s: float = 10.0) -> None:
+        self.name = "goals"
+        self.start = checked_array(start, (3,), "start (x, y, theta)", GoalError)
+        if not (math.isfinite(hold_s) and hold_s >= 0.0):
+            raise GoalError(f"hold_s must be >= 0 and finite, got {hold_s!r}")
+        self.hold_s = float(hold_s)
+        self.starts: list[float] = []  # start time of each piece
+        self.pieces: list[PolynomialMotion | PathMotion] = []
+        self.duration_s = self.hold_s
+
+    def state(self, t: float) -> np.ndarray:
+        """(4, 3): position, velocity, acceleration, jerk of (x, y, theta) at time t."""
+        return np.array(self.sample(np.array([float(t)]))).reshape(4, 3)
+
+    def go_to(self, t: float, goal: np.ndarray, limits: MotionLimits) -> PolynomialMotion | None:
+        """From time t on, move to `goal` (x, y, theta absolute) and rest there; None if already resting there.
+
+        Raises
+        ------
+        GoalError
+            Non-finite goal or time, or no motion within the limits (the reference is then unchanged).
+        """
+        self._check_time(t)
+        piece = PolynomialMotion.within(self.state(t), goal, limits)
+        self._add(t, piece)
+        return piece
+
+    def follow(self, t: float, poses: np.ndarray, limits: MotionLimits) -> PathMotion:
+        """From time t on, follow the poses (m, 3) (theta absolute) and rest at the last one.
+
+        Raises
+        ------
+        GoalError
+            Empty or non-finite poses, a non-finite time, or no timing within the limits (reference unchanged).
+        """
+        self._check_time(t)
+        piece = PathMotion(self.state(t), poses, limits)
+        self._add(t, piece)
+        return piece
+
+    @staticmethod
+    def _check_time(t: float) -> None:
+        if not math.isfinite(t) or t < 0.0:
+            raise GoalError(f"a goal's start time must be finite and >= 0, got {t!r}")
+
+    def _add(self, t: float, piece: PolynomialMotion | PathMotion | None) -> None:
+        # pieces that would start at or after t are replaced; the current one ends at t
+        keep = sum(1 for s in self.starts if s < t)
+        del self.starts[keep:], self.pieces[keep:]
+        if piece is not None:
+            self.starts.append(float(t))
+            self.pieces.append(piece)
+            self.duration_s = max(self.hold_s, t + piece.duration_s)
+        elif self.pieces:  # already at rest at the goal: hold the state at t
+            self.duration_s = max(self.hold_s, t)
+
+    def _kernel(self, t, xp, derivatives: bool) -> list:  # noqa: ANN001
+        times = np.atleast_1d(np.asarray(t, dtype=float))
+        out = np.zeros((4, len(times), 3))
+        out[0] = self.start
+        if self.pieces:
+            index = np.searchsorted(np.array(self.starts), times, side="right") - 1
+            for k in np.unique(index[index >= 0]):
+                mask = index == k
+                out[:, mask] = self.pieces[k].evaluate(times[mask] - self.starts[k])
+        values = out if derivatives else out[:1]
+        if xp is _Scalar and np.ndim(t) == 0:
+            return [tuple(float(v) for v in value[0]) for value in values]
+        return [tuple(value.T) for value in values]

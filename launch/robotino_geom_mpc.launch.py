@@ -101,7 +101,8 @@ def _has_robot_state_publisher() -> bool:
 
 def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
     """The robot description publisher: in realtime robot_state_publisher if installed, else the package's own
-    (with `mode`: lockstep makes its joint_states and /tf keep-all, robot_state_publisher's are keep-last)."""
+    (with `mode`: lockstep makes its joint_states and /tf keep-all, robot_state_publisher's are keep-last).
+    """
     if mode == "realtime" and _has_robot_state_publisher():
         robot, _ = load_params(plant_params)
         return Node(package="robot_state_publisher", executable="robot_state_publisher",
@@ -112,7 +113,8 @@ def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
 
 def _nodes(context) -> list:
     """The nodes of the run, each with its scenario's overrides (`scenarios.node_parameters`), and the
-    handler that shuts the launch down when the plant exits."""
+    handler that shuts the launch down when the plant exits.
+    """
     config = context.launch_configurations
     scenario, params_file = config["scenario"], config["params_file"]
     robot, _ = load_params(params_file)

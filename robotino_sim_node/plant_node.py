@@ -104,7 +104,8 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
               "(1: a deterministic run watched at real time); 0: as fast as the loop answers", "", 0.0, 1e6, False),
     ParamSpec("lockstep_settle_s", float, "Lockstep: send tick 0 this long after the start handshake is met, so "
               "that the other nodes' endpoints, shown by the graph, have matched each other too", "s", 0.0, 60.0, True),
-    ParamSpec("odometry_noise.position_m", float, "Standard deviation of the odometry x, y noise", "m", 0.0, 1.0, False),
+    ParamSpec("odometry_noise.position_m", float, "Standard deviation of the odometry x, y noise", "m", 0.0, 1.0,
+              False),
     ParamSpec("odometry_noise.yaw_rad", float, "Standard deviation of the odometry yaw noise", "rad", 0.0, 1.0, False),
     ParamSpec("seed", int, "Seed of the odometry noise (and of the wheel slip)", "", 0, 2**31 - 1, False),
     ParamSpec("timing_report", str, "File the loop's timing figures go to as one JSON object at the end of a run "
@@ -343,7 +344,8 @@ class PlantNode(Node):
 
     def _write_report(self, report: dict) -> None:
         """Write the timing report to ``timing_report`` (if set) when the readers have the run's samples (so `run`
-        may stop the other nodes once it is there); a failure is logged and the exit status 1."""
+        may stop the other nodes once it is there); a failure is logged and the exit status 1.
+        """
         if self.params["timing_report"]:
             wait_acknowledged(self, data_publishers(self), FINISHED_ACK_WAIT_S)
             try:
@@ -416,7 +418,8 @@ class PlantNode(Node):
         """Odom (noisy), /clock, currents, ground truth, joints at `stamp` (sec, nanosec); a resent tick (not
         `fresh`): odom and /clock only (they drive the loop; tf2 refuses a repeated stamp on /tf). The others are
         built only while a subscription is matched; the currents of the period just integrated follow this
-        tick's odometry, before its ground truth."""
+        tick's odometry, before its ground truth.
+        """
         if fresh or self.measurement is None:
             noise = (self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"])
             self.measurement = self.odometry.odometry_floats(self.rng, noise)

@@ -28,7 +28,8 @@ REQUIRED_KEYS = ("controller_step_speedup_vs_osqp", "offline_sim_realtime_factor
 def test_bench_json_quick_last_line():
     # the DDS benchmark (bench.dds) starts ROS processes and is tested with it
     proc = subprocess.run(
-        [sys.executable, "-m", "robotino_geom_mpc", "bench", "--json", "--quick", "--only", "controller_step", "offline_sim"],
+        [sys.executable, "-m", "robotino_geom_mpc", "bench", "--json", "--quick",
+         "--only", "controller_step", "offline_sim"],
         capture_output=True, text=True, timeout=300, env=dict(os.environ),
     )
     assert proc.returncode == 0, proc.stderr
@@ -66,7 +67,8 @@ def test_osqp_qp_is_the_closed_form_mpc_problem(stacked):
         closed = mpc.solve(x, u_prev, Y_d)
         np.testing.assert_allclose(dU, closed, rtol=0, atol=1e-8 * np.abs(closed).max())
         # and the first increment is what the receding-horizon law applies
-        np.testing.assert_allclose(qp.solve(qp.linear_terms(x, u_prev, Y_d)), closed[0], atol=1e-8 * np.abs(closed).max())
+        np.testing.assert_allclose(qp.solve(qp.linear_terms(x, u_prev, Y_d)), closed[0],
+                                   atol=1e-8 * np.abs(closed).max())
 
 
 @pytest.fixture

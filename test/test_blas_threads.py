@@ -1,5 +1,6 @@
 """`blas_threads.one_blas_thread`: numpy's and scipy's OpenBLAS report one thread after it, read back through
-OpenBLAS's own getters in a fresh process started with two threads."""
+OpenBLAS's own getters in a fresh process started with two threads.
+"""
 
 from __future__ import annotations
 

@@ -150,7 +150,7 @@ def test_template_does_not_change_the_message():
 
 
 def test_cdr_reader_decodes_odometry_without_importing_rosbags(monkeypatch):
-    """The fallback decodes the field values rclpy serialized, with rosbags not importable; garbage is MalformedMessage."""
+    """The fallback decodes the values rclpy serialized, with rosbags not importable; garbage is MalformedMessage."""
     from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 
     monkeypatch.setitem(sys.modules, "rosbags.typesys", None)  # any import of it fails

@@ -163,7 +163,8 @@ def _pair(model, control):
 
 def test_screen_passes_only_feasible_ticks_and_keeps_u_bit_for_bit(inputs):
     """On every bench input: each screened tick's rows (the full check, independent instance) lie in [-1, 1],
-    u equals the always-checking `solve` bit for bit, and the screen decides most nominal ticks."""
+    u equals the always-checking `solve` bit for bit, and the screen decides most nominal ticks.
+    """
     _, control = load_params()
     control = replace(control, mode="constrained")
     for name, inputs_set in inputs.items():
@@ -196,7 +197,8 @@ def _tick(rng, scale_y):
        shift=st.floats(-50.0, 50.0))
 def test_screen_never_passes_a_tick_the_full_check_fails(seed, size, scale_y, shift):
     """Property: from a checked reference tick, any other tick (moved by 10**size in every input, and its
-    positions translated by `shift` metres) that the screen passes meets every limit, with the closed form's u."""
+    positions translated by `shift` metres) that the screen passes meets every limit, with the closed form's u.
+    """
     robot, control = load_params()
     control = replace(control, mode="constrained")
     rng = np.random.default_rng(seed)
@@ -218,7 +220,8 @@ def test_screen_never_passes_a_tick_the_full_check_fails(seed, size, scale_y, sh
 
 def test_screen_decides_small_changes_and_defers_large_ones():
     """The property above is not vacuous: a 1e-7 change of a feasible tick is screened, a change that
-    drives the closed form over a limit is not (the full check runs and the QP answers)."""
+    drives the closed form over a limit is not (the full check runs and the QP answers).
+    """
     robot, control = load_params()
     control = replace(control, mode="constrained")
     X, u_prev, Y_d, i_start = _tick(np.random.default_rng(5), 1e-4)
@@ -234,7 +237,8 @@ def test_screen_decides_small_changes_and_defers_large_ones():
 
 def test_a_binding_tick_drops_the_screen_reference():
     """After a tick where a limit binds, the next tick is checked in full even when the old reference would
-    screen it, and its u is the closed form's; then the screen passes ticks near it again."""
+    screen it, and its u is the closed form's; then the screen passes ticks near it again.
+    """
     robot, control = load_params()
     control = replace(control, mode="constrained")
     X, u_prev, Y_d, i_start = _tick(np.random.default_rng(5), 1e-4)

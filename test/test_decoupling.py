@@ -107,7 +107,8 @@ def test_rotation_command_turns_through_pi_over_2_without_moving(robot):
 
 
 def test_check_reports_failure_for_a_wrong_field(robot, monkeypatch):
-    monkeypatch.setattr(dec.DecouplingField, "field", lambda self, theta: np.broadcast_to(self.T0, np.shape(theta) + (3, 3)))
+    monkeypatch.setattr(dec.DecouplingField, "field",
+                        lambda self, theta: np.broadcast_to(self.T0, np.shape(theta) + (3, 3)))
     bad = dec.check_decoupling(robot, n_theta=90)
     assert bad.max_residual > 0.5
     assert not bad.passed

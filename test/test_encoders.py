@@ -162,7 +162,8 @@ def _twist_errors(speeds: np.ndarray, slip_std: float, seed: int, periods: int =
 def test_twist_covariance_bounds_the_quantisation_and_is_reached_at_half_a_count(advance, ratio):
     """A steady wheel's count difference is off by f (1 - f) counts squared in variance (f: the fractional part
     of its advance per period): 1/6 on average over f, 1/4 at f = 1/2, which the bound takes for every wheel
-    (the wheels' errors independent: over phases, on average)."""
+    (the wheels' errors independent: over phases, on average).
+    """
     bound = np.diag(twist_covariance(ROBOT, CPR, 0.0, TS))
     count_speed = 2.0 * math.pi / (ROBOT.gear_ratio * CPR * TS)  # one count per period [rad/s]
     rng = np.random.default_rng(7)
@@ -179,7 +180,8 @@ def test_twist_covariance_bounds_the_quantisation_and_is_reached_at_half_a_count
 
 def test_twist_covariance_takes_the_slip_at_the_nominal_speed():
     """Wheels at the motors' nominal speed advance a whole number of counts a period here (no quantisation
-    error to speak of), so the scatter is the slip's: slip_std times the nominal wheel speed."""
+    error to speak of), so the scatter is the slip's: slip_std times the nominal wheel speed.
+    """
     nominal = ROBOT.nominal_speed_rpm * 2.0 * math.pi / 60.0 / ROBOT.gear_ratio
     speeds = np.array([1.0, -1.0, 1.0]) * nominal
     errors = np.concatenate([_twist_errors(speeds, 0.02, seed, 800) for seed in range(5)])
@@ -226,7 +228,8 @@ def test_ideal_source_is_the_plant():
 
 def test_period_mean_filter_reproduces_the_encoder_pose_and_the_trapezoid_lags():
     """Noise-free encoder odometry of a plant under varying voltages: the pose filter with the period_mean
-    predictor predicts each dead-reckoned pose exactly (estimate = measured pose to 1e-12), the trapezoid not."""
+    predictor predicts each dead-reckoned pose exactly (estimate = measured pose to 1e-12), the trapezoid not.
+    """
     from robotino_geom_mpc.control.motion_controller import odometry_state_floats
     from robotino_geom_mpc.control.estimator import OdometryFilter
 
@@ -280,7 +283,8 @@ def test_encoder_odometry_gives_the_controller_the_period_mean_predictor(monkeyp
 
 def test_lockstep_loop_with_encoder_odometry_equals_the_offline_loop(tmp_path):
     """The three node processes started with node_arguments(odometry="encoders") reproduce
-    run_scenario(odometry="encoders") to 1e-6: the plant's dead reckoning and the controller's predictor."""
+    run_scenario(odometry="encoders") to 1e-6: the plant's dead reckoning and the controller's predictor.
+    """
     import time
 
     from probe import PROBE_WAIT_FOR, ProbeSpinner

@@ -117,7 +117,8 @@ def test_the_command_line_refuses_each_file_with_the_same_message(refused):
 
 def test_correct_files_merged_in_order_start_the_node_with_their_values(tmp_path):
     """The preset, then a file overriding one robot/control key in ``/**`` (written ``2e6``, a number for rcl),
-    a controller section, and a section of another package's node: the controller starts with those values."""
+    a controller section, and a section of another package's node: the controller starts with those values.
+    """
     override = tmp_path / "override.yaml"
     override.write_text(textwrap.dedent("""\
         /**:

@@ -19,10 +19,9 @@ import pytest
 
 import ament_index_python.packages
 
-from robotino_geom_mpc.params.specs import ALL_SPECS, \
-from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.specs import ALL_SPECS, params_from_values
+from robotino_geom_mpc.params.files import load_params, read_parameter_file
 from robotino_geom_mpc.params.presets import config_file, default_params_file
-    params_from_values, read_parameter_file
 from robotino_geom_mpc.description.urdf import DescriptionError, robotino_urdf
 from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, NamespaceError, node_arguments, \
     recorder_wait_for
@@ -246,7 +245,8 @@ def test_namespace_moves_every_node_as_run_does(description, lockstep):
             assert _ros_args_remaps(args[name]) == launched, name
     for name in LOOP | {"recorder_node"}:
         got = _overrides(nodes[name]).get("frame_prefix")
-        assert got == _ros_args_parameter(args[name], "frame_prefix") == ("robot1/" if name in FRAME_PREFIX_NODES else None), name
+        want = "robot1/" if name in FRAME_PREFIX_NODES else None
+        assert got == _ros_args_parameter(args[name], "frame_prefix") == want, name
     files, description_overrides = nodes[DESCRIPTION].kwargs["parameters"]
     mode = "lockstep" if lockstep == "true" else "realtime"
     assert files == PARAMS and description_overrides == {"frame_prefix": "robot1/", "mode": mode}

@@ -89,7 +89,8 @@ def test_no_package_file_over_the_line_limit():
 
 def test_the_nodes_import_no_pip_only_solver():
     """daqp (the constrained mode) and osqp (the benchmarks) have no rosdep key: a ROS install via rosdep
-    lacks them, so no node may import them at start; the constrained mode imports daqp when built."""
+    lacks them, so no node may import them at start; the constrained mode imports daqp when built.
+    """
     nodes = ["robotino_sim_node.plant_node", "robotino_geom_mpc.nodes.trajectory_node",
              "robotino_geom_mpc.nodes.controller_node", "robotino_geom_mpc.nodes.robot_description_node",
              "robotino_geom_mpc.nodes.goal_sender", "robotino_geom_mpc.recording.recorder_node"]

@@ -32,9 +32,10 @@ def test_presets_load_and_match_the_yaml(name):
     assert robot.inductance_h == raw["motor"]["inductance_h"]
     assert control.horizon == raw["control"]["horizon"]
     # effective mass and inertia: body plus three rotors reflected through the gear (independent formula)
-    m_rotor = raw["motor"]["rotor_inertia_kg_m2"] * raw["robot"]["gear_ratio"] ** 2 / raw["robot"]["wheel_radius_m"] ** 2
+    rob = raw["robot"]
+    m_rotor = raw["motor"]["rotor_inertia_kg_m2"] * rob["gear_ratio"] ** 2 / rob["wheel_radius_m"] ** 2
     assert robot.M == pytest.approx(raw["robot"]["mass_kg"] + 1.5 * m_rotor)
-    assert robot.J == pytest.approx(raw["robot"]["yaw_inertia_kg_m2"] + 3 * raw["robot"]["wheel_distance_m"] ** 2 * m_rotor)
+    assert robot.J == pytest.approx(rob["yaw_inertia_kg_m2"] + 3 * rob["wheel_distance_m"] ** 2 * m_rotor)
 
 
 def test_every_spec_is_in_the_presets():

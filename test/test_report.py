@@ -249,7 +249,8 @@ def _random_messages(rng):
 
 def test_cdr_values_read_what_the_decoders_decode():
     """The byte readers give, on rclpy's serialization of random messages, what they take from rosbags' decoded
-    message; big-endian bytes (rosbags' serializer) go to the decoded message and give the same values."""
+    message; big-endian bytes (rosbags' serializer) go to the decoded message and give the same values.
+    """
     from rosbags.typesys import Stores, get_typestore
 
     from robotino_geom_mpc.recording import cdr_values as cv
@@ -278,7 +279,8 @@ def test_cdr_values_read_what_the_decoders_decode():
 
 def test_bag_reader_reads_the_messages_mcap_reads(synthetic):
     """BagReader's chunk walk gives mcap's own reader's messages (channel, times, sequence, bytes); a record
-    running past its chunk's end is refused."""
+    running past its chunk's end is refused.
+    """
     from mcap.reader import make_reader
     from mcap.records import Chunk
 

@@ -92,7 +92,8 @@ def _sample(template: Any, rng: random.Random) -> tuple:
     return tuple(values)
 
 
-@benchmark("cdr", "CdrTemplate.pack and CdrLayout.read against rclpy's (de)serialization and the nodes' fallback decoder")
+@benchmark("cdr", "CdrTemplate.pack and CdrLayout.read against rclpy's (de)serialization "
+           "and the nodes' fallback decoder")
 def bench_cdr(quick: bool) -> dict[str, float]:
     """Per message: pack vs set + serialize_message, layout read vs deserialize_message and vs cdr_reader [us]."""
     try:

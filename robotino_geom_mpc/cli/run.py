@@ -78,7 +78,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         help="run length [s] (default: the scenario's length)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/run-<scenario>)")
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
-    parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
+    parser.add_argument("--seed", type=seed_value, default=0, metavar="N",
+                        help="seed of the odometry noise (default 0)")
     add_odometry_argument(parser)
     add_command_interface_argument(parser)
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
@@ -129,7 +130,8 @@ def _close_recording(group: NodeGroup, recorder: NodeProcess, bag: Path) -> None
     """SIGINT the recorder and wait until its bag is closed: metadata.yaml, the last file `BagWriter.close`
     writes, is there, or the recorder exits (its status is checked then). A recorder that closed its bag still
     exits (Fast DDS alone sleeps 0.1 s in its participant factory's destructor) while the report reads the bag;
-    `run` checks its status after the report."""
+    `run` checks its status after the report.
+    """
     recorder.popen.send_signal(signal.SIGINT)
     ended = group.wait(recorder, RECORDER_GRACE_S, done=(bag / "metadata.yaml").exists, poll_s=BAG_CLOSE_POLL_S)
     if not ended or recorder.popen.poll() is not None:  # exited: its status now; hung: SIGTERM, then SIGKILL

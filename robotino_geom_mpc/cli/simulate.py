@@ -34,7 +34,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/<scenario>)")
     parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
                         help="simulated time [s] (default: the scenario's length)")
-    parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
+    parser.add_argument("--seed", type=seed_value, default=0, metavar="N",
+                        help="seed of the odometry noise (default 0)")
     add_odometry_argument(parser)
     parser.add_argument("--current-limit", type=_current_limit, default=None, metavar="A",
                         help="wheel current limit of the closed-form mode [A] (control.current_limit_a; "

@@ -32,7 +32,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=VERBS["study"],
         description="Monte-Carlo runs of a scenario in the offline closed loop with the controller's model "
         "drawn off the true robot (mass and yaw inertia +-20 %%, body friction x0.5-x2), odometry noise up to "
-        "2 mm / 2 mrad, ideal or encoder odometry and random noise seeds, on all cores. Writes DIR/runs.csv (draws and metrics, one row "
+        "2 mm / 2 mrad, ideal or encoder odometry and random noise seeds, on all cores. "
+        "Writes DIR/runs.csv (draws and metrics, one row "
         "per run), DIR/summary.json and the figures.",
     )
     add_scenario_argument(parser)

@@ -257,7 +257,8 @@ class InverseDrive:
         i0, last, one_period = self._i0, self._last, self._one_period
         voltages, saturated, mean = self.step(i_cmd, omega, omega_rate, rate_of_current)
         end = self._i0
-        if not saturated and max(abs(i_cmd[0]), abs(i_cmd[1]), abs(i_cmd[2]), abs(end[0]), abs(end[1]), abs(end[2])) <= current_limit:
+        if not saturated and max(abs(i_cmd[0]), abs(i_cmd[1]), abs(i_cmd[2]),
+                                 abs(end[0]), abs(end[1]), abs(end[2])) <= current_limit:
             return voltages, saturated, mean, 1.0
         self._i0, self._last, self._one_period = i0, last, one_period
         rest = rate_at_rest()
@@ -317,7 +318,8 @@ class InverseDrive:
         """
         vc, vs, vw, vr = self._voltage_row
         (c0, c1, c2), (s0, s1, s2), (w0, w1, w2), (r0, r1, r2) = i_cmd, self._i0, omega, omega_rate
-        U = [vc * c0 + vs * s0 + vw * w0 + vr * r0, vc * c1 + vs * s1 + vw * w1 + vr * r1, vc * c2 + vs * s2 + vw * w2 + vr * r2]
+        U = [vc * c0 + vs * s0 + vw * w0 + vr * r0, vc * c1 + vs * s1 + vw * w1 + vr * r1,
+             vc * c2 + vs * s2 + vw * w2 + vr * r2]
         limit = self.supply_voltage_v
         if max(abs(U[0]), abs(U[1]), abs(U[2])) <= limit:
             self._last = (self._i0, U, omega, omega_rate)

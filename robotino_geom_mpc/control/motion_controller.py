@@ -262,7 +262,8 @@ class MotionController:
         currents = self.drive.currents_floats(self.field.forces_floats(theta_m, u))
         ux, uy, uw = u
         dx, dy, dw = self._damping_rates
-        omega, omega_rate = self.kinematics.speeds_and_rates_floats(theta, (vx, vy, w), (ux - dx * vx, uy - dy * vy, uw - dw * w))
+        omega, omega_rate = self.kinematics.speeds_and_rates_floats(
+            theta, (vx, vy, w), (ux - dx * vx, uy - dy * vy, uw - dw * w))
         rate_of_current = lambda i: self._rate_of_current(theta, theta_m, np.array((vx, vy, w)), i)  # noqa: E731
         if self.current_limit_a > 0.0:
             rest = (-dx * vx, -dy * vy, -dw * w)

@@ -23,7 +23,8 @@ import numpy as np
 from robotino_geom_mpc.geometric import subspaces as geo
 from robotino_geom_mpc.geometric.decoupling import AXES, B_decoupled, DecouplingField
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.model.dynamics import A_matrix, C_matrix, N_BODY, OUTPUT_INDEX, VELOCITY_INDEX, drive_matrices, g_theta, wheel_directions
+from robotino_geom_mpc.model.dynamics import (A_matrix, C_matrix, N_BODY, OUTPUT_INDEX, VELOCITY_INDEX, drive_matrices,
+                                              g_theta, wheel_directions)
 from robotino_geom_mpc.params.specs import RobotinoParams
 
 __all__ = [
@@ -108,7 +109,8 @@ def functional_order(
     return None
 
 
-def markov_order(A: object, B: object, C: object, max_order: int | None = None, rtol: float | None = None) -> int | None:
+def markov_order(A: object, B: object, C: object, max_order: int | None = None,
+                 rtol: float | None = None) -> int | None:
     """Order of functional controllability from the Markov parameters C A^k B (structure at infinity).
 
     Parameters

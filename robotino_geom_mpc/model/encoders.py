@@ -201,7 +201,8 @@ class EncoderOdometry:
         self, rng: np.random.Generator | None = None, noise_std: tuple[float, float] = (0.0, 0.0)
     ) -> tuple[Pose, tuple[float, float, float]]:
         """As `RobotinoPlant.odometry_floats`, from the encoders: the integrated pose plus the same Gaussian
-        pose noise (same draws from the generator) and the encoder-derived body twist."""
+        pose noise (same draws from the generator) and the encoder-derived body twist.
+        """
         return self.noisy_odometry_floats(self.plant.pose_noise(rng, noise_std))
 
     def noisy_odometry_floats(

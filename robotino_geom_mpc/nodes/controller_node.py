@@ -1,4 +1,4 @@
-"""Controller node: one `MotionController.step` (three MPCs, eq. 56 -> T(theta), eqs. 33-37 -> inverse drive) per odometry.
+"""Controller node: one `MotionController.step` (three MPCs, eq. 56 -> T(theta), eqs. 33-37 -> inverse drive) a tick.
 
 Topics (relative names)
 -----------------------
@@ -78,7 +78,8 @@ from std_srvs.srv import SetBool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.control.blend import BlendEngagement, BlendError
-from robotino_geom_mpc.control.motion_controller import MAX_POSITION_M, ControllerInputError, MotionController, step_interval
+from robotino_geom_mpc.control.motion_controller import (MAX_POSITION_M, ControllerInputError, MotionController,
+                                                         step_interval)
 from robotino_geom_mpc.params.specs import ALL_SPECS
 from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix
@@ -315,8 +316,8 @@ class ControllerNode(Node):
             return  # stale reference: the watchdog outputs zero volts
         preview_stamp, positions, velocities, accelerations = self.latest_preview
         dt = (stamp - preview_stamp) * 1e-9
-        self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt), velocities + dt * accelerations,
-                      accelerations, preview_stamp)
+        self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt),
+                      velocities + dt * accelerations, accelerations, preview_stamp)
 
     # control ------------------------------------------------------------------------------------
     def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray, velocities: np.ndarray,

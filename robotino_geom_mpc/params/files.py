@@ -34,8 +34,6 @@ import yaml
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.params.specs import (
     ALL_SPECS,
-    CONTROL_SPECS,
-    ROBOT_SPECS,
     ControlParams,
     ParamError,
     RobotinoParams,

@@ -78,7 +78,8 @@ def odometry_pose_of_message(msg: Any) -> tuple[int, tuple[float, float, float]]
 
 def preview_start(data: bytes) -> tuple[int, tuple[float, float, float] | None]:
     """trajectory_msgs/MultiDOFJointTrajectory bytes -> (header stamp [ns], (x, y, yaw) of point 0's first
-    transform, None if there is none)."""
+    transform, None if there is none).
+    """
     stamp, pos = _header(data)
     names, pos = _count(data, pos)
     for _ in range(names):
@@ -124,7 +125,8 @@ def _string(data: bytes, pos: int) -> tuple[str, int]:
 
 def diagnostics_with(key: str) -> Callable[[bytes], tuple[int, dict[str, str] | None]]:
     """A reader of diagnostic_msgs/DiagnosticArray bytes -> (header stamp [ns], the key-values of the first
-    status that has `key`, None if none has)."""
+    status that has `key`, None if none has).
+    """
 
     def read(data: bytes) -> tuple[int, dict[str, str] | None]:
         stamp, pos = _header(data)

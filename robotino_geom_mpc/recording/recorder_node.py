@@ -210,7 +210,8 @@ class RecorderNode(Node):
 
     def _flush(self) -> None:
         """Hand the chunk to the OS with every sample received so far: those waiting for the next batched take
-        (`TAKE_PERIOD_S`) too, so that a kill loses at most the last flush period."""
+        (`TAKE_PERIOD_S`) too, so that a kill loses at most the last flush period.
+        """
         self._take_all(self._recording_subs)
         self.writer.flush()
 

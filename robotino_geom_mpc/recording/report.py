@@ -141,7 +141,8 @@ def resolve_parameters(bag: BagReader, params_file: str | os.PathLike | None):
 
 def _by_publish_time(bag: BagReader, topic: str | None, convert: Callable[[BagMessage], Any]) -> list[tuple[int, Any]]:
     """(publish time [ns], `convert(message)`) of a topic, in publish-time order ([] for None); BagError if a
-    message does not decode."""
+    message does not decode.
+    """
     if topic is None:
         return []
     items = []
@@ -172,7 +173,8 @@ def by_publish_time(bag: BagReader, topic: str | None) -> list[tuple[int, Any]]:
 def _values_by_publish_time(bag: BagReader, topic: str | None, read: Callable[[bytes], Any],
                             of_message: Callable[[Any], Any]) -> list[tuple[int, Any]]:
     """`by_publish_time` of the values `read` takes from each message's bytes (`cdr_values`; rosbags' decoder
-    and `of_message` for bytes it does not walk): a tenth of the cost of decoding whole messages."""
+    and `of_message` for bytes it does not walk): a tenth of the cost of decoding whole messages.
+    """
     store = _typestore()
     return _by_publish_time(bag, topic, lambda m: values_of(
         m.data, read, of_message, lambda: store.deserialize_cdr(m.data, m.type)))

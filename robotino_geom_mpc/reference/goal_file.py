@@ -115,7 +115,8 @@ def load_goal_file(path: str | os.PathLike) -> list[GoalItem]:
 
 def planned_end_s(items: list[GoalItem], limits: MotionLimits) -> float:
     """When the items' motions end if each is planned at its time (an estimate: items in another frame are
-    skipped, yaws are taken as given where the node unwraps them to the nearest turn)."""
+    skipped, yaws are taken as given where the node unwraps them to the nearest turn).
+    """
     ref = GoalReference(hold_s=0.0)
     for item in items:
         if item.frame != "odom":

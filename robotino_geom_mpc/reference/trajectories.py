@@ -142,7 +142,8 @@ class _SteppedPhase:
 
     def __init__(self, rate: float, ramp_s: float, total: float, name: str) -> None:
         if total / rate < 0.5 * ramp_s:
-            raise TrajectoryError(f"{name}: ramp_s = {ramp_s:g} s is too long for the run (at most {2 * total / rate:g} s)")
+            raise TrajectoryError(f"{name}: ramp_s = {ramp_s:g} s is too long for the run "
+                                  f"(at most {2 * total / rate:g} s)")
         self.rate, self.ramp_s = rate, ramp_s
         self.duration_s = total / rate + 0.5 * ramp_s
 

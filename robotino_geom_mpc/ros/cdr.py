@@ -337,7 +337,8 @@ class CdrLayout:
             raise CdrTemplateError(f"computed layout of {type(msg).__name__} ({size} bytes) disagrees with its "
                                    f"serialization ({len(template)} bytes)")
         items = [(0, 4, "s")] + [(a, b, "s") for a, b in ranges]
-        items += [(off, off + struct.calcsize(endian + field[3]), i) for i, (off, field) in enumerate(zip(offsets, fields))]
+        items += [(off, off + struct.calcsize(endian + field[3]), i)
+                  for i, (off, field) in enumerate(zip(offsets, fields))]
         items.sort()
         fmt, position, structure, picks = endian, 0, [], [0] * len(fields)
         for index, (start, end, what) in enumerate(items):

@@ -19,7 +19,8 @@ from probe import ProbeSpinner
 from robotino_geom_mpc.control.motion_controller import MotionController
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
-from robotino_geom_mpc.recording.bag import BagError, BagWriter
+from robotino_geom_mpc.recording.bag_writer import BagWriter
+from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.regress import regress_bag
 from robotino_geom_mpc.recording.report import run_data_from_bag
 from robotino_geom_mpc.offline.results import compute_metrics

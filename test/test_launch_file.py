@@ -107,7 +107,8 @@ def _of(kind: str, items) -> list[Recorded]:
 
 def _defaults(description) -> dict[str, str]:
     """The declared arguments' defaults, as launch would perform them (the file paths set here; the profile
-    as without FASTRTPS_DEFAULT_PROFILES_FILE in the environment)."""
+    as without FASTRTPS_DEFAULT_PROFILES_FILE in the environment).
+    """
     files = {"params_file": PARAMS, "plant_params": PARAMS, "fastdds_profile": PROFILE}
     values = {a.args[0]: a.kwargs["default_value"] for a in _of("DeclareLaunchArgument", description)}
     assert all(isinstance(v, str) for k, v in values.items() if k not in files)
@@ -277,7 +278,8 @@ def test_robot_state_publisher_publishes_the_plants_urdf_where_installed(descrip
 @pytest.mark.parametrize("interface", ["voltages", "cmd_vel"])
 def test_command_interface_reaches_controller_and_plant_as_run_gives_it(description, interface):
     """command_interface (and, recorded, the plant's lockstep_wait_for) as `node_arguments` passes them to `run`'s
-    processes: cmd_vel to the controller and the plant, voltages left to their default."""
+    processes: cmd_vel to the controller and the plant, voltages left to their default.
+    """
     nodes, _ = _launch(description, command_interface=interface, lockstep="true", record="true", bag="/tmp/b")
     args = node_arguments("paper-circle", PARAMS, 0.0, True, bag="/tmp/b", command_interface=interface)
     for name in LOOP | {"recorder_node"}:

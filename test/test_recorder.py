@@ -17,7 +17,7 @@ from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
 from recording_helpers import (TYPES, expected_values, remove_dead_segments, shm_segments, values_of,
                                wait_for)
-from robotino_geom_mpc.recording.bag import BagReader
+from robotino_geom_mpc.recording.bag_reader import BagReader
 
 
 def _recording(bag: BagReader, topic: str, kind: str) -> list[tuple[float, ...]]:

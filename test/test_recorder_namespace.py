@@ -7,7 +7,8 @@ from types import SimpleNamespace
 import pytest
 
 from recording_helpers import PYTHON
-from robotino_geom_mpc.recording.bag import BagError, BagReader
+from robotino_geom_mpc.recording.bag_reader import BagReader
+from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.report import find_topic
 
 

@@ -54,7 +54,7 @@ BAG_CLOSE_POLL_S = 0.005  # how often the stop looks for the recorder's closed b
 RUN_END_POLL_S = 0.01  # how often `run` looks for the plant's timing report (the end of the run)
 TIMING_REPORT = "plant_timing.json"  # in DIR/logs: the plant's timing report (loop_timing), e.g. for bench
 # imported in a thread while the nodes start and run (the cores idle during discovery and the settle)
-REPORT_MODULES = ("robotino_geom_mpc.recording.bag", "robotino_geom_mpc.recording.report",
+REPORT_MODULES = ("robotino_geom_mpc.recording.bag_reader", "robotino_geom_mpc.recording.report",
                   "robotino_geom_mpc.cli.reindex", "rosbags.typesys.stores.ros2_jazzy")  # the last: the bag's types
 GOALS_SETTLE_S = 3.0  # --goals: the run goes on this long after the last motion ends (the loop settles)
 REALTIME_START_S = 2.0  # realtime: the reference starts this much after the first odometry (start_settle_s + discovery)
@@ -214,7 +214,8 @@ def run(args: argparse.Namespace) -> int:
         if bag is None:
             print("  not recorded (--no-record): no metrics or figures")
             return 0
-        from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
+        from robotino_geom_mpc.recording.bag_reader import BagReader, damage_report
+        from robotino_geom_mpc.recording.bagfile import BagError
         from robotino_geom_mpc.recording.report import report_bag
         from robotino_geom_mpc.cli.reindex import warn_damage
 

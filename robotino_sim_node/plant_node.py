@@ -104,8 +104,7 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
               "(1: a deterministic run watched at real time); 0: as fast as the loop answers", "", 0.0, 1e6, False),
     ParamSpec("lockstep_settle_s", float, "Lockstep: send tick 0 this long after the start handshake is met, so "
               "that the other nodes' endpoints, shown by the graph, have matched each other too", "s", 0.0, 60.0, True),
-    ParamSpec("odometry_noise.position_m", float, "Standard deviation of the odometry x, y noise", "m", 0.0, 1.0,
-              False),
+    ParamSpec("odometry_noise.position_m", float, "Standard deviation of odometry x, y noise", "m", 0.0, 1.0, False),
     ParamSpec("odometry_noise.yaw_rad", float, "Standard deviation of the odometry yaw noise", "rad", 0.0, 1.0, False),
     ParamSpec("seed", int, "Seed of the odometry noise (and of the wheel slip)", "", 0, 2**31 - 1, False),
     ParamSpec("timing_report", str, "File the loop's timing figures go to as one JSON object at the end of a run "
@@ -343,9 +342,7 @@ class PlantNode(Node):
         self._write_report(report)
 
     def _write_report(self, report: dict) -> None:
-        """Write the timing report to ``timing_report`` (if set) when the readers have the run's samples (so `run`
-        may stop the other nodes once it is there); a failure is logged and the exit status 1.
-        """
+        """Write ``timing_report`` (if set) once the readers have the samples (`run` then stops); failure: status 1."""
         if self.params["timing_report"]:
             wait_acknowledged(self, data_publishers(self), FINISHED_ACK_WAIT_S)
             try:

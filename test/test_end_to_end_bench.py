@@ -7,7 +7,7 @@ import re
 
 from robotino_geom_mpc.bench import REGISTRY
 from robotino_geom_mpc.bench.end_to_end import timed_run
-from robotino_geom_mpc.cli.run import TIMING_REPORT
+from robotino_geom_mpc.system.processes import TIMING_REPORT
 
 
 def test_timed_run_reports_the_plants_factor_and_its_phases(tmp_path):

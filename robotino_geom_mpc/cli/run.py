@@ -52,7 +52,6 @@ GRACE_S = 5.0
 RECORDER_GRACE_S = 70.0
 BAG_CLOSE_POLL_S = 0.005  # how often the stop looks for the recorder's closed bag
 RUN_END_POLL_S = 0.01  # how often `run` looks for the plant's timing report (the end of the run)
-TIMING_REPORT = "plant_timing.json"  # in DIR/logs: the plant's timing report (loop_timing), e.g. for bench
 # imported in a thread while the nodes start and run (the cores idle during discovery and the settle)
 REPORT_MODULES = ("robotino_geom_mpc.recording.bag_reader", "robotino_geom_mpc.recording.report",
                   "robotino_geom_mpc.cli.reindex", "rosbags.typesys.stores.ros2_jazzy")  # the last: the bag's types
@@ -159,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.params.presets import default_params_file
-    from robotino_geom_mpc.system.processes import NodeFailed, NodeGroup, node_arguments
+    from robotino_geom_mpc.system.processes import TIMING_REPORT, NodeFailed, NodeGroup, node_arguments
 
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)

@@ -100,7 +100,7 @@ def functional_order(
     bound = _bound(max_order, n)
     Fq = np.eye(n) if F is None else geo.image(F, rtol)
     if Fq.shape[0] != n:
-        raise FunctionalError(f"F must have {n} rows, got shape {np.shape(F)}")
+        raise FunctionalError(f"F must have {n} rows, got shape {np.asarray(F).shape}")
     kerC = geo.kernel(C, rtol)
     Z = geo.z_sequence(A, B, kerC, Fq, steps=min(bound - 1, n), rtol=rtol)
     for i, Z_prev in enumerate(Z, start=1):  # condition (38) for order i uses Z_{i-1}

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR",
-           "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
+           "RECORDER_WAIT_FOR", "TIMING_REPORT", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
            "dds_environment",
            "wait_for_exit",
            "frame_prefix", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
@@ -60,6 +60,7 @@ FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/: the nodes' profile on o
 PROFILE_SETTLE_S = 0.1
 
 # the nodes that declare ``frame_prefix`` (their frame ids: odometry, /tf, paths)
+TIMING_REPORT = "plant_timing.json"  # in a run's log directory: the plant's timing report (loop_timing)
 FRAME_PREFIX_NODES = ("plant_node", "controller_node", "trajectory_node", "robot_description_publisher")
 _NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 

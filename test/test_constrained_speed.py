@@ -14,7 +14,6 @@ from hypothesis import strategies as st
 
 from robotino_geom_mpc.bench.constrained import (
     OsqpConstrainedQP,
-    bench_constrained,
     constrained_inputs,
     fastest_agreeing,
     qp_arguments,
@@ -96,19 +95,6 @@ def test_warm_start_from_the_last_active_set_saves_iterations_and_keeps_the_answ
     np.testing.assert_allclose(np.array(warm), np.array(cold), rtol=0, atol=1e-9)
     np.testing.assert_allclose(np.array(warm), np.array([c.u for c in calls]), rtol=0, atol=1e-9)
     assert sum(warm_iterations) < sum(cold_iterations)
-
-
-def test_benchmark_reports_its_figures_with_osqp_agreeing():
-    figures = bench_constrained(quick=True)
-    for key in ("constrained_step_us", "constrained_step_worst_us", "constrained_step_speedup_vs_osqp",
-                "constrained_over_closed_form", "constrained_paced_binding_step_us",
-                "constrained_paced_speedup_vs_osqp"):
-        assert np.isfinite(figures[key]) and figures[key] > 0.0
-    assert figures["constrained_step_worst_us"] >= figures["constrained_step_us"]
-    assert 0.0 < figures["constrained_step_speedup_vs_osqp_worst"] <= figures["constrained_step_speedup_vs_osqp"]
-    assert figures["constrained_osqp_max_u_difference"] <= 1e-6 * 10.0  # |u| reaches ~10 m/s^2 in the position step
-    assert figures["constrained_osqp_eps"] in OSQP_TOLERANCES
-    assert figures["constrained_binding_ticks"] >= 10
 
 
 def test_osqp_peer_is_the_loosest_polished_tolerance_that_agrees():

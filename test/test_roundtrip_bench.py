@@ -1,7 +1,6 @@
 """The bare rclpy round trip (`bench.roundtrip`): its statistics against stand-in samples, its report, a real run."""
 
 import json
-import math
 import os
 import subprocess
 import sys
@@ -46,13 +45,6 @@ def test_the_report_must_hold_the_round_trips_asked_for(tmp_path):
         read_roundtrip_report(path, 2)
     with pytest.raises(BenchmarkError, match="no report"):
         read_roundtrip_report(tmp_path / "missing.json", 2)
-
-
-def test_a_real_run_completes_with_consistent_positive_figures():
-    out = bench_roundtrip(count=300, warmup=50, timeout_s=120.0)
-    assert set(out) == {"roundtrip_us_median", "roundtrip_us_p99"}
-    assert all(math.isfinite(v) for v in out.values())
-    assert 0.0 < out["roundtrip_us_median"] <= out["roundtrip_us_p99"]
 
 
 def test_a_failing_process_is_a_benchmark_error_and_nothing_is_left_running(monkeypatch):

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR",
-           "RECORDER_WAIT_FOR", "TIMING_REPORT", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
+__all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "TIMING_REPORT",
+           "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
            "dds_environment",
            "wait_for_exit",
            "frame_prefix", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]

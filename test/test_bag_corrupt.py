@@ -13,6 +13,8 @@ from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bag_writer import BagWriter
 from robotino_geom_mpc.recording.bagfile import BagError
 
+pytestmark = pytest.mark.ros
+
 COUNT = 600
 
 

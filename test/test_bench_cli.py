@@ -18,6 +18,8 @@ from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.control.mpc import DecoupledMPC
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = pytest.mark.ros
+
 
 
 @pytest.mark.parametrize("stacked", [False, True])

@@ -29,6 +29,8 @@ from robotino_geom_mpc.ros.messages import preview_message, preview_template, pr
 from robotino_geom_mpc.description.urdf import JOINT_NAMES
 from robotino_sim_node.outputs import ODOM_FIELDS, joint_template, odometry_values, plant_odometry
 
+pytestmark = pytest.mark.unit
+
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 rng = np.random.default_rng(20261122)
 

@@ -27,6 +27,8 @@ from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.system.processes import RECORDER_WAIT_FOR, NodeGroup, node_arguments, recorder_wait_for
 from robotino_geom_mpc.offline.simulation import run_scenario
 
+pytestmark = pytest.mark.ros
+
 DURATION_S = 3.0
 # the probe's subscriptions; the plant subscribes cmd_vel (no wheel_voltages reader in this loop)
 WAIT_FOR = ["odom:1", "/clock:1", "reference_preview:2", "ground_truth/odom:1", "wheel_currents:1", "cmd_vel:1"]

@@ -24,6 +24,8 @@ from robotino_geom_mpc.control.constrained import ConstrainedMPC
 from robotino_geom_mpc.control.mpc import DecoupledMPC
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def inputs():

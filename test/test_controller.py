@@ -14,6 +14,8 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.offline.simulation import run_scenario
 from robotino_geom_mpc.model.plant import RobotinoPlant
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def params():

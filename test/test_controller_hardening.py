@@ -27,6 +27,8 @@ from robotino_geom_mpc.ros.messages import ns_to_stamp, preview_message, yaw_to_
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.qos import PUBLISH_QOS
 
+pytestmark = pytest.mark.ros
+
 NODE = "robotino_controller"
 
 

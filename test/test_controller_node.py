@@ -22,6 +22,8 @@ from harness import Harness
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.messages import preview_message
 
+pytestmark = pytest.mark.ros
+
 NODE = "robotino_controller"
 
 

@@ -17,6 +17,8 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import run_scenario
 
+pytestmark = pytest.mark.unit
+
 X0 = np.array([0.01, 0.15, -0.02, -0.1, 0.4, 0.3])  # (x, x', y, y', theta, theta')
 TOLERANCE = 1.02  # issue 16: the peak current at most the nominal plus 2 %
 

@@ -15,6 +15,8 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.system.processes import NodeProcess
 from robotino_sim_node.loop_timing import LoopTiming
 
+pytestmark = pytest.mark.ros
+
 PERIOD_S = load_params()[1].period_s
 
 

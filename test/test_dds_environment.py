@@ -9,6 +9,8 @@ import pytest
 
 from robotino_geom_mpc.system.processes import dds_environment
 
+pytestmark = pytest.mark.ros
+
 NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 
 

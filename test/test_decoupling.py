@@ -10,6 +10,8 @@ from robotino_geom_mpc.model.dynamics import A_matrix, acceleration_block, g_the
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import preset_file
 
+pytestmark = pytest.mark.unit
+
 PRESETS = ("robotino3", "robotino2")
 
 

@@ -5,6 +5,7 @@ again a second later. The plant's currents, the controller's voltages and the gr
 the loop probe (one sample per tick), the disabled ticks from the controller's diagnostics.
 """
 
+import pytest
 import time
 
 import numpy as np
@@ -17,6 +18,8 @@ from robotino_geom_mpc.bench.dds import lockstep_nodes
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.messages import stamp_to_ns
 from robotino_geom_mpc.system.processes import NodeGroup
+
+pytestmark = pytest.mark.ros
 
 DURATION_S = 22.0  # the whole circle
 DISABLE_AT_S = 1.5  # simulated time at which the test asks to disable (the service acts a few ticks later)

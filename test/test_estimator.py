@@ -9,6 +9,8 @@ from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 from robotino_geom_mpc.control.estimator import EstimatorError, OdometryFilter, filter_gain, noise_std_ratio
 from robotino_geom_mpc.control.mpc import discretize_axis
 
+pytestmark = pytest.mark.unit
+
 TS = 0.01
 
 

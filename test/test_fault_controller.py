@@ -31,6 +31,8 @@ from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.qos import PUBLISH_QOS
 from robotino_geom_mpc.model.plant import RobotinoPlant
 
+pytestmark = pytest.mark.ros
+
 TICKS = 260
 DISTURBANCES = {120: "skip", 160: "late", 200: "duplicate"}
 CHANGE_AT = 150  # the tick before which q_x is set

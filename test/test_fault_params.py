@@ -20,6 +20,8 @@ from robotino_geom_mpc.params.files import NODE_PARAMETERS, RCLPY_PARAMETERS
 from robotino_geom_mpc.params.presets import preset_file
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 
+pytestmark = pytest.mark.ros
+
 GOALS_EXAMPLE = Path(__file__).resolve().parents[1] / "config" / "goals_example.yaml"
 TIMEOUT_S = 120.0  # generous: the node's imports on a loaded machine; the test waits for the exit, not the time
 

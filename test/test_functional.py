@@ -12,6 +12,8 @@ from robotino_geom_mpc.model.dynamics import A_matrix, C_matrix, coupled_rhs
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import preset_file
 
+pytestmark = pytest.mark.unit
+
 PROPS = settings(max_examples=60, deadline=None)
 
 

@@ -8,6 +8,8 @@ from hypothesis import strategies as st
 
 from robotino_geom_mpc.geometric import subspaces as geo
 
+pytestmark = pytest.mark.unit
+
 PROPS = settings(max_examples=60, deadline=None)
 
 

@@ -36,6 +36,8 @@ from robotino_geom_mpc.nodes.goal_inputs import GOAL_QOS
 from robotino_geom_mpc.ros.messages import quaternion_to_yaw, stamp_to_ns, yaw_to_quaternion
 from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
 
+pytestmark = pytest.mark.ros
+
 NOMINAL_CURRENT_A = 0.86
 MODE = os.environ.get("GOALS_TEST_MODE", "lockstep")
 GOALS = [(0.4, 0.0, 0.0), (0.4, 0.3, 1.2), (0.0, 0.2, -0.6)]

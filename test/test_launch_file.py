@@ -28,6 +28,8 @@ from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, RECORDER_WAIT
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
 from robotino_geom_mpc.offline.simulation import run_scenario
 
+pytestmark = pytest.mark.unit
+
 LAUNCH_FILE = Path(__file__).resolve().parents[1] / "launch" / "robotino_geom_mpc.launch.py"
 PARAMS = str(default_params_file())
 PROFILE = str(config_file("fastdds_localhost.xml"))

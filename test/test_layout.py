@@ -5,6 +5,7 @@ the import-linter contracts (`.importlinter`: the plain core, the layers) hold a
 
 from __future__ import annotations
 
+import pytest
 import json
 import pkgutil
 import subprocess
@@ -13,6 +14,8 @@ from pathlib import Path
 
 import robotino_geom_mpc
 import robotino_sim_node
+
+pytestmark = pytest.mark.ros
 
 ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 450

@@ -7,6 +7,8 @@ from robotino_geom_mpc.model import dynamics as model
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import preset_file
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module", params=("robotino3", "robotino2"))
 def robot(request):

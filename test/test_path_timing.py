@@ -16,6 +16,8 @@ from test_goal_motion import limits, usage
 from robotino_geom_mpc.reference.goal_motion import GoalError
 from robotino_geom_mpc.reference.goals import GoalReference
 
+pytestmark = pytest.mark.unit
+
 POSES = np.array([[0.3, 0.0, 0.0], [0.6, 0.3, 0.8], [0.6, 0.6, 1.6], [0.3, 0.6, 1.6], [0.0, 0.3, 0.5]])
 
 

@@ -10,6 +10,8 @@ from robotino_geom_mpc.model.dynamics import coupled_rhs, wheel_rim_speeds
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.model.plant import PlantError, RobotinoPlant
 
+pytestmark = pytest.mark.unit
+
 DT = 0.01
 ROBOT, _ = load_params()
 

@@ -21,6 +21,8 @@ from harness import Harness
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.model.plant import RobotinoPlant
 
+pytestmark = pytest.mark.ros
+
 NOISE = (0.002, 0.003)
 SEED = 7
 

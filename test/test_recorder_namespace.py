@@ -11,6 +11,8 @@ from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.report import find_topic
 
+pytestmark = pytest.mark.ros
+
 
 def test_a_namespaced_recorder_records_its_robot_and_tf_only(procs, tmp_path):
     out = tmp_path / "bag"

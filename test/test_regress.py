@@ -27,6 +27,8 @@ from robotino_geom_mpc.recording.bagfile import RUN_METADATA
 from robotino_geom_mpc.recording.regress import regress_bag
 from robotino_geom_mpc.recording.report import by_publish_time, controller_diagnostics, stamp_ns
 
+pytestmark = pytest.mark.ros
+
 PARAMS = str(default_params_file())
 # what the plant waits for before tick 0: the controller's and the recorder's subscriptions
 WAIT_FOR = f"lockstep_wait_for:={json.dumps(list(RECORDER_WAIT_FOR))}"

@@ -29,6 +29,8 @@ from robotino_geom_mpc.recording.bag_writer import BagWriter
 from robotino_geom_mpc.recording.bagfile import RUN_METADATA
 from robotino_geom_mpc.recording.bag_writer import write_metadata_yaml
 
+pytestmark = pytest.mark.ros
+
 FLUSH_S = 0.2
 RATE_HZ = 200.0
 KIND = "float64_array"

@@ -25,6 +25,8 @@ from recording_helpers import PYTHON, build_message, values_of
 from robotino_geom_mpc.recording.bag_writer import BagWriter
 from rclpy.serialization import serialize_message
 
+pytestmark = pytest.mark.ros
+
 JITTER_S = 0.03
 
 

@@ -22,6 +22,8 @@ from robotino_geom_mpc.recording.bagfile import RUN_METADATA
 from robotino_geom_mpc.recording.report import report_bag, run_data_from_bag
 from robotino_geom_mpc.offline.results import RunData, compute_metrics, read_metrics
 
+pytestmark = pytest.mark.ros
+
 TS = 0.01
 HORIZON = 4
 N_TICKS = 300

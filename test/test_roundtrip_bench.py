@@ -11,6 +11,8 @@ from robotino_geom_mpc.bench.registry import BenchmarkError
 from robotino_geom_mpc.bench.roundtrip import bench_roundtrip, nearest_rank, read_roundtrip_report, roundtrip_figures
 from robotino_geom_mpc.system.processes import NodeGroup
 
+pytestmark = pytest.mark.ros
+
 
 def test_figures_are_the_nearest_rank_median_and_p99_in_us():
     samples = [1e-6 * k for k in range(200, 0, -1)]  # 1 .. 200 us, unordered

@@ -16,6 +16,8 @@ from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import run_scenario
 
+pytestmark = pytest.mark.ros
+
 DURATION_S = 3.0
 
 

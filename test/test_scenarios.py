@@ -16,6 +16,8 @@ from robotino_geom_mpc.nodes.trajectory_node import TRAJECTORY_SPECS
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
 from robotino_sim_node.plant_node import PLANT_SPECS
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def robot():

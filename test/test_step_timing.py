@@ -16,6 +16,8 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.reference.trajectories import make_reference
 from robotino_geom_mpc.model.plant import RobotinoPlant
 
+pytestmark = pytest.mark.unit
+
 FAULT_TICK = 500  # 5 s: well after the start transient
 AFTER_S = 3.0  # the old filter error decayed over ~2.8 s
 BOUND_V = 1.0

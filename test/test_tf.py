@@ -28,6 +28,8 @@ from robotino_geom_mpc.ros.messages import stamp_to_ns
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.qos import LOCKSTEP_PUBLISH_QOS, PUBLISH_QOS
 
+pytestmark = pytest.mark.ros
+
 tf2_msgs = pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs not installed ('make setup' builds it)")
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,8 +7,8 @@
 
 Launch arguments
 ----------------
-scenario       a scenario of ``robotino_geom_mpc.scenarios``: paper-circle | lemniscate | point-to-point |
-               robustness. Each node gets the scenario's overrides (``scenarios.node_parameters``): the
+scenario       a name of ``robotino_geom_mpc.scenarios.SCENARIOS`` (the documentation's scenario page lists
+               them, generated from it). Each node gets the scenario's overrides (``scenarios.node_parameters``): the
                trajectory the scenario (its reference), the controller its model (mismatched in
                robustness), the plant the odometry noise
 params_file    ROS 2 parameter file, ``/**`` section read by every node (default: config/robotino3.yaml);

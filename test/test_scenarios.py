@@ -98,3 +98,21 @@ def test_node_parameters_name_the_nodes_own_parameters_with_the_file_values_scal
     assert node_parameters(SCENARIOS["lemniscate"], robot)["controller_node"] == {}
     with pytest.raises(ScenarioError):
         node_parameters("square", robot)
+
+
+def test_every_generated_scenario_table_is_the_registrys():
+    """Every markdown file with the tool's markers (README.md, the draft) holds the table generated from the registry."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("scenario_table", root / "tools" / "scenario_table.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    files = [p for p in [*root.glob("*.md"), *root.glob("docs/**/*.md")] if tool.BEGIN in p.read_text()]
+    assert files
+    for path in files:
+        text = path.read_text()
+        assert tool.with_table(text) == text, path
+        for name, scenario in SCENARIOS.items():  # and the table names every scenario with its description
+            assert f"| `{name}` | {scenario.description} |" in text, path

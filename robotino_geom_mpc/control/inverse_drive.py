@@ -333,17 +333,17 @@ class InverseDrive:
             return U, False, i_cmd
         i0 = self._i0
         zoh, i0_arr = self.zoh, np.array(i0)
-        omega, omega_rate = np.asarray(omega, dtype=float), np.asarray(omega_rate, dtype=float)
-        U = np.clip(U, -limit, limit)
-        mean = zoh.mean_current(i0_arr, U, omega, omega_rate)
+        speed, rate = np.asarray(omega, dtype=float), np.asarray(omega_rate, dtype=float)
+        clipped = np.clip(U, -limit, limit)
+        mean = zoh.mean_current(i0_arr, clipped, speed, rate)
         if rate_of_current is not None:
             for _ in range(_SATURATION_PASSES):
-                omega_rate = np.asarray(rate_of_current(mean), dtype=float)
-                mean = zoh.mean_current(i0_arr, U, omega, omega_rate)
-        self._i0 = zoh.end_current(i0_arr, U, omega, omega_rate).tolist()
-        self._last = (i0, U.tolist(), omega.tolist(), omega_rate.tolist())
+                rate = np.asarray(rate_of_current(mean), dtype=float)
+                mean = zoh.mean_current(i0_arr, clipped, speed, rate)
+        self._i0 = zoh.end_current(i0_arr, clipped, speed, rate).tolist()
+        self._last = (i0, clipped.tolist(), speed.tolist(), rate.tolist())
         self._one_period = self._i0
-        return U.tolist(), True, mean.tolist()
+        return clipped.tolist(), True, mean.tolist()
 
 
 class MotorKinematics:
@@ -370,7 +370,7 @@ class MotorKinematics:
         return self.W0 @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
 
     def speeds_and_rates(
-        self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
+        self, theta: float, velocity: Sequence[float] | np.ndarray, acceleration: Sequence[float] | np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Motor speeds omega and their rate omega' for a body velocity and acceleration.
 
@@ -390,7 +390,7 @@ class MotorKinematics:
         return np.array(omega), np.array(rate)
 
     def speeds_and_rates_floats(
-        self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
+        self, theta: float, velocity: Sequence[float] | np.ndarray, acceleration: Sequence[float] | np.ndarray
     ) -> tuple[list[float], list[float]]:
         """`speeds_and_rates` on Python floats, for the per-tick path."""
         vx, vy, w = velocity[0], velocity[1], velocity[2]

@@ -25,13 +25,13 @@ test: setup
 	$(VENV)/bin/python -m pytest -q test
 
 unit: setup
-	$(VENV)/bin/python -m pytest -q -m unit test
+	$(VENV)/bin/python -m pytest -q -m "unit and not slow" test
 
 check: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy
 	$(VENV)/bin/lint-imports
-	$(VENV)/bin/python -m pytest -q -m unit test
+	$(VENV)/bin/python -m pytest -q -m "unit and not slow" test
 
 docs: setup
 	$(VENV)/bin/sphinx-build -W --keep-going -q -b html docs docs/_build/html

@@ -180,6 +180,7 @@ def _tick(rng, scale_y):
     return X, rng.normal(0.0, 0.3, 3), Y_d, rng.normal(0.0, 0.2, 3)
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), size=st.floats(-7.0, -0.5), scale_y=st.floats(-5.0, -2.5),
        shift=st.floats(-50.0, 50.0))

@@ -81,6 +81,7 @@ def test_a_command_within_the_limits_is_left_alone(params):
     assert out.voltages == free.voltages and out.u == free.u
 
 
+@pytest.mark.slow
 def test_robustness_seeds_keep_the_nominal_current_with_no_start_kick(params):
     """Robustness scenario, seeds 0-19, full 22 s runs; with the limit off the start stays within nominal."""
     robot, control = params

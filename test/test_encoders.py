@@ -165,6 +165,7 @@ def _twist_errors(speeds: np.ndarray, slip_std: float, seed: int, periods: int =
     return np.array(errors)
 
 
+@pytest.mark.slow
 @pytest.mark.unit
 @pytest.mark.parametrize("advance, ratio", [("random", 2.0 / 3.0), ("half a count", 1.0)])
 def test_twist_covariance_bounds_the_quantisation_and_is_reached_at_half_a_count(advance, ratio):

@@ -294,6 +294,7 @@ def _sp_minS(A, C, B):
     return S
 
 
+@pytest.mark.slow
 @PROPS
 @given(systems())
 def test_algorithms_equal_the_recursions_of_an_independent_implementation(system):

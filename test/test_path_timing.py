@@ -37,6 +37,7 @@ def test_path_passes_through_every_pose_and_rests_at_the_last():
     np.testing.assert_allclose(end[1:], 0.0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_path_keeps_the_limits_and_is_c3():
     lim = limits()
     ref = GoalReference()

@@ -92,6 +92,7 @@ def test_assuming_one_period_fails_the_same_bound(setup, fault):
     assert deviation > BOUND_V, f"{fault}: {deviation:.3f} V"
 
 
+@pytest.mark.slow
 def test_jittered_stamps_stay_within_a_volt(setup):
     """Every measurement up to +-3 ms off its grid time (a loaded host), the intervals told to the controller."""
     control = setup[1]

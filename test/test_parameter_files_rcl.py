@@ -26,6 +26,7 @@ import re
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -219,3 +220,21 @@ def test_the_package_refuses_what_rcl_reads_but_its_nodes_cannot_run(verdicts, c
     assert str(paths[case]) in message and "\n" not in message
     for words in OWN_REFUSALS[case][1]:
         assert words in message, message
+
+
+def test_the_files_a_real_launch_wrote_are_read_alike_by_rcl_and_the_pre_check():
+    """The files launch_ros 0.26.6 wrote in two real launches (test/data/launch_ros): each node's own file with
+    the preset passes the pre-check, and rcl gives the node the values the pre-check read."""
+    files = sorted((Path(__file__).resolve().parent / "data" / "launch_ros").glob("*/*.yaml"))
+    cases = []
+    for path in files:
+        (section,) = parse_parameter_file(path)
+        namespace = "/robot1" if path.parent.name.startswith("robot1") else ""
+        name = {"plant_node": "robotino_plant", "controller_node": "robotino_controller", "recorder_node": "recorder",
+                "trajectory_node": "robotino_trajectory"}.get(path.stem, path.stem)
+        cases.append((path, f"{namespace}/{name}"))
+        assert section in ("/**", f"{namespace}/{name}"), path
+        check_parameter_files([default_params_file(), path])
+    for (path, fqn), verdict in zip(cases, _rcl(cases)):
+        assert verdict.get("values") == _values_for(path, fqn), path
+    assert len(cases) == 10

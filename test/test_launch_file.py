@@ -39,6 +39,7 @@ from robotino_geom_mpc.offline.simulation import run_scenario
 LAUNCH_FILE = Path(__file__).resolve().parents[1] / "launch" / "robotino_geom_mpc.launch.py"
 PARAMS = str(default_params_file())
 PROFILE = str(config_file("fastdds_localhost.xml"))
+RVIZ = str(config_file("robotino.rviz"))
 LOOP = {"trajectory_node", "controller_node", "plant_node"}
 DESCRIPTION = "robot_description_publisher"  # the package's own, where robot_state_publisher is not installed
 
@@ -59,7 +60,7 @@ def _kind(name: str) -> type:
 
 STAND_INS = {
     "launch": {"LaunchDescription": _kind("LaunchDescription")},
-    "launch.actions": {n: _kind(n) for n in ("DeclareLaunchArgument", "EmitEvent", "OpaqueFunction",
+    "launch.actions": {n: _kind(n) for n in ("DeclareLaunchArgument", "EmitEvent", "LogInfo", "OpaqueFunction",
                                              "RegisterEventHandler")},
     "launch.event_handlers": {"OnProcessExit": _kind("OnProcessExit")},
     "launch.events": {"Shutdown": _kind("Shutdown")},
@@ -116,7 +117,7 @@ def _of(kind: str, items) -> list[Recorded]:
 def _defaults(description) -> dict[str, str]:
     """The declared arguments' defaults, as launch would perform them (the file paths set here; the profile
     as without FASTRTPS_DEFAULT_PROFILES_FILE in the environment)."""
-    files = {"params_file": PARAMS, "plant_params": PARAMS, "fastdds_profile": PROFILE}
+    files = {"params_file": PARAMS, "plant_params": PARAMS, "fastdds_profile": PROFILE, "rviz_config": RVIZ}
     values = {a.args[0]: a.kwargs["default_value"] for a in _of("DeclareLaunchArgument", description)}
     assert all(isinstance(v, str) for k, v in values.items() if k not in files)
     return {**values, **files}
@@ -404,3 +405,22 @@ def test_every_node_accepts_the_files_launch_ros_gives_it(description, tmp_path,
         check_parameter_files(files)
     (values,) = parse_parameter_file(written["plant_node"][-1]).values()
     assert values.get("lockstep_wait_for") == (recorder_wait_for(interface) if record == "true" else None)
+
+
+def test_rviz_starts_rviz2_with_the_packages_view_where_installed_and_says_so_where_not(description, monkeypatch,
+                                                                                      tmp_path):
+    opaque, = _of("OpaqueFunction", description)
+    missing = opaque.kwargs["function"](Context({**_defaults(description), "rviz": "true"}))
+    (log,) = _of("LogInfo", missing)
+    assert "rviz2 is not installed" in log.kwargs["msg"] and RVIZ in log.kwargs["msg"]
+    assert "rviz2" not in {n.kwargs["executable"] for n in _of("Node", missing)}
+    monkeypatch.setattr(ament_index_python.packages, "get_package_share_directory",
+                        lambda package: str(tmp_path) if package == "rviz2" else _not_installed(package))
+    installed = opaque.kwargs["function"](Context({**_defaults(description), "rviz": "true", "namespace": "robot1"}))
+    (rviz,) = [n for n in _of("Node", installed) if n.kwargs["executable"] == "rviz2"]
+    assert rviz.kwargs["arguments"] == ["-d", RVIZ] and rviz.kwargs["namespace"] == "/robot1"
+    assert not _of("LogInfo", installed)
+    off = opaque.kwargs["function"](Context(_defaults(description)))
+    assert not _of("LogInfo", off) and "rviz2" not in {n.kwargs["executable"] for n in _of("Node", off)}
+    (declared,) = [a for a in _of("DeclareLaunchArgument", description) if a.args[0] == "rviz_config"]
+    assert declared.kwargs["default_value"].args[0][1:] == ["config", "robotino.rviz"]

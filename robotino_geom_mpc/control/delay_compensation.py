@@ -57,6 +57,7 @@ import numpy as np
 
 from robotino_geom_mpc.control.estimator import OdometryFilter, filter_gain
 from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController
+from robotino_geom_mpc.model.speed_loop import SPEED_LOOP_TIME_CONSTANT_S
 from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S, CommandPlan
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 
@@ -70,6 +71,8 @@ GAIN_PRIOR_WEIGHT = 1.0
 
 GAIN_BOUNDS = (0.5, 2.0)
 """The input gain estimate stays within these (a model off by more is not this controller's to rescue)."""
+
+_ZERO = (0.0, 0.0, 0.0)
 
 ROUND_TRIP_WINDOW = 200
 """Round trips the lead's quantile is taken over (the most recent ones: 2 s of plans at 100 Hz)."""
@@ -176,6 +179,7 @@ class DelayCompensatingController:
         tau = float(control.odometry_filter_time_constant_s)
         self.estimator = OdometryFilter(self.period_s, tau, control.odometry_twist) if tau > 0.0 else None
         self._period_mean = control.odometry_twist == "period_mean"
+        self._cmd_vel = command_interface == "cmd_vel"
         self._A = self.inner.mpc.A_d.tolist()
         self._B = self.inner.mpc.B_d.tolist()
         self.reset()
@@ -309,12 +313,12 @@ class DelayCompensatingController:
         u_last, currents = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
         for j in range(lead):  # step 2: through the commands applied over [t_m, t_a)
             command = self._command(period0 + j, newest_first)
-            u_last, currents = command if command is not None else ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
-            state = self._advance(state, u_last)
+            u_last, currents, entry = command if command is not None else (_ZERO, _ZERO, _ZERO)
+            state = self._advance(state, u_last, entry)
         if lead == 0:
             command = self._command(period0 - 1, newest_first)
             if command is not None:
-                u_last, currents = command
+                u_last, currents, _ = command
         self.prediction = (stamp_s + lead * Ts, tuple(state))
         self.inner.restart_from(u_last, currents)
         entries, us, ends = [], [], []
@@ -324,7 +328,7 @@ class DelayCompensatingController:
             u = self.inner.u_prev.tolist()
             us.append(u)
             ends.append(self.inner.drive.current_estimate_floats)
-            state = self._advance(state, u)
+            state = self._advance(state, u, entries[-1])
         t_a = stamp_s + lead * Ts
         plan = CommandPlan(stamp_s, tuple(t_a + j * Ts for j in range(M)), tuple(entries), Ts)
         self._sent[stamp_s] = _Sent(plan, us, ends)
@@ -373,7 +377,7 @@ class DelayCompensatingController:
         s = list(previous)
         for j in range(gap):
             command = self._command(period + j, newest_first)
-            s = self._advance(s, command[0] if command is not None else [0.0, 0.0, 0.0])
+            s = self._advance(s, *(command[0::2] if command is not None else (_ZERO, _ZERO)))
             v.append([s[1], s[3], s[5]])
         v = np.array(v)
         v += np.outer(np.arange(gap + 1) / gap, np.array(state)[[1, 3, 5]] - v[-1])
@@ -390,7 +394,7 @@ class DelayCompensatingController:
         exp(-age / `GAIN_TIME_CONSTANT_S`), with a prior of weight `GAIN_PRIOR_WEIGHT` at (1, 0); g within
         `GAIN_BOUNDS`. Only a single period (gap 1) whose command is known counts.
         """
-        command = self._command(period, newest_first) if gap == 1 else None
+        command = self._command(period, newest_first) if gap == 1 and not self._cmd_vel else None
         if command is None:
             return
         u = command[0]
@@ -413,9 +417,25 @@ class DelayCompensatingController:
             for a in axes:
                 self._gains[a] = (min(max(g, GAIN_BOUNDS[0]), GAIN_BOUNDS[1]), c)
 
-    def _advance(self, state: list[float], u: list[float]) -> list[float]:
-        """One period of eq. (49) per axis: (p, v) <- A_d (p, v) + B_d (g u - c v), g and c the estimates."""
+    def _advance(self, state: list[float], u: list[float], entry: tuple[float, ...]) -> list[float]:
+        """One period of eq. (49) per axis: (p, v) <- A_d (p, v) + B_d (g u - c v), g and c the estimates.
+
+        With the cmd_vel interface the robot's wheel-speed loops, not u, set the motion: the velocity goes to
+        the commanded twist (`entry`, base_link, rotated at the mid-period heading) as a first-order lag of
+        the loops' time constant `SPEED_LOOP_TIME_CONSTANT_S`, the position with it.
+        """
         out = list(state)
+        if self._cmd_vel:
+            Ts, tau = self.period_s, SPEED_LOOP_TIME_CONSTANT_S
+            keep = math.exp(-Ts / tau)
+            vx, vy, w = entry
+            heading = state[4] + 0.5 * Ts * w
+            c, s = math.cos(heading), math.sin(heading)
+            for a, target in enumerate((c * vx - s * vy, s * vx + c * vy, w)):
+                p, v = state[2 * a], state[2 * a + 1]
+                out[2 * a] = p + target * Ts + (v - target) * tau * (1.0 - keep)
+                out[2 * a + 1] = target + (v - target) * keep
+            return out
         for a in range(3):
             (a00, a01), (a10, a11) = self._A[a]
             b0, b1 = self._B[a]
@@ -425,7 +445,7 @@ class DelayCompensatingController:
             out[2 * a], out[2 * a + 1] = a00 * p + a01 * v + b0 * ua, a10 * p + a11 * v + b1 * ua
         return out
 
-    def _command(self, period: int, newest_first: list[_Sent]) -> tuple[list[float], list[float]] | None:
+    def _command(self, period: int, newest_first: list[_Sent]) -> tuple[list[float], list[float], tuple] | None:
         """(u, end currents) of what the robot applies in `period`: reported, else as its buffer would choose."""
         if period in self._applied:
             applied = self._applied[period]
@@ -433,13 +453,13 @@ class DelayCompensatingController:
                 return None
             sent = self._sent[applied[0]]
             index = applied[1]
-            return (sent.u[index], sent.end_currents[index]) if index < len(sent.u) else None
+            return (sent.u[index], sent.end_currents[index], sent.plan.entries[index]) if index < len(sent.u) else None
         t = self._origin + period * self.period_s
         for sent in newest_first:
             times = sent.plan.times_s
             if times[0] <= t + TIME_TOLERANCE_S and t < sent.plan.end_s - TIME_TOLERANCE_S and sent.arrived_by(t):
                 index = round((t - times[0]) / self.period_s)
-                return sent.u[index], sent.end_currents[index]
+                return sent.u[index], sent.end_currents[index], sent.plan.entries[index]
         return None
 
     def _forget(self, now_s: float) -> None:

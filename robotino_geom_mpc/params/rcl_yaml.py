@@ -88,7 +88,7 @@ def rcl_scalar(text: str, quoted: bool = False, str_tag: bool = False) -> bool |
         if _INT64[0] <= value <= _INT64[1]:
             return value
     if text in _YAML_INF_NAN:
-        value = math.nan if "n" in text.lower().replace("inf", "") else math.inf
+        value = math.nan if "nan" in text.lower() else math.inf
         return -value if text.startswith("-") else value
     value = _strtod(text)
     return text if value is None else value

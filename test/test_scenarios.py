@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.network.link import LinkParams
 from robotino_geom_mpc.params.specs import ALL_SPECS
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
@@ -78,7 +79,9 @@ def test_controller_model_scales_mass_inertia_and_friction_only(robot):
 def test_node_parameters_name_the_nodes_own_parameters_with_the_file_values_scaled(robot):
     """Keys against the config file and the nodes' specs; values against the file read with plain YAML."""
     file_values = yaml.safe_load(default_params_file().read_text())["/**"]["ros__parameters"]
-    plant_names = {s.name for s in PLANT_SPECS}
+    # the plant's link.* parameters (netros's branch) are the link's fields each way
+    plant_names = {s.name for s in PLANT_SPECS} | {f"link.{way}.{f.name}" for way in ("up", "down")
+                                                   for f in dataclasses.fields(LinkParams)}
     controller_names = {s.name for s in ALL_SPECS}
     for name in SCENARIOS:
         overrides = node_parameters(name, robot)
@@ -96,6 +99,8 @@ def test_node_parameters_name_the_nodes_own_parameters_with_the_file_values_scal
     assert node_parameters("robustness", robot)["plant_node"] == {"odometry_noise.position_m": 1e-3,
                                                                   "odometry_noise.yaw_rad": 1e-3}
     assert node_parameters(SCENARIOS["lemniscate"], robot)["controller_node"] == {}
+    wifi = node_parameters("wifi", robot)["plant_node"]
+    assert wifi["link.up.delay_s"] == wifi["link.down.delay_s"] == 0.015 and wifi["link.down.burst_length"] == 3.0
     with pytest.raises(ScenarioError):
         node_parameters("square", robot)
 

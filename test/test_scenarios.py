@@ -106,7 +106,7 @@ def test_node_parameters_name_the_nodes_own_parameters_with_the_file_values_scal
 
 
 def test_every_generated_scenario_table_is_the_registrys():
-    """Every markdown file with the tool's markers (README.md, the draft) holds the table made from the registry."""
+    """Every markdown file with the tool's markers (README.md) holds the table made from the registry."""
     import importlib.util
     from pathlib import Path
 

@@ -1,0 +1,1 @@
+"""Networked control: the link model between two hosts (no rclpy)."""

@@ -12,7 +12,7 @@ import argparse
 from pathlib import Path
 
 from . import VERBS, UsageError, positive_float, seed_value
-from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_scenario_argument
+from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_chain_argument, add_scenario_argument, chain_from_args
 
 __all__ = ["add_parser", "run"]
 
@@ -49,6 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "(default: Robotino 3 preset)")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_chain_argument(parser)
     parser.set_defaults(func=run)
     return parser
 
@@ -60,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.offline.study import draw_runs, run_study, write_study
 
+    chain = chain_from_args(args)
+    if chain is not None and args.odometry != "ideal":
+        raise UsageError("--chain gives the firmware's odometry: use it with --odometry ideal")
     robot, control = load_params(args.params)
     try:
         args.out.mkdir(parents=True, exist_ok=True)
@@ -67,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot create output folder {args.out}: {exc.strerror or exc}") from None
     draws = draw_runs(args.samples, args.seed, ODOMETRY_MODELS if args.odometry == "both" else (args.odometry,))
     result = run_study(args.scenario, robot, control, draws, duration_s=args.duration, workers=args.workers,
-                       settle_time_s=SETTLE_TIME_S, progress=not args.no_progress)
+                       settle_time_s=SETTLE_TIME_S, progress=not args.no_progress, chain=chain)
     s = write_study(args.out, args.scenario, robot, control, result, duration_s=args.duration,
                     settle_time_s=SETTLE_TIME_S)
     print(f"study {args.scenario}: {s['runs']} runs ({s['failed_runs']} failed), {s['simulated_s']:.4g} s "

@@ -44,6 +44,8 @@ from robotino_geom_mpc.model.speed_loop import DEFAULT_KI, DEFAULT_KP, DEFAULT_R
 from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.model.driver_chain import ChainParams
+from robotino_geom_mpc.offline.chain_loop import run_chain_scenario
 from robotino_geom_mpc.offline.results import RunData
 from robotino_geom_mpc.scenarios import get_scenario
 
@@ -69,6 +71,7 @@ def run_scenario(
     wheel_slip_std: float = 0.0,
     command_interface: str = "voltages",
     wheel_pi: tuple[float, float, float] | None = None,
+    chain: ChainParams | None = None,
 ) -> RunData:
     """Simulate one scenario in closed loop.
 
@@ -105,6 +108,9 @@ def run_scenario(
     wheel_pi
         (kp [V s/rad], ki [V/rad], rate [Hz]) of those loops; None: the plant node's defaults
         (`wheel_speed_loop.DEFAULT_KP`, ...: `tuned_gains` of the Robotino 3 preset, 1 kHz).
+    chain
+        The real robot's driver and firmware chain (`model.driver_chain`) between controller and plant:
+        the run is `chain_loop.run_chain_scenario`'s (cmd_vel only, ideal odometry); None: no chain.
 
     Returns
     -------
@@ -119,6 +125,12 @@ def run_scenario(
     SimulationError
         Non-positive duration, negative noise or a bad odometry setting.
     """
+    if chain is not None:
+        if command_interface != "cmd_vel" or odometry != "ideal":
+            raise SimulationError("a chain takes cmd_vel and gives the firmware's odometry: command_interface "
+                                  f"must be cmd_vel and odometry ideal, got {command_interface!r}, {odometry!r}")
+        return run_chain_scenario(scenario, robot, chain, duration_s=duration_s, seed=seed, progress=progress,
+                                  plant_robot=plant_robot, odometry_noise=odometry_noise)
     spec = get_scenario(scenario)
     if odometry_noise is None:
         odometry_noise = (spec.noise.position_m, spec.noise.yaw_rad)

@@ -29,7 +29,7 @@ from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import WheelSpeedLoop, tuned_gains
 from robotino_geom_mpc.network.link import Link, LinkParams
 
-__all__ = ["ChainEmulator", "OdometryMessage", "TickRecord"]
+__all__ = ["ChainEmulator", "EmulatedRobot", "OdometryMessage", "TickRecord"]
 
 
 class OdometryMessage(NamedTuple):
@@ -181,3 +181,23 @@ class ChainEmulator:
         self._pass += 1
         self._now = t
         return out
+
+
+class EmulatedRobot:
+    """The emulated chain as `model.chain_identification.RobotIO`: `poll` runs to the next dispatch, `send` a cmd_vel."""
+
+    def __init__(self, emulator: ChainEmulator) -> None:
+        self.emulator = emulator
+        self.now_s = 0.0
+
+    def poll(self) -> tuple[float, list[tuple[float, tuple, tuple]]]:
+        """Run to the driver's next pass that dispatches odometry; (its time, the messages)."""
+        while True:
+            self.now_s = self.emulator.next_pass_s()
+            messages = self.emulator.run_until(self.now_s)
+            if messages:
+                return self.now_s, [(m.stamp_s, m.pose, m.twist) for m in messages]
+
+    def send(self, twist: tuple[float, float, float]) -> None:
+        """A cmd_vel reaching the driver now."""
+        self.emulator.cmd_vel(twist, self.now_s)

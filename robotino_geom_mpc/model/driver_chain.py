@@ -16,7 +16,7 @@ robot's chain"; docs/howto/real_robotino.md):
 * per motor, PI speed loops on the base's microcontroller (`model.speed_loop`), here tuned to a first-order
   loop of ``speed_loop_time_constant_s``.
 
-`CHAIN_SPECS` names each number (``chain.*``) with its unit, range and source; `CHAIN_PRESETS` holds the
+`params.specs.CHAIN_SPECS` names each number (``chain.*``) with its unit, range and source; `CHAIN_PRESETS` holds the
 robocup-logistics preset; `chain_params` builds and checks a `ChainParams` (out-of-range values are refused
 with their names). The event loop that runs a plant through all of this is `model.chain_emulation`.
 """
@@ -28,54 +28,14 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.params.specs import ParamError, ParamSpec, validate_value
+from robotino_geom_mpc.params.specs import CHAIN_SPECS, ParamError, validate_value
 
-__all__ = ["CHAIN_PRESETS", "CHAIN_SPECS", "ChainError", "ChainParams", "Firmware", "chain_params", "speed_floor"]
+__all__ = ["CHAIN_PRESETS", "ChainError", "ChainParams", "Firmware", "chain_params", "speed_floor"]
 
 
 class ChainError(RobotinoError, ValueError):
     """A chain parameter out of range or of the wrong type (the message names it), or a bad command."""
 
-
-_LOGISTICS = "robocup-logistics/ros2-robotino"
-_CONTROLD = "Festo controld3 (shipped with the driver)"
-
-CHAIN_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("chain.odometry_rate_hz", float, f"rate at which the firmware integrates and sends odometry, "
-              f"without a stamp ({_CONTROLD})", "Hz", 1.0, 1000.0, False),
-    ParamSpec("chain.driver_rate_hz", float, f"rate of the driver node's loop: odometry dispatch and cmd_vel "
-              f"forwarding ({_LOGISTICS})", "Hz", 1.0, 1000.0, False),
-    ParamSpec("chain.driver_phase_s", float, "offset of the driver's loop after a firmware tick (unknown on a real "
-              "robot: any value in [0, 1 / driver_rate_hz))", "s", 0.0, 1.0, False),
-    ParamSpec("chain.odometry_dispatch", str, f"all: every odometry that arrived since the last pass is dispatched; "
-              f"latest: only the newest ({_LOGISTICS})", choices=("all", "latest")),
-    ParamSpec("chain.tick_s", float, f"firmware tick on which commands are applied and odometry sampled "
-              f"({_CONTROLD})", "s", 1e-3, 1.0, False),
-    ParamSpec("chain.ramp_translation_m_s2", float, f"acceleration ramp of the commanded translation "
-              f"(vector norm) ({_CONTROLD} configuration)", "m/s^2", 0.01, 100.0, False),
-    ParamSpec("chain.ramp_rotation_rad_s2", float, f"acceleration ramp of the commanded rotation ({_CONTROLD} "
-              f"configuration: 180 deg/s^2)", "rad/s^2", 0.01, 1000.0, False),
-    ParamSpec("chain.max_translation_m_s", float, f"largest commanded translation speed ({_CONTROLD} "
-              f"configuration)", "m/s", 0.01, 10.0, False),
-    ParamSpec("chain.max_rotation_rad_s", float, f"largest commanded rotation speed ({_CONTROLD} configuration: "
-              f"90 deg/s)", "rad/s", 0.01, 100.0, False),
-    ParamSpec("chain.motor_timeout_s", float, f"the firmware stops the motors this long after the last "
-              f"command ({_CONTROLD})", "s", 0.01, 60.0, False),
-    ParamSpec("chain.speed_floor", str, f"on: the driver raises any non-zero speed below the floor to it "
-              f"({_LOGISTICS}); off: forwarded as is", choices=("on", "off")),
-    ParamSpec("chain.speed_floor_translation_m_s", float, f"the driver's floor of a non-zero translation "
-              f"component ({_LOGISTICS})", "m/s", 0.0, 1.0, False),
-    ParamSpec("chain.speed_floor_rotation_rad_s", float, f"the driver's floor of a non-zero rotation "
-              f"({_LOGISTICS})", "rad/s", 0.0, 10.0, False),
-    ParamSpec("chain.speed_loop_time_constant_s", float, "time constant of the wheels' PI speed loops on the "
-              "base's microcontroller (model.speed_loop.tuned_gains; order of magnitude, not published)", "s",
-              1e-3, 1.0, False),
-    ParamSpec("chain.link.delay_s", float, "fixed one-way delay of the driver <-> robot link (WiFi when the "
-              "driver runs off-board; 0 on the robot's PC), each direction (network.link)", "s", 0.0, 1.0, False),
-    ParamSpec("chain.link.jitter_s", float, "plus a uniform draw in [0, jitter_s] per message, each direction",
-              "s", 0.0, 1.0, False),
-    ParamSpec("chain.link.loss", float, "probability that a message is lost, each direction", "", 0.0, 0.5, False),
-)
 
 _ATTR = {spec.name: spec.name.removeprefix("chain.").replace(".", "_") for spec in CHAIN_SPECS}
 

@@ -43,6 +43,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_command_interface_argument(parser)
     add_chain_argument(parser)
+    parser.add_argument("--controller-chain", type=Path, default=None, metavar="FILE",
+                        help="with --chain: the controller's chain.* from this parameter file (identify's "
+                        "chain_params.yaml) instead of the true chain's")
     parser.set_defaults(func=run)
     return parser
 
@@ -57,6 +60,19 @@ def add_chain_argument(parser: argparse.ArgumentParser) -> None:
                         "cmd_vel; docs/howto/real_robotino.md)")
     parser.add_argument("--chain-set", action="append", default=[], metavar="chain.NAME=VALUE",
                         help="override one chain parameter (repeatable), e.g. chain.link.delay_s=0.01")
+
+
+def controller_chain_from_file(path: Path, preset: str):  # noqa: ANN201 - ChainParams, imported lazily
+    """The controller's chain.* of a parameter file (`identify`'s), over `preset`; UsageError if bad."""
+    from robotino_geom_mpc.model.driver_chain import ChainError, chain_params
+    from robotino_geom_mpc.params.files import check_parameter_files, read_parameter_file
+
+    check_parameter_files([path])
+    values = read_parameter_file(path, "robotino_controller")
+    try:
+        return chain_params({k: v for k, v in values.items() if k.startswith("chain.")}, preset, str(path))
+    except ChainError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def chain_from_args(args: argparse.Namespace):  # noqa: ANN201 - ChainParams, imported lazily
@@ -136,6 +152,10 @@ def run(args: argparse.Namespace) -> int:
     chain = chain_from_args(args)
     if chain is not None and args.command_interface != "cmd_vel":
         raise UsageError("--chain needs --command-interface cmd_vel (the driver takes cmd_vel)")
+    if args.controller_chain is not None and chain is None:
+        raise UsageError("--controller-chain needs --chain")
+    controller_chain = None if args.controller_chain is None else controller_chain_from_file(args.controller_chain,
+                                                                                            args.chain)
     robot, control = load_params(args.params)
     if args.current_limit is not None:
         control = replace(control, current_limit_a=args.current_limit)
@@ -149,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
     data = run_scenario(
         args.scenario, robot, control, duration_s=args.duration, seed=args.seed, progress=not args.no_progress,
         odometry=args.odometry, command_interface=args.command_interface, chain=chain,
+        controller_chain=controller_chain,
     )
     wall_s = time.perf_counter() - start
 

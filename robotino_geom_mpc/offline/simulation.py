@@ -72,6 +72,7 @@ def run_scenario(
     command_interface: str = "voltages",
     wheel_pi: tuple[float, float, float] | None = None,
     chain: ChainParams | None = None,
+    controller_chain: ChainParams | None = None,
 ) -> RunData:
     """Simulate one scenario in closed loop.
 
@@ -111,6 +112,8 @@ def run_scenario(
     chain
         The real robot's driver and firmware chain (`model.driver_chain`) between controller and plant:
         the run is `chain_loop.run_chain_scenario`'s (cmd_vel only, ideal odometry); None: no chain.
+    controller_chain
+        What the controller takes the chain to be (e.g. `identify`'s file); `chain` if None.
 
     Returns
     -------
@@ -130,7 +133,8 @@ def run_scenario(
             raise SimulationError("a chain takes cmd_vel and gives the firmware's odometry: command_interface "
                                   f"must be cmd_vel and odometry ideal, got {command_interface!r}, {odometry!r}")
         return run_chain_scenario(scenario, robot, chain, duration_s=duration_s, seed=seed, progress=progress,
-                                  plant_robot=plant_robot, odometry_noise=odometry_noise)
+                                  plant_robot=plant_robot, odometry_noise=odometry_noise,
+                                  controller_chain=controller_chain)
     spec = get_scenario(scenario)
     if odometry_noise is None:
         odometry_noise = (spec.noise.position_m, spec.noise.yaw_rad)

@@ -12,7 +12,8 @@ loop's time s when it dispatches it, at the first pass after its arrival. The pr
 interval [lo, hi], intersected message by message), and gives each message the grid point in its window
 (1) after the previous message's, at the middle of that interval: the measurement time with its uncertainty
 (hi - lo) / 2. With a 30 Hz driver and 50 Hz odometry the pattern of (1) repeats every 100 ms and the
-interval shrinks to T / 5 = 6.7 ms (+-3.3 ms) without jitter, narrower with it. A message that would leave
+interval shrinks to T / 5 = 6.7 ms (+-3.3 ms) without jitter; a jitter J loosens the lower bounds by J
+(+-5 ms measured with J = 10 ms). A message that would leave
 no consistent offset (a lost message under the wrong grid point, a clock that drifts) restarts the interval
 from its own window. When two grid points fit a message's window (a lost sample before it), `choose` (a
 callable on the candidate times, e.g. the pose the controller predicts at each) picks one; without it, the

@@ -130,11 +130,11 @@ def test_the_motors_stop_after_the_timeout(robot):
     assert np.all(sp[times > times[stop] + 0.1 / chain.ramp_translation_m_s2 + 1e-9, 0] == 0.0)
 
 
-@pytest.mark.parametrize("floor", ["on", "off"])
+@pytest.mark.parametrize("floor", ["enabled", "disabled"])
 def test_the_driver_speed_floor(robot, floor):
     chain = chain_params({"chain.speed_floor": floor})
     twist = (0.005, -0.019, 0.03)
-    expected = (0.02, -0.02, 0.07) if floor == "on" else twist
+    expected = (0.02, -0.02, 0.07) if floor == "enabled" else twist
     assert speed_floor(twist, chain) == pytest.approx(expected)
     assert speed_floor((0.0, 0.5, -0.2), chain) == (0.0, 0.5, -0.2)  # zero and large values pass
     emulator, _ = _emulator(robot, speed_floor=floor)

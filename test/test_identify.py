@@ -94,7 +94,8 @@ def test_identify_cli_writes_a_file_the_controller_takes_and_the_controller_meet
     path = out / "chain_params.yaml"
     check_parameter_files([path])  # as a node would check it
     values = read_parameter_file(path, "robotino_controller")
-    controller_chain = chain_params({k: v for k, v in values.items() if k.startswith("chain.")})
+    assert values["chain.active"] == "enabled"
+    controller_chain = chain_params({k: v for k, v in values.items() if k.startswith("chain.") and k != "chain.active"})
     report = json.loads((out / "identify.json").read_text())
     assert report["truth"] == chain_params().values()
     control = load_params()[1]

@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"identify: {exc}") from None
     chain = fit.chain(prior)
     path = write_chain_file(
-        args.out / "chain_params.yaml", chain.values(),
+        args.out / "chain_params.yaml", {"chain.active": "enabled", **chain.values()},
         f"robotino-geom-mpc identify against {where}: round trip {1e3 * fit.round_trip_s:.1f} ms (fits "
         f"{1e3 * fit.round_trip_interval_s[0]:.0f}..{1e3 * fit.round_trip_interval_s[1]:.0f} ms), split evenly; the "
         f"rest from the {args.chain} preset.\nGive it to the controller: --ros-args --params-file THIS_FILE")

@@ -70,7 +70,8 @@ def controller_chain_from_file(path: Path, preset: str):  # noqa: ANN201 - Chain
     check_parameter_files([path])
     values = read_parameter_file(path, "robotino_controller")
     try:
-        return chain_params({k: v for k, v in values.items() if k.startswith("chain.")}, preset, str(path))
+        return chain_params({k: v for k, v in values.items() if k.startswith("chain.") and k != "chain.active"},
+                            preset, str(path))
     except ChainError as exc:
         raise UsageError(str(exc)) from None
 

@@ -20,11 +20,17 @@ gets odometry stamped when the driver dispatched it. `ChainController.step` take
 
        sum_{j=1..H} (a_j + b_j c - r_j)^2 + lambda (c - c_prev)^2                                     (2)
 
-   in closed form (r_j the reference at tick n_a + j). c is turned into base_link at the heading predicted
+   in closed form (r_j the reference at tick n_a + j); its departure d from the reference's velocity is then
+   limited so that the ramps can take it back before the error e it closes is overrun (`_braking`):
+
+       d^2 / (2 a) + d t_d <= |e|    (a the ramp, t_d the command path's dead time);                      (3)
+
+   without it a large error (a stop, a gap in the odometry) makes the one-move plan overshoot by the
+   ramp's braking distance, again and again. c is turned into base_link at the heading predicted
    halfway through the horizon, then limited to what the ramps let the firmware reach in one tick from its
    setpoint before n_a within the ticks until the next command (a driver period, rounded up to whole ticks:
    the plan respects the ramps; the prediction replays the firmware's ramp tick by tick), and, with the
-   driver's speed floor on, each component below its floor is set to 0 or to the floor, whichever is nearer
+   driver's speed floor enabled, each component below its floor is set to 0 or to the floor, whichever is nearer
    (so what the firmware gets is what was predicted; the position error this leaves is corrected by the
    next commands, a dither between 0 and the floor).
 
@@ -45,6 +51,9 @@ from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.model.driver_chain import ChainParams, Firmware
 
 __all__ = ["ChainController", "ChainControllerError"]
+
+
+_CHOOSE_MARGIN_M = 5e-4  # a candidate time must fit the measured pose this much better than the clock's pick
 
 
 class ChainControllerError(RobotinoError, ValueError):
@@ -177,12 +186,12 @@ class ChainController:
         setpoints = self._setpoints(n_m, n_a + self.horizon)
         p_a, v_a = self._propagate(values[:3], v_odom, setpoints[: n_a - n_m])
         self._remember(n_m, values[:3], v_odom, setpoints)
-        times = t0 + (n_a + np.arange(1, self.horizon + 1)) * h
-        r = np.asarray(reference(times), dtype=float)
-        r = r.copy()
+        times = t0 + (n_a + np.arange(0, self.horizon + 1)) * h
+        r = np.array(reference(times), dtype=float)
         r[:, 2] = p_a[2] + np.angle(np.exp(1j * (r[:, 2] - p_a[2])))  # the nearest turn of the heading
         a = np.asarray(p_a)[None, :] + np.outer(self._decay, v_a)
-        plan = (self._b @ (r - a) + self.move_weight * self._plan_prev) / (self._bb + self.move_weight)
+        plan = (self._b @ (r[1:] - a) + self.move_weight * self._plan_prev) / (self._bb + self.move_weight)
+        plan = self._braking(plan, (r[-1] - r[0]) / (self.horizon * h), r[0] - np.asarray(p_a))
         self._plan_prev = plan
         heading = p_a[2] + 0.5 * self.horizon * h * plan[2]
         c, s = math.cos(heading), math.sin(heading)
@@ -192,6 +201,24 @@ class ChainController:
         self._settle(n_m - 4 * self.ticks_per_sample)
         self.last_prediction = (t0 + n_a * h, np.asarray(p_a))
         return command
+
+    def _braking(self, plan: np.ndarray, v_ref: np.ndarray, error: np.ndarray) -> np.ndarray:
+        """`plan` with its departure from the reference velocity limited to what the ramps can take back (3).
+
+        A departure d closes an error e at most as fast as the ramp a can return the velocity to the
+        reference's within e, the dead time t_d (a driver period in whole ticks, the round trip, tau) included:
+        d^2 / (2 a) + d t_d <= |e|, so |d| <= a (sqrt(t_d^2 + 2 |e| / a) - t_d). Translation as a vector.
+        """
+        t_d = self.ramp_time_s + self.round_trip_s + self.tau
+        out = plan.copy()
+        ramps = ((slice(0, 2), self.chain.ramp_translation_m_s2), (slice(2, 3), self.chain.ramp_rotation_rad_s2))
+        for axes, ramp in ramps:
+            departure = plan[axes] - v_ref[axes]
+            size = float(np.linalg.norm(departure))
+            limit = ramp * (math.sqrt(t_d**2 + 2.0 * float(np.linalg.norm(error[axes])) / ramp) - t_d)
+            if size > limit:
+                out[axes] = v_ref[axes] + departure * (limit / size)
+        return out
 
     def _feasible(self, body: tuple[float, float, float], setpoint: tuple[float, float, float]) -> tuple:
         """`body` within the ramps' reach of `setpoint` until the next command, the maxima and the floor's gaps."""
@@ -207,7 +234,7 @@ class ChainController:
         if speed > p.max_translation_m_s:
             vx, vy = vx * p.max_translation_m_s / speed, vy * p.max_translation_m_s / speed
         w = max(-p.max_rotation_rad_s, min(p.max_rotation_rad_s, w))
-        if p.speed_floor == "off":
+        if p.speed_floor == "disabled":
             return (vx, vy, w)
         floors = (p.speed_floor_translation_m_s,) * 2 + (p.speed_floor_rotation_rad_s,)
         return tuple(0.0 if abs(v) < 0.5 * f else (math.copysign(f, v) if abs(v) < f else v)
@@ -222,7 +249,7 @@ class ChainController:
             self._trajectory[n_m + k + 1] = tuple(p)
 
     def _chooser(self, pose: list[float]) -> Callable[[list[float]], int] | None:
-        """Between candidate measurement times, the one whose predicted pose is nearest `pose`."""
+        """Between candidate measurement times, the one whose predicted pose is clearly nearest `pose`."""
         if not self._trajectory:
             return None
         t0 = self.clock.tick_time(0)
@@ -233,5 +260,9 @@ class ChainController:
                 predicted = self._trajectory.get(round((t - t0) / self.h))
                 costs.append(math.inf if predicted is None else math.hypot(predicted[0] - pose[0],
                                                                            predicted[1] - pose[1]))
-            return int(np.argmin(costs)) if math.isfinite(min(costs)) else 0
+            default = len(costs) - 1 if self.clock.newest else 0  # the clock's own pick
+            best = int(np.argmin(costs))
+            # another only when the pose says so clearly: the model's error must not override the count
+            clear = costs[best] < 0.5 * costs[default] and costs[default] - costs[best] > _CHOOSE_MARGIN_M
+            return best if math.isfinite(costs[best]) and clear else default
         return choose

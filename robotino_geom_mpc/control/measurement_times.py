@@ -8,17 +8,17 @@ loop's time s when it dispatches it, at the first pass after its arrival. The pr
 
     s - T - d_up - J  <  g_n  <=  s - d_up.                                            (1)
 
-`MeasurementClock` keeps the set of grid offsets t_0 consistent with (1) for every message so far (an
-interval [lo, hi], intersected message by message), and gives each message the grid point in its window
-(1) after the previous message's, at the middle of that interval: the measurement time with its uncertainty
-(hi - lo) / 2. With a 30 Hz driver and 50 Hz odometry the pattern of (1) repeats every 100 ms and the
-interval shrinks to T / 5 = 6.7 ms (+-3.3 ms) without jitter; a jitter J loosens the lower bounds by J
-(+-5 ms measured with J = 10 ms). A message that would leave
-no consistent offset (a lost message under the wrong grid point, a clock that drifts) restarts the interval
-from its own window. When two grid points fit a message's window (a lost sample before it), `choose` (a
-callable on the candidate times, e.g. the pose the controller predicts at each) picks one; without it, the
-earlier one, or the later with ``newest`` (a driver that dispatches only the newest sample). d_up is the identified round trip's share of the up link (`round_trip_s` / 2 by default: the
-two directions of a WiFi link are alike); an error e there shifts every time by e.
+`MeasurementClock` keeps the set of grid offsets t_0 consistent with (1) for every message so far (an interval
+[lo, hi], intersected message by message), and gives each message the grid point in its window (1) after the
+previous message's, at the middle of that interval: the measurement time with its uncertainty (hi - lo) / 2.
+With a 30 Hz driver and 50 Hz odometry the pattern of (1) repeats every 100 ms and the interval shrinks to T / 5
+= 6.7 ms (+-3.3 ms) without jitter; a jitter J loosens the lower bounds by J (+-5 ms measured with J = 10 ms). A
+message that would leave no consistent offset (a lost message under the wrong grid point, a clock that drifts)
+restarts the interval from its own window. When two grid points fit a message's window (a lost sample before
+it), `choose` (a callable on the candidate times, e.g. the pose the controller predicts at each) picks one;
+without it, the earlier one, or the later with ``newest`` (a driver that dispatches only the newest sample).
+d_up is the identified round trip's share of the up link (`round_trip_s` / 2 by default: the two directions of a
+WiFi link are alike); an error e there shifts every time by e.
 """
 
 from __future__ import annotations

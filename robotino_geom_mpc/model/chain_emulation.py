@@ -6,7 +6,8 @@ time, on one clock (the host's; the firmware's tick grid starts at 0):
 * firmware tick j at t = j tick_s: the newest command that has arrived (by its forwarding order; an older
   one arriving late is ignored) goes to `driver_chain.Firmware`, whose ramped setpoint the wheel PI loops
   (`model.speed_loop.WheelSpeedLoop`, gains `tuned_gains` for ``speed_loop_time_constant_s``) hold until the
-  next tick; on every tick that starts an odometry period (1 / odometry_rate_hz), the odometry (pose plus the run's noise, body twist) is sampled and sent to the driver over the up link;
+  next tick; on every tick that starts an odometry period (1 / odometry_rate_hz), the odometry (pose plus
+  the run's noise, body twist) is sampled and sent to the driver over the up link;
 * driver pass k at t = driver_phase_s + k / driver_rate_hz (after a firmware tick at the same time): the
   odometry that arrived since the last pass is dispatched (all of it in arrival order, or the newest),
   each message stamped t; each cmd_vel received before t is forwarded once, through `driver_chain.speed_floor`,
@@ -26,7 +27,7 @@ import numpy as np
 
 from robotino_geom_mpc.model.driver_chain import ChainError, ChainParams, Firmware, speed_floor
 from robotino_geom_mpc.model.plant import RobotinoPlant
-from robotino_geom_mpc.model.speed_loop import WheelSpeedLoop, tuned_gains
+from robotino_geom_mpc.model.speed_loop import DEFAULT_RATE_HZ, WheelSpeedLoop, tuned_gains
 from robotino_geom_mpc.network.link import Link, LinkParams
 
 __all__ = ["ChainEmulator", "EmulatedRobot", "OdometryMessage", "TickRecord"]
@@ -71,13 +72,17 @@ class ChainEmulator:
         (position [m], yaw [rad]) standard deviations of the firmware odometry's pose noise.
     source
         What an odometry sample reads (`model.encoders.odometry_source`); the plant itself if None.
+    speed_loop_rate_hz
+        Sampling rate of the wheels' PI loops (`model.speed_loop.DEFAULT_RATE_HZ`, 1 kHz, by default).
     """
 
     def __init__(self, plant: RobotinoPlant, params: ChainParams, seed: int = 0,
-                 odometry_noise: tuple[float, float] = (0.0, 0.0), source: object | None = None) -> None:
+                 odometry_noise: tuple[float, float] = (0.0, 0.0), source: object | None = None,
+                 speed_loop_rate_hz: float = DEFAULT_RATE_HZ) -> None:
         self.plant, self.params = plant, params
         self.firmware = Firmware(params)
-        self.speed_loop = WheelSpeedLoop(plant.params, *tuned_gains(plant.params, params.speed_loop_time_constant_s))
+        self.speed_loop = WheelSpeedLoop(plant.params, *tuned_gains(plant.params, params.speed_loop_time_constant_s),
+                                         speed_loop_rate_hz)
         link = LinkParams(params.link_delay_s, params.link_jitter_s, params.link_loss)
         self.down, self.up = Link(link, seed), Link(link, seed + 1)
         self._rng = np.random.default_rng(seed + 2)
@@ -184,7 +189,7 @@ class ChainEmulator:
 
 
 class EmulatedRobot:
-    """The emulated chain as `model.chain_identification.RobotIO`: `poll` runs to the next dispatch, `send` a cmd_vel."""
+    """The emulated chain as a `model.chain_identification.RobotIO`: `poll` to the next dispatch, `send` a cmd_vel."""
 
     def __init__(self, emulator: ChainEmulator) -> None:
         self.emulator = emulator

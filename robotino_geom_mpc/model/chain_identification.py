@@ -8,16 +8,15 @@ About 6.5 s, every command sent once per odometry dispatch, zero at the end. Aft
 that the robot moved as commanded; if not it stops the robot (zero twist) and raises `IdentifyError`
 saying why: no motion, saturation (the plateau stays below the command), or motion other than commanded.
 
-`fit_chain` then fits the chain model the controller uses (`control.chain_controller`: commands forwarded
-at the driver's next pass, applied at the firmware tick after the round trip's down share, ramped,
-followed by a first-order speed loop) to the recorded odometry twists: the round trip's fixed part D
-(= 2 ``chain.link.delay_s``), the two ramps and tau (the translation's; the rotation's apart). The twist is linear in the ramped setpoints, which
-depend on D only through the tick each command lands on: the cost is piecewise constant in D, so D is
-scanned on a 1 ms grid, the ramps and time constants fitted by least squares (scipy) for each distinct
-landing of the commands, and the middle of the best interval of D taken (without jitter, the 30 Hz / 50 Hz
-pattern leaves cells of T / 5 = 6.7 ms: +-3.3 ms).
-A fit whose twist residual exceeds 15 % of the excitation's speed is refused (the robot does not follow
-the chain model).
+`fit_chain` then fits the chain model the controller uses (`control.chain_controller`: commands forwarded at the
+driver's next pass, applied at the firmware tick after the round trip's down share, ramped, followed by a first-
+order speed loop) to the recorded odometry twists: the round trip's fixed part D (= 2 ``chain.link.delay_s``),
+the two ramps and tau (the translation's; the rotation's apart). The twist is linear in the ramped setpoints,
+which depend on D only through the tick each command lands on: the cost is piecewise constant in D, so D is
+scanned on a 1 ms grid, the ramps and time constants fitted by least squares (scipy) for each distinct landing
+of the commands, and the middle of the best interval of D taken (without jitter, the 30 Hz / 50 Hz pattern
+leaves cells of T / 5 = 6.7 ms: +-3.3 ms). A fit whose twist residual exceeds 15 % of the excitation's speed is
+refused (the robot does not follow the chain model).
 """
 
 from __future__ import annotations

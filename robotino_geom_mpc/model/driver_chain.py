@@ -28,9 +28,9 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.params.specs import CHAIN_SPECS, ParamError, validate_value
+from robotino_geom_mpc.params.specs import CHAIN_ACTIVE_SPEC, CHAIN_SPECS, ParamError, validate_value
 
-__all__ = ["CHAIN_PRESETS", "ChainError", "ChainParams", "Firmware", "chain_params", "speed_floor"]
+__all__ = ["CHAIN_NODE_DEFAULTS", "CHAIN_NODE_SPECS", "CHAIN_PRESETS", "ChainError", "ChainParams", "Firmware", "chain_params", "speed_floor"]
 
 
 class ChainError(RobotinoError, ValueError):
@@ -54,7 +54,7 @@ class ChainParams:
     max_translation_m_s: float = 1.0
     max_rotation_rad_s: float = 0.5 * math.pi
     motor_timeout_s: float = 0.5
-    speed_floor: str = "on"
+    speed_floor: str = "enabled"
     speed_floor_translation_m_s: float = 0.02
     speed_floor_rotation_rad_s: float = 0.07
     speed_loop_time_constant_s: float = 0.025
@@ -83,6 +83,11 @@ CHAIN_PRESETS: dict[str, dict[str, Any]] = {
     # robocup-logistics/ros2-robotino on a Robotino 3/4, driver on the robot's PC or next to its access point
     "robocup-logistics": ChainParams().values(),
 }
+
+
+# the nodes' chain parameters (plant: emulate the chain; controller: control through it), the preset's defaults
+CHAIN_NODE_SPECS = (CHAIN_ACTIVE_SPEC,) + CHAIN_SPECS
+CHAIN_NODE_DEFAULTS = {CHAIN_ACTIVE_SPEC.name: "disabled", **CHAIN_PRESETS["robocup-logistics"]}
 
 
 def chain_params(values: dict[str, Any] | None = None, preset: str = "robocup-logistics",
@@ -121,9 +126,9 @@ def chain_params(values: dict[str, Any] | None = None, preset: str = "robocup-lo
 def speed_floor(twist: tuple[float, float, float], params: ChainParams) -> tuple[float, float, float]:
     """The twist the driver forwards: each non-zero component below its floor raised to it (sign kept).
 
-    Off (``speed_floor`` off) the twist is returned as it is.
+    With ``speed_floor`` disabled the twist is returned as it is.
     """
-    if params.speed_floor == "off":
+    if params.speed_floor == "disabled":
         return tuple(twist)
     floors = (params.speed_floor_translation_m_s, params.speed_floor_translation_m_s,
               params.speed_floor_rotation_rad_s)

@@ -82,6 +82,8 @@ from robotino_geom_mpc.control.motion_controller import MAX_POSITION_M, Controll
 from robotino_geom_mpc.params.specs import ALL_SPECS
 from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix
+from robotino_geom_mpc.model.driver_chain import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS
+from robotino_geom_mpc.nodes.chain_control import chain_control
 from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
     InputCounters, closed_loop_problem, reference_jump
 from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
@@ -109,13 +111,16 @@ class ControllerNode(Node):
 
     def __init__(self) -> None:
         super().__init__("robotino_controller")
-        self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS, {**spec_defaults(), **CONTROLLER_DEFAULTS},
-                                     self._on_params, fixed=FIXED_WHILE_RUNNING, check=closed_loop_problem)
+        self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS + CHAIN_NODE_SPECS,
+                                     {**spec_defaults(), **CONTROLLER_DEFAULTS, **CHAIN_NODE_DEFAULTS},
+                                     self._on_params, fixed=(*FIXED_WHILE_RUNNING, *CHAIN_NODE_DEFAULTS),
+                                     check=closed_loop_problem)
         self.robot, self.control = self.params.robot_control()
         self.controller = MotionController(self.robot, self.control)
         self.lockstep = self.params["mode"] == "lockstep"
         self.period_ns = int(round(self.control.period_s * 1e9))
         self._read_limits()
+        self.chain = chain_control(self)  # chain.active: control through the driver chain (`chain_control`)
 
         try:
             prefix = check_frame_prefix(self.params["frame_prefix"])
@@ -278,6 +283,8 @@ class ControllerNode(Node):
             self._reject(None, "odom", getattr(exc, "reason", "malformed"), str(exc))
             return
         problem = stamp_problem(stamp, self.last_odom_ns, self._now_ns(), self.odom_timeout_ns, self.future_ns)
+        if problem == "duplicate" and self.chain is not None:
+            problem = None  # one driver pass dispatches one or two samples under one stamp
         if problem is not None:
             if problem == "duplicate" and self.lockstep:
                 self.outputs.deliver_answer()  # the plant resent a tick: answer again only if undelivered
@@ -313,6 +320,8 @@ class ControllerNode(Node):
             return
         if self.latest_preview is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
             return  # stale reference: the watchdog outputs zero volts
+        if self.chain is not None:
+            return self.chain.control(self, stamp, X)
         preview_stamp, positions, velocities, accelerations = self.latest_preview
         dt = (stamp - preview_stamp) * 1e-9
         self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt), velocities + dt * accelerations,

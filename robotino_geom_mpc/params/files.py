@@ -34,6 +34,7 @@ import yaml
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.params.specs import (
     ALL_SPECS,
+    CHAIN_ACTIVE_SPEC,
     CHAIN_SPECS,
     CONTROL_SPECS,
     ROBOT_SPECS,
@@ -54,7 +55,7 @@ __all__ = [
 ]
 
 _ROBOT_CONTROL = tuple(s.name for s in ALL_SPECS)
-_CHAIN = tuple(s.name for s in CHAIN_SPECS)
+_CHAIN = (CHAIN_ACTIVE_SPEC.name,) + tuple(s.name for s in CHAIN_SPECS)
 
 RCLPY_PARAMETERS: tuple[str, ...] = ("use_sim_time", "start_type_description_service")
 """Parameters rclpy declares in every node (and ``qos_overrides.<topic>...`` for overridable QoS)."""
@@ -136,7 +137,7 @@ def check_parameter_files(paths: Sequence[str | os.PathLike]) -> None:
                 if not _known(name, nodes):
                     hint = _suggestion(name, {p for n in nodes for p in NODE_PARAMETERS[n]} | set(RCLPY_PARAMETERS))
                     raise ParamError(f"unknown parameter '{name}' in {path} (section '{section}'){hint}")
-            for spec in CHAIN_SPECS:
+            for spec in (CHAIN_ACTIVE_SPEC, *CHAIN_SPECS):
                 if spec.name in values:
                     validate_value(spec, values[spec.name], str(path))
             for spec in ALL_SPECS:

@@ -21,6 +21,7 @@ __all__ = [
     "ROBOT_SPECS",
     "CONTROL_SPECS",
     "ALL_SPECS",
+    "CHAIN_ACTIVE_SPEC",
     "CHAIN_SPECS",
     "RobotinoParams",
     "ControlParams",
@@ -158,8 +159,8 @@ CHAIN_SPECS: tuple[ParamSpec, ...] = (
               f"90 deg/s)", "rad/s", 0.01, 100.0, False),
     ParamSpec("chain.motor_timeout_s", float, f"the firmware stops the motors this long after the last "
               f"command ({_CONTROLD})", "s", 0.01, 60.0, False),
-    ParamSpec("chain.speed_floor", str, f"on: the driver raises any non-zero speed below the floor to it "
-              f"({_LOGISTICS}); off: forwarded as is", choices=("on", "off")),
+    ParamSpec("chain.speed_floor", str, f"enabled: the driver raises any non-zero speed below the floor to it "
+              f"({_LOGISTICS}); disabled: forwarded as is", choices=("enabled", "disabled")),
     ParamSpec("chain.speed_floor_translation_m_s", float, f"the driver's floor of a non-zero translation "
               f"component ({_LOGISTICS})", "m/s", 0.0, 1.0, False),
     ParamSpec("chain.speed_floor_rotation_rad_s", float, f"the driver's floor of a non-zero rotation "
@@ -173,6 +174,11 @@ CHAIN_SPECS: tuple[ParamSpec, ...] = (
               "s", 0.0, 1.0, False),
     ParamSpec("chain.link.loss", float, "probability that a message is lost, each direction", "", 0.0, 0.5, False),
 )
+
+CHAIN_ACTIVE_SPEC = ParamSpec(
+    "chain.active", str, "enabled: the plant node behaves as the driver + firmware chain chain.* (realtime, cmd_vel) "
+    "and the controller controls through it (control.chain_controller: reconstructed measurement times, the command "
+    "path predicted, ramp-respecting velocities); disabled: neither", choices=("disabled", "enabled"))
 
 
 def validate_value(spec: ParamSpec, value: Any, where: str = "") -> Any:

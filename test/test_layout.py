@@ -17,7 +17,7 @@ MAX_LINES = 450
 # the modules that may import rclpy when imported: the nodes, the recorder node and the ROS plumbing subpackage
 ALLOWED_PREFIXES = ("robotino_geom_mpc.nodes.", "robotino_geom_mpc.ros.", "robotino_geom_mpc.recording.recorder_node",
                     "robotino_sim_node.plant_node", "robotino_sim_node.lockstep_start",
-                    "robotino_sim_node.outputs")
+                    "robotino_sim_node.outputs", "robotino_sim_node.chain_driver")
 # modules of ros/ that need no ROS at all (decoders of message values, the process launcher, the SHM cleaner)
 PLAIN_ROS_MODULES = ("robotino_geom_mpc.ros.decode", "robotino_geom_mpc.system.processes", "robotino_geom_mpc.system.shm")
 
@@ -59,7 +59,7 @@ def test_only_nodes_and_ros_plumbing_import_rclpy():
     assert _imports_rclpy(["robotino_geom_mpc.nodes.controller_node"]) == {"robotino_geom_mpc.nodes.controller_node": True}
 
 
-CORE = ("errors", "arrays", "scenarios", "params", "model", "geometric", "control", "reference")
+CORE = ("errors", "arrays", "scenarios", "params", "model", "geometric", "control", "reference", "network")
 
 
 def test_the_math_core_never_imports_ros():

@@ -12,7 +12,8 @@ import argparse
 from pathlib import Path
 
 from . import VERBS, UsageError, positive_float, seed_value
-from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_chain_argument, add_scenario_argument, chain_from_args
+from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_chain_argument, add_link_arguments, \
+    add_scenario_argument, chain_from_args, link_from_args
 
 __all__ = ["add_parser", "run"]
 
@@ -49,6 +50,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "(default: Robotino 3 preset)")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_link_arguments(parser)
     add_chain_argument(parser)
     parser.set_defaults(func=run)
     return parser
@@ -65,13 +67,21 @@ def run(args: argparse.Namespace) -> int:
     if chain is not None and args.odometry != "ideal":
         raise UsageError("--chain gives the firmware's odometry: use it with --odometry ideal")
     robot, control = load_params(args.params)
+    link = link_from_args(args)
+    network = ({"link_up": link, "link_down": link, "compensate": not args.no_compensation}
+               if link is not None or args.no_compensation else None)
+    if chain is not None:
+        if network is not None:
+            raise UsageError("--chain has its own link (chain.link.*, set by --chain-set), not --link-* or "
+                             "--no-compensation")
+        network = {"command_interface": "cmd_vel", "chain": chain}
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UsageError(f"cannot create output folder {args.out}: {exc.strerror or exc}") from None
     draws = draw_runs(args.samples, args.seed, ODOMETRY_MODELS if args.odometry == "both" else (args.odometry,))
     result = run_study(args.scenario, robot, control, draws, duration_s=args.duration, workers=args.workers,
-                       settle_time_s=SETTLE_TIME_S, progress=not args.no_progress, chain=chain)
+                       settle_time_s=SETTLE_TIME_S, progress=not args.no_progress, network=network)
     s = write_study(args.out, args.scenario, robot, control, result, duration_s=args.duration,
                     settle_time_s=SETTLE_TIME_S)
     print(f"study {args.scenario}: {s['runs']} runs ({s['failed_runs']} failed), {s['simulated_s']:.4g} s "

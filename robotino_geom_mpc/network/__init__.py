@@ -1,1 +1,1 @@
-"""Networked control: the link model between two hosts (no rclpy)."""
+"""The radio link between the robot and the off-board controller: link emulation and packetized command plans."""

@@ -174,13 +174,10 @@ class ChainController:
             raise ChainControllerError(f"pose and twist must be three finite numbers each, got {pose!r}, {twist!r}")
         now = stamp_s if now_s is None else float(now_s)
         measured = self.clock.update(stamp_s, self._chooser(values[:3]))
-        h, T = self.h, self.chain.driver_period_s
+        h = self.h
         t0 = self.clock.tick_time(0)
         n_m = measured.index * self.ticks_per_sample
-        passes = math.floor((now - stamp_s) / T + 1e-9) + 1
-        forward = stamp_s + passes * T
-        n_a = math.ceil((forward + 0.5 * self.round_trip_s - t0) / h - 1e-9)
-        n_a = max(n_a, n_m + 1)
+        n_a = max(self._apply_tick(now), n_m + 1)
         c, s = math.cos(values[2]), math.sin(values[2])
         v_odom = [c * values[3] - s * values[4], s * values[3] + c * values[4], values[5]]
         setpoints = self._setpoints(n_m, n_a + self.horizon)
@@ -219,6 +216,21 @@ class ChainController:
             if size > limit:
                 out[axes] = v_ref[axes] + departure * (limit / size)
         return out
+
+    def _apply_tick(self, now_s: float) -> int:
+        """The firmware tick a command reaching the driver at `now_s` acts from: forwarded at the driver's next
+        pass (the grid of the stamps), the round trip's down share later, at the next tick."""
+        T, stamp = self.chain.driver_period_s, self.clock.last_stamp_s
+        forward = stamp + (math.floor((now_s - stamp) / T + 1e-9) + 1) * T
+        return math.ceil((forward + 0.5 * self.round_trip_s - self.clock.tick_time(0)) / self.h - 1e-9)
+
+    def note_command(self, now_s: float, twist: tuple[float, float, float]) -> None:
+        """A command someone else sent at `now_s` (a zero twist of the node's refusals or watchdog): the
+        firmware gets it, so the prediction takes it from its tick on. Before the first odometry: nothing."""
+        if self.clock.index < 0:
+            return
+        n_a = self._apply_tick(now_s)
+        self.commands = [cmd for cmd in self.commands if cmd[0] < n_a] + [(n_a, tuple(float(v) for v in twist))]
 
     def _feasible(self, body: tuple[float, float, float], setpoint: tuple[float, float, float]) -> tuple:
         """`body` within the ramps' reach of `setpoint` until the next command, the maxima and the floor's gaps."""

@@ -3,7 +3,10 @@
 With ``chain.active: enabled`` the controller node steps `control.chain_controller.ChainController` (built from
 its ``chain.*``: the preset, or `identify`'s file) on each odometry instead of the paper's MPC, and
 publishes its twist on ``cmd_vel``. The odometry stamps are the driver's dispatch times: two messages of
-one driver pass share a stamp and both are used (the newer sample comes second). The reference at the
+one driver pass share a stamp and both are used (the newer sample comes second), and a stamp older than
+``odom_timeout_s`` is used too (it is a dispatch time; the controller predicts over the delay). Each zero
+twist the node sends (a refused input, its watchdog) is noted in the controller's command model, since the
+firmware gets it as any other command. The reference at the
 future tick times the controller asks for comes from the newest ``reference_preview``: its point nearest
 each time, carried by its velocity and acceleration (second order; the preview spans N Ts, the chain's
 command path reaches about 0.15 s ahead). Times are the stamps' seconds since the first odometry.
@@ -35,7 +38,14 @@ def chain_control(node: Any) -> ChainControl | None:
                              where="the controller's parameters")
     except ChainError as exc:
         raise NodeStartError(str(exc)) from None
-    return ChainControl(chain, node.control.period_s)
+    control = ChainControl(chain, node.control.period_s)
+    send_zero = node.outputs.send_zero
+
+    def zero_noted() -> None:  # the node's zero twists (refusals, watchdog) reach the firmware too
+        control.note_zero(node.get_clock().now().nanoseconds)
+        send_zero()
+    node.outputs.send_zero = zero_noted
+    return control
 
 
 class ChainControl:
@@ -63,6 +73,11 @@ class ChainControl:
             dt = (offset - j * self.preview_period_s)[:, None]
             return positions[j] + velocities[j] * dt + 0.5 * accelerations[j] * dt**2
         return at
+
+    def note_zero(self, now_ns: int) -> None:
+        """A zero twist the node sent at `now_ns` (`ChainController.note_command`)."""
+        if self.epoch_ns is not None:
+            self.controller.note_command(self._seconds(now_ns), (0.0, 0.0, 0.0))
 
     def step(self, stamp_ns: int, now_ns: int, X: np.ndarray, preview: tuple) -> list[float]:
         """The twist (v_x, v_y, theta') in base_link for the odometry X (eq. 2's state) stamped `stamp_ns`.

@@ -120,7 +120,6 @@ class ControllerNode(Node):
         self.lockstep = self.params["mode"] == "lockstep"
         self.period_ns = int(round(self.control.period_s * 1e9))
         self._read_limits()
-        self.chain = chain_control(self)  # chain.active: control through the driver chain (`chain_control`)
 
         try:
             prefix = check_frame_prefix(self.params["frame_prefix"])
@@ -128,6 +127,7 @@ class ControllerNode(Node):
             raise NodeStartError(f"parameter 'frame_prefix': {exc}") from None
         self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS, self._event_values, self.control.horizon,
                                          prefix, self.params["command_interface"])
+        self.chain = chain_control(self)  # chain.active: control through the driver chain (`chain_control`)
         self.enabled = True
         self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
@@ -283,8 +283,8 @@ class ControllerNode(Node):
             self._reject(None, "odom", getattr(exc, "reason", "malformed"), str(exc))
             return
         problem = stamp_problem(stamp, self.last_odom_ns, self._now_ns(), self.odom_timeout_ns, self.future_ns)
-        if problem == "duplicate" and self.chain is not None:
-            problem = None  # one driver pass dispatches one or two samples under one stamp
+        if problem in ("duplicate", "stale") and self.chain is not None:
+            problem = None  # one driver pass dispatches two samples under one stamp; stamps are dispatch times
         if problem is not None:
             if problem == "duplicate" and self.lockstep:
                 self.outputs.deliver_answer()  # the plant resent a tick: answer again only if undelivered

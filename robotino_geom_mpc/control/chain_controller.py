@@ -53,6 +53,7 @@ from robotino_geom_mpc.model.driver_chain import ChainParams, Firmware
 __all__ = ["ChainController", "ChainControllerError"]
 
 
+_BRAKING_SHARE = 0.5  # (3) brakes with half the ramp: the rest takes up the lags the plan does not see
 _CHOOSE_MARGIN_M = 5e-4  # a candidate time must fit the measured pose this much better than the clock's pick
 
 
@@ -212,7 +213,8 @@ class ChainController:
         for axes, ramp in ramps:
             departure = plan[axes] - v_ref[axes]
             size = float(np.linalg.norm(departure))
-            limit = ramp * (math.sqrt(t_d**2 + 2.0 * float(np.linalg.norm(error[axes])) / ramp) - t_d)
+            a = _BRAKING_SHARE * ramp
+            limit = a * (math.sqrt(t_d**2 + 2.0 * float(np.linalg.norm(error[axes])) / a) - t_d)
             if size > limit:
                 out[axes] = v_ref[axes] + departure * (limit / size)
         return out

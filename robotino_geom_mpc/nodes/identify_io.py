@@ -1,7 +1,8 @@
 """`identify --ros`: the robot's driver topics as a `model.chain_identification.RobotIO` (rclpy).
 
 A node ``robotino_identify`` subscribes the driver's odometry (nav_msgs/Odometry, reliable, depth 50: two
-samples of one driver pass arrive together) and publishes geometry_msgs/Twist on its cmd_vel. `poll` spins
+samples of one driver pass arrive together) and publishes geometry_msgs/Twist on its cmd_vel; it starts once
+the driver subscribes that and its odometry flows (`RosRobot.wait_ready`). `poll` spins
 until odometry has arrived and returns the node clock's time with the messages (stamp in seconds, pose
 (x, y, yaw) in odom, twist in base_link); no odometry for `ODOM_WAIT_S` stops the robot and raises
 `IdentifyError`. Leaving the context publishes zero twists and ends rclpy.
@@ -19,6 +20,7 @@ from robotino_geom_mpc.model.chain_identification import IdentifyError
 __all__ = ["ODOM_WAIT_S", "RosRobot", "ros_robot"]
 
 ODOM_WAIT_S = 1.0
+READY_WAIT_S = 15.0  # discovery: the driver's cmd_vel subscription matched and its odometry flowing
 _ZEROS_AT_EXIT = 5
 
 
@@ -57,6 +59,20 @@ class RosRobot:
         messages, self.inbox = self.inbox, []
         return self.node.get_clock().now().nanoseconds * 1e-9, messages
 
+    def wait_ready(self, timeout_s: float = READY_WAIT_S) -> None:
+        """Spin until the driver subscribes our cmd_vel and its odometry arrives; IdentifyError after `timeout_s`
+        (a command published before discovery matched it would be lost: the excitation would seem not to move)."""
+        import rclpy
+
+        deadline = time.monotonic() + timeout_s
+        while not (self.pub.get_subscription_count() > 0 and self.inbox):
+            if time.monotonic() > deadline:
+                raise IdentifyError(f"after {timeout_s:g} s: {self.pub.get_subscription_count()} subscribers of "
+                                    f"{self.pub.topic_name}, {len(self.inbox)} odometry messages on "
+                                    f"{self.odom_topic}; is the driver running?")
+            rclpy.spin_once(self.node, timeout_sec=0.05)
+        self.inbox = []
+
     def send(self, twist: tuple[float, float, float]) -> None:
         """Publish a cmd_vel now."""
         msg = self._twist()
@@ -73,6 +89,7 @@ def ros_robot(odom_topic: str = "odom", cmd_vel_topic: str = "cmd_vel") -> Itera
     node = rclpy.create_node("robotino_identify")
     robot = RosRobot(node, odom_topic, cmd_vel_topic)
     try:
+        robot.wait_ready()
         yield robot
     finally:
         for _ in range(_ZEROS_AT_EXIT):

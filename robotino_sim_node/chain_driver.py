@@ -6,8 +6,8 @@ in real time (the PI loops sampled at ``wheel_pi.rate_hz``): the firmware's 20 m
 ``chain.odometry_rate_hz`` without a stamp, the driver's loop at ``chain.driver_rate_hz`` that dispatches
 it on ``odom`` stamped with the pass's time and forwards each ``cmd_vel`` once (speed floor), the link
 ``chain.link.*`` between them, and the wheels' PI loops (``chain.speed_loop_time_constant_s``). The
-emulation's time t is the steady time since the node's start; a stamp is the node clock at the start
-plus t. A timer every ``_POLL_S`` runs the emulation up to now and publishes what the driver dispatched;
+emulation's time t is the steady time since the node's first poll (not its construction: the passes due
+while it started would come out in one burst); a stamp is the node clock then plus t. A timer every ``_POLL_S`` runs the emulation up to now and publishes what the driver dispatched;
 each pass also publishes ``ground_truth/odom`` (the true pose at the plant's time, stamped with it),
 ``wheel_currents`` (the signed peaks over the ticks since the last), ``applied_voltages`` (their PI
 voltages' mean) and the joint states, as the plant does per period. After ``duration_s`` it writes the
@@ -66,8 +66,8 @@ class ChainDriver:
                                       odometry_noise=(p["odometry_noise.position_m"], p["odometry_noise.yaw_rad"]),
                                       speed_loop_rate_hz=p["wheel_pi.rate_hz"])
         self.late = 0  # driver passes run more than _LATE_S after their time (the host could not keep up)
-        self.started_at = monotonic()
-        self.start_ns = node.get_clock().now().nanoseconds
+        self.started_at: float | None = None  # the first poll: no burst of passes piled up while the node started
+        self.start_ns = 0
         self.published_ticks = 0
         self.dispatched = 0
         self.commands = 0
@@ -87,12 +87,16 @@ class ChainDriver:
             self.node.counts["refused_commands"] += 1
             self.node.get_logger().warn(f"refused cmd_vel {values}: not forwarded", throttle_duration_sec=1.0)
             return
+        if self.started_at is None:
+            return  # before the chain's first instant: nothing to forward it to yet
         self.commands += 1
         self.emulator.cmd_vel(values, max(monotonic() - self.started_at, self.emulator.time_s))
 
     def _poll(self) -> None:
         node, emulator = self.node, self.emulator
         begin = monotonic()
+        if self.started_at is None:
+            self.started_at, self.start_ns = begin, node.get_clock().now().nanoseconds
         now = begin - self.started_at
         duration = node.params["duration_s"]
         if duration > 0.0 and now >= duration:

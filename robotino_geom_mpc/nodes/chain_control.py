@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 
 from robotino_geom_mpc.control.chain_controller import ChainController, ChainControllerError
-from robotino_geom_mpc.model.driver_chain import ChainError, chain_params
+from robotino_geom_mpc.model.driver_chain import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, ChainError, chain_params
 from robotino_geom_mpc.params.specs import CHAIN_ACTIVE_SPEC, CHAIN_SPECS
 from robotino_geom_mpc.ros.parameters import NodeStartError
 
-__all__ = ["ChainControl", "chain_control"]
+__all__ = ["CHAIN_NODE_DEFAULTS", "CHAIN_NODE_SPECS", "ChainControl", "chain_control"]  # the specs for the node
 
 
 def chain_control(node: Any) -> ChainControl | None:

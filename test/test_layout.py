@@ -22,7 +22,7 @@ MAX_LINES = 450
 # the modules that may import rclpy when imported: the nodes, the recorder node and the ROS plumbing subpackage
 ALLOWED_PREFIXES = ("robotino_geom_mpc.nodes.", "robotino_geom_mpc.ros.", "robotino_geom_mpc.recording.recorder_node",
                     "robotino_sim_node.plant_node", "robotino_sim_node.lockstep_start",
-                    "robotino_sim_node.outputs")
+                    "robotino_sim_node.outputs", "robotino_sim_node.chain_driver")
 # modules of ros/ that load no ROS at import (the report reads bags with them): the CDR readers, decoded values
 PLAIN_ROS_MODULES = ("robotino_geom_mpc.ros.cdr", "robotino_geom_mpc.ros.decode")
 

@@ -2,12 +2,14 @@
 
 With ``chain.active: enabled`` the plant node (`plant_node.PlantNode`) hands its command input and its
 measurement timer over to `ChainDriver`, which runs the plant behind `model.chain_emulation.ChainEmulator`
-in real time (the PI loops sampled at ``wheel_pi.rate_hz``): the firmware's 20 ms tick with its ramps, maxima and motor timeout, odometry sampled at
+in real time (the PI loops sampled at ``wheel_pi.rate_hz``): the firmware's 20 ms tick with its ramps, maxima
+and motor timeout, odometry sampled at
 ``chain.odometry_rate_hz`` without a stamp, the driver's loop at ``chain.driver_rate_hz`` that dispatches
 it on ``odom`` stamped with the pass's time and forwards each ``cmd_vel`` once (speed floor), the link
 ``chain.link.*`` between them, and the wheels' PI loops (``chain.speed_loop_time_constant_s``). The
 emulation's time t is the steady time since the node's first poll (not its construction: the passes due
-while it started would come out in one burst); a stamp is the node clock then plus t. A timer every ``_POLL_S`` runs the emulation up to now and publishes what the driver dispatched;
+while it started would come out in one burst); a stamp is the node clock then plus t. A timer every ``_POLL_S``
+runs the emulation up to now and publishes what the driver dispatched;
 each pass also publishes ``ground_truth/odom`` (the true pose at the plant's time, stamped with it),
 ``wheel_currents`` (the signed peaks over the ticks since the last), ``applied_voltages`` (their PI
 voltages' mean) and the joint states, as the plant does per period. After ``duration_s`` it writes the
@@ -39,7 +41,8 @@ _LATE_S = 0.05
 
 def attach_chain(node: Any) -> ChainDriver | None:
     """A `ChainDriver` on `node` (a `PlantNode`) when its ``chain.active`` is on, else None; NodeStartError
-    for a lockstep or voltage plant or a bad ``chain.*`` value (named)."""
+    for a lockstep or voltage plant or a bad ``chain.*`` value (named).
+    """
     if node.params[CHAIN_ACTIVE_SPEC.name] != "enabled":
         return None
     if node.lockstep or node.speed_loop is None:

@@ -11,6 +11,8 @@ from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = [pytest.mark.unit, pytest.mark.slow]
+
 WIFI = {"chain.link.delay_s": 0.01, "chain.link.jitter_s": 0.01, "chain.link.loss": 0.05}
 
 

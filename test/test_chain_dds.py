@@ -1,6 +1,7 @@
 """The chain over DDS: the plant node as driver + firmware (``chain.active``), `identify --ros` against it, and
 the nodes' refusals. Realtime: a host too loaded to run the emulation at wall-clock speed fails these (the plant
-logs its late passes)."""
+logs its late passes).
+"""
 
 import json
 import subprocess
@@ -9,11 +10,13 @@ import sys
 import pytest
 
 from robotino_geom_mpc.model.chain_emulation import ChainEmulator, EmulatedRobot
-from robotino_geom_mpc.model.chain_identification import fit_chain, run_excitation
+from robotino_geom_mpc.control.chain_identification import fit_chain, run_excitation
 from robotino_geom_mpc.model.driver_chain import chain_params
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
+
+pytestmark = pytest.mark.ros
 
 CHAIN = {"mode": "realtime", "command_interface": "cmd_vel", "chain.active": "enabled", "wheel_pi.rate_hz": 200.0}
 
@@ -35,7 +38,8 @@ def test_nodes_refuse_bad_chain_settings_by_name(node, override, name):
 
 def test_identify_over_ros_against_the_chain_plant(tmp_path):
     """`identify --ros` against the plant node's chain over DDS finds what `identify` finds offline on the same
-    emulated chain (PI loops at 200 Hz there: their effective time constant is 21 ms, not the 25 ms of 1 kHz)."""
+    emulated chain (PI loops at 200 Hz there: their effective time constant is 21 ms, not the 25 ms of 1 kHz).
+    """
     delay = 0.01
     chain = chain_params({"chain.link.delay_s": delay})
     robot = load_params()[0]

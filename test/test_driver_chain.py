@@ -14,6 +14,8 @@ from robotino_geom_mpc.model.driver_chain import ChainError, ChainParams, chain_
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def robot():

@@ -8,12 +8,14 @@ import pytest
 
 from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.model.chain_emulation import ChainEmulator, EmulatedRobot
-from robotino_geom_mpc.model.chain_identification import Excitation, IdentifyError, fit_chain, run_excitation
+from robotino_geom_mpc.control.chain_identification import Excitation, IdentifyError, fit_chain, run_excitation
 from robotino_geom_mpc.model.driver_chain import chain_params
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import run_scenario
 from robotino_geom_mpc.params.files import check_parameter_files, load_params, read_parameter_file
+
+pytestmark = [pytest.mark.unit, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,8 @@ from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.offline.chain_loop import run_chain_scenario
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def robot():

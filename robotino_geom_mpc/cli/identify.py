@@ -1,8 +1,8 @@
 """`robotino-geom-mpc identify`: excite the robot through cmd_vel, fit its chain, write the controller's parameters.
 
 Against the emulated chain (default: the plant behind ``--chain NAME`` with ``--chain-set`` overrides) or,
-with ``--ros``, against the driver's topics (``odom``, ``cmd_vel``; `nodes.identify_io`). The excitation
-and the fit are `model.chain_identification`'s; DIR/chain_params.yaml is a ROS 2 parameter file with the
+with ``--ros``, against the driver's topics (``odom``, ``cmd_vel``; `ros.identify_io`). The excitation
+and the fit are `control.chain_identification`'s; DIR/chain_params.yaml is a ROS 2 parameter file with the
 identified ``chain.*`` in a ``robotino_controller`` section (checked by `params.files.check_parameter_files`
 before it is reported), DIR/identify.json the fit. An excitation or fit that fails stops the robot and exits
 with status 2 and the reason.
@@ -64,7 +64,7 @@ def write_chain_file(path: Path, values: dict, comment: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     """Excite, fit, write; returns the exit status."""
-    from robotino_geom_mpc.model.chain_identification import Excitation, IdentifyError, fit_chain, run_excitation
+    from robotino_geom_mpc.control.chain_identification import Excitation, IdentifyError, fit_chain, run_excitation
     from robotino_geom_mpc.model.driver_chain import chain_params
     from robotino_geom_mpc.params.files import check_parameter_files
 
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot create output folder {args.out}: {exc.strerror or exc}") from None
     excitation = Excitation()
     if args.ros:
-        from robotino_geom_mpc.nodes.identify_io import ros_robot
+        from robotino_geom_mpc.ros.identify_io import ros_robot
 
         context = ros_robot(args.odom_topic, args.cmd_vel_topic)
         where = f"the robot on {args.cmd_vel_topic} / {args.odom_topic}"

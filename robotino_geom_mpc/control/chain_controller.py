@@ -221,14 +221,16 @@ class ChainController:
 
     def _apply_tick(self, now_s: float) -> int:
         """The firmware tick a command reaching the driver at `now_s` acts from: forwarded at the driver's next
-        pass (the grid of the stamps), the round trip's down share later, at the next tick."""
+        pass (the grid of the stamps), the round trip's down share later, at the next tick.
+        """
         T, stamp = self.chain.driver_period_s, self.clock.last_stamp_s
         forward = stamp + (math.floor((now_s - stamp) / T + 1e-9) + 1) * T
         return math.ceil((forward + 0.5 * self.round_trip_s - self.clock.tick_time(0)) / self.h - 1e-9)
 
     def note_command(self, now_s: float, twist: tuple[float, float, float]) -> None:
         """A command someone else sent at `now_s` (a zero twist of the node's refusals or watchdog): the
-        firmware gets it, so the prediction takes it from its tick on. Before the first odometry: nothing."""
+        firmware gets it, so the prediction takes it from its tick on. Before the first odometry: nothing.
+        """
         if self.clock.index < 0:
             return
         n_a = self._apply_tick(now_s)

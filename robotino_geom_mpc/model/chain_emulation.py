@@ -48,7 +48,8 @@ class OdometryMessage(NamedTuple):
 
 class TickRecord(NamedTuple):
     """One firmware tick: its time, the true pose at it, the setpoint held after it, the mean PI voltages
-    over the tick and the largest |current| per motor over it (signed like the current at its end)."""
+    over the tick and the largest |current| per motor over it (signed like the current at its end).
+    """
 
     time_s: float
     pose: tuple[float, float, float]
@@ -189,7 +190,7 @@ class ChainEmulator:
 
 
 class EmulatedRobot:
-    """The emulated chain as a `model.chain_identification.RobotIO`: `poll` to the next dispatch, `send` a cmd_vel."""
+    """The emulated chain as a `control.chain_identification.RobotIO`: `poll` to the next dispatch, `send` a cmd_vel."""
 
     def __init__(self, emulator: ChainEmulator) -> None:
         self.emulator = emulator

@@ -30,7 +30,16 @@ from typing import Any
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import CHAIN_ACTIVE_SPEC, CHAIN_SPECS, ParamError, validate_value
 
-__all__ = ["CHAIN_NODE_DEFAULTS", "CHAIN_NODE_SPECS", "CHAIN_PRESETS", "ChainError", "ChainParams", "Firmware", "chain_params", "speed_floor"]
+__all__ = [
+    "CHAIN_NODE_DEFAULTS",
+    "CHAIN_NODE_SPECS",
+    "CHAIN_PRESETS",
+    "ChainError",
+    "ChainParams",
+    "Firmware",
+    "chain_params",
+    "speed_floor",
+]
 
 
 class ChainError(RobotinoError, ValueError):

@@ -44,7 +44,6 @@ from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.scenarios import get_scenario
-from robotino_geom_mpc.model.driver_chain import ChainParams
 from robotino_geom_mpc.offline.simulation import run_scenario
 
 __all__ = [

@@ -35,13 +35,8 @@ from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.params.rcl_yaml import NO_VALUE, RclFileError, rcl_parameters
 from robotino_geom_mpc.params.specs import (
     ALL_SPECS,
-<<<<<<< HEAD
-=======
     CHAIN_ACTIVE_SPEC,
     CHAIN_SPECS,
-    CONTROL_SPECS,
-    ROBOT_SPECS,
->>>>>>> chain26
     ControlParams,
     ParamError,
     RobotinoParams,

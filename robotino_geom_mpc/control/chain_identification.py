@@ -1,7 +1,7 @@
 """Identify the driver chain from a short excitation through cmd_vel: dead time, ramps, speed-loop time constant.
 
 `run_excitation` drives a robot (anything with `RobotIO`'s two methods: the emulated chain here, the driver's
-topics in `nodes.identify_io`) through `Excitation`: per axis a step to a moderate speed (0.25 m/s, 1 rad/s),
+topics in `ros.identify_io`) through `Excitation`: per axis a step to a moderate speed (0.25 m/s, 1 rad/s),
 commanded with a bounded acceleration (1 m/s^2, 6 rad/s^2) that the firmware's ramps, if slower, limit;
 a small probe step (within one tick's ramp, so the speed loop alone shapes the response); back to rest.
 About 6.5 s, every command sent once per odometry dispatch, zero at the end. After each plateau it checks

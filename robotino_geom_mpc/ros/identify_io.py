@@ -1,4 +1,4 @@
-"""`identify --ros`: the robot's driver topics as a `model.chain_identification.RobotIO` (rclpy).
+"""`identify --ros`: the robot's driver topics as a `control.chain_identification.RobotIO` (rclpy).
 
 A node ``robotino_identify`` subscribes the driver's odometry (nav_msgs/Odometry, reliable, depth 50: two
 samples of one driver pass arrive together) and publishes geometry_msgs/Twist on its cmd_vel; it starts once
@@ -15,7 +15,7 @@ import time
 from contextlib import contextmanager
 from typing import Iterator
 
-from robotino_geom_mpc.model.chain_identification import IdentifyError
+from robotino_geom_mpc.control.chain_identification import IdentifyError
 
 __all__ = ["ODOM_WAIT_S", "RosRobot", "ros_robot"]
 
@@ -61,7 +61,8 @@ class RosRobot:
 
     def wait_ready(self, timeout_s: float = READY_WAIT_S) -> None:
         """Spin until the driver subscribes our cmd_vel and its odometry arrives; IdentifyError after `timeout_s`
-        (a command published before discovery matched it would be lost: the excitation would seem not to move)."""
+        (a command published before discovery matched it would be lost: the excitation would seem not to move).
+        """
         import rclpy
 
         deadline = time.monotonic() + timeout_s

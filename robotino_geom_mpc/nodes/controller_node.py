@@ -39,9 +39,8 @@ one used (None when it is exactly one period, and after a (re)start).
 
 Time: the stamps of the inputs; in realtime the node clock (``use_sim_time``
 honoured) is read once per input to check its stamp. The watchdog counts the
-node clock under ``use_sim_time`` (read at start), steady time otherwise.
-
-Frames: a preview not in ``<frame_prefix>odom`` is refused (reason ``frame``, naming both frames).
+node clock under ``use_sim_time`` (read at start), steady time otherwise. Frames: a preview not in
+``<frame_prefix>odom`` is refused (reason ``frame``, naming both frames).
 
 Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagnostic naming the reason).
 

@@ -5,9 +5,10 @@
 what they send it: ``wheel_voltages`` / ``cmd_vel`` and the plans ``wheel_voltage_plan`` / ``cmd_vel_plan``.
 Per direction: ``delay_s`` (fixed part of the one-way delay), ``jitter_s`` (plus a uniform draw in
 [0, jitter_s] per packet), ``loss`` (long-run loss probability, Gilbert-Elliott bursts), ``burst_length``
-(mean loss-burst length in packets), ``duplicate`` (probability of a second copy); ``link.seed`` seeds both
-directions (up: the seed, down: the seed + 1). All zero: no link (the messages go out as before). A value out of
-range is refused with its name (`link_problem`, the `SpecParameters` check).
+(mean loss-burst length in packets), ``duplicate`` (probability of a second copy). The plant's ``seed`` seeds
+both directions as the offline loop does (`offline.networked`: up ``seed + 1``, down ``seed + 2``). All zero: no
+link (the messages go out as before). A value out of range is refused with its name (`link_problem`, the
+`SpecParameters` check).
 """
 
 from __future__ import annotations
@@ -35,14 +36,10 @@ _WHAT = {"up": "Link robot -> off-board (everything the plant publishes)",
 
 LINK_SPECS: tuple[ParamSpec, ...] = tuple(
     ParamSpec(f"link.{way}.{suffix}", float, f"{_WHAT[way]}: {text}", unit, low, high, False)
-    for way in DIRECTIONS for suffix, _, text, unit, low, high in _FIELDS
-) + (ParamSpec("link.seed", int, "Seed of the link's draws (up: seed, down: seed + 1)", "", 0, 2**31 - 2, False),)
+    for way in DIRECTIONS for suffix, _, text, unit, low, high in _FIELDS)
 
-LINK_DEFAULTS: dict[str, Any] = {
-    **{f"link.{way}.{suffix}": (1.0 if suffix == "burst_length" else 0.0)
-       for way in DIRECTIONS for suffix, *_ in _FIELDS},
-    "link.seed": 0,
-}
+LINK_DEFAULTS: dict[str, Any] = {f"link.{way}.{suffix}": (1.0 if suffix == "burst_length" else 0.0)
+                                  for way in DIRECTIONS for suffix, *_ in _FIELDS}
 
 
 def link_params(values: dict[str, Any], way: str) -> LinkParams:

@@ -33,12 +33,12 @@ class Radio:
     up, down
         The directions' parameters.
     seed
-        Up uses `seed`, down `seed + 1`.
+        The run's seed: up uses `seed + 1`, down `seed + 2` (as `offline.networked`).
     """
 
     def __init__(self, node: Node, up: LinkParams, down: LinkParams, seed: int) -> None:
         self.node = node
-        self.links = {"up": Link(up, seed), "down": Link(down, seed + 1)}
+        self.links = {"up": Link(up, seed + 1), "down": Link(down, seed + 2)}
         self.queue: list[tuple[float, int, Callable[[], None]]] = []
         self._order = itertools.count()
         self.timer = node.create_timer(_IDLE_NS * 1e-9, self._deliver, clock=Clock(clock_type=ClockType.STEADY_TIME))

@@ -9,8 +9,8 @@ reproduces the offline loop with the same link:
 1. /clock (not over the link: it is the simulation's time), then the tick's messages as one radio packet
    (`_measure_bundle`: the ``command_applied`` reports since the last packet, odom, the currents, the ground
    truth, joint_states, /tf) sent up at t_k; the packets due by t_k are published in order, each with its
-   reports first, acknowledged by their readers before its odometry goes out (the controller has the reports
-   before the odometry, as the offline controller takes them). The controller answers each odometry newer than
+   reports first (the controller takes them before the odometry, as the offline controller does: one
+   participant's samples reach another in the order they were written). The controller answers each odometry newer than
    every one before it (`SimLink.answers_due`); with none due the plant goes on at once (a lost or late
    odometry: no answer is waited for).
 2. each answer (a plan, or a plain command) is sent down at t_k; once all are there:
@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S
-from robotino_geom_mpc.ros.qos import publish_acknowledged, wait_acknowledged
+from robotino_geom_mpc.ros.qos import publish_acknowledged
 from robotino_geom_mpc.ros.spin import monotonic
 from robotino_sim_node.command_hold import MAX_CHUNK
 
@@ -55,15 +55,10 @@ class PlantNetwork:
         bundle, self.bundle = self.bundle, None
         return bundle
 
-    def _publish_bundle(self, bundle: list, lockstep: bool) -> None:
-        """A delivered packet: the reports first (lockstep: acknowledged, so the controller has them before the
-        odometry), then the measurements."""
-        reports = [item for item in bundle if item[0] is self.applied_pub]
-        for pub, data in reports:
-            publish_acknowledged(self, pub, data)
-        if reports and lockstep:
-            wait_acknowledged(self, [self.applied_pub], self.params["lockstep_resend_s"])
-        for pub, data in bundle[len(reports):]:
+    def _publish_bundle(self, bundle: list) -> None:
+        """A delivered packet, in order: the reports, then the measurements (one participant's samples reach
+        another in the order they were written: the controller takes the reports before the odometry)."""
+        for pub, data in bundle:
             publish_acknowledged(self, pub, data)
 
     def _network_tick(self, fresh: bool) -> None:
@@ -84,7 +79,7 @@ class PlantNetwork:
         self.delivered = self.sim_link.up.due(t_ns * 1e-9)
         self.expected, self.answers = self.sim_link.answers_due([s for s, _ in self.delivered]), 0
         for _, bundle in self.delivered:
-            self._publish_bundle(bundle, lockstep=True)
+            self._publish_bundle(bundle)
 
     def _network_run(self) -> None:
         """Publish ticks until one has an answer due (or the pace holds the next back, or the run ends)."""

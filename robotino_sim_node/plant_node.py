@@ -176,7 +176,7 @@ class PlantNode(PlantNetwork, Node):
         self.applied_pub = self.create_publisher(JointTrajectory, "command_applied", qos) if self.plans else None
         if self.plans is not None:
             self.command_sub = self.create_subscription(self.plans.msg_type, self.plans.topic, self._on_plan,
-                                                        CONTROL_QOS)
+                                                        qos)  # lockstep: every answer of a tick is kept
         elif self.speed_loop is None:
             self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command,
                                                         CONTROL_QOS, raw=True)
@@ -444,7 +444,7 @@ class PlantNode(PlantNetwork, Node):
         if self.radio is not None:  # the robot clock of the grid point; the tick's packet leaves over the link
             stamp_ns = int(round((self.clock_offset_s + grid_time) * 1e9))
             bundle = self._measure_bundle(divmod(stamp_ns, 1_000_000_000))
-            self.radio.send("up", lambda: self._publish_bundle(bundle, lockstep=False), stamp_ns * 1e-9)
+            self.radio.send("up", lambda: self._publish_bundle(bundle), stamp_ns * 1e-9)
         else:
             stamp_ns = clock_ns - int((now - grid_time) * 1e9)
             self._publish_measurements(divmod(stamp_ns, 1_000_000_000), fresh=True)

@@ -17,11 +17,11 @@ from __future__ import annotations
 from typing import Any
 
 from rclpy.node import Node
-from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
+from trajectory_msgs.msg import JointTrajectory
 
 from robotino_geom_mpc.network.plan import AppliedCommand, PlanBuffer
 from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, applied_message, plan_of_message, \
-    received_message
+    plan_type, received_message
 
 __all__ = ["PlantPlans"]
 
@@ -44,7 +44,7 @@ class PlantPlans:
     def __init__(self, node: Node, interface: str, period_s: float) -> None:
         self.node, self.interface, self.period_s = node, interface, period_s
         self.topic = PLAN_TOPICS[interface]
-        self.msg_type = MultiDOFJointTrajectory if interface == "cmd_vel" else JointTrajectory
+        self.msg_type = plan_type(interface)
         self.buffer = PlanBuffer()
         self.counts = {"refused_plans": 0, "ignored_plans": 0, "exhausted_periods": 0}
         self.reports: list[JointTrajectory] = []  # for the next up-link bundle, in order

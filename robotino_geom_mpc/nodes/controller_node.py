@@ -85,12 +85,13 @@ from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_pre
 from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
     InputCounters, closed_loop_problem, reference_jump
 from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
+from robotino_geom_mpc.nodes.controller_plans import LINK_KEYS, ControllerPlans
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
     stamp_problem, state_of_odometry, time_ns
 from robotino_geom_mpc.ros.messages import odometry_layout, preview_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CONTROL_QOS
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, LOCKSTEP_PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 
 __all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
@@ -102,6 +103,7 @@ _WAIT_LOG_PERIOD_S = 5.0  # throttle of the "waiting for ..." log
 
 _EVENT_KEYS = ("watchdog", *InputCounters.KEYS, "blend_remaining_s", "blend_engagements")
 _ROBOT_CONTROL = frozenset(s.name for s in ALL_SPECS)
+REPORT_WINDOW_S = 2.0  # plans: a command_applied report further from the newest odometry stamp is refused
 
 
 class ControllerNode(Node):
@@ -121,16 +123,21 @@ class ControllerNode(Node):
             prefix = check_frame_prefix(self.params["frame_prefix"])
         except DescriptionError as exc:
             raise NodeStartError(f"parameter 'frame_prefix': {exc}") from None
-        self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS, self._event_values, self.control.horizon,
-                                         prefix, self.params["command_interface"])
+        self.plans = ControllerPlans(self, self.robot, self.control, self.params["command_interface"], self.lockstep,
+                                     REPORT_WINDOW_S) if self.params["plans"] else None
+        self.preview_points = self.control.horizon if self.plans is None else self.plans.preview_length
+        self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS + (LINK_KEYS if self.plans else ()),
+                                         self._event_values, self.control.horizon, prefix,
+                                         self.params["command_interface"])
         self.enabled = True
         self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
-        self.preview_layout = preview_layout(self.control.period_s, self.control.horizon, prefix)
-        self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, CONTROL_QOS, raw=True)
-        self.preview_sub = self.create_subscription(
-            MultiDOFJointTrajectory, "reference_preview", self._on_preview, CONTROL_QOS, raw=True
-        )
+        self.preview_layout = preview_layout(self.control.period_s, self.preview_points, prefix)
+        # lockstep plans: the previews of the ticks before an odometry's late delivery are all kept
+        qos = LOCKSTEP_PUBLISH_QOS if self.plans is not None and self.lockstep else CONTROL_QOS
+        self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, qos, raw=True)
+        self.preview_sub = self.create_subscription(MultiDOFJointTrajectory, "reference_preview", self._on_preview,
+                                                    qos, raw=True)
 
         self.theta = 0.0  # last measured (continuous) yaw
         # lockstep: stamp [ns] -> (positions, velocities, accelerations), each (N + 1, 3)
@@ -144,7 +151,7 @@ class ControllerNode(Node):
         self.start_time = monotonic()
         self.watchdog_state = "waiting"
         self.counters = InputCounters()
-        self.blend = BlendEngagement(self.control.period_s, self.control.horizon)
+        self.blend = BlendEngagement(self.control.period_s, self.preview_points)
         self.watchdog = self._start_watchdog()
         self.get_logger().info(f"controller ready ({self.params['mode']}, mode {self.control.mode}, "
                                f"N = {self.control.horizon}, Ts = {self.control.period_s:g} s)")
@@ -173,6 +180,8 @@ class ControllerNode(Node):
         if _ROBOT_CONTROL & changed.keys():
             self.robot, self.control = self.params.robot_control()
             self.controller = MotionController(self.robot, self.control)
+            if self.plans is not None:
+                self.plans.rebuild(self.robot, self.control)
             self.blend.request("parameters")  # the new controller starts from u(k-1) = 0: blend from the state
             self.get_logger().info(f"parameters {sorted(changed)} changed: controller rebuilt, bumpless restart")
 
@@ -221,7 +230,7 @@ class ControllerNode(Node):
                 msg = _read_preview(data)
                 sec, nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec
                 stamp = time_ns(sec, nanosec)  # first: a wrongly sized preview is refused for its tick
-                values = (sec, nanosec, *preview_point_values(msg, self.control.horizon))
+                values = (sec, nanosec, *preview_point_values(msg, self.preview_points))
             else:
                 stamp = time_ns(values[0], values[1])
             latest = self.latest_preview
@@ -331,9 +340,11 @@ class ControllerNode(Node):
             self.outputs.diagnose(stamp, DiagnosticStatus.OK, "disabled")
             return
         reason = self.blend.due(preview_stamp)
-        if reason == "start" and self.lockstep and stamp == 0:
+        first = self.previews.get(0) if self.plans is not None else None  # over a link tick 0 may be lost
+        if reason == "start" and self.lockstep and (stamp == 0 or isinstance(first, tuple)):
             self.blend.reason = reason = None  # t = 0 of a lockstep run: robot and reference start together
-            self.controller.start_at(*positions[0].tolist())
+            start = (positions if stamp == 0 else first[0])[0].tolist()
+            (self.controller if self.plans is None else self.plans.controller).start_at(*start)
         try:
             if reason is not None:
                 self._engage(stamp, X, positions[0], velocities[0], accelerations[0], reason)
@@ -344,6 +355,9 @@ class ControllerNode(Node):
             offsets = self.blend.offsets(stamp)
             if offsets is not None:
                 preview = preview + offsets
+            if self.plans is not None:
+                self._plan(stamp, X, preview, X[0::2] - positions[0], preview_stamp)
+                return
             out = self.controller.step(X, preview, dt_s)
         except (ControllerInputError, BlendError) as exc:
             self._reject(stamp, "input", "controller", str(exc))
@@ -368,10 +382,27 @@ class ControllerNode(Node):
             f"{self.control.period_s if dt_s is None else dt_s:.9g}"]
         self.outputs.diagnose(stamp, level, "tracking", tracking)
 
+    def _plan(self, stamp: int, X: np.ndarray, preview: np.ndarray, error: np.ndarray, preview_stamp: int) -> None:
+        """Plans: the plan of this odometry published, its first entry as the plain command (none for an
+        odometry not newer than one taken: it came reordered or twice over the link)."""
+        begin = monotonic()
+        plan = self.plans.plan(stamp, X, preview)
+        if plan is None:
+            self._drop(stamp, "odom", "old")
+            return
+        self.last_odom_ns = stamp
+        self.outputs.answer(stamp, list(plan.entries[0]))
+        if self.outputs.diagnosing():
+            self.outputs.diagnose(stamp, DiagnosticStatus.OK, "tracking", [f"{e:.9g}" for e in error.tolist()] + [
+                f"{(monotonic() - begin) * 1e3:.4f}", "false", "false", str(preview_stamp),
+                f"{self.control.period_s:.9g}"])
+
     def _engage(self, stamp: int, X: np.ndarray, position: np.ndarray, velocity: np.ndarray,
                 acceleration: np.ndarray, reason: str) -> None:
         """Bumpless (re)start: reset the controller and blend the reference in from the measured state."""
         self.controller.reset()
+        if self.plans is not None:
+            self.plans.controller.reset()
         blend = self.blend.engage(stamp, X, position, velocity, acceleration, *self.blend_limits)
         if self.blend.blend is not None:
             limited = " (limit raised: the reference's own acceleration needs more)" if blend.limited else ""
@@ -382,7 +413,7 @@ class ControllerNode(Node):
     def _event_values(self, stamp: int) -> list[str]:
         """The values of `_EVENT_KEYS` at `stamp` [ns] (every diagnostic carries them)."""
         return [self.watchdog_state, *self.counters.values(), f"{self.blend.remaining_s(stamp):.4f}",
-                str(self.blend.engagements)]
+                str(self.blend.engagements), *(self.plans.values() if self.plans is not None else ())]
 
     # watchdog -----------------------------------------------------------------------------------
     def _log_wait(self, now: float) -> None:

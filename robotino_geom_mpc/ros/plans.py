@@ -39,7 +39,7 @@ from robotino_geom_mpc.description.urdf import BASE_LINK, JOINT_NAMES
 from robotino_geom_mpc.network.plan import CommandPlan
 
 __all__ = ["AppliedReport", "PLAN_TOPICS", "PlanMessageError", "TWIST_AXES", "applied_message", "plan_message",
-           "plan_of_message", "received_message", "report_of_message"]
+           "plan_of_message", "plan_type", "received_message", "report_of_message"]
 
 PLAN_TOPICS = {"voltages": "wheel_voltage_plan", "cmd_vel": "cmd_vel_plan"}
 TWIST_AXES = ("base_link_x", "base_link_y", "base_link_yaw")  # command_applied's names of a twist's values
@@ -64,7 +64,9 @@ class AppliedReport(NamedTuple):
 
 
 def _seconds(sec: int, nanosec: int) -> float:
-    return sec + nanosec * 1e-9
+    """A stamp in seconds as the nodes compute it from integer nanoseconds (ns * 1e-9: a plan's basis is a key
+    that must compare equal to the controller's own)."""
+    return (sec * 1_000_000_000 + nanosec) * 1e-9
 
 
 def _stamp(time_s: float) -> tuple[int, int]:
@@ -75,6 +77,11 @@ def _stamp(time_s: float) -> tuple[int, int]:
 def _duration(seconds: float) -> Duration:
     sec, nanosec = _stamp(seconds)
     return Duration(sec=sec, nanosec=nanosec)
+
+
+def plan_type(interface: str) -> type:
+    """The plan message type of `interface` (``voltages`` or ``cmd_vel``)."""
+    return MultiDOFJointTrajectory if interface == "cmd_vel" else JointTrajectory
 
 
 def plan_message(plan: CommandPlan, interface: str) -> JointTrajectory | MultiDOFJointTrajectory:

@@ -109,3 +109,13 @@ def test_bad_settings_are_refused():
         PlanBuffer(max_age_s=0.0)
     with pytest.raises(PlanError, match="max_plans"):
         PlanBuffer(max_plans=0)
+
+
+def test_a_plan_overtaken_by_one_not_started_yet_still_runs_until_that_one_starts():
+    buffer = PlanBuffer()
+    buffer.offer(plan(0, 2), 2 * TS)
+    assert buffer.offer(plan(2, 3), 3 * TS) is None  # first entry at tick 5
+    assert buffer.offer(plan(1, 3), 3 * TS) is None  # overtaken on the way; covers ticks 4 .. 7
+    assert [applied(buffer, k) for k in (3, 4, 5, 6)] == [(0, 1), (1, 0), (2, 0), (2, 1)]
+    assert buffer.offer(plan(1, 3), 6 * TS) == "duplicate"
+    assert buffer.offer(CommandPlan(0.5 * TS, plan(1, 3).times_s, plan(1, 3).entries, TS), 6 * TS) == "older"

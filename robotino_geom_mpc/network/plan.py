@@ -7,7 +7,8 @@ robot time at which it starts to apply. The robot keeps them in a
 `PlanBuffer` and, once per control period at its own time t, applies the
 entry of the period containing t from the newest plan (largest basis) that
 covers t. A late or lost plan is so covered by the previous one; a
-duplicate or an older plan is ignored; when no plan covers t any more the
+duplicate, or a plan older than one already running (which could never be
+chosen), is ignored; when no plan covers t any more the
 robot gets no command (`PlanBuffer.command_at` returns None): zero volts or
 zero twist, as the watchdog gives without plans.
 
@@ -118,7 +119,8 @@ class PlanBuffer:
     max_age_s
         A plan whose basis is more than this behind the robot's time is refused (``past``) [s].
     max_plans
-        Plans held at most (the oldest are dropped first).
+        Plans held at most. A plan is dropped once used up or outlasted by a newer plan that has started;
+        beyond this many (plans sent far ahead of their first entry), the oldest go first.
 
     Attributes
     ----------
@@ -130,7 +132,7 @@ class PlanBuffer:
         `command_at` calls that found no plan covering their time although a plan had been taken.
     """
 
-    def __init__(self, max_future_s: float = 0.5, max_age_s: float = 1.0, max_plans: int = 16) -> None:
+    def __init__(self, max_future_s: float = 0.5, max_age_s: float = 1.0, max_plans: int = 256) -> None:
         for name, value in (("max_future_s", max_future_s), ("max_age_s", max_age_s)):
             if not (math.isfinite(value) and value > 0.0):
                 raise PlanError(f"{name} must be a positive number of seconds, got {value!r}")
@@ -154,7 +156,11 @@ class PlanBuffer:
     def offer(self, plan: CommandPlan, now_s: float) -> str | None:
         """Take `plan` received at robot time `now_s`; None when taken, else the reason of `REFUSALS`.
 
-        A refused plan changes nothing but its counter; the plans held stay.
+        A plan older than the newest held is taken only while it can still be chosen: a plan overtaken on
+        the link by a newer one that has not started yet still covers the periods before that one's first
+        entry (what the controller assumed when it sent the newer one). It is refused as ``older`` once a
+        newer plan that has started outlasts it, and as ``duplicate`` when a plan of its basis is held or
+        was the newest taken. A refused plan changes nothing but its counter; the plans held stay.
         """
         reason = plan.problem()
         if reason is None:
@@ -162,18 +168,30 @@ class PlanBuffer:
                 reason = "future"
             elif plan.basis_s < now_s - self.max_age_s:
                 reason = "past"
-            elif plan.basis_s == self._newest:
+            elif plan.basis_s == self._newest or any(p.basis_s == plan.basis_s for p in self._plans):
                 reason = "duplicate"
-            elif plan.basis_s < self._newest:
+            elif plan.basis_s < self._newest and plan not in self._useful(now_s, plan):
                 reason = "older"
         if reason is not None:
             self.refused[reason] += 1
             return reason
-        self._newest = plan.basis_s
-        live = [p for p in self._plans if p.end_s > now_s + TIME_TOLERANCE_S]  # drop the used-up plans
-        self._plans = live[len(live) - self.max_plans + 1:] + [plan] if self.max_plans > 1 else [plan]
+        self._newest = max(self._newest, plan.basis_s)
+        useful = self._useful(now_s, plan)
+        self._plans = useful[max(len(useful) - self.max_plans, 0):]
         self.accepted += 1
         return None
+
+    def _useful(self, now_s: float, extra: CommandPlan | None = None) -> list[CommandPlan]:
+        """The plans held (and `extra`), oldest basis first, that a time from `now_s` on can still choose: not
+        used up, not outlasted by a newer plan that has started."""
+        plans = sorted(self._plans + ([extra] if extra is not None else []), key=lambda p: p.basis_s)
+        out, started_end = [], -math.inf  # the latest end among the newer plans already started
+        for plan in reversed(plans):
+            if plan.end_s > now_s + TIME_TOLERANCE_S and plan.end_s > started_end + TIME_TOLERANCE_S:
+                out.append(plan)
+            if plan.times_s[0] <= now_s + TIME_TOLERANCE_S:
+                started_end = max(started_end, plan.end_s)
+        return out[::-1]
 
     def command_at(self, t_s: float) -> AppliedCommand | None:
         """The entry of the period containing `t_s` from the newest plan that covers it; None if none does."""

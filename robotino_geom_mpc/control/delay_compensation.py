@@ -1,0 +1,396 @@
+"""Delay-compensated, packetized MPC: from an aged odometry, a plan of commands that act at known robot times.
+
+An off-board controller sees each odometry late and its commands act later
+still. `DelayCompensatingController` wraps `motion_controller.MotionController`
+(which is unchanged; without a link it is used as it is): for the odometry
+stamped t_m (robot clock) it
+
+1. filters the measured pose at t_m (`estimator.OdometryFilter`, the time
+   constant of ``control.odometry_filter_time_constant_s``; dt from stamps);
+2. predicts the state at the plan's first action time t_a = t_m + lead Ts
+   through the commands the robot applies over [t_m, t_a): those of the plans
+   already sent, chosen as the robot's `network.plan.PlanBuffer` chooses;
+3. rolls the MotionController out over M = ``control.plan_length`` periods
+   from the predicted state, each step from the state predicted under the
+   previous one, and returns the `network.plan.CommandPlan` of the M commands
+   (voltages; with ``command_interface="cmd_vel"`` the twists of
+   `MotionController.next_velocity`), entry j acting from t_a + j Ts.
+
+The model of steps 2 and 3 is the MPC's own per-axis model, eq. (49):
+x(k+1) = A_d x(k) + B_d u(k) in the odom frame, u(k) the accelerations the
+controller meant by the command (`ControlOutput.u` as applied: scaled by the
+current limit, or those of clipped voltages). It is the model the MPC already
+predicts with (eq. 50), so a plan made from a predicted state is the plan the
+undelayed loop would make from that state (exact for lead 0), costs six
+multiply-adds per period, and needs no motor currents, which no odometry
+measures; the drives' current dynamics (L/R, 1.5 ms on a Robotino 3) and the
+heading's turn within a period are what it leaves out (the inverse drive
+already aims the period-mean current at u). A period for which the robot had
+no plan (exhaustion: zero volts) is predicted with u = 0.
+
+What the robot applies is not guessed: it reports per period what it applied
+(`report_applied`) and per plan when it received it (`report_receipt`), in its
+own clock. Plans are then known received (from their receipt), known not
+received by a time (a period at or after their first entry ran an older plan
+or none: taken as lost), or in flight (assumed to arrive by their first
+entry, which the lead makes true for its quantile of the round trips). The
+round trip of a plan, receipt - basis, needs no clock but the robot's; the
+lead is ``control.lead_quantile`` of the recent round trips in periods,
+rounded up, within [``control.lead_min_periods``, ``control.lead_max_periods``].
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from robotino_geom_mpc.control.estimator import OdometryFilter, filter_gain
+from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController
+from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S, CommandPlan
+from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+
+__all__ = ["DelayCompensatingController", "LinkStatistics", "ROUND_TRIP_WINDOW"]
+
+ROUND_TRIP_WINDOW = 200
+"""Round trips the lead's quantile is taken over (the most recent ones: 2 s of plans at 100 Hz)."""
+
+
+@dataclass
+class _Sent:
+    """A plan as the controller sent it, with the accelerations it meant and what is known of its arrival."""
+
+    plan: CommandPlan
+    u: list[list[float]]
+    end_currents: list[list[float]]
+    received_s: float | None = None  # the robot's receipt time, once reported
+    missed_by_s: float = -math.inf  # a reported period at or after its first entry ran without it
+
+    def arrived_by(self, t_s: float) -> bool:
+        """Whether, as far as the reports say, the robot held this plan at its time t_s."""
+        if self.received_s is not None:
+            return self.received_s <= t_s + TIME_TOLERANCE_S
+        return self.missed_by_s == -math.inf  # in flight: on time; missed once: lost
+
+
+@dataclass(frozen=True)
+class LinkStatistics:
+    """The link as the controller sees it, from the robot's stamps and reports (robot clock).
+
+    Attributes
+    ----------
+    round_trip_mean_s, round_trip_jitter_s, round_trip_quantile_s
+        Mean, standard deviation and the lead's quantile of the recent round trips (receipt - basis) [s].
+    lead_periods
+        The lead of the last plan [periods].
+    plans_sent, plans_received, plans_lost
+        Plans sent; reported received; known not received (taken as lost).
+    odometry_received, odometry_missing, odometry_stale
+        Odometries taken; stamps skipped between them (lost on the up-link); odometries older than one taken.
+    exhausted_periods
+        Reported periods in which the robot had no plan (zero command).
+    """
+
+    round_trip_mean_s: float
+    round_trip_jitter_s: float
+    round_trip_quantile_s: float
+    lead_periods: int
+    plans_sent: int
+    plans_received: int
+    plans_lost: int
+    odometry_received: int
+    odometry_missing: int
+    odometry_stale: int
+    exhausted_periods: int
+
+    @property
+    def plan_loss(self) -> float:
+        """Fraction of the plans with a known fate that did not arrive."""
+        known = self.plans_received + self.plans_lost
+        return self.plans_lost / known if known else 0.0
+
+
+@dataclass
+class _Counters:
+    odometry: int = 0
+    sent: int = 0
+    received: int = 0
+    missing: int = 0
+    stale: int = 0
+    exhausted: int = 0
+    lost: int = 0
+    round_trips: deque = field(default_factory=lambda: deque(maxlen=ROUND_TRIP_WINDOW))
+
+
+class DelayCompensatingController:
+    """The plan-making controller of an off-board link: predicts to the time of action, rolls the MPC out.
+
+    Parameters
+    ----------
+    robot
+        The controller's model of the robot.
+    control
+        As for `MotionController`, plus ``plan_length`` (M), ``lead_min_periods``, ``lead_max_periods``
+        and ``lead_quantile``.
+    command_interface
+        ``voltages`` (entries are wheel voltages [V]) or ``cmd_vel`` (body twists in base_link).
+
+    Notes
+    -----
+    `plan` needs the reference at t_m + i Ts for i = 1 .. `preview_length` (the last rollout step's
+    horizon at the largest lead). Cost per odometry: M `MotionController.step` calls plus the
+    prediction's lead + M model steps (eq. 49).
+    """
+
+    def __init__(self, robot: RobotinoParams, control: ControlParams, command_interface: str = "voltages") -> None:
+        if command_interface not in ("voltages", "cmd_vel"):
+            raise ControllerInputError(f"command_interface must be 'voltages' or 'cmd_vel', got {command_interface!r}")
+        if control.lead_max_periods < control.lead_min_periods:
+            raise ControllerInputError(f"control.lead_max_periods ({control.lead_max_periods}) must be >= "
+                                       f"control.lead_min_periods ({control.lead_min_periods})")
+        self.control = control
+        self.command_interface = command_interface
+        self.period_s = float(control.period_s)
+        self.plan_length = int(control.plan_length)
+        self.horizon = int(control.horizon)
+        self.inner = MotionController(robot, replace(control, odometry_filter_time_constant_s=0.0))
+        tau = float(control.odometry_filter_time_constant_s)
+        self.estimator = OdometryFilter(self.period_s, tau, control.odometry_twist) if tau > 0.0 else None
+        self._period_mean = control.odometry_twist == "period_mean"
+        self._A = self.inner.mpc.A_d.tolist()
+        self._B = self.inner.mpc.B_d.tolist()
+        self.reset()
+
+    @property
+    def preview_length(self) -> int:
+        """Rows of reference `plan` needs: at t_m + Ts .. t_m + (lead_max + M - 1 + N) Ts."""
+        return int(self.control.lead_max_periods) + self.plan_length - 1 + self.horizon
+
+    def reset(self) -> None:
+        """Forget plans, reports, round trips and the filter (robot at rest, drives off)."""
+        self.inner.reset()
+        if self.estimator is not None:
+            self.estimator.reset()
+        self._sent: dict[float, _Sent] = {}
+        self._applied: dict[int, tuple[float, int] | None] = {}  # period (in periods) -> (basis, index) or none
+        self._last_stamp: float | None = None
+        self._previous: list[float] | None = None  # the last odometry taken
+        self._origin: float | None = None
+        self._lead = self._plan_lead = int(self.control.lead_min_periods)
+        self.prediction: tuple[float, tuple[float, ...]] | None = None  # (t_a, the state predicted at t_a)
+        self._reported_s = -math.inf  # the latest period start the robot reported on
+        self._n = _Counters()
+
+    def start_at(self, x: float, y: float, theta: float) -> None:
+        """Start the pose filter at a known pose of the robot at rest (as `MotionController.start_at`)."""
+        if self.estimator is not None:
+            self.estimator.start_at(x, y, theta)
+
+    # --- the robot's reports -------------------------------------------------------------------------------------
+
+    def report_receipt(self, basis_s: float, received_s: float, taken: bool = True) -> None:
+        """The robot received the plan of basis `basis_s` at its time `received_s`; its buffer `taken` it or not.
+
+        Every receipt is a round trip; a plan the buffer refused (older than one it holds) never runs.
+        """
+        sent = self._sent.get(basis_s)
+        self._n.round_trips.append(received_s - basis_s)
+        if sent is not None and not taken and sent.received_s is None:
+            if sent.missed_by_s == -math.inf:
+                self._n.lost += 1
+            sent.missed_by_s = math.inf
+        elif sent is not None and sent.received_s is None:
+            self._n.received += 1
+            if sent.missed_by_s > -math.inf:
+                self._n.lost -= 1  # it was late, not lost
+            sent.received_s = received_s
+
+    def report_applied(self, time_s: float, basis_s: float | None, index: int = 0) -> None:
+        """The robot applied entry `index` of plan `basis_s` from its time `time_s` (None: no plan, zero command)."""
+        self._applied[self._period(time_s)] = None if basis_s is None else (basis_s, index)
+        self._reported_s = max(self._reported_s, time_s)
+        if basis_s is None and self._sent:
+            self._n.exhausted += 1
+        for sent in self._sent.values():  # a plan due by then that did not run was not there
+            newer = basis_s is None or sent.plan.basis_s > basis_s
+            if newer and sent.received_s is None and sent.plan.times_s[0] <= time_s + TIME_TOLERANCE_S:
+                if sent.missed_by_s == -math.inf:
+                    self._n.lost += 1
+                sent.missed_by_s = max(sent.missed_by_s, time_s)
+
+    # --- planning -------------------------------------------------------------------------------------------------
+
+    def _choose_lead(self) -> int:
+        """The lead of the next plan: the round trips' quantile in periods, rounded up, within the bounds."""
+        trips = self._n.round_trips
+        if trips:
+            q = float(np.quantile(np.fromiter(trips, float), self.control.lead_quantile))
+            lead = math.ceil(q / self.period_s - 1e-6)
+        else:  # before any round trip is measured the plans wait: none acts late, on a robot that has not moved
+            lead = int(self.control.lead_max_periods)
+        # a lead grows by at most half a plan per plan, so the plans sent before still cover up to the new first entry
+        self._lead = min(lead, self._lead + self.plan_length // 2) if self._n.sent else lead
+        return min(max(self._lead, int(self.control.lead_min_periods)), int(self.control.lead_max_periods))
+
+    def plan(self, stamp_s: float, X: object, preview: object) -> CommandPlan | None:
+        """The plan for the odometry X = (x, x', y, y', theta, theta') stamped `stamp_s` (robot clock).
+
+        Parameters
+        ----------
+        stamp_s
+            The odometry's stamp [s].
+        X
+            The measured body state (eq. 2), shape (6,).
+        preview
+            The reference positions at stamp_s + i Ts, i = 1 .. `preview_length`, shape (preview_length, 3).
+
+        Returns
+        -------
+        CommandPlan or None
+            None for an odometry not newer than one already taken (reordered or duplicated on the link).
+
+        Raises
+        ------
+        ControllerInputError
+            For a bad X or preview (nothing changes).
+        """
+        Ts, M, N = self.period_s, self.plan_length, self.horizon
+        x = np.asarray(X, dtype=float)
+        Y = np.asarray(preview, dtype=float)
+        if x.shape != (6,) or not np.isfinite(x).all():
+            raise ControllerInputError(f"X must be 6 finite numbers, got {X!r}")
+        if Y.shape != (self.preview_length, 3) or not np.isfinite(Y).all():
+            raise ControllerInputError(f"preview must be finite with shape ({self.preview_length}, 3), got {Y.shape}")
+        if self._last_stamp is not None and stamp_s <= self._last_stamp + TIME_TOLERANCE_S:
+            self._n.stale += 1
+            return None
+        dt, gap = None, 1
+        if self._last_stamp is not None:
+            gap = round((stamp_s - self._last_stamp) / Ts)
+            self._n.missing += max(gap - 1, 0)
+            dt = None if gap == 1 and abs(stamp_s - self._last_stamp - Ts) < TIME_TOLERANCE_S else stamp_s - self._last_stamp
+        self._last_stamp = stamp_s
+        self._n.odometry += 1
+        state = x.tolist()
+        period0 = self._period(stamp_s)
+        newest_first = sorted(self._sent.values(), key=lambda s: s.plan.basis_s, reverse=True)
+        if self.estimator is not None:
+            px, vx, py, vy, theta, w = state
+            state[0], state[2], state[4] = self.estimator.update(px, vx, py, vy, theta, w, dt)
+            if dt is not None and self._previous is not None and not self._period_mean:
+                shift = self._interpolation_gain(dt) * self._trapezoid_error(self._previous, state, gap, newest_first)
+                self.estimator.shift(*shift.tolist())
+                state[0], state[2], state[4] = (np.array(state)[[0, 2, 4]] + shift).tolist()
+        self._previous = x.tolist()
+        lead = self._plan_lead = self._choose_lead()
+        u_last, currents = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+        for j in range(lead):  # step 2: through the commands applied over [t_m, t_a)
+            command = self._command(period0 + j, newest_first)
+            u_last, currents = command if command is not None else ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+            state = self._advance(state, u_last)
+        if lead == 0:
+            command = self._command(period0 - 1, newest_first)
+            if command is not None:
+                u_last, currents = command
+        self.prediction = (stamp_s + lead * Ts, tuple(state))
+        self.inner.restart_from(u_last, currents)
+        entries, us, ends = [], [], []
+        for j in range(M):  # step 3: the rollout from the predicted state
+            out = self.inner.step(tuple(state), Y[lead + j: lead + j + N])
+            entries.append(out.voltages if self.command_interface == "voltages" else self.inner.next_velocity())
+            u = self.inner.u_prev.tolist()
+            us.append(u)
+            ends.append(self.inner.drive.current_estimate_floats)
+            state = self._advance(state, u)
+        t_a = stamp_s + lead * Ts
+        plan = CommandPlan(stamp_s, tuple(t_a + j * Ts for j in range(M)), tuple(entries), Ts)
+        self._sent[stamp_s] = _Sent(plan, us, ends)
+        self._n.sent += 1
+        self._forget(stamp_s)
+        return plan
+
+    def statistics(self) -> LinkStatistics:
+        """The link as seen so far (`LinkStatistics`)."""
+        trips = np.fromiter(self._n.round_trips, float)
+        return LinkStatistics(
+            round_trip_mean_s=float(trips.mean()) if trips.size else math.nan,
+            round_trip_jitter_s=float(trips.std()) if trips.size else math.nan,
+            round_trip_quantile_s=float(np.quantile(trips, self.control.lead_quantile)) if trips.size else math.nan,
+            lead_periods=self._plan_lead,
+            plans_sent=self._n.sent,
+            plans_received=self._n.received,
+            plans_lost=self._n.lost,
+            odometry_received=self._n.odometry,
+            odometry_missing=self._n.missing,
+            odometry_stale=self._n.stale,
+            exhausted_periods=self._n.exhausted,
+        )
+
+    # --- internals ------------------------------------------------------------------------------------------------
+
+    def _period(self, t_s: float) -> int:
+        """The robot period containing t_s, counted from the first stamp seen (the robot's periods' phase)."""
+        if self._origin is None:
+            self._origin = t_s
+        return round((t_s - self._origin) / self.period_s)
+
+    def _interpolation_gain(self, dt: float) -> float:
+        """1 - L(dt): the share of the predicted pose the filter keeps over an interval dt."""
+        return 1.0 - filter_gain(dt, self.control.odometry_filter_time_constant_s)
+
+    def _trapezoid_error(self, previous: list[float], state: list[float], gap: int,
+                         newest_first: list[_Sent]) -> np.ndarray:
+        """What the filter's trapezoid (one over the whole gap) misses of the displacement (x, y, theta) over
+        `gap` periods: the velocities at each period boundary from eq. (49) under the commands applied,
+        corrected linearly to end at the measured one (so only their shape is the model's)."""
+        if gap < 2:
+            return np.zeros(3)
+        period = self._period(self._last_stamp) - gap
+        v = [[previous[1], previous[3], previous[5]]]
+        s = list(previous)
+        for j in range(gap):
+            command = self._command(period + j, newest_first)
+            s = self._advance(s, command[0] if command is not None else [0.0, 0.0, 0.0])
+            v.append([s[1], s[3], s[5]])
+        v = np.array(v)
+        v += np.outer(np.arange(gap + 1) / gap, np.array(state)[[1, 3, 5]] - v[-1])
+        interpolated = 0.5 * self.period_s * (v[:-1] + v[1:]).sum(axis=0)
+        return interpolated - 0.5 * gap * self.period_s * (v[0] + v[-1])
+
+    def _advance(self, state: list[float], u: list[float]) -> list[float]:
+        """One period of eq. (49) per axis: (p, v) <- A_d (p, v) + B_d u."""
+        out = list(state)
+        for a in range(3):
+            (a00, a01), (a10, a11) = self._A[a]
+            b0, b1 = self._B[a]
+            p, v = state[2 * a], state[2 * a + 1]
+            out[2 * a], out[2 * a + 1] = a00 * p + a01 * v + b0 * u[a], a10 * p + a11 * v + b1 * u[a]
+        return out
+
+    def _command(self, period: int, newest_first: list[_Sent]) -> tuple[list[float], list[float]] | None:
+        """(u, end currents) of what the robot applies in `period`: reported, else as its buffer would choose."""
+        if period in self._applied:
+            applied = self._applied[period]
+            if applied is None or applied[0] not in self._sent:
+                return None
+            sent = self._sent[applied[0]]
+            index = applied[1]
+            return (sent.u[index], sent.end_currents[index]) if index < len(sent.u) else None
+        t = self._origin + period * self.period_s
+        for sent in newest_first:
+            times = sent.plan.times_s
+            if times[0] <= t + TIME_TOLERANCE_S and t < sent.plan.end_s - TIME_TOLERANCE_S and sent.arrived_by(t):
+                index = round((t - times[0]) / self.period_s)
+                return sent.u[index], sent.end_currents[index]
+        return None
+
+    def _forget(self, now_s: float) -> None:
+        """Drop plans and reports no prediction can need any more (ended well before now)."""
+        horizon = now_s - 2.0 * (self.control.lead_max_periods + self.plan_length) * self.period_s
+        for basis in [b for b, s in self._sent.items() if s.plan.end_s < horizon]:
+            del self._sent[basis]
+        first = self._period(horizon)
+        for period in [p for p in self._applied if p < first]:
+            del self._applied[period]

@@ -119,7 +119,7 @@ def run_scenario(
     link_up, link_down
         The emulated radio link's two directions (`network.link.LinkParams`): odometry and the robot's
         reports up, commands down. With either given (and enabled) the loop is `offline.networked`'s;
-        None for both: the undelayed loop above, unchanged.
+        None for both: the scenario's link (``wifi``), else the undelayed loop above, unchanged.
     compensate
         Over a link: the delay-compensating, plan-making controller (`control.delay_compensation`) and
         the robot's plan buffer; False: the plain controller, its command acting on arrival and held
@@ -139,6 +139,8 @@ def run_scenario(
         Non-positive duration, negative noise or a bad odometry setting.
     """
     spec = get_scenario(scenario)
+    if link_up is None and link_down is None and spec.link is not None:
+        link_up = link_down = spec.link
     networked = any(link is not None and link.enabled for link in (link_up, link_down))
     if odometry_noise is None:
         odometry_noise = (spec.noise.position_m, spec.noise.yaw_rad)

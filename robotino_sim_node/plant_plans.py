@@ -59,7 +59,7 @@ class PlantPlans:
             reason, detail = exc.reason, str(exc)
         else:
             detail = f"basis {plan.basis_s:.6f} s, {len(plan.times_s)} entries"
-            self.reports.append(received_message(now_s, plan.basis_s, self.interface))  # taken or not
+            self.reports.append(received_message(now_s, plan.basis_s, self.interface, reason is None))
         if reason in ("older", "duplicate"):
             self.counts["ignored_plans"] += 1
             return False

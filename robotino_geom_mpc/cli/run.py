@@ -22,6 +22,14 @@ scenario and parameters. With ``--goals FILE`` (scenario ``goals``) a goal sende
 mismatched model and the plant odometry noise. With ``--command-interface cmd_vel`` the controller sends
 twists on cmd_vel, the plant holds them with its wheel-speed PI loops, and the metrics' voltages are those
 loops' (the plant's ``applied_voltages``).
+
+Over a radio link (``--link-delay-ms D --link-jitter-ms J --link-loss P --link-burst B``, each way, or the
+``wifi`` scenario's own link) the plant emulates it (``link.up.*`` / ``link.down.*``: everything it publishes
+reaches the controller and the recorder when the link delivers it; commands and plans reach it so), the
+controller sends delay-compensated plans and the plant applies them and reports what it applied
+(``command_applied``; ``--no-compensation``: plain commands acting on arrival, the baseline). The recording then
+holds what the controller received and when, and what the robot applied: ``regress`` replays the plans, and the
+metrics get the link's measured figures (`recording.link_report`).
 """
 
 from __future__ import annotations
@@ -39,7 +47,8 @@ from typing import TYPE_CHECKING
 
 from robotino_geom_mpc.scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
-from robotino_geom_mpc.cli.simulate import add_command_interface_argument, add_odometry_argument, add_scenario_argument
+from robotino_geom_mpc.cli.simulate import add_command_interface_argument, add_link_arguments, \
+    add_odometry_argument, add_scenario_argument, link_from_args
 
 if TYPE_CHECKING:
     from robotino_geom_mpc.system.processes import NodeGroup, NodeProcess
@@ -81,6 +90,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
     add_odometry_argument(parser)
     add_command_interface_argument(parser)
+    add_link_arguments(parser)
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
@@ -175,8 +185,10 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
 
+    link = link_from_args(args)
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
-                               odometry=args.odometry, command_interface=args.command_interface,
+                               odometry=args.odometry, command_interface=args.command_interface, link=link,
+                               plans=False if args.no_compensation else None,
                                goals_file=None if args.goals is None else args.goals.resolve(),
                                overrides={"plant_node": {"timing_report": str(report)}})
     mode = "lockstep" if args.lockstep else "realtime"

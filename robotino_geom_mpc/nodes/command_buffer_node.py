@@ -14,7 +14,7 @@ publishes  ``cmd_vel``          geometry_msgs/Twist in base_link, to the driver:
                                 used up (the robot stops) for ``idle_after_s``, then nothing until the next plan
                                 (the driver's own timeout holds it, and a joystick may take over)
            ``command_applied``  trajectory_msgs/JointTrajectory (`ros.plans`): each period sent (its start time,
-                                the plan's basis, the entry, the twist) and each plan taken (its receipt time)
+                                the plan's basis, the entry, the twist) and each plan received (its receipt time, taken or not)
            ``diagnostics``      diagnostic_msgs/DiagnosticArray once a second: plans accepted, refused per reason,
                                 periods exhausted, the last receipt's age over the plan's basis (one-way delay of
                                 the plan plus the odometry's age at the controller: the loop's round trip)
@@ -93,6 +93,7 @@ class CommandBufferNode(Node):
             reason, detail = exc.reason, str(exc)
         else:
             detail = f"stamp {plan.basis_s:.6f} s, {len(plan.times_s)} entries"
+            self.report_pub.publish(received_message(now, plan.basis_s, "cmd_vel", reason is None))
         if reason in ("older", "duplicate"):
             self.ignored += 1
             return
@@ -102,7 +103,6 @@ class CommandBufferNode(Node):
                                    f"({sum(self.refused.values())} refused so far)", throttle_duration_sec=1.0)
             return
         self.round_trip_s = now - plan.basis_s
-        self.report_pub.publish(received_message(now, plan.basis_s, "cmd_vel"))
         self.active = True
         self._tick()  # the newest plan's entry of this period, now; the timer re-armed to its next entry
 

@@ -144,7 +144,8 @@ class ControllerNode(Node):
         self.previews: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         # the newest preview: stamp [ns], positions, velocities, accelerations (realtime: the one used)
         self.latest_preview: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.pending: tuple[int, np.ndarray] | None = None  # lockstep: odometry waiting for its preview
+        self.pending: tuple[int, np.ndarray] | None = None  # lockstep: the first odometry waiting for its preview
+        self.waiting: list[tuple[int, np.ndarray]] = []  # lockstep: odometries in arrival order, with that one first
         self.pending_since = 0.0
         self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
         self.odom_time = self.preview_time = None  # steady arrival times of accepted inputs
@@ -258,10 +259,26 @@ class ControllerNode(Node):
         if not self.lockstep:
             return
         self.previews[stamp] = arrays
-        if self.pending is not None and self.pending[0] == stamp:
-            odom_stamp, X = self.pending
-            self.pending = None
-            self._control(odom_stamp, X, *arrays, stamp)
+        self._drain()
+
+    def _drain(self) -> None:
+        """Lockstep: step the waiting odometries in arrival order while the preview of the first is there (over
+        a link several arrive at one tick, each answered in turn)."""
+        while self.waiting:
+            stamp, X = self.waiting[0]
+            arrays = self.previews.get(stamp)
+            if arrays is None:
+                break
+            del self.waiting[0]
+            self.pending_since = monotonic()
+            if isinstance(arrays, InputRejected):
+                self._reject(stamp, "odom", f"preview_{arrays.reason}", f"the preview of this tick was refused: "
+                             f"{arrays}")
+            else:
+                self._control(stamp, X, *arrays, stamp)
+            for old in [s for s in self.previews if s < stamp]:
+                del self.previews[old]
+        self.pending = self.waiting[0] if self.waiting else None
 
     def _refuse_preview(self, stamp: int | None, reason: str, message: str) -> None:
         """Realtime: zero volts now; lockstep: for the tick of its stamp (of none if unknown: only counted)."""
@@ -273,9 +290,7 @@ class ControllerNode(Node):
         if stamp is None:
             return
         self.previews[stamp] = InputRejected(message, reason)
-        if self.pending is not None and self.pending[0] == stamp:
-            self.pending = None
-            self._reject(stamp, "odom", f"preview_{reason}", f"the preview of this tick was refused: {message}")
+        self._drain()
 
     def _on_odom(self, data: bytes) -> None:
         try:
@@ -306,19 +321,11 @@ class ControllerNode(Node):
         self.odom_time = monotonic()
         self.theta = X[4]
         if self.lockstep:
-            for old in [s for s in self.previews if s < stamp]:
-                del self.previews[old]
-            arrays = self.previews.get(stamp)
-            if arrays is None:
-                if self.pending is None or self.pending[0] != stamp:
+            if all(waiting != stamp for waiting, _ in self.waiting):
+                if not self.waiting:
                     self.pending_since = self.odom_time
-                self.pending = (stamp, X)
-                return
-            if isinstance(arrays, InputRejected):
-                self._reject(stamp, "odom", f"preview_{arrays.reason}", f"the preview of this tick was refused: "
-                             f"{arrays}")
-                return
-            self._control(stamp, X, *arrays, stamp)
+                self.waiting.append((stamp, X))
+            self._drain()
             return
         if self.latest_preview is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
             return  # stale reference: the watchdog outputs zero volts

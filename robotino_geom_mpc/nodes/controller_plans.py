@@ -103,7 +103,7 @@ class ControllerPlans:
                                         f"{self.refused_reports} refused so far", throttle_duration_sec=1.0)
             return
         if report.values is None:
-            self.controller.report_receipt(report.basis_s, report.time_s)
+            self.controller.report_receipt(report.basis_s, report.time_s, report.taken)
         else:
             self.controller.report_applied(report.time_s, report.basis_s, max(report.index, 0))
 

@@ -15,8 +15,9 @@ Messages (standard types; every time is the ROBOT's clock)
                           omega) for cmd_vel): a control period applied, time_from_start = the period's start -
                           basis; positions = [the entry index]; index -1: no plan held, the values are zero
                           (header.stamp = the period's start, time_from_start 0);
-                        * without values: the plan was received (and taken), time_from_start = its receipt
-                          time - basis.
+                        * without values: the plan was received, time_from_start = its receipt time - basis;
+                          positions = [1] if the robot's buffer took it, [0] if not (older than one held,
+                          or refused).
                         joint_names = the wheel joints (voltages) or `TWIST_AXES` (cmd_vel).
                         Why JointTrajectory: the report is the part of the plan that took effect, so it has the
                         plan's own type, time base and joint names; any ROS tool (``ros2 topic echo``, rqt_plot,
@@ -54,13 +55,15 @@ class PlanMessageError(ValueError):
 
 
 class AppliedReport(NamedTuple):
-    """One ``command_applied`` event: `values` None = receipt of plan `basis_s` at `time_s`; else the period
-    starting at `time_s` got `values` (entry `index` of plan `basis_s`; basis None: no plan, zero)."""
+    """One ``command_applied`` event: `values` None = receipt of plan `basis_s` at `time_s` (`taken` by the
+    buffer or not); else the period starting at `time_s` got `values` (entry `index` of plan `basis_s`; basis
+    None: no plan, zero)."""
 
     time_s: float
     basis_s: float | None
     index: int
     values: tuple[float, float, float] | None
+    taken: bool = True
 
 
 def _seconds(sec: int, nanosec: int) -> float:
@@ -155,9 +158,11 @@ def applied_message(time_s: float, basis_s: float | None, index: int, values, in
     return msg
 
 
-def received_message(receipt_s: float, basis_s: float, interface: str) -> JointTrajectory:
-    """``command_applied`` of the receipt of plan `basis_s` at `receipt_s` (robot clock)."""
-    return _report(basis_s, receipt_s, interface)
+def received_message(receipt_s: float, basis_s: float, interface: str, taken: bool) -> JointTrajectory:
+    """``command_applied`` of the receipt of plan `basis_s` at `receipt_s` (robot clock), `taken` by the buffer."""
+    msg = _report(basis_s, receipt_s, interface)
+    msg.points[0].positions = [1.0 if taken else 0.0]
+    return msg
 
 
 def report_of_message(msg: JointTrajectory) -> AppliedReport:
@@ -171,7 +176,7 @@ def report_of_message(msg: JointTrajectory) -> AppliedReport:
     time_s = base + _seconds(offset.sec, offset.nanosec)
     values = tuple(point.velocities) if len(point.velocities) == 3 else tuple(point.effort)
     if not values:
-        return AppliedReport(time_s, base, -1, None)
+        return AppliedReport(time_s, base, -1, None, bool(point.positions) and point.positions[0] > 0.5)
     if len(values) != 3 or len(point.positions) != 1 or not all(math.isfinite(v) for v in (*values, *point.positions)):
         raise PlanMessageError("an applied report has three finite values and its index", "length")
     index = int(point.positions[0])

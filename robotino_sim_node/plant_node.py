@@ -361,6 +361,8 @@ class PlantNode(PlantNetwork, Node):
             self.busy_s = self.wait_s = 0.0  # per-tick figures of the running loop (ticks 1 ..)
         if self.last_tick is not None and self.tick >= self.last_tick:
             self._publish_currents()  # of the last period; no tick follows
+            for msg in self.plans.pop_reports() if self.plans is not None else ():  # and what it applied
+                publish_acknowledged(self, self.applied_pub, msg)
             self._report_run(begin)
             self.done.set_result(True)  # the last tick is answered: the run is over
             return False

@@ -245,6 +245,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"  position error after settle: rms {metrics['rms_position_error_m']:.3g} m, "
           f"max {metrics['max_position_error_m']:.3g} m; peak current {metrics['peak_current_a']:.3g} A, "
           f"peak voltage {metrics['peak_voltage_v']:.3g} V")
+    if metrics.get("link") is not None:
+        from robotino_geom_mpc.recording.link_report import link_line
+
+        print(f"  link: {link_line(metrics['link'])}")
     if metrics.get("rms_position_error_odom_m") is not None:
         print(f"  in the odom frame: rms {metrics['rms_position_error_odom_m']:.3g} m; drift from the truth at the "
               f"end {metrics['odometry_drift_final_m']:.3g} m")

@@ -91,6 +91,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     add_odometry_argument(parser)
     add_command_interface_argument(parser)
     add_link_arguments(parser)
+    parser.add_argument("--plans", action="store_true",
+                        help="the controller sends delay-compensated plans and the plant applies them at their times "
+                        "even without a link (over a link they are the default)")
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
@@ -188,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
     link = link_from_args(args)
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
                                odometry=args.odometry, command_interface=args.command_interface, link=link,
-                               plans=False if args.no_compensation else None,
+                               plans=False if args.no_compensation else (True if args.plans else None),
                                goals_file=None if args.goals is None else args.goals.resolve(),
                                overrides={"plant_node": {"timing_report": str(report)}})
     mode = "lockstep" if args.lockstep else "realtime"

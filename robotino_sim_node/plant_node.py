@@ -54,6 +54,9 @@ take a Fast DDS announcement period of 3 s) is logged apart. The report at the e
 and, if ``timing_report`` names a file, one JSON object there (`loop_timing` gives the keys and their
 meaning), written once every reader has acknowledged the run's samples.
 
+Networked (`plant_network`): ``link.up.*`` / ``link.down.*`` (`link_params`) put an emulated radio link between
+the robot and everything off-board; ``plans`` takes plans instead of plain commands, reports ``command_applied``
+(`plant_plans`). Both off: as above.
 Parameters: the robot/control parameters of config/*.yaml (``/**`` section; a plant-robot mismatch is the
 plant and the controller reading different files or overrides) plus those in `PLANT_SPECS`.
 """
@@ -78,18 +81,18 @@ from robotino_geom_mpc.description.urdf import JOINT_NAMES, DescriptionError, ch
 from robotino_geom_mpc.ros.cdr import CdrTemplate, MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, three_values_layout, three_values_template
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos, wait_acknowledged
-from robotino_geom_mpc.ros.spin import FINISHED_ACK_WAIT_S, data_publishers, monotonic, run_node
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
+from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
 from robotino_geom_mpc.model.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source, twist_covariance
 from robotino_sim_node.link_params import LINK_DEFAULTS, LINK_SPECS, link_params, link_problem
 from robotino_sim_node.lockstep_start import StartHandshake
-from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, lockstep_line, lockstep_report, realtime_report, \
-    write_report
+from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, realtime_report
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
 from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, AppliedVoltages, StateOutputs, odometry_template, \
     odometry_values
+from robotino_sim_node.plant_lockstep import PlantLockstep
 from robotino_sim_node.plant_network import PlantNetwork
 from robotino_sim_node.plant_plans import PlantPlans
 from robotino_sim_node.radio import Radio
@@ -130,7 +133,7 @@ _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray") 
 _MAX_BEHIND_S = 1.0  # realtime: a longer stall is skipped, not integrated
 
 
-class PlantNode(PlantNetwork, Node):
+class PlantNode(PlantLockstep, PlantNetwork, Node):
     """The plant simulator node (see the module docstring for its interface)."""
 
     def __init__(self) -> None:
@@ -252,26 +255,7 @@ class PlantNode(PlantNetwork, Node):
         return odometry_source(self.plant, p["odometry_model"], p["encoder.counts_per_rev"],
                                p["encoder.wheel_slip_std"], p["seed"], getattr(previous, "pose", None))
 
-    # lockstep -----------------------------------------------------------------------------------
-    def _try_start(self) -> None:
-        now = monotonic()
-        if self.handshake.poll(now, self.params["lockstep_settle_s"]):
-            self.start_timer.cancel()
-            self.started = True
-            self.started_at = now
-            self._publish_tick(fresh=True)
-
-    def _resend(self) -> None:
-        now = monotonic()
-        if self.started and not self.done.done() and self.pace_timer.is_canceled() \
-                and now - self.published_at > self.params["lockstep_resend_s"]:
-            self.resent += 1
-            self.get_logger().warn(
-                f"no command for tick {self.tick} (t = {self._time_ns() * 1e-9:.3f} s) for "
-                f"{now - self.tick_sent_at:.1f} s: resending ({self.resent} resends so far)",
-                throttle_duration_sec=2.0)
-            self._publish_tick(fresh=False)
-
+    # lockstep (the run's start, resends, pace, report: `plant_lockstep`) ----------------------------
     def _time_ns(self) -> int:
         return self.tick * self.period_ns
 
@@ -349,35 +333,6 @@ class PlantNode(PlantNetwork, Node):
         self.hold.hold(values, begin)
         self.busy_s += monotonic() - begin
 
-    def _lockstep_period(self, values: tuple[float, ...]) -> bool:
-        """Integrate the tick's period under `values` and go to the next tick; True: publish it now (else the
-        pace holds it back, or the run is over)."""
-        begin = monotonic()
-        self.wait_s += begin - self.published_at
-        self.peak_currents = self._drive(values, self.control.period_s)
-        self.have_period = True
-        if self.tick == 0:
-            self.first_answer_at = begin
-            self.busy_s = self.wait_s = 0.0  # per-tick figures of the running loop (ticks 1 ..)
-        if self.last_tick is not None and self.tick >= self.last_tick:
-            self._publish_currents()  # of the last period; no tick follows
-            for msg in self.plans.pop_reports() if self.plans is not None else ():  # and what it applied
-                publish_acknowledged(self, self.applied_pub, msg)
-            self._report_run(begin)
-            self.done.set_result(True)  # the last tick is answered: the run is over
-            return False
-        self.tick += 1
-        delay = self.pace.delay(monotonic())
-        if delay > 0.0:
-            self.pace_timer.timer_period_ns = max(1, int(delay * 1e9))
-            self.pace_timer.reset()
-            return False
-        return True
-
-    def _paced_tick(self) -> None:  # the tick `lockstep_max_realtime_factor` held back, at its slot
-        self.pace_timer.cancel()
-        self._publish_tick(fresh=True)
-
     def _clamp(self, values: tuple[float, ...]) -> tuple[float, ...]:
         """`values` clamped to the supply, as an H-bridge applies them; a throttled warning and a count."""
         supply = self.robot.supply_voltage_v
@@ -388,24 +343,6 @@ class PlantNode(PlantNetwork, Node):
             f"{', '.join(f'{v:g}' for v in applied)} V ({self.counts['clamped_commands']} commands clamped so far)",
             throttle_duration_sec=1.0)
         return applied
-
-    def _report_run(self, last_answer_at: float) -> None:
-        """Log the run's real-time factor (ticks 1 .. n - 1, from the answer of tick 0 to that of the last)."""
-        report = lockstep_report(self.tick + 1, self.control.period_s, self.started_at, self.first_answer_at,
-                                 last_answer_at, self.busy_s, self.wait_s, resent=self.resent, **self.counts)
-        self.get_logger().info(lockstep_line(report))
-        self._write_report(report)
-
-    def _write_report(self, report: dict) -> None:
-        """Write the timing report to ``timing_report`` (if set) when the readers have the run's samples (so `run`
-        may stop the other nodes once it is there); a failure is logged and the exit status 1."""
-        if self.params["timing_report"]:
-            wait_acknowledged(self, data_publishers(self), FINISHED_ACK_WAIT_S)
-            try:
-                write_report(self.params["timing_report"], report)
-            except OSError as exc:
-                self.get_logger().error(f"cannot write the timing report: {exc}")
-                self.exit_status = 1
 
     # realtime -----------------------------------------------------------------------------------
     def _advance(self, now: float, ceil: bool = False) -> float:

@@ -42,6 +42,10 @@ honoured) is read once per input to check its stamp.
 
 Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagnostic naming the reason).
 
+Plans (``plans``, an off-board controller over a network): `controller_plans` (delay-compensated plans on
+``wheel_voltage_plan`` / ``cmd_vel_plan``, the robot's ``command_applied`` read, the link in the diagnostics). In
+lockstep the odometries of a tick are answered in arrival order, each with the preview of its stamp.
+
 Bumpless (re)start (`control.blend.BlendEngagement`): at
 the first tick (except tick t = 0 of a lockstep run, where robot and
 reference start together as in `simulate`), at the first tick after the
@@ -86,6 +90,7 @@ from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTR
     InputCounters, closed_loop_problem, reference_jump
 from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
 from robotino_geom_mpc.nodes.controller_plans import LINK_KEYS, ControllerPlans
+from robotino_geom_mpc.nodes.controller_watchdog import ControllerWatchdog
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
     stamp_problem, state_of_odometry, time_ns
@@ -99,14 +104,13 @@ __all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
 # the general decoders (field names are all `odometry_values` and `preview_point_values` use, so either one fits)
 _read_odom = cdr_reader(Odometry, "nav_msgs/msg/Odometry")
 _read_preview = cdr_reader(MultiDOFJointTrajectory, "trajectory_msgs/msg/MultiDOFJointTrajectory")
-_WAIT_LOG_PERIOD_S = 5.0  # throttle of the "waiting for ..." log
 
 _EVENT_KEYS = ("watchdog", *InputCounters.KEYS, "blend_remaining_s", "blend_engagements")
 _ROBOT_CONTROL = frozenset(s.name for s in ALL_SPECS)
 REPORT_WINDOW_S = 2.0  # plans: a command_applied report further from the newest odometry stamp is refused
 
 
-class ControllerNode(Node):
+class ControllerNode(ControllerWatchdog, Node):
     """The controller node (see the module docstring for its interface)."""
 
     def __init__(self) -> None:
@@ -421,46 +425,6 @@ class ControllerNode(Node):
         """The values of `_EVENT_KEYS` at `stamp` [ns] (every diagnostic carries them)."""
         return [self.watchdog_state, *self.counters.values(), f"{self.blend.remaining_s(stamp):.4f}",
                 str(self.blend.engagements), *(self.plans.values() if self.plans is not None else ())]
-
-    # watchdog -----------------------------------------------------------------------------------
-    def _log_wait(self, now: float) -> None:
-        """Say what the controller waits for when it has heard nothing for a timeout (throttled)."""
-        if self.pending is not None and now - self.pending_since > self.params["reference_timeout_s"]:
-            what = (f"the odometry of stamp {self.pending[0]} ns waits {now - self.pending_since:.1f} s for the "
-                    f"reference_preview of that stamp on {self.preview_sub.topic_name} "
-                    f"({self.count_publishers(self.preview_sub.topic_name)} publishers)")
-        elif now - (self.odom_time or self.start_time) > self.params["odom_timeout_s"]:
-            heard = "since the start" if self.odom_time is None else "since the last one"
-            what = (f"no odometry on {self.odom_sub.topic_name} for {now - (self.odom_time or self.start_time):.1f} s "
-                    f"{heard} ({self.count_publishers(self.odom_sub.topic_name)} publishers)")
-        elif self.preview_time is None and now - self.start_time > self.params["reference_timeout_s"]:
-            what = (f"no reference_preview on {self.preview_sub.topic_name} yet "
-                    f"({self.count_publishers(self.preview_sub.topic_name)} publishers)")
-        else:
-            return
-        self.get_logger().info(f"waiting: {what}", throttle_duration_sec=_WAIT_LOG_PERIOD_S)
-
-    def _check_watchdog(self) -> None:
-        now = monotonic()
-        if self.odom_time is None or self.preview_time is None or self.lockstep:
-            self._log_wait(now)  # lockstep: the plant holds the time; only say what is missing
-            if self.odom_time is None or self.preview_time is None:
-                return
-        if now - self.odom_time > self.params["odom_timeout_s"]:
-            state = "stale_odom"
-        elif now - self.preview_time > self.params["reference_timeout_s"]:
-            state = "stale_reference"
-        else:
-            state = "ok"
-        self.watchdog_state = state
-        if state == "ok" or self.lockstep:
-            return
-        self.blend.request("watchdog")  # data that return restart the tracking bumplessly
-        # and are taken on any fresh stamp, also one before the last used (a sim clock reset, a bag replayed in a loop)
-        self.last_odom_ns, self.latest_preview = None, None
-        self.get_logger().warn(f"watchdog: {state.replace('_', ' ')}; zero volts", throttle_duration_sec=1.0)
-        self.outputs.send_zero()
-        self.outputs.diagnose(None, DiagnosticStatus.WARN, f"watchdog: {state}")
 
 
 def main(args: list[str] | None = None) -> int:

@@ -38,7 +38,10 @@ velocities and accelerations (`reference.trajectories.shift_preview`). The step 
 one used (None when it is exactly one period, and after a (re)start).
 
 Time: the stamps of the inputs; in realtime the node clock (``use_sim_time``
-honoured) is read once per input to check its stamp.
+honoured) is read once per input to check its stamp. The watchdog counts the
+node clock under ``use_sim_time`` (read at start), steady time otherwise.
+
+Frames: a preview not in ``<frame_prefix>odom`` is refused (reason ``frame``, naming both frames).
 
 Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagnostic naming the reason).
 
@@ -94,7 +97,7 @@ from robotino_geom_mpc.nodes.controller_watchdog import ControllerWatchdog
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
     stamp_problem, state_of_odometry, time_ns
-from robotino_geom_mpc.ros.messages import odometry_layout, preview_layout
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, preview_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, LOCKSTEP_PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import monotonic, run_node
@@ -133,6 +136,7 @@ class ControllerNode(ControllerWatchdog, Node):
         self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS + (LINK_KEYS if self.plans else ()),
                                          self._event_values, self.control.horizon, prefix,
                                          self.params["command_interface"])
+        self.odom_frame = prefix + ODOM_FRAME  # the frame of the previews it takes
         self.enabled = True
         self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
@@ -152,8 +156,12 @@ class ControllerNode(ControllerWatchdog, Node):
         self.waiting: list[tuple[int, np.ndarray]] = []  # lockstep: odometries in arrival order, with that one first
         self.pending_since = 0.0
         self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
-        self.odom_time = self.preview_time = None  # steady arrival times of accepted inputs
-        self.start_time = monotonic()
+        # the watchdog's clock, read at start: the node clock under use_sim_time (a slow simulation is slow, not
+        # stale), else steady time
+        self.sim_time = bool(self.get_parameter("use_sim_time").value)
+        self._watch_now = (lambda: self.get_clock().now().nanoseconds * 1e-9) if self.sim_time else monotonic
+        self.odom_time = self.preview_time = None  # arrival times of accepted inputs (`_watch_now`)
+        self.start_time = self._watch_now()
         self.watchdog_state = "waiting"
         self.counters = InputCounters()
         self.blend = BlendEngagement(self.control.period_s, self.preview_points)
@@ -173,9 +181,10 @@ class ControllerNode(ControllerWatchdog, Node):
         self.blend_limits = (p["blend_acceleration_mps2"], p["blend_acceleration_radps2"])
 
     def _start_watchdog(self):
-        """The steady-clock timer of the watchdog, at half the shorter timeout."""
+        """The timer of the watchdog, at half the shorter timeout, on the watchdog's clock (`_watch_now`)."""
         timeout = min(self.params["odom_timeout_s"], self.params["reference_timeout_s"])
-        return self.create_timer(timeout / 2, self._check_watchdog, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        clock = self.get_clock() if self.sim_time else Clock(clock_type=ClockType.STEADY_TIME)
+        return self.create_timer(timeout / 2, self._check_watchdog, clock=clock)
 
     def _on_params(self, changed: dict) -> None:
         self._read_limits()
@@ -235,6 +244,9 @@ class ControllerNode(ControllerWatchdog, Node):
                 msg = _read_preview(data)
                 sec, nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec
                 stamp = time_ns(sec, nanosec)  # first: a wrongly sized preview is refused for its tick
+                if msg.header.frame_id != self.odom_frame:  # another robot's odom, or a prefix mismatch
+                    raise InputRejected(f"reference_preview is in frame '{msg.header.frame_id}', not in the "
+                                        f"controller's '{self.odom_frame}'", "frame")
                 values = (sec, nanosec, *preview_point_values(msg, self.preview_points))
             else:
                 stamp = time_ns(values[0], values[1])
@@ -253,7 +265,7 @@ class ControllerNode(ControllerWatchdog, Node):
         except (MalformedMessage, InputRejected) as exc:
             self._refuse_preview(stamp, getattr(exc, "reason", "malformed"), str(exc))
             return
-        self.preview_time = monotonic()
+        self.preview_time = self._watch_now()
         if latest is None or stamp > latest[0]:
             jump = reference_jump(latest, stamp, arrays[0][0], *self.jump_limits)
             if jump is not None:
@@ -274,7 +286,7 @@ class ControllerNode(ControllerWatchdog, Node):
             if arrays is None:
                 break
             del self.waiting[0]
-            self.pending_since = monotonic()
+            self.pending_since = self._watch_now()
             if isinstance(arrays, InputRejected):
                 self._reject(stamp, "odom", f"preview_{arrays.reason}", f"the preview of this tick was refused: "
                              f"{arrays}")
@@ -322,7 +334,7 @@ class ControllerNode(ControllerWatchdog, Node):
         except InputRejected as exc:
             self._reject(stamp, "odom", exc.reason, str(exc))
             return
-        self.odom_time = monotonic()
+        self.odom_time = self._watch_now()
         self.theta = X[4]
         if self.lockstep:
             if all(waiting != stamp for waiting, _ in self.waiting):

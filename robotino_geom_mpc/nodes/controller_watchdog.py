@@ -8,8 +8,6 @@ from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from robotino_geom_mpc.ros.spin import monotonic
-
 __all__ = ["ControllerWatchdog"]
 
 _WAIT_LOG_PERIOD_S = 5.0  # throttle of the "waiting for ..." log
@@ -36,7 +34,7 @@ class ControllerWatchdog:
         self.get_logger().info(f"waiting: {what}", throttle_duration_sec=_WAIT_LOG_PERIOD_S)
 
     def _check_watchdog(self) -> None:
-        now = monotonic()
+        now = self._watch_now()  # the node clock under use_sim_time, else steady time
         if self.odom_time is None or self.preview_time is None or self.lockstep:
             self._log_wait(now)  # lockstep: the plant holds the time; only say what is missing
             if self.odom_time is None or self.preview_time is None:

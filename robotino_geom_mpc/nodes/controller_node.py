@@ -282,6 +282,10 @@ class ControllerNode(ControllerWatchdog, Node):
         a link several arrive at one tick, each answered in turn)."""
         while self.waiting:
             stamp, X = self.waiting[0]
+            if self.last_odom_ns is not None and stamp <= self.last_odom_ns:  # overtaken while it waited
+                del self.waiting[0]
+                self._drop(stamp, "odom", "old")
+                continue
             arrays = self.previews.get(stamp)
             if arrays is None:
                 break

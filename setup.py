@@ -67,6 +67,7 @@ setup(
             "trajectory_node = robotino_geom_mpc.nodes.trajectory_node:main",
             "recorder_node = robotino_geom_mpc.recording.recorder_node:main",
             "robot_description_publisher = robotino_geom_mpc.nodes.robot_description_node:main",
+            "command_buffer_node = robotino_geom_mpc.nodes.command_buffer_node:main",
         ],
     },
 )

@@ -35,6 +35,9 @@ command_interface  voltages (default): the controller sends wheel_voltages to th
 duration       run length [s] of the plant; 0 runs until stopped. The plant ends the run: when it exits
                (its duration, or a failure) the launch shuts the other nodes down, as ``run`` stops them
 seed           seed of the plant's odometry noise
+command_buffer true: also start the robot-side command buffer (``command_buffer_node``: ``cmd_vel_plan`` in,
+               the driver's ``cmd_vel`` out at the plans' times, zero twist when they stop; on a real
+               Robotino it runs on the robot's PC beside the driver, see docs/howto/real_robot_buffer.md)
 record         true: also start the MCAP recorder (bag in ``bag``)
 bag            recording directory (default: rosbag2_<date> in the working directory)
 rviz           true: also start rviz2 with config/robotino.rviz (fixed frame odom, the robot model, TF, the
@@ -171,6 +174,9 @@ def _nodes(context) -> list:
         plant_node,
         _description(config["plant_params"], prefix, mode, **common),
     ]
+    if _flag(config, "command_buffer"):
+        nodes.append(Node(package=PACKAGE, executable="command_buffer_node", name="robotino_command_buffer",
+                          parameters=[params_file], **common))
     if record:
         nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
                           parameters=[params_file, {"output": config["bag"], "scenario": scenario}], **common))
@@ -203,6 +209,8 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("duration", default_value="0.0",
                               description="run length [s], 0: until stopped; the plant's exit ends the launch"),
         DeclareLaunchArgument("seed", default_value="0", description="seed of the odometry noise"),
+        DeclareLaunchArgument("command_buffer", default_value="false",
+                              description="start the robot-side command buffer (cmd_vel_plan -> cmd_vel)"),
         DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),
         DeclareLaunchArgument("bag", default_value="", description="recording directory"),
         DeclareLaunchArgument("rviz", default_value="false",

@@ -62,6 +62,7 @@ def lockstep_nodes(
     plant_overrides: dict[str, Any] | None = None,
     trajectory_overrides: dict[str, Any] | None = None,
     timing_report: str | os.PathLike | None = None,
+    controller_overrides: dict[str, Any] | None = None,
 ):
     """Start trajectory, controller and plant (lockstep unless `realtime`); returns the plant's process.
 
@@ -75,7 +76,8 @@ def lockstep_nodes(
     args = node_arguments(scenario, params_file or default_params_file(), duration_s, not realtime,
                           wait_for=list(wait_for or LOCKSTEP_WAIT_FOR),
                           overrides={"plant_node": {**report, **(plant_overrides or {})},
-                                     "trajectory_node": trajectory_overrides or {}})
+                                     "trajectory_node": trajectory_overrides or {},
+                                     "controller_node": controller_overrides or {}})
     started = {name: group.start(name, argv) for name, argv in args.items()}
     return started["plant_node"]
 

@@ -54,4 +54,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(metrics, indent=2, sort_keys=True))
     else:
         print(f"{metrics['samples']} ticks; metrics and figures in {args.out}")
+        if metrics.get("link") is not None:
+            from robotino_geom_mpc.recording.link_report import link_line
+
+            print(f"link: {link_line(metrics['link'])}")
     return 0

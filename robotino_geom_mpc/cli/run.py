@@ -24,6 +24,14 @@ twists on cmd_vel, the plant holds them with its wheel-speed PI loops, and the m
 loops' (the plant's ``applied_voltages``). ``--chain NAME`` (with ``--realtime --command-interface cmd_vel``) puts
 the real robot's driver + firmware chain in the plant node and has the controller control through it
 (``chain.active``; `robotino_sim_node.chain_driver`, `nodes.chain_control`).
+
+Over a radio link (``--link-delay-ms D --link-jitter-ms J --link-loss P --link-burst B``, each way, or the
+``wifi`` scenario's own link) the plant emulates it (``link.up.*`` / ``link.down.*``: everything it publishes
+reaches the controller and the recorder when the link delivers it; commands and plans reach it so), the
+controller sends delay-compensated plans and the plant applies them and reports what it applied
+(``command_applied``; ``--no-compensation``: plain commands acting on arrival, the baseline). The recording then
+holds what the controller received and when, and what the robot applied: ``regress`` replays the plans, and the
+metrics get the link's measured figures (`recording.link_report`).
 """
 
 from __future__ import annotations
@@ -41,8 +49,8 @@ from typing import TYPE_CHECKING
 
 from robotino_geom_mpc.scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
-from robotino_geom_mpc.cli.simulate import add_chain_argument, add_command_interface_argument, add_odometry_argument, \
-    add_scenario_argument, chain_from_args
+from robotino_geom_mpc.cli.simulate import add_chain_argument, add_command_interface_argument, add_link_arguments, \
+    add_odometry_argument, add_scenario_argument, chain_from_args, link_from_args
 
 if TYPE_CHECKING:
     from robotino_geom_mpc.system.processes import NodeGroup, NodeProcess
@@ -86,6 +94,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     add_odometry_argument(parser)
     add_command_interface_argument(parser)
     add_chain_argument(parser)
+    add_link_arguments(parser)
+    parser.add_argument("--plans", action="store_true",
+                        help="the controller sends delay-compensated plans and the plant applies them at their times "
+                        "even without a link (over a link they are the default)")
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
@@ -190,8 +202,10 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
 
+    link = link_from_args(args)
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
-                               odometry=args.odometry, command_interface=args.command_interface,
+                               odometry=args.odometry, command_interface=args.command_interface, link=link,
+                               plans=False if args.no_compensation else (True if args.plans else None),
                                goals_file=None if args.goals is None else args.goals.resolve(),
                                overrides={**overrides, "plant_node": {**overrides.get("plant_node", {}),
                                                                       "timing_report": str(report)}})
@@ -250,6 +264,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"  position error after settle: rms {metrics['rms_position_error_m']:.3g} m, "
           f"max {metrics['max_position_error_m']:.3g} m; peak current {metrics['peak_current_a']:.3g} A, "
           f"peak voltage {metrics['peak_voltage_v']:.3g} V")
+    if metrics.get("link") is not None:
+        from robotino_geom_mpc.recording.link_report import link_line
+
+        print(f"  link: {link_line(metrics['link'])}")
     if metrics.get("rms_position_error_odom_m") is not None:
         print(f"  in the odom frame: rms {metrics['rms_position_error_odom_m']:.3g} m; drift from the truth at the "
               f"end {metrics['odometry_drift_final_m']:.3g} m")

@@ -326,16 +326,25 @@ def report_bag(
     """Write ``out_dir/metrics.json`` and the figures of a recorded run; returns the metrics.
 
     Uses `results.compute_metrics` / `results.write_metrics` and
-    `plots.write_plots`, the same code as ``simulate`` and ``run``.
+    `plots.write_plots`, the same code as ``simulate`` and ``run``; a run with plans also gets ``link``, the
+    link's figures as the recording shows them (`link_report.link_figures`).
 
     Raises
     ------
     BagError
         If the bag cannot be read or lacks the topics of a run.
     """
+    from robotino_geom_mpc.recording.link_report import link_figures
+
+    if not isinstance(bag, BagReader):
+        bag = BagReader(bag)
     run = run_data_from_bag(bag, params_file)
     out = Path(out_dir)
     metrics = compute_metrics(run, settle_time_s=settle_time_s)
+    lockstep = find_topic(bag, "clock", "rosgraph_msgs/msg/Clock", False) is not None  # the lockstep plant's
+    link = link_figures(bag, run.control_period_s, lockstep)
+    if link is not None:  # a run with plans: the link it ran over, as the recording shows it
+        metrics["link"] = link
     write_metrics(metrics, out / "metrics.json")
     write_plots(run, out, settle_time_s=settle_time_s)
     return metrics

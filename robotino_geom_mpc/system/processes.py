@@ -40,16 +40,22 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
                      "wheel_currents:1", "joint_states:1", "diagnostics:1")
 
 
-def recorder_wait_for(command_interface: str = "voltages") -> list[str]:
+def recorder_wait_for(command_interface: str = "voltages", plans: bool = False) -> list[str]:
     """`RECORDER_WAIT_FOR` for a run's nodes (a description publisher among them) and command interface: with
     ``cmd_vel`` the controller's twist (``cmd_vel:2``, the plant's and the recorder's readers) instead of
-    ``wheel_voltages``, and the recorder's reader of the plant's ``applied_voltages``.
+    ``wheel_voltages``, and the recorder's reader of the plant's ``applied_voltages``. With `plans` the plant
+    reads the plan topic (``wheel_voltage_plan:2`` / ``cmd_vel_plan:2``; the plain command the recorder alone)
+    and the controller and the recorder the plant's ``command_applied``.
     """
     # joint_states: the recorder's reader and the description publisher's (its wheel TF recorded from tick 0)
     waits = [w.replace("joint_states:1", "joint_states:2") for w in RECORDER_WAIT_FOR]
-    if command_interface == "voltages":
-        return waits
-    return [w.replace("wheel_voltages:", "cmd_vel:") for w in waits] + ["applied_voltages:1"]
+    if command_interface != "voltages":
+        waits = [w.replace("wheel_voltages:", "cmd_vel:") for w in waits] + ["applied_voltages:1"]
+    if plans:
+        command = "wheel_voltages" if command_interface == "voltages" else "cmd_vel"
+        waits = [f"{command}:1" if w == f"{command}:2" else w for w in waits]
+        waits += [f"{command.replace('wheel_voltages', 'wheel_voltage')}_plan:2", "command_applied:2"]
+    return waits
 
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/: the nodes' profile on one host (`dds_environment`)
@@ -123,6 +129,8 @@ def node_arguments(
     goals_file: str | os.PathLike | None = None,
     command_interface: str = "voltages",
     environ: Mapping[str, str] | None = None,
+    link: Any = None,
+    plans: bool | None = None,
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`.
 
@@ -141,17 +149,34 @@ def node_arguments(
     `environ` is the environment the nodes will run in (`os.environ` if None, as for a `NodeGroup` without
     ``env``): where `dds_environment` gives them the package's profile, a lockstep plant settles
     `PROFILE_SETTLE_S` before tick 0 instead of its default.
+    `link` (`network.link.LinkParams`, each way) puts the plant's emulated radio link between the robot and the
+    other nodes (over the scenario's own link, e.g. ``wifi``'s). `plans` (None: whenever there is a link) makes
+    the controller send delay-compensated plans and the plant take them (``plans`` of both; the trajectory's
+    ``preview_points`` the plans' `DelayCompensatingController.preview_length`); False over a link is the
+    uncompensated baseline (plain commands acting on arrival).
     """
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.scenarios import node_parameters
     from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST
 
-    robot, _ = load_params(params_file)
+    robot, control = load_params(params_file)
     mode = "lockstep" if lockstep else "realtime"
     scenario_overrides = node_parameters(scenario, robot)
+    if link is not None:
+        scenario_overrides["plant_node"].update(
+            {f"link.{way}.{name}": float(value) for way in ("up", "down") for name, value in vars(link).items()})
+    networked = any(name.startswith("link.") and name.rsplit(".", 1)[1] != "burst_length" and value
+                    for name, value in scenario_overrides["plant_node"].items())
+    plans = networked if plans is None else plans
+    if plans:
+        from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
+
+        scenario_overrides["plant_node"]["plans"] = scenario_overrides["controller_node"]["plans"] = True
+        scenario_overrides["trajectory_node"]["preview_points"] = DelayCompensatingController(
+            robot, control).preview_length
     extra = overrides or {}
     if wait_for is None:
-        wait_for = list(LOCKSTEP_WAIT_FOR) if bag is None else recorder_wait_for(command_interface)
+        wait_for = list(LOCKSTEP_WAIT_FOR) if bag is None else recorder_wait_for(command_interface, plans)
         if goals_file is not None:  # the goal sender's odom subscription (its clock) too
             wait_for = [f"odom:{int(w.split(':')[1]) + 1}" if w.startswith("odom:") else w for w in wait_for]
     remaps = namespace_remaps(namespace, lockstep)

@@ -14,7 +14,8 @@ import numpy as np
 
 from robotino_geom_mpc.control.constrained import ConstrainedMPC
 from robotino_geom_mpc.geometric.decoupling import DecouplingField
-from robotino_geom_mpc.control.inverse_drive import InverseDrive, MotorKinematics
+from robotino_geom_mpc.control.inverse_drive import InverseDrive
+from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.arrays import checked_array
 from robotino_geom_mpc.control.estimator import OdometryFilter
@@ -155,7 +156,7 @@ class MotionController:
     def _rate_of_current(self, theta: float, theta_m: float, velocity: np.ndarray, current: np.ndarray) -> np.ndarray:
         """Motor-speed rate under the acceleration the currents give (used when the voltage saturates)."""
         acc = self._acceleration_of_current(theta_m, current) - self._damping * velocity
-        return self.kinematics.speeds_and_rates(theta, velocity, acc)[1]
+        return np.array(self.kinematics.speeds_and_rates_floats(theta, velocity, acc)[1])
 
     def _check(self, X: object, preview: object) -> tuple[list[float], list[list[float]]]:
         """X and the preview as Python floats, or ControllerInputError naming the bad one.

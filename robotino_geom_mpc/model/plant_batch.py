@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from robotino_geom_mpc.model.plant import _BASIS, _CURRENTS, _EXPONENTS, _N_LOOP, _PASS, _ROWS, PlantError, \
+from robotino_geom_mpc.model.plant import _BASIS, _CURRENTS, _N_LOOP, _ROWS, PlantError, \
     RobotinoPlant, _turn
 from robotino_geom_mpc.params.specs import RobotinoParams
 
@@ -69,11 +69,14 @@ class PlantBatch:
         return self.state[:, 9:12]
 
     def _stacked_maps(self, group: int, plant: RobotinoPlant, dt: float) -> np.ndarray:
-        """(14, 8 x 14): column block j is C_j^T, so v @ it gives every C_j v at once."""
+        """(14, 8 x 11): column block j is the transpose of C_j's first 11 rows, so v @ it gives every C_j v.
+
+        (The last 3 rows of every map pass the held voltages on.)
+        """
         key = (group, dt)
         if key not in self._loop_maps:
-            coefficients = plant._matrices(dt).coefficients.reshape(_BASIS, _N_LOOP, _N_LOOP)
-            self._loop_maps[key] = coefficients.transpose(2, 0, 1).reshape(_N_LOOP, _BASIS * _N_LOOP)
+            coefficients = plant._matrices(dt).coefficients.reshape(_BASIS, _N_LOOP, _N_LOOP)[:, : len(_ROWS)]
+            self._loop_maps[key] = coefficients.transpose(2, 0, 1).reshape(_N_LOOP, _BASIS * len(_ROWS))
         return self._loop_maps[key]
 
     def step(self, voltages: np.ndarray, dt: float) -> np.ndarray:
@@ -106,22 +109,29 @@ class PlantBatch:
             cos, sin = np.cos(-start), np.sin(-start)
             v = np.column_stack((cos * x - sin * y, cos * vx - sin * vy, sin * x + cos * y, sin * vx + cos * vy,
                                  w[:, 5:]))
-            trace = np.empty((n + 1, len(rows), _N_LOOP))
-            trace[0] = v
+            trace = np.empty((n + 1, len(rows), len(_ROWS)))  # the loop vectors without the held voltages
+            trace[0] = v[:, : len(_ROWS)]
             if fast.any():
-                basis = raw ** _EXPONENTS
+                # the basis (1, e, .., e^6, beta) of each substep, e = eps / eps_max (`_EXPONENTS`)
+                e = raw[:, :, 1]
+                powers = [np.ones_like(e), e]
+                for _ in range(_BASIS - 3):
+                    powers.append(powers[-1] * e)
+                basis = np.stack((*powers, raw[:, :, _BASIS - 1]), axis=2)[:, :, None, :]  # (b, n, 1, 8)
                 stacked = self._stacked_maps(group, plant, dt)
+                held = w[:, 12:] @ stacked[len(_ROWS) :]  # the voltages' share of every C_j v, the same each substep
                 for k in range(n):
-                    trace[k + 1] = np.einsum("bj,bjr->br", basis[:, k], (trace[k] @ stacked).reshape(-1, _BASIS, _N_LOOP))
+                    products = (trace[k] @ stacked[: len(_ROWS)] + held).reshape(-1, _BASIS, len(_ROWS))
+                    trace[k + 1] = (basis[:, k] @ products)[:, 0]
             for b in np.flatnonzero(~fast):  # exact maps, as `RobotinoPlant.step` beyond the fit
                 for k in range(n):
                     exact = _turn(raw[b, k, _BASIS - 1]) @ plant._substep_map(
                         raw[b, k, 1] * c.eps_max, heading[b, n * _BASIS + 3 + k], c.h)
-                    trace[k + 1, b] = np.vstack((exact, _PASS)) @ trace[k, b]
+                    trace[k + 1, b] = exact @ np.concatenate((trace[k, b], w[b, 12:]))
             x, vx, y, vy = trace[n, :, :4].T
             cos, sin = np.cos(end), np.sin(end)
             self.state[rows] = np.column_stack((cos * x - sin * y, cos * vx - sin * vy, sin * x + cos * y,
-                                                sin * vx + cos * vy, theta_end, trace[n, :, 4 : len(_ROWS)]))
+                                                sin * vx + cos * vy, theta_end, trace[n, :, 4:]))
             currents = trace[:, :, _CURRENTS]
             peaks[rows] = np.copysign(np.abs(currents).max(axis=0), currents[-1])
         self.time_s += dt

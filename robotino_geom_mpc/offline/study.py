@@ -262,7 +262,7 @@ def _cluster_rows(tasks: list[tuple], scheduler: str, bar: tqdm) -> list[dict[st
         raise StudyError("--scheduler needs dask.distributed: pip install 'robotino_geom_mpc[cluster]'") from None
     rows: list[dict[str, Any]] = []
     try:
-        client = Client(scheduler, timeout=30)
+        client = Client(scheduler, timeout=20)
     except (OSError, TimeoutError) as exc:
         raise StudyError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
     with client:

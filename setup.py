@@ -40,7 +40,7 @@ setup(
             "ros-jazzy-rosgraph-msgs==2.0.3",
         ],
         "cluster": ["dask[distributed]>=2024.8"],  # study/tune --scheduler: batches on a Dask cluster
-        "tune": ["optuna>=3.6,<6"],  # the tune verb's sampler (TPE), pruning and trial storage
+        "tune": ["optuna>=5,<6"],  # the tune verb's sampler (TPE), pruning and trial storage
         "test": [
             "pytest>=8,<10",
             "hypothesis>=6.100,<7",

@@ -82,7 +82,7 @@ def test_certificate_is_the_held_out_study(tuned):
 
 def test_the_parameter_file_runs_unchanged(tuned, tmp_path):
     out, _ = tuned
-    assert main(["simulate", "--scenario", "paper-circle", "--duration", "1.0", "--params", str(out / "params.yaml"),
+    assert main(["simulate", "--scenario", "paper-circle", "--duration", "1.5", "--params", str(out / "params.yaml"),
                  "--out", str(tmp_path / "sim")]) == 0
     metrics = json.loads((tmp_path / "sim" / "metrics.json").read_text())
     assert math.isfinite(metrics["rms_position_error_m"])

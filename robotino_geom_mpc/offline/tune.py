@@ -68,7 +68,13 @@ def score_study(rows: list[dict[str, Any]]) -> StudyScore:
                     for row in rows])
     peak = np.array([math.inf if row["error"] else row["peak_current_a"] for row in rows])
     failed = sum(1 for row in rows if row["error"])
-    return StudyScore(float(np.percentile(rms, 95)), float(np.percentile(peak, 99)), failed)
+
+    def percentile(values: np.ndarray, q: float) -> float:
+        with np.errstate(invalid="ignore"):
+            value = float(np.percentile(values, q))
+        return math.inf if math.isnan(value) else value  # between two failed runs: inf - inf
+
+    return StudyScore(percentile(rms, 95), percentile(peak, 99), failed)
 
 
 def _control_of(base: ControlParams, params: dict[str, Any]) -> ControlParams:

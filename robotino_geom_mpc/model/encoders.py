@@ -20,6 +20,7 @@ gains, beyond the true one, a Gaussian slip with standard deviation
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -43,6 +44,7 @@ __all__ = [
     "wheel_speeds_from_counts",
     "body_twist",
     "integrate_pose",
+    "integrate_poses",
     "twist_covariance",
     "EncoderOdometry",
     "EncoderOdometryBatch",
@@ -85,14 +87,16 @@ def wheel_speeds_from_counts(
     return np.asarray(delta_counts, dtype=float) * (2.0 * math.pi / (gear_ratio * counts_per_rev * dt))
 
 
-def body_twist(wheel_speeds: np.ndarray, p: RobotinoParams) -> np.ndarray:
+def body_twist(wheel_speeds: np.ndarray, p: RobotinoParams | Sequence[RobotinoParams]) -> np.ndarray:
     """(v_x, v_y, omega) in the robot frame from the wheel speeds [rad/s]: the inverse of `wheel_rim_speeds`.
 
-    The rim speed of wheel i is v_i = d_i(0) . (v_x, v_y) + l omega (`model.dynamics`); the 3x3 matrix of those
-    rows is invertible (the wheels are 120 degrees apart).
+    The rim speed of wheel i is v_i = d_i(0) . (v_x, v_y) + l omega (`model.dynamics`); the 3x3 matrix K of those
+    rows is invertible (the wheels are 120 degrees apart), and the twist is r K^-1 times the wheel speeds. The
+    array form: wheel speeds (..., 3) of one robot, or (B, 3) of B robots `p`, give twists of the same shape.
     """
-    kinematics = np.column_stack((wheel_directions(0.0), np.full(3, p.l)))
-    return np.linalg.solve(kinematics, p.r * np.asarray(wheel_speeds, dtype=float))
+    rows = _twist_of_wheel_speeds(p) if isinstance(p, RobotinoParams) else \
+        np.stack([_twist_of_wheel_speeds(one) for one in p])
+    return np.einsum("...ij,...j->...i", rows, np.asarray(wheel_speeds, dtype=float))
 
 
 def twist_covariance(p: RobotinoParams, counts_per_rev: int, slip_std: float, period_s: float) -> np.ndarray:
@@ -246,15 +250,14 @@ class EncoderOdometryBatch:
         if slip_std.shape != (B,) or not np.all((slip_std >= 0.0) & (slip_std <= 1.0)):
             raise EncoderError(f"slip_std must be {B} numbers in [0, 1]")
         self.plant, self._slip, self._normals, self._updates = plant, slip_std[:, None], slip_normals, 0
-        gear = np.array([p.gear_ratio for p in plant.params])[:, None]
-        self._count_scale = gear * counts_per_rev[:, None] / (2.0 * math.pi)
-        self._gear_counts = gear * counts_per_rev[:, None]
-        self._twist_rows = np.stack([_twist_of_wheel_speeds(p) for p in plant.params])  # (B, 3, 3)
+        self._params = plant.params
+        self._gear = np.array([p.gear_ratio for p in plant.params])[:, None]
+        self._counts_per_rev = counts_per_rev[:, None]
         self.pose = plant.pose.copy()
         self.twist = np.zeros((B, 3))
         self._angles = plant.wheel_angles.copy()
         self._seen = self._angles.copy()
-        self._counts = np.floor(self._seen * self._count_scale)
+        self._counts = encoder_counts(self._seen, self._gear, self._counts_per_rev)
         self._time_s = plant.time_s
 
     def update(self) -> tuple[np.ndarray, np.ndarray]:
@@ -267,17 +270,16 @@ class EncoderOdometryBatch:
                 d = d * (1.0 + self._slip * self._normals[self._updates])
             self._updates += 1
             seen = self._seen + d
-            counts = np.floor(seen * self._count_scale)
-            speeds = (counts - self._counts) * (2.0 * math.pi / (self._gear_counts * dt))
-            rows = self._twist_rows
-            self.twist = rows[:, :, 0] * speeds[:, 0:1] + rows[:, :, 1] * speeds[:, 1:2] + rows[:, :, 2] * speeds[:, 2:3]
-            self.pose = _integrate_poses(self.pose, self.twist, dt)
+            counts = encoder_counts(seen, self._gear, self._counts_per_rev)
+            speeds = wheel_speeds_from_counts(counts - self._counts, dt, self._gear, self._counts_per_rev)
+            self.twist = body_twist(speeds, self._params)
+            self.pose = integrate_poses(self.pose, self.twist, dt)
             self._angles, self._seen, self._counts, self._time_s = angles, seen, counts, self.plant.time_s
         return self.pose, self.twist
 
 
-def _integrate_poses(pose: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
-    """`integrate_pose` of B poses and twists (B, 3) over dt, as arrays."""
+def integrate_poses(pose: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
+    """`integrate_pose` of B poses and twists (B, 3) over dt: the array form (`integrate_pose` is the float one)."""
     vx, vy, w = twist.T
     a = w * dt
     small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19

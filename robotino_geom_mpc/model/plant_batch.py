@@ -63,6 +63,13 @@ class PlantBatch:
         """(x, y, theta) per run, shape (B, 3)."""
         return self.state[:, 0:5:2]
 
+    def odometry(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ideal measurement of every run, noise-free: poses (B, 3) and body-frame twists (v_x, v_y, theta')
+        (B, 3), the array form of `RobotinoPlant.noisy_odometry_floats`."""
+        x, vx, y, vy, theta, w = self.state[:, :6].T
+        c, s = np.cos(theta), np.sin(theta)
+        return self.state[:, 0:5:2].copy(), np.column_stack((c * vx + s * vy, -s * vx + c * vy, w))
+
     @property
     def wheel_angles(self) -> np.ndarray:
         """Integrated wheel angles (rim distance / r) per run [rad], shape (B, 3)."""

@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from robotino_geom_mpc.control.motion_batch import MotionControllerBatch
+from robotino_geom_mpc.control.motion_controller import state_from_odometry
 from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST, DEFAULT_COUNTS_PER_REV, ODOMETRY_MODELS, \
     EncoderOdometryBatch
 from robotino_geom_mpc.model.plant_batch import PlantBatch
@@ -139,20 +140,15 @@ def run_batch(
     saturated = np.empty((n, B), dtype=bool)
     rows = encoders[:, None]
     for k in range(n):
-        state = plant.state
-        theta = state[:, 4]
-        c, s = np.cos(theta), np.sin(theta)
-        pose, twist = state[:, 0:5:2], np.column_stack((c * state[:, 1] + s * state[:, 3],
-                                                         -s * state[:, 1] + c * state[:, 3], state[:, 5]))
+        true_pose, twist = plant.odometry()
+        pose = true_pose
         if source is not None:
             pose_encoders, twist_encoders = source.update()
             pose, twist = np.where(rows, pose_encoders, pose), np.where(rows, twist_encoders, twist)
         pose = pose + draws[k]
-        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-        X = np.column_stack((pose[:, 0], c * twist[:, 0] - s * twist[:, 1], pose[:, 1],
-                             s * twist[:, 0] + c * twist[:, 1], pose[:, 2], twist[:, 2]))
+        X = state_from_odometry(pose, twist)
         volts, saturated[k] = controller.step(X, targets[k + 1 : k + N + 1])
-        poses[k], measured[k], voltages[k] = state[:, 0:5:2], pose, volts
+        poses[k], measured[k], voltages[k] = true_pose, pose, volts
         currents[k] = plant.step(volts, Ts)
 
     t = np.arange(n) * Ts

@@ -228,12 +228,13 @@ def run_rows(
 def batch_size(runs: int, workers: int, batched: bool = True) -> int:
     """Runs per task.
 
-    Stepped together: an eighth of the runs, at most `BATCHED_MAX`, whatever the workers, so that the batches
-    (and so every row, to the last bit) are the same on any number of workers or machines. Run by run: at
-    least 8 tasks a worker so the last ones balance, at most `BATCH_MAX`.
+    Stepped together: a quarter of the runs (the per-tick cost is paid once a batch, so batches are large),
+    at most `BATCHED_MAX`, whatever the workers, so that the batches (and so every row, to the last bit) are
+    the same on any number of workers or machines. Run by run: at least 8 tasks a worker so the last ones
+    balance, at most `BATCH_MAX`.
     """
     if batched:
-        return max(1, min(BATCHED_MAX, -(-runs // 8)))
+        return max(1, min(BATCHED_MAX, -(-runs // 4)))
     return max(1, min(BATCH_MAX, runs // (8 * workers)))
 
 

@@ -20,7 +20,6 @@ gains, beyond the true one, a Gaussian slip with standard deviation
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -87,15 +86,15 @@ def wheel_speeds_from_counts(
     return np.asarray(delta_counts, dtype=float) * (2.0 * math.pi / (gear_ratio * counts_per_rev * dt))
 
 
-def body_twist(wheel_speeds: np.ndarray, p: RobotinoParams | Sequence[RobotinoParams]) -> np.ndarray:
+def body_twist(wheel_speeds: np.ndarray, p: RobotinoParams | np.ndarray) -> np.ndarray:
     """(v_x, v_y, omega) in the robot frame from the wheel speeds [rad/s]: the inverse of `wheel_rim_speeds`.
 
     The rim speed of wheel i is v_i = d_i(0) . (v_x, v_y) + l omega (`model.dynamics`); the 3x3 matrix K of those
     rows is invertible (the wheels are 120 degrees apart), and the twist is r K^-1 times the wheel speeds. The
-    array form: wheel speeds (..., 3) of one robot, or (B, 3) of B robots `p`, give twists of the same shape.
+    array form: wheel speeds (..., 3) of one robot `p`, or (B, 3) with `p` the B robots' r K^-1 stacked
+    (B, 3, 3), give twists of the same shape.
     """
-    rows = _twist_of_wheel_speeds(p) if isinstance(p, RobotinoParams) else \
-        np.stack([_twist_of_wheel_speeds(one) for one in p])
+    rows = _twist_of_wheel_speeds(p) if isinstance(p, RobotinoParams) else p
     return np.einsum("...ij,...j->...i", rows, np.asarray(wheel_speeds, dtype=float))
 
 
@@ -250,7 +249,7 @@ class EncoderOdometryBatch:
         if slip_std.shape != (B,) or not np.all((slip_std >= 0.0) & (slip_std <= 1.0)):
             raise EncoderError(f"slip_std must be {B} numbers in [0, 1]")
         self.plant, self._slip, self._normals, self._updates = plant, slip_std[:, None], slip_normals, 0
-        self._params = plant.params
+        self._twist_rows = np.stack([_twist_of_wheel_speeds(p) for p in plant.params])  # r K^-1 per run
         self._gear = np.array([p.gear_ratio for p in plant.params])[:, None]
         self._counts_per_rev = counts_per_rev[:, None]
         self.pose = plant.pose.copy()
@@ -272,7 +271,7 @@ class EncoderOdometryBatch:
             seen = self._seen + d
             counts = encoder_counts(seen, self._gear, self._counts_per_rev)
             speeds = wheel_speeds_from_counts(counts - self._counts, dt, self._gear, self._counts_per_rev)
-            self.twist = body_twist(speeds, self._params)
+            self.twist = body_twist(speeds, self._twist_rows)
             self.pose = integrate_poses(self.pose, self.twist, dt)
             self._angles, self._seen, self._counts, self._time_s = angles, seen, counts, self.plant.time_s
         return self.pose, self.twist

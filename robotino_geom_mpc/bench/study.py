@@ -22,8 +22,9 @@ def bench_study(quick: bool) -> dict[str, float]:
     a tenth of the runs run by run (``batched=False``, the per-tick float path) on the same cores,
     ``study_per_run_aggregate_realtime_factor`` and ``study_batched_speedup_vs_per_run``; a quarter of the
     runs batched on one worker against two, ``study_two_workers_speedup_vs_one``; and one batch of 200
-    (quick: 32) runs in this process, ``batched_us_per_run_tick`` (one core, no pool).
+    (quick: 32) runs in this process, ``batched_us_per_run_tick`` (one core and one OpenBLAS thread, no pool).
     """
+    from robotino_geom_mpc.blas_threads import one_blas_thread
     from robotino_geom_mpc.offline.batch_simulation import run_batch
     from robotino_geom_mpc.offline.study import _setting, draw_runs, run_study, summarize
 
@@ -44,6 +45,7 @@ def bench_study(quick: bool) -> dict[str, float]:
     two, _ = factor(quarter, count=2)
     one, _ = factor(quarter, count=1)
     settings = [_setting(robot, draw) for draw in draws[:in_process]]
+    one_blas_thread()  # as in the study's workers (OpenBLAS threads only spin on these sizes)
     start = time.perf_counter()
     data = run_batch("paper-circle", control, settings, duration_s=duration_s)
     per_tick_us = (time.perf_counter() - start) / (len(settings) * data[0].n) * 1e6

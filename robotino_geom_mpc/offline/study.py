@@ -151,22 +151,24 @@ def draw_runs(samples: int, seed: int, odometry: tuple[str, ...] = ODOMETRY_MODE
 
 
 def run_draw(
-    scenario: str, robot: RobotinoParams, control: ControlParams, draw: Draw, duration_s: float | None
+    scenario: str, robot: RobotinoParams, control: ControlParams, draw: Draw, duration_s: float | None,
+    network: dict[str, Any] | None = None,
 ) -> Any:
     """`simulation.run_scenario` of one draw: the plant on `robot`, the controller on its scaled copy.
 
+    `network` holds run_scenario's ``link_up``, ``link_down`` and ``compensate`` (None: the scenario's link).
     Returns the `results.RunData`; raises what `run_scenario` raises.
     """
     return run_scenario(
         scenario, robot.scaled(mass=draw.mass, inertia=draw.inertia, friction=draw.friction), control,
         duration_s=duration_s, seed=draw.seed, plant_robot=robot,
-        odometry_noise=(draw.noise_position_m, draw.noise_yaw_rad), odometry=draw.odometry,
+        odometry_noise=(draw.noise_position_m, draw.noise_yaw_rad), odometry=draw.odometry, **(network or {}),
     )
 
 
 def run_one(
     scenario: str, robot: RobotinoParams, control: ControlParams, draw: Draw, duration_s: float | None,
-    settle_time_s: float,
+    settle_time_s: float, network: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The row of one draw: its draws, simulated and wall seconds, `METRICS`, and ``error``.
 
@@ -176,7 +178,7 @@ def run_one(
     row: dict[str, Any] = {**asdict(draw), "simulated_s": 0.0, **dict.fromkeys(METRICS), "error": ""}
     start = time.perf_counter()
     try:
-        data = run_draw(scenario, robot, control, draw, duration_s)
+        data = run_draw(scenario, robot, control, draw, duration_s, network)
         metrics = compute_metrics(data, settle_time_s=settle_time_s)
     except Exception as exc:  # noqa: BLE001  (any failure of one run is that run's row, never the study's end)
         row["error"] = f"{type(exc).__name__}: {exc}"
@@ -195,16 +197,17 @@ def _setting(robot: RobotinoParams, draw: Draw) -> RunSetting:
 
 def run_rows(
     scenario: str, robot: RobotinoParams, control: ControlParams, draws: list[Draw], duration_s: float | None,
-    settle_time_s: float, batched: bool = True,
+    settle_time_s: float, batched: bool = True, network: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """The rows of some draws (one task of `run_study`): stepped together, or `run_one` of each.
 
     Stepped together, each row's ``wall_s`` is its share of the batch's wall time; a batch that raises
-    (one bad run fails the batch) is run again run by run, so that only the bad runs get an error.
+    (one bad run fails the batch) is run again run by run, so that only the bad runs get an error. Runs over
+    a link (`network`) go run by run: the batched loop has no link.
     """
     one_blas_thread()  # a task's process shares the cores with the other tasks' (a Dask worker's too)
-    if not batched:
-        return [run_one(scenario, robot, control, draw, duration_s, settle_time_s) for draw in draws]
+    if not batched or network:
+        return [run_one(scenario, robot, control, draw, duration_s, settle_time_s, network) for draw in draws]
     start = time.perf_counter()
     try:
         runs = run_batch(scenario, control, [_setting(robot, draw) for draw in draws], duration_s=duration_s)
@@ -289,6 +292,7 @@ def run_study(
     progress: bool = True,
     batched: bool = True,
     scheduler: str | None = None,
+    network: dict[str, Any] | None = None,
 ) -> StudyResult:
     """Run every draw, in batches, on `workers` local processes or on a Dask cluster.
 
@@ -315,6 +319,8 @@ def run_study(
         Step each batch's runs together (`batch_simulation.run_batch`); False: one after another (`run_one`).
     scheduler
         Address of a Dask scheduler (e.g. ``tcp://10.0.0.5:8786``); None: the local cores.
+    network
+        ``link_up``, ``link_down``, ``compensate`` of every run (`simulation.run_scenario`); None: the scenario's.
 
     Returns
     -------
@@ -335,8 +341,9 @@ def run_study(
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise StudyError(f"workers must be a positive integer, got {workers!r}")
     workers = min(workers, len(draws))
+    batched = batched and not network  # the batched loop has no link: runs over one go run by run
     size = batch_size(len(draws), workers, batched)
-    tasks = [(scenario, robot, control, draws[k : k + size], duration_s, settle_time_s, batched)
+    tasks = [(scenario, robot, control, draws[k : k + size], duration_s, settle_time_s, batched, network)
              for k in range(0, len(draws), size)]
     start = time.perf_counter()
     with tqdm(total=len(draws), desc=f"study {scenario}", unit="run", disable=not progress, mininterval=0.5) as bar:

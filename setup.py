@@ -14,7 +14,8 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
-        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.xml")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.xml")
+         + glob("config/*.rviz") + glob("config/*.json")),  # the presets, DDS profiles, RViz and Foxglove views
         (f"share/{PACKAGE}/urdf", glob("urdf/*.urdf")),
     ],
     python_requires=">=3.10",

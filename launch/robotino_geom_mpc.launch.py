@@ -37,6 +37,9 @@ duration       run length [s] of the plant; 0 runs until stopped. The plant ends
 seed           seed of the plant's odometry noise
 record         true: also start the MCAP recorder (bag in ``bag``)
 bag            recording directory (default: rosbag2_<date> in the working directory)
+rviz           true: also start rviz2 with config/robotino.rviz (fixed frame odom, the robot model, TF, the
+               reference and predicted paths, the odometry) where rviz2 is installed; where it is not, the
+               launch says so in its log and runs without it (docs/howto/views.md)
 
 The robot description (the URDF from the plant's parameters, `description.urdf.robotino_urdf`) is
 published in realtime by robot_state_publisher where it is installed, else (and always in lockstep, where its
@@ -53,7 +56,7 @@ from the recording.
 import math
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+from launch.actions import DeclareLaunchArgument, EmitEvent, LogInfo, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
 from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PathJoinSubstitution
@@ -97,6 +100,19 @@ def _has_robot_state_publisher() -> bool:
     except (LookupError, OSError):  # not in the index (PackageNotFoundError), or no index at all
         return False
     return True
+
+
+def _rviz(config: dict, namespace: str, remappings: list) -> list:
+    """rviz2 with the package's view where it is installed (the ament index), else a log line saying so."""
+    from ament_index_python.packages import get_package_share_directory
+
+    try:
+        get_package_share_directory("rviz2")
+    except (LookupError, OSError):  # not in the index (PackageNotFoundError), or no index at all
+        return [LogInfo(msg="rviz:=true but rviz2 is not installed (apt install ros-jazzy-rviz2): running without "
+                            f"it; open {config['rviz_config']} in rviz2 elsewhere, or the Foxglove layout")]
+    return [Node(package="rviz2", executable="rviz2", name="rviz2", namespace=namespace, remappings=remappings,
+                 arguments=["-d", config["rviz_config"]], output="screen")]
 
 
 def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
@@ -156,13 +172,15 @@ def _nodes(context) -> list:
     if record:
         nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
                           parameters=[params_file, {"output": config["bag"], "scenario": scenario}], **common))
+    views = _rviz(config, namespace, remappings) if _flag(config, "rviz") else []
     ended = EmitEvent(event=Shutdown(reason="the plant ended the run"))
-    return [*nodes, RegisterEventHandler(OnProcessExit(target_action=plant_node, on_exit=[ended]))]
+    return [*nodes, *views, RegisterEventHandler(OnProcessExit(target_action=plant_node, on_exit=[ended]))]
 
 
 def generate_launch_description() -> LaunchDescription:
     default_params = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "robotino3.yaml"])
     default_profile = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "fastdds_localhost.xml"])
+    default_rviz = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "robotino.rviz"])
     return LaunchDescription([
         DeclareLaunchArgument("scenario", default_value="paper-circle", description="scenario (scenarios.py)"),
         DeclareLaunchArgument("params_file", default_value=default_params, description="parameter file (/** section)"),
@@ -185,5 +203,8 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("seed", default_value="0", description="seed of the odometry noise"),
         DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),
         DeclareLaunchArgument("bag", default_value="", description="recording directory"),
+        DeclareLaunchArgument("rviz", default_value="false",
+                              description="true: also start rviz2 with rviz_config (a log line where not installed)"),
+        DeclareLaunchArgument("rviz_config", default_value=default_rviz, description="the RViz view of rviz:=true"),
         OpaqueFunction(function=_nodes),
     ])

@@ -86,9 +86,10 @@ def test_bad_values_name_the_key_and_the_file(tmp_path, section, key, value, exp
     "text, expect",
     [
         ("robot: [unclosed\n", "not valid YAML"),
-        ("- just\n- a list\n", "expected a mapping"),
-        ("/**:\n  ros__parameters: 5\n", "'/**' must contain a 'ros__parameters' mapping"),
-        ("/**: [1, 2]\n", "'/**' must contain a 'ros__parameters' mapping"),
+        ("- just\n- a list\n", "Sequences cannot be key at line 1"),  # rcl's words (params.rcl_yaml)
+        ("/**:\n  ros__parameters: 5\n", "Cannot have a value before ros__parameters at line 2"),
+        ("/**: [1, 2]\n", "Sequences can only be values and not keys in params. Error at line 1"),
+        ("/**:\n  ros__parameters:\n    a: &x 1\n    b: *x\n", "Will not support aliasing at line 4"),
         ("other_node:\n  ros__parameters: {robot: {mass_kg: 1.0}}\n", "no '/**' section"),
     ],
 )

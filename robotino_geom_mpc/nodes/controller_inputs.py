@@ -15,7 +15,8 @@ Bad input (`ros.decode` and `control.motion_controller.MotionController.state_pr
   ``tilt_tolerance_rad`` (``quaternion_tilt``), on odometry and on every
   preview point; a measurement no robot on its wheels gives (``implausible``:
   a twist whose motor speeds exceed twice the no-load speed U_supply / Km, a
-  pose or preview position beyond 1000 km); in realtime, a stamp older than
+  pose or preview position beyond 1000 km); a preview whose frame_id is not
+  the controller's ``<frame_prefix>odom`` (``frame``); in realtime, a stamp older than
   ``odom_timeout_s`` (preview: ``reference_timeout_s``) against the node clock
   (``stale``: an hour old, or zero) or ahead of it by more than
   ``future_tolerance_s`` (``future``). In lockstep a refused preview makes the
@@ -31,8 +32,9 @@ Bad input (`ros.decode` and `control.motion_controller.MotionController.state_pr
   message). If nothing valid follows, the watchdog gives zero volts after
   the timeout.
 
-Stale data: a steady-clock watchdog checks the arrival age of the accepted
-odometry and preview: older than ``odom_timeout_s`` / ``reference_timeout_s``
+Stale data: a watchdog checks the arrival age of the accepted odometry and
+preview, in steady time, or in node-clock time under ``use_sim_time`` (a slow
+simulation is slow, not stale): older than ``odom_timeout_s`` / ``reference_timeout_s``
 means (realtime) zero volts, a throttled warning, the watchdog state in the
 diagnostics, and a bumpless restart when data return; the stamps used so far
 are forgotten then, so inputs stamped before them are taken (a clock that went

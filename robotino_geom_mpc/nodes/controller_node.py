@@ -38,7 +38,10 @@ velocities and accelerations (`reference.trajectories.shift_preview`). The step 
 one used (None when it is exactly one period, and after a (re)start).
 
 Time: the stamps of the inputs; in realtime the node clock (``use_sim_time``
-honoured) is read once per input to check its stamp.
+honoured) is read once per input to check its stamp. The watchdog counts the
+node clock under ``use_sim_time`` (read at start), steady time otherwise.
+
+Frames: a preview not in ``<frame_prefix>odom`` is refused (reason ``frame``, naming both frames).
 
 Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagnostic naming the reason).
 
@@ -88,7 +91,7 @@ from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
     stamp_problem, state_of_odometry, time_ns
-from robotino_geom_mpc.ros.messages import odometry_layout, preview_layout
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, preview_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS
 from robotino_geom_mpc.ros.spin import monotonic, run_node
@@ -123,6 +126,7 @@ class ControllerNode(Node):
             raise NodeStartError(f"parameter 'frame_prefix': {exc}") from None
         self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS, self._event_values, self.control.horizon,
                                          prefix, self.params["command_interface"])
+        self.odom_frame = prefix + ODOM_FRAME  # the frame of the previews it takes
         self.enabled = True
         self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
@@ -140,8 +144,12 @@ class ControllerNode(Node):
         self.pending: tuple[int, np.ndarray] | None = None  # lockstep: odometry waiting for its preview
         self.pending_since = 0.0
         self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
-        self.odom_time = self.preview_time = None  # steady arrival times of accepted inputs
-        self.start_time = monotonic()
+        # the watchdog's clock, read at start: the node clock under use_sim_time (a slow simulation is slow, not
+        # stale), else steady time
+        self.sim_time = bool(self.get_parameter("use_sim_time").value)
+        self._watch_now = (lambda: self.get_clock().now().nanoseconds * 1e-9) if self.sim_time else monotonic
+        self.odom_time = self.preview_time = None  # arrival times of accepted inputs (`_watch_now`)
+        self.start_time = self._watch_now()
         self.watchdog_state = "waiting"
         self.counters = InputCounters()
         self.blend = BlendEngagement(self.control.period_s, self.control.horizon)
@@ -161,9 +169,10 @@ class ControllerNode(Node):
         self.blend_limits = (p["blend_acceleration_mps2"], p["blend_acceleration_radps2"])
 
     def _start_watchdog(self):
-        """The steady-clock timer of the watchdog, at half the shorter timeout."""
+        """The timer of the watchdog, at half the shorter timeout, on the watchdog's clock (`_watch_now`)."""
         timeout = min(self.params["odom_timeout_s"], self.params["reference_timeout_s"])
-        return self.create_timer(timeout / 2, self._check_watchdog, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        clock = self.get_clock() if self.sim_time else Clock(clock_type=ClockType.STEADY_TIME)
+        return self.create_timer(timeout / 2, self._check_watchdog, clock=clock)
 
     def _on_params(self, changed: dict) -> None:
         self._read_limits()
@@ -221,6 +230,9 @@ class ControllerNode(Node):
                 msg = _read_preview(data)
                 sec, nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec
                 stamp = time_ns(sec, nanosec)  # first: a wrongly sized preview is refused for its tick
+                if msg.header.frame_id != self.odom_frame:  # another robot's odom, or a prefix mismatch
+                    raise InputRejected(f"reference_preview is in frame '{msg.header.frame_id}', not in the "
+                                        f"controller's '{self.odom_frame}'", "frame")
                 values = (sec, nanosec, *preview_point_values(msg, self.control.horizon))
             else:
                 stamp = time_ns(values[0], values[1])
@@ -239,7 +251,7 @@ class ControllerNode(Node):
         except (MalformedMessage, InputRejected) as exc:
             self._refuse_preview(stamp, getattr(exc, "reason", "malformed"), str(exc))
             return
-        self.preview_time = monotonic()
+        self.preview_time = self._watch_now()
         if latest is None or stamp > latest[0]:
             jump = reference_jump(latest, stamp, arrays[0][0], *self.jump_limits)
             if jump is not None:
@@ -294,7 +306,7 @@ class ControllerNode(Node):
         except InputRejected as exc:
             self._reject(stamp, "odom", exc.reason, str(exc))
             return
-        self.odom_time = monotonic()
+        self.odom_time = self._watch_now()
         self.theta = X[4]
         if self.lockstep:
             for old in [s for s in self.previews if s < stamp]:
@@ -403,7 +415,7 @@ class ControllerNode(Node):
         self.get_logger().info(f"waiting: {what}", throttle_duration_sec=_WAIT_LOG_PERIOD_S)
 
     def _check_watchdog(self) -> None:
-        now = monotonic()
+        now = self._watch_now()
         if self.odom_time is None or self.preview_time is None or self.lockstep:
             self._log_wait(now)  # lockstep: the plant holds the time; only say what is missing
             if self.odom_time is None or self.preview_time is None:

@@ -7,8 +7,8 @@
 
 Launch arguments
 ----------------
-scenario       a scenario of ``robotino_geom_mpc.scenarios``: paper-circle | lemniscate | point-to-point |
-               robustness. Each node gets the scenario's overrides (``scenarios.node_parameters``): the
+scenario       a name of ``robotino_geom_mpc.scenarios.SCENARIOS`` (the documentation's scenario page lists
+               them, generated from it). Each node gets the scenario's overrides (``scenarios.node_parameters``): the
                trajectory the scenario (its reference), the controller its model (mismatched in
                robustness), the plant the odometry noise
 params_file    ROS 2 parameter file, ``/**`` section read by every node (default: config/robotino3.yaml);
@@ -117,7 +117,8 @@ def _rviz(config: dict, namespace: str, remappings: list) -> list:
 
 def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
     """The robot description publisher: in realtime robot_state_publisher if installed, else the package's own
-    (with `mode`: lockstep makes its joint_states and /tf keep-all, robot_state_publisher's are keep-last)."""
+    (with `mode`: lockstep makes its joint_states and /tf keep-all, robot_state_publisher's are keep-last).
+    """
     if mode == "realtime" and _has_robot_state_publisher():
         robot, _ = load_params(plant_params)
         return Node(package="robot_state_publisher", executable="robot_state_publisher",
@@ -128,7 +129,8 @@ def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
 
 def _nodes(context) -> list:
     """The nodes of the run, each with its scenario's overrides (`scenarios.node_parameters`), and the
-    handler that shuts the launch down when the plant exits."""
+    handler that shuts the launch down when the plant exits.
+    """
     config = context.launch_configurations
     scenario, params_file = config["scenario"], config["params_file"]
     robot, _ = load_params(params_file)

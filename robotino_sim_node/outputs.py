@@ -70,7 +70,8 @@ _TF_FIELDS = tuple(f"transforms[0].{field}" for field in STAMP_FIELDS + (
 def plant_odometry(sigma_position: float, sigma_yaw: float, frame_prefix: str = "",
                    twist_covariance: np.ndarray | None = None) -> Odometry:
     """The plant's Odometry, values zero: frames and covariances set (pose variance from the noise,
-    z/roll/pitch certain: planar; the twist's (3, 3) covariance of v_x, v_y, omega, None: noise-free)."""
+    z/roll/pitch certain: planar; the twist's (3, 3) covariance of v_x, v_y, omega, None: noise-free).
+    """
     msg = odometry_message(frame_prefix)
     pose_var = (max(sigma_position**2, _CERTAIN),) * 2 + (_CERTAIN,) * 3 + (max(sigma_yaw**2, _CERTAIN),)
     msg.pose.covariance = np.diag(pose_var).ravel()
@@ -172,7 +173,8 @@ class AppliedVoltages:
 
     def drive(self, loop: Any, plant: Any, twist_body: tuple[float, ...], duration_s: float) -> np.ndarray:
         """Run `loop` (a `wheel_speed_loop.WheelSpeedLoop`) on `plant` for `duration_s` towards `twist_body`,
-        account the voltages it held; returns each drive's peak |armature current| [A] over that time."""
+        account the voltages it held; returns each drive's peak |armature current| [A] over that time.
+        """
         held, currents = loop.run(plant, twist_body, duration_s)
         self.volt_seconds += held.mean(axis=0) * duration_s
         self.seconds += duration_s

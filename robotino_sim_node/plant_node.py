@@ -54,8 +54,8 @@ take a Fast DDS announcement period of 3 s) is logged apart. The report at the e
 and, if ``timing_report`` names a file, one JSON object there (`loop_timing` gives the keys and their
 meaning), written once every reader has acknowledged the run's samples.
 
-Parameters: the robot/control parameters of config/*.yaml (``/**`` section; a plant-robot mismatch is the
-plant and the controller reading different files or overrides) plus those in `PLANT_SPECS`.
+``chain.active`` enabled (realtime, cmd_vel): the plant behind the real robot's driver + firmware (`chain_driver`).
+Parameters: the robot/control ones of config/*.yaml (``/**``; a mismatch: other files) plus `PLANT_SPECS`.
 """
 
 from __future__ import annotations
@@ -79,6 +79,7 @@ from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, three_v
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos, wait_acknowledged
 from robotino_geom_mpc.ros.spin import FINISHED_ACK_WAIT_S, data_publishers, monotonic, run_node
+from robotino_sim_node.chain_driver import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, attach_chain
 from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
 from robotino_geom_mpc.model.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source, twist_covariance
 from robotino_sim_node.lockstep_start import StartHandshake
@@ -104,18 +105,18 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
               "(1: a deterministic run watched at real time); 0: as fast as the loop answers", "", 0.0, 1e6, False),
     ParamSpec("lockstep_settle_s", float, "Lockstep: send tick 0 this long after the start handshake is met, so "
               "that the other nodes' endpoints, shown by the graph, have matched each other too", "s", 0.0, 60.0, True),
-    ParamSpec("odometry_noise.position_m", float, "Standard deviation of the odometry x, y noise", "m", 0.0, 1.0, False),
+    ParamSpec("odometry_noise.position_m", float, "Standard deviation of odometry x, y noise", "m", 0.0, 1.0, False),
     ParamSpec("odometry_noise.yaw_rad", float, "Standard deviation of the odometry yaw noise", "rad", 0.0, 1.0, False),
     ParamSpec("seed", int, "Seed of the odometry noise (and of the wheel slip)", "", 0, 2**31 - 1, False),
     ParamSpec("timing_report", str, "File the loop's timing figures go to as one JSON object at the end of a run "
               "(its folder must exist); empty: none"),
-) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS
+) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS + CHAIN_NODE_SPECS
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
     "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0,
     "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "",
-    **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS,
+    **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS, **CHAIN_NODE_DEFAULTS,
 }
 
 _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray")  # other layouts than the controller's
@@ -130,7 +131,8 @@ class PlantNode(Node):
         self.params = SpecParameters(
             self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params,
             # the realtime grid (steps of 1 / physics_rate_hz), the odometry model
-            fixed=("mode", "physics_rate_hz", "timing_report", *ODOMETRY_DEFAULTS, *TF_DEFAULTS, *WHEEL_PI_DEFAULTS),
+            fixed=("mode", "physics_rate_hz", "timing_report", *ODOMETRY_DEFAULTS, *TF_DEFAULTS, *WHEEL_PI_DEFAULTS,
+                   *CHAIN_NODE_DEFAULTS),
         )
         try:
             self.frame_prefix = check_frame_prefix(self.params["frame_prefix"])
@@ -145,8 +147,7 @@ class PlantNode(Node):
         self.odometry = self._new_odometry()
         self.period_ns = int(round(self.control.period_s * 1e9))
         self.rng = np.random.default_rng(self.params["seed"])  # the noise stream of `simulation.run_scenario`
-        self.done = Future()
-        self.exit_status = 0
+        self.done, self.exit_status = Future(), 0
 
         qos = publish_qos(self.lockstep)
         self.odom_pub = self.create_publisher(Odometry, "odom", qos)
@@ -171,8 +172,7 @@ class PlantNode(Node):
         self.measurement: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         self.have_period = False  # a period has been integrated since the first measurement
         self._build_messages()
-        self.counts = {"clamped_commands": 0, "refused_commands": 0, "command_timeouts": 0}
-        self.tick = 0
+        self.counts, self.tick = {"clamped_commands": 0, "refused_commands": 0, "command_timeouts": 0}, 0
         duration = self.params["duration_s"]
         self.last_tick = max(1, int(round(duration / self.control.period_s))) - 1 if duration > 0 else None
         self.busy_s = 0.0  # in the callbacks (lockstep: ticks 1 ..)
@@ -192,6 +192,7 @@ class PlantNode(Node):
             self.ticks = 0  # published
             self.timing = LoopTiming()
             self.publish_timer = self.create_timer(self.control.period_s, self._publish_realtime, clock=steady)
+        self.chain = attach_chain(self)  # chain.active: the driver + firmware chain takes commands and odometry
         self.get_logger().info(f"plant simulator ready ({self.params['mode']}, Ts = {self.control.period_s:g} s)")
 
     # parameters ---------------------------------------------------------------------------------
@@ -342,8 +343,7 @@ class PlantNode(Node):
         self._write_report(report)
 
     def _write_report(self, report: dict) -> None:
-        """Write the timing report to ``timing_report`` (if set) when the readers have the run's samples (so `run`
-        may stop the other nodes once it is there); a failure is logged and the exit status 1."""
+        """Write ``timing_report`` (if set) once the readers have the samples (`run` then stops); failure: status 1."""
         if self.params["timing_report"]:
             wait_acknowledged(self, data_publishers(self), FINISHED_ACK_WAIT_S)
             try:
@@ -416,7 +416,8 @@ class PlantNode(Node):
         """Odom (noisy), /clock, currents, ground truth, joints at `stamp` (sec, nanosec); a resent tick (not
         `fresh`): odom and /clock only (they drive the loop; tf2 refuses a repeated stamp on /tf). The others are
         built only while a subscription is matched; the currents of the period just integrated follow this
-        tick's odometry, before its ground truth."""
+        tick's odometry, before its ground truth.
+        """
         if fresh or self.measurement is None:
             noise = (self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"])
             self.measurement = self.odometry.odometry_floats(self.rng, noise)
@@ -437,7 +438,6 @@ class PlantNode(Node):
 
 def _all_specs() -> tuple[ParamSpec, ...]:
     from robotino_geom_mpc.params.specs import ALL_SPECS
-
     return ALL_SPECS + PLANT_SPECS
 
 

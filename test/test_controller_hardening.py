@@ -29,6 +29,8 @@ from robotino_geom_mpc.ros.messages import ns_to_stamp, preview_message, yaw_to_
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.qos import PUBLISH_QOS
 
+pytestmark = pytest.mark.ros
+
 NODE = "robotino_controller"
 
 
@@ -135,7 +137,8 @@ def test_an_input_that_is_no_measurement_is_refused_with_zero_volts(harness, loc
 @pytest.mark.parametrize("frame", ["hard/odom", "map", ""])
 def test_a_preview_in_another_frame_is_refused_naming_both_frames(harness, lockstep, frame):
     """The controller (frame_prefix '') takes previews in 'odom' only: one in its namespace's prefixed odom (a
-    prefix mismatch), in map or without a frame gives its tick zero volts and an ERROR naming both frames."""
+    prefix mismatch), in map or without a frame gives its tick zero volts and an ERROR naming both frames.
+    """
     _, control = load_params()
     stamp = (500 + 10 * len(lockstep.voltages)) * round(control.period_s * 1e9)
     preview = preview_message(make_reference("paper-circle"), stamp, control.period_s, control.horizon)

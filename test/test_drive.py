@@ -9,6 +9,8 @@ from robotino_geom_mpc.control.inverse_drive import DriveError, InverseDrive, ZO
 from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = pytest.mark.unit
+
 Ts = 0.01
 
 

@@ -36,6 +36,8 @@ from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, RECORDER_WAIT
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
 from robotino_geom_mpc.offline.simulation import run_scenario
 
+pytestmark = pytest.mark.unit
+
 LAUNCH_FILE = Path(__file__).resolve().parents[1] / "launch" / "robotino_geom_mpc.launch.py"
 PARAMS = str(default_params_file())
 PROFILE = str(config_file("fastdds_localhost.xml"))
@@ -116,7 +118,8 @@ def _of(kind: str, items) -> list[Recorded]:
 
 def _defaults(description) -> dict[str, str]:
     """The declared arguments' defaults, as launch would perform them (the file paths set here; the profile
-    as without FASTRTPS_DEFAULT_PROFILES_FILE in the environment)."""
+    as without FASTRTPS_DEFAULT_PROFILES_FILE in the environment).
+    """
     files = {"params_file": PARAMS, "plant_params": PARAMS, "fastdds_profile": PROFILE, "rviz_config": RVIZ}
     values = {a.args[0]: a.kwargs["default_value"] for a in _of("DeclareLaunchArgument", description)}
     assert all(isinstance(v, str) for k, v in values.items() if k not in files)
@@ -254,7 +257,8 @@ def test_namespace_moves_every_node_as_run_does(description, lockstep):
             assert _ros_args_remaps(args[name]) == launched, name
     for name in LOOP | {"recorder_node"}:
         got = _overrides(nodes[name]).get("frame_prefix")
-        assert got == _ros_args_parameter(args[name], "frame_prefix") == ("robot1/" if name in FRAME_PREFIX_NODES else None), name
+        want = "robot1/" if name in FRAME_PREFIX_NODES else None
+        assert got == _ros_args_parameter(args[name], "frame_prefix") == want, name
     files, description_overrides = nodes[DESCRIPTION].kwargs["parameters"]
     mode = "lockstep" if lockstep == "true" else "realtime"
     assert files == PARAMS and description_overrides == {"frame_prefix": "robot1/", "mode": mode}
@@ -285,7 +289,8 @@ def test_robot_state_publisher_publishes_the_plants_urdf_where_installed(descrip
 @pytest.mark.parametrize("interface", ["voltages", "cmd_vel"])
 def test_command_interface_reaches_controller_and_plant_as_run_gives_it(description, interface):
     """command_interface (and, recorded, the plant's lockstep_wait_for) as `node_arguments` passes them to `run`'s
-    processes: cmd_vel to the controller and the plant, voltages left to their default."""
+    processes: cmd_vel to the controller and the plant, voltages left to their default.
+    """
     nodes, _ = _launch(description, command_interface=interface, lockstep="true", record="true", bag="/tmp/b")
     args = node_arguments("paper-circle", PARAMS, 0.0, True, bag="/tmp/b", command_interface=interface)
     for name in LOOP | {"recorder_node"}:
@@ -334,7 +339,8 @@ FIXTURE_ARGUMENTS = {
 
 def _launch_ros_value(value):
     """A value as launch_ros 0.26.6 evaluates it (normalize_parameters.py, evaluate_parameters.py): a string goes
-    through a YAML round trip, a list becomes a tuple of one type (ints and floats: floats)."""
+    through a YAML round trip, a list becomes a tuple of one type (ints and floats: floats).
+    """
     if isinstance(value, str):
         return yaml.safe_load(yaml.dump(value))
     if isinstance(value, (list, tuple)):
@@ -348,7 +354,8 @@ def _launch_ros_value(value):
 def _launch_ros_file(node: Recorded, params: dict) -> str:
     """The text launch_ros 0.26.6 writes for a dict of a Node's ``parameters`` (`Node._create_params_file_from_dict`):
     nested dicts flattened with '.', under the node's full name (``/<namespace>/<name>``), '/**' for a node
-    without a name, with ``yaml.dump(..., default_flow_style=False)``."""
+    without a name, with ``yaml.dump(..., default_flow_style=False)``.
+    """
     flat = {}
 
     def walk(tree: dict, prefix: str = "") -> None:
@@ -381,7 +388,8 @@ def _written(nodes: dict[str, Recorded], folder: Path) -> dict[str, list[Path]]:
 @pytest.mark.parametrize("case", list(FIXTURE_ARGUMENTS))
 def test_the_files_launch_ros_writes_are_those_it_wrote_in_a_real_launch(description, case, tmp_path):
     """The emulated writer against the files launch_ros 0.26.6 wrote (kept in test/data/launch_ros): the same
-    bytes, ``!!python/tuple`` included; so the next test checks the form a real launch gives the nodes."""
+    bytes, ``!!python/tuple`` included; so the next test checks the form a real launch gives the nodes.
+    """
     nodes, _ = _launch(description, **FIXTURE_ARGUMENTS[case])
     written = _written(nodes, tmp_path)
     for executable in nodes:
@@ -391,13 +399,15 @@ def test_the_files_launch_ros_writes_are_those_it_wrote_in_a_real_launch(descrip
 
 
 @pytest.mark.parametrize("lockstep, record, interface", [
-    ("true", "true", "voltages"), ("true", "true", "cmd_vel"), ("false", "true", "voltages"), ("true", "false", "voltages"),
+    ("true", "true", "voltages"), ("true", "true", "cmd_vel"), ("false", "true", "voltages"),
+    ("true", "false", "voltages"),
 ])
 @pytest.mark.parametrize("scenario", list(SCENARIOS))
 def test_every_node_accepts_the_files_launch_ros_gives_it(description, tmp_path, scenario, lockstep, record, interface):
     """The bug of issue 27: a recorded lockstep launch gave the plant a ``!!python/tuple`` its pre-check refused.
     Each node's files, as launch_ros writes them, pass the pre-check it makes before rclpy.init; the plant reads
-    ``lockstep_wait_for`` from them as the list the file meant."""
+    ``lockstep_wait_for`` from them as the list the file meant.
+    """
     nodes, _ = _launch(description, scenario=scenario, lockstep=lockstep, record=record, command_interface=interface,
                        namespace="robot1" if interface == "cmd_vel" else "", bag="/tmp/bag")
     written = _written(nodes, tmp_path)

@@ -13,6 +13,8 @@ from robotino_geom_mpc.system.processes import NodeGroup
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import run_scenario
 
+pytestmark = pytest.mark.ros
+
 DURATION_S = 5.0
 WALL_CLOCK_KEYS = ("compute_time",)  # measured, not simulated
 

@@ -1,4 +1,4 @@
-"""Parameter files as rcl reads them: the pre-check every node makes before `rclpy.init` (`params.files`)
+r"""Parameter files as rcl reads them: the pre-check every node makes before `rclpy.init` (`params.files`)
 and rcl itself agree on which files they refuse and on the values a node gets.
 
 The truth is rcl: each file is given to ``rclpy.init(args=[..., "--ros-args", "--params-file", FILE])`` in a
@@ -6,7 +6,7 @@ fresh process (rcl_yaml_param_parser parses it there; a file it refuses raises),
 name and namespace is created to read the overrides rclpy matched to it (``Node._parameter_overrides``, the
 dict rclpy builds from rcl's parse: rclpy has no public accessor for it). The pre-check's values for the
 node are the sections `params.files.parse_parameter_file` reads, merged in the file's order where rclpy's
-node-name pattern (``/*`` -> ``(/\\w+)``, rclpy's node.cpp) matches the node: an independent rule.
+node-name pattern (``/*`` -> ``(/\w+)``, rclpy's node.cpp) matches the node: an independent rule.
 
 Cases: the forms launch_ros writes (``!!python/tuple`` lists, ``/<node>`` and ``/**`` keys; the real files
 are pinned in test_launch_file), anchors, an alias, flow style, nested namespaces, wildcards, keys with and
@@ -34,6 +34,8 @@ from robotino_geom_mpc.params.files import check_parameter_files, parse_paramete
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.params.rcl_yaml import NO_VALUE
 from robotino_geom_mpc.params.specs import ParamError
+
+pytestmark = pytest.mark.ros
 
 PROBE = textwrap.dedent("""\
     import json, math, sys
@@ -97,7 +99,8 @@ CASES = {
     "nested namespace, another robot": ("robot2:\n  robotino_plant:\n    ros__parameters:\n      seed: 5\n",
                                         "/robot1/robotino_plant"),
     "wildcards": ("/**/robotino_plant:\n  ros__parameters:\n    seed: 6\n/*:\n  ros__parameters:\n"
-                  "    mode: lockstep\n/robot1/*:\n  ros__parameters:\n    duration_s: 2.0\n", "/robot1/robotino_plant"),
+                  "    mode: lockstep\n/robot1/*:\n  ros__parameters:\n    duration_s: 2.0\n",
+                  "/robot1/robotino_plant"),
     "keys with and without a leading slash": ("robotino_plant:\n  ros__parameters:\n    seed: 1\n    duration_s: 3.0\n"
                                               "/robotino_plant:\n  ros__parameters:\n    seed: 2\n", PLANT),
     "a YAML error": ("robotino_plant:\n  ros__parameters:\n    lockstep_wait_for: [odom:1\n", PLANT),
@@ -190,7 +193,8 @@ def test_the_pre_check_and_rcl_agree_on_refusal_and_values(verdicts, case):
 
 def test_the_cases_cover_what_they_name(verdicts):
     """Each form is there and rcl reads it as named: a tuple as a string array, the alias and the broken
-    files refused, the scalars differently typed than YAML 1.1 would (so the test could fail)."""
+    files refused, the scalars differently typed than YAML 1.1 would (so the test could fail).
+    """
     _, rcl = verdicts
     plant = rcl["launch_ros python tuple"]["values"]
     assert plant["lockstep_wait_for"] == ["STRING_ARRAY", ["odom:2", "/clock:2", "reference_preview:2"]]
@@ -224,7 +228,8 @@ def test_the_package_refuses_what_rcl_reads_but_its_nodes_cannot_run(verdicts, c
 
 def test_the_files_a_real_launch_wrote_are_read_alike_by_rcl_and_the_pre_check():
     """The files launch_ros 0.26.6 wrote in two real launches (test/data/launch_ros): each node's own file with
-    the preset passes the pre-check, and rcl gives the node the values the pre-check read."""
+    the preset passes the pre-check, and rcl gives the node the values the pre-check read.
+    """
     files = sorted((Path(__file__).resolve().parent / "data" / "launch_ros").glob("*/*.yaml"))
     cases = []
     for path in files:

@@ -8,6 +8,7 @@ there every input is 100 ms old in steady time, past the timeout, so its diagnos
 which shows the test can tell the two apart.
 """
 
+import pytest
 import contextlib
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -15,6 +16,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from harness import Harness
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
+
+pytestmark = pytest.mark.ros
 
 DURATION_S = 0.5  # simulated: 50 ticks, 5 s of wall time at 0.1x
 FACTOR = 0.1

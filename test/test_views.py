@@ -22,6 +22,8 @@ from rosbags.highlevel import AnyReader
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import config_file
 
+pytestmark = pytest.mark.ros
+
 RVIZ = config_file("robotino.rviz")
 FOXGLOVE = config_file("robotino_foxglove_layout.json")
 RVIZ_TYPES = {  # display class -> the message type it reads

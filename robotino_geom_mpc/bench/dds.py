@@ -37,12 +37,11 @@ from robotino_geom_mpc.bench.registry import BenchmarkError, wait_for_run
 from robotino_geom_mpc.bench.roundtrip import bench_roundtrip
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
-from robotino_geom_mpc.system.processes import LOCKSTEP_WAIT_FOR, NodeGroup, node_arguments
+from robotino_geom_mpc.system.processes import LOCKSTEP_WAIT_FOR, TIMING_REPORT, NodeGroup, node_arguments
 
-__all__ = ["LOCKSTEP_RUNS", "ROUNDTRIPS", "TIMING_REPORT", "lockstep_nodes", "bench_lockstep", "bench_realtime",
+__all__ = ["LOCKSTEP_RUNS", "ROUNDTRIPS", "lockstep_nodes", "bench_lockstep", "bench_realtime",
            "dds_benchmarks", "missed_ticks", "read_timing_report"]
 
-TIMING_REPORT = "plant_timing.json"  # in the run's log directory
 # the keys of the plant's timing report and the types of their values (None: may be null)
 _REPORT_KEYS: dict[str, tuple[type | None, ...]] = {
     "mode": (str,), "ticks": (int,), "loop_ticks": (int,), "simulated_s": (int, float), "wall_s": (int, float),

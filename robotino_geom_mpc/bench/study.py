@@ -24,7 +24,7 @@ def bench_study(quick: bool) -> dict[str, float]:
     runs batched on one worker against two, ``study_two_workers_speedup_vs_one``; and one batch of 200
     (quick: 32) runs in this process, ``batched_us_per_run_tick`` (one core and one OpenBLAS thread, no pool).
     """
-    from robotino_geom_mpc.blas_threads import one_blas_thread
+    from robotino_geom_mpc.offline.study import _one_blas_thread as one_blas_thread
     from robotino_geom_mpc.offline.batch_simulation import run_batch
     from robotino_geom_mpc.offline.study import _setting, draw_runs, run_study, summarize
 

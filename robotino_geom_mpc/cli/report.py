@@ -40,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
 
     A damaged bag is reported in one warning line (what was recovered); the report covers what was read.
     """
-    from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
+    from robotino_geom_mpc.recording.bag_reader import BagReader, damage_report
+    from robotino_geom_mpc.recording.bagfile import BagError
     from robotino_geom_mpc.recording.report import report_bag
 
     try:

@@ -21,7 +21,9 @@ scenario and parameters. With ``--goals FILE`` (scenario ``goals``) a goal sende
 (`scenarios.node_parameters`): e.g. in ``robustness`` the controller a
 mismatched model and the plant odometry noise. With ``--command-interface cmd_vel`` the controller sends
 twists on cmd_vel, the plant holds them with its wheel-speed PI loops, and the metrics' voltages are those
-loops' (the plant's ``applied_voltages``).
+loops' (the plant's ``applied_voltages``). ``--chain NAME`` (with ``--realtime --command-interface cmd_vel``) puts
+the real robot's driver + firmware chain in the plant node and has the controller control through it
+(``chain.active``; `robotino_sim_node.chain_driver`, `nodes.chain_control`).
 """
 
 from __future__ import annotations
@@ -39,7 +41,8 @@ from typing import TYPE_CHECKING
 
 from robotino_geom_mpc.scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
-from robotino_geom_mpc.cli.simulate import add_command_interface_argument, add_odometry_argument, add_scenario_argument
+from robotino_geom_mpc.cli.simulate import add_chain_argument, add_command_interface_argument, add_odometry_argument, \
+    add_scenario_argument, chain_from_args
 
 if TYPE_CHECKING:
     from robotino_geom_mpc.system.processes import NodeGroup, NodeProcess
@@ -52,11 +55,11 @@ GRACE_S = 5.0
 RECORDER_GRACE_S = 70.0
 BAG_CLOSE_POLL_S = 0.005  # how often the stop looks for the recorder's closed bag
 RUN_END_POLL_S = 0.01  # how often `run` looks for the plant's timing report (the end of the run)
-TIMING_REPORT = "plant_timing.json"  # in DIR/logs: the plant's timing report (loop_timing), e.g. for bench
 # imported in a thread while the nodes start and run (the cores idle during discovery and the settle)
-REPORT_MODULES = ("robotino_geom_mpc.recording.bag", "robotino_geom_mpc.recording.report",
+REPORT_MODULES = ("robotino_geom_mpc.recording.bag_reader", "robotino_geom_mpc.recording.report",
                   "robotino_geom_mpc.cli.reindex", "rosbags.typesys.stores.ros2_jazzy")  # the last: the bag's types
 GOALS_SETTLE_S = 3.0  # --goals: the run goes on this long after the last motion ends (the loop settles)
+CHAIN_PI_RATE_HZ = 200.0  # --chain: the plant's wheel PI loops' rate over DDS
 REALTIME_START_S = 2.0  # realtime: the reference starts this much after the first odometry (start_settle_s + discovery)
 
 
@@ -78,9 +81,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         help="run length [s] (default: the scenario's length)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/run-<scenario>)")
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
-    parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
+    parser.add_argument("--seed", type=seed_value, default=0, metavar="N",
+                        help="seed of the odometry noise (default 0)")
     add_odometry_argument(parser)
     add_command_interface_argument(parser)
+    add_chain_argument(parser)
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
@@ -129,7 +134,8 @@ def _close_recording(group: NodeGroup, recorder: NodeProcess, bag: Path) -> None
     """SIGINT the recorder and wait until its bag is closed: metadata.yaml, the last file `BagWriter.close`
     writes, is there, or the recorder exits (its status is checked then). A recorder that closed its bag still
     exits (Fast DDS alone sleeps 0.1 s in its participant factory's destructor) while the report reads the bag;
-    `run` checks its status after the report."""
+    `run` checks its status after the report.
+    """
     recorder.popen.send_signal(signal.SIGINT)
     ended = group.wait(recorder, RECORDER_GRACE_S, done=(bag / "metadata.yaml").exists, poll_s=BAG_CLOSE_POLL_S)
     if not ended or recorder.popen.poll() is not None:  # exited: its status now; hung: SIGTERM, then SIGKILL
@@ -157,8 +163,17 @@ def run(args: argparse.Namespace) -> int:
     """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.params.presets import default_params_file
-    from robotino_geom_mpc.system.processes import NodeFailed, NodeGroup, node_arguments
+    from robotino_geom_mpc.system.processes import TIMING_REPORT, NodeFailed, NodeGroup, node_arguments
 
+    chain = chain_from_args(args)
+    overrides: dict = {}
+    if chain is not None:  # the plant behind the driver chain, the controller through it (both: chain.active)
+        if args.lockstep or args.command_interface != "cmd_vel":
+            raise UsageError("--chain needs --realtime and --command-interface cmd_vel (the driver's loop and the "
+                             "firmware's tick run on the wall clock)")
+        values = {"chain.active": "enabled", **chain.values()}
+        # the PI loops at 200 Hz (5 samples a tick, 1 kHz offline): the emulation keeps up with the wall clock
+        overrides = {"plant_node": {**values, "wheel_pi.rate_hz": CHAIN_PI_RATE_HZ}, "controller_node": dict(values)}
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)
     duration = args.duration if args.duration is not None else SCENARIOS[args.scenario].duration_s
@@ -178,7 +193,8 @@ def run(args: argparse.Namespace) -> int:
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
                                odometry=args.odometry, command_interface=args.command_interface,
                                goals_file=None if args.goals is None else args.goals.resolve(),
-                               overrides={"plant_node": {"timing_report": str(report)}})
+                               overrides={**overrides, "plant_node": {**overrides.get("plant_node", {}),
+                                                                      "timing_report": str(report)}})
     mode = "lockstep" if args.lockstep else "realtime"
     print(f"run {args.scenario} over DDS ({mode}, {duration:g} s, Ts = {control.period_s:g} s); logs in {out / 'logs'}")
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
@@ -212,7 +228,8 @@ def run(args: argparse.Namespace) -> int:
         if bag is None:
             print("  not recorded (--no-record): no metrics or figures")
             return 0
-        from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
+        from robotino_geom_mpc.recording.bag_reader import BagReader, damage_report
+        from robotino_geom_mpc.recording.bagfile import BagError
         from robotino_geom_mpc.recording.report import report_bag
         from robotino_geom_mpc.cli.reindex import warn_damage
 

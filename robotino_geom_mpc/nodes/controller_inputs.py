@@ -66,7 +66,8 @@ __all__ = ["CONTROLLER_DEFAULTS", "CONTROLLER_SPECS", "FIXED_WHILE_RUNNING", "In
            "closed_loop_problem", "reference_jump"]
 
 CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("mode", str, "realtime: freshest preview, watchdog outputs zero volts; lockstep: preview of the same stamp",
+    ParamSpec("mode", str, "realtime: freshest preview, watchdog outputs zero volts; "
+              "lockstep: preview of the same stamp",
               choices=("realtime", "lockstep")),
     ParamSpec("odom_timeout_s", float, "Odometry older than this (arrival, and stamp against the node clock in "
               "realtime) is stale: zero volts", "s", 0.0, 60.0, True),

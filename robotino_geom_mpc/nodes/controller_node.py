@@ -1,4 +1,4 @@
-"""Controller node: one `MotionController.step` (three MPCs, eq. 56 -> T(theta), eqs. 33-37 -> inverse drive) per odometry.
+"""Controller node: one `MotionController.step` (three MPCs, eq. 56 -> T(theta), eqs. 33-37 -> inverse drive) a tick.
 
 Topics (relative names)
 -----------------------
@@ -39,9 +39,8 @@ one used (None when it is exactly one period, and after a (re)start).
 
 Time: the stamps of the inputs; in realtime the node clock (``use_sim_time``
 honoured) is read once per input to check its stamp. The watchdog counts the
-node clock under ``use_sim_time`` (read at start), steady time otherwise.
-
-Frames: a preview not in ``<frame_prefix>odom`` is refused (reason ``frame``, naming both frames).
+node clock under ``use_sim_time`` (read at start), steady time otherwise. Frames: a preview not in
+``<frame_prefix>odom`` is refused (reason ``frame``, naming both frames).
 
 Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagnostic naming the reason).
 
@@ -81,10 +80,12 @@ from std_srvs.srv import SetBool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.control.blend import BlendEngagement, BlendError
-from robotino_geom_mpc.control.motion_controller import MAX_POSITION_M, ControllerInputError, MotionController, step_interval
+from robotino_geom_mpc.control.motion_controller import (MAX_POSITION_M, ControllerInputError, MotionController,
+                                                         step_interval)
 from robotino_geom_mpc.params.specs import ALL_SPECS
 from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix
+from robotino_geom_mpc.nodes.chain_control import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, chain_control
 from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
     InputCounters, closed_loop_problem, reference_jump
 from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
@@ -112,8 +113,9 @@ class ControllerNode(Node):
 
     def __init__(self) -> None:
         super().__init__("robotino_controller")
-        self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS, {**spec_defaults(), **CONTROLLER_DEFAULTS},
-                                     self._on_params, fixed=FIXED_WHILE_RUNNING, check=closed_loop_problem)
+        defaults = {**spec_defaults(), **CONTROLLER_DEFAULTS, **CHAIN_NODE_DEFAULTS}
+        self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS + CHAIN_NODE_SPECS, defaults, self._on_params,
+                                     fixed=(*FIXED_WHILE_RUNNING, *CHAIN_NODE_DEFAULTS), check=closed_loop_problem)
         self.robot, self.control = self.params.robot_control()
         self.controller = MotionController(self.robot, self.control)
         self.lockstep = self.params["mode"] == "lockstep"
@@ -127,14 +129,13 @@ class ControllerNode(Node):
         self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS, self._event_values, self.control.horizon,
                                          prefix, self.params["command_interface"])
         self.odom_frame = prefix + ODOM_FRAME  # the frame of the previews it takes
-        self.enabled = True
-        self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
+        self.chain = chain_control(self)  # chain.active: control through the driver chain (`chain_control`)
+        self.enabled, self.enable_srv = True, self.create_service(SetBool, "~/enable", self._on_enable)
         self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
         self.preview_layout = preview_layout(self.control.period_s, self.control.horizon, prefix)
         self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, CONTROL_QOS, raw=True)
-        self.preview_sub = self.create_subscription(
-            MultiDOFJointTrajectory, "reference_preview", self._on_preview, CONTROL_QOS, raw=True
-        )
+        self.preview_sub = self.create_subscription(MultiDOFJointTrajectory, "reference_preview", self._on_preview,
+                                                    CONTROL_QOS, raw=True)
 
         self.theta = 0.0  # last measured (continuous) yaw
         # lockstep: stamp [ns] -> (positions, velocities, accelerations), each (N + 1, 3)
@@ -290,6 +291,7 @@ class ControllerNode(Node):
             self._reject(None, "odom", getattr(exc, "reason", "malformed"), str(exc))
             return
         problem = stamp_problem(stamp, self.last_odom_ns, self._now_ns(), self.odom_timeout_ns, self.future_ns)
+        problem = None if self.chain is not None and problem in ("duplicate", "stale") else problem  # `chain_control`
         if problem is not None:
             if problem == "duplicate" and self.lockstep:
                 self.outputs.deliver_answer()  # the plant resent a tick: answer again only if undelivered
@@ -325,10 +327,12 @@ class ControllerNode(Node):
             return
         if self.latest_preview is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
             return  # stale reference: the watchdog outputs zero volts
+        if self.chain is not None:
+            return self.chain.control(self, stamp, X)
         preview_stamp, positions, velocities, accelerations = self.latest_preview
         dt = (stamp - preview_stamp) * 1e-9
-        self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt), velocities + dt * accelerations,
-                      accelerations, preview_stamp)
+        self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt),
+                      velocities + dt * accelerations, accelerations, preview_stamp)
 
     # control ------------------------------------------------------------------------------------
     def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray, velocities: np.ndarray,

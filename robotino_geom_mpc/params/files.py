@@ -18,7 +18,7 @@ refuse the same files with the same one-line `ParamError` naming the file and th
   every one of those it declares (``/**`` sections merged over the files in order, like rcl, plus its
   own sections); otherwise it would run on the preset's value for the rest without a word. Files that
   give no robot/control parameter at all (e.g. ``/**: {mode: lockstep}``) leave the preset in place;
-* a robot/control value of the wrong type or out of range (`validate_value`).
+* a robot/control or chain (``chain.*``) value of the wrong type or out of range (`validate_value`).
 
 Values are typed as rcl types them (``1e6`` and ``nan`` are numbers, ``~`` and ``1_000`` strings, ``010`` is 8).
 """
@@ -35,8 +35,8 @@ from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.params.rcl_yaml import NO_VALUE, RclFileError, rcl_parameters
 from robotino_geom_mpc.params.specs import (
     ALL_SPECS,
-    CONTROL_SPECS,
-    ROBOT_SPECS,
+    CHAIN_ACTIVE_SPEC,
+    CHAIN_SPECS,
     ControlParams,
     ParamError,
     RobotinoParams,
@@ -55,6 +55,7 @@ __all__ = [
 ]
 
 _ROBOT_CONTROL = tuple(s.name for s in ALL_SPECS)
+_CHAIN = (CHAIN_ACTIVE_SPEC.name,) + tuple(s.name for s in CHAIN_SPECS)
 
 RCLPY_PARAMETERS: tuple[str, ...] = ("use_sim_time", "start_type_description_service")
 """Parameters rclpy declares in every node (and ``qos_overrides.<topic>...`` for overridable QoS)."""
@@ -64,14 +65,14 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "mode", "odom_timeout_s", "reference_timeout_s", "future_tolerance_s", "quaternion_norm_tolerance",
         "tilt_tolerance_rad", "reference_jump_m", "reference_jump_rad", "blend_acceleration_mps2",
         "blend_acceleration_radps2", "frame_prefix", "command_interface",
-    ),
+    ) + _CHAIN,
     "robotino_plant": _ROBOT_CONTROL + (
         "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s",
         "lockstep_max_realtime_factor", "lockstep_settle_s", "odometry_noise.position_m", "odometry_noise.yaw_rad",
         "seed", "timing_report", "lockstep_wait_for",
         "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std",
         "command_interface", "wheel_pi.kp", "wheel_pi.ki", "wheel_pi.rate_hz", "publish_tf", "frame_prefix",
-    ),
+    ) + _CHAIN,
     "robotino_trajectory": _ROBOT_CONTROL + (
         "scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints", "goals.max_velocity_mps",
         "goals.max_acceleration_mps2", "goals.max_jerk_mps3", "goals.max_angular_velocity_radps",
@@ -135,6 +136,9 @@ def check_parameter_files(paths: Sequence[str | os.PathLike]) -> None:
                 if value is NO_VALUE:
                     raise ParamError(f"parameter '{name}' in {path} (section '{section}') has no value "
                                      "(rcl gives an empty list no type)")
+            for spec in (CHAIN_ACTIVE_SPEC, *CHAIN_SPECS):
+                if spec.name in values:
+                    validate_value(spec, values[spec.name], str(path))
             for spec in ALL_SPECS:
                 if spec.name in values:
                     validate_value(spec, values[spec.name], str(path))
@@ -175,7 +179,8 @@ def parse_parameter_file(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
 
 def _applies(section: str, node: str | None) -> bool:
     """Whether a section applies to `node` (any namespace) as rclpy matches it: its last name is the node's or a
-    wildcard (``/**``, ``*``); with `node` None, only the sections of every node."""
+    wildcard (``/**``, ``*``); with `node` None, only the sections of every node.
+    """
     last = section.rstrip("/").rsplit("/", 1)[-1]
     if node is None:
         return section.strip("/") in ("**", "*")

@@ -51,7 +51,8 @@ from robotino_geom_mpc.control.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_M
 from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController, step_interval
 from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
-from robotino_geom_mpc.recording.bag import BagError, BagReader
+from robotino_geom_mpc.recording.bag_reader import BagReader
+from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.report import (
     by_publish_time,
     controller_diagnostics,

@@ -1,4 +1,4 @@
-"""Start the nodes as separate processes and stop them cleanly (what `ros2 launch` would do; used by `run`, bench, tests).
+"""Start the nodes as separate processes and stop them cleanly (as `ros2 launch` would; used by `run`, bench, tests).
 
 Each node runs as ``sys.executable -m MODULE --ros-args ...`` in its own
 process group with stdout/stderr in files, so a Ctrl-C of the caller does not
@@ -22,8 +22,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR",
-           "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment",
+__all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "TIMING_REPORT",
+           "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
+           "dds_environment",
            "wait_for_exit",
            "frame_prefix", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
 
@@ -42,7 +43,8 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
 def recorder_wait_for(command_interface: str = "voltages") -> list[str]:
     """`RECORDER_WAIT_FOR` for a run's nodes (a description publisher among them) and command interface: with
     ``cmd_vel`` the controller's twist (``cmd_vel:2``, the plant's and the recorder's readers) instead of
-    ``wheel_voltages``, and the recorder's reader of the plant's ``applied_voltages``."""
+    ``wheel_voltages``, and the recorder's reader of the plant's ``applied_voltages``.
+    """
     # joint_states: the recorder's reader and the description publisher's (its wheel TF recorded from tick 0)
     waits = [w.replace("joint_states:1", "joint_states:2") for w in RECORDER_WAIT_FOR]
     if command_interface == "voltages":
@@ -58,6 +60,7 @@ FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/: the nodes' profile on o
 PROFILE_SETTLE_S = 0.1
 
 # the nodes that declare ``frame_prefix`` (their frame ids: odometry, /tf, paths)
+TIMING_REPORT = "plant_timing.json"  # in a run's log directory: the plant's timing report (loop_timing)
 FRAME_PREFIX_NODES = ("plant_node", "controller_node", "trajectory_node", "robot_description_publisher")
 _NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
@@ -130,7 +133,8 @@ def node_arguments(
     `LOCKSTEP_WAIT_FOR`, or `recorder_wait_for(command_interface)` with a recorder);
     `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`)
     and gives the nodes of `FRAME_PREFIX_NODES` its `frame_prefix`.
-    A ``robot_description_publisher`` publishes the URDF and the wheels' TF (lossless in lockstep, its ``mode``). `command_interface`
+    A ``robot_description_publisher`` publishes the URDF and the wheels' TF (lossless in lockstep, its ``mode``).
+    `command_interface`
     cmd_vel goes to the controller and the plant (voltages, their default, is left to them).
     With `goals_file` (scenario ``goals``) a ``goal_sender`` sends the file's
     goals and paths; a lockstep plant waits for its odom subscription too, so its times count from tick 0.
@@ -234,7 +238,8 @@ def ros_args(params_file: str | os.PathLike | None = None, overrides: dict[str, 
 
 def wait_for_exit(popens: list[subprocess.Popen], timeout_s: float) -> None:
     """Block until one of `popens` exits or `timeout_s` passes (Linux: on pidfds, woken at the exit itself;
-    elsewhere a 20 ms poll). Reaps nothing: `Popen.poll` then tells which one ended."""
+    elsewhere a 20 ms poll). Reaps nothing: `Popen.poll` then tells which one ended.
+    """
     running = [p for p in popens if p.poll() is None]
     if not running or timeout_s <= 0.0:
         return
@@ -334,7 +339,8 @@ class NodeGroup:
     def wait(self, node: NodeProcess, timeout_s: float | None = None, done: Callable[[], bool] | None = None,
              poll_s: float = 1.0) -> bool:
         """Wait until `node` exits or `done()` is true (True), or `timeout_s` passes (False); raise `NodeFailed`
-        if any node fails. Woken at once by an exit; `done` is looked at every `poll_s`."""
+        if any node fails. Woken at once by an exit; `done` is looked at every `poll_s`.
+        """
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             self.check()

@@ -25,6 +25,7 @@ from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = [pytest.mark.unit, pytest.mark.slow]
 TOLERANCE = 1e-9
 
 

@@ -23,7 +23,7 @@ from robotino_geom_mpc.offline.study import StudyError, draw_runs, run_study
 from robotino_geom_mpc.params.files import load_params
 
 pytest.importorskip("dask.distributed", reason="the cluster extra: pip install '.[cluster]'")
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 DASK = str(Path(sys.executable).with_name("dask"))
 SAMPLES, SEED, DURATION_S = 16, 5, 1.0  # 4 batches of 4 runs

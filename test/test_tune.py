@@ -22,7 +22,7 @@ from robotino_geom_mpc.offline.tune import HELD_OUT_SEED_OFFSET, score_study
 from robotino_geom_mpc.params.files import check_parameter_files, load_params
 
 pytest.importorskip("optuna", reason="the tune extra: pip install '.[tune]'")
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 SCENARIO, SAMPLES, TRIALS, SEED, DURATION_S = "robustness", 5, 4, 3, 1.5
 

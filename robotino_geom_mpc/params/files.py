@@ -33,8 +33,12 @@ from typing import Any
 
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.params.rcl_yaml import NO_VALUE, RclFileError, rcl_parameters
+import yaml
+
 from robotino_geom_mpc.params.specs import (
     ALL_SPECS,
+    CONTROL_SPECS,
+    ROBOT_SPECS,
     CHAIN_ACTIVE_SPEC,
     CHAIN_SPECS,
     ControlParams,
@@ -235,13 +239,14 @@ def load_params(
 
 def write_parameter_file(path: str | os.PathLike, robot: RobotinoParams, control: ControlParams,
                          header: str = "") -> Path:
-    """Write every robot and control parameter (`ALL_SPECS`) as a ROS 2 parameter file for all nodes (``/**``).
+    """Write every robot and control parameter (`ROBOT_SPECS`, `CONTROL_SPECS`) as a ROS 2 parameter file for
+    all nodes (``/**``).
 
     The file is what `load_params`, ``run --params`` and the nodes' ``--params-file`` read; `header` becomes
     its leading comment lines. Returns the path.
     """
     tree: dict[str, Any] = {}
-    for spec in ALL_SPECS:
+    for spec in ROBOT_SPECS + CONTROL_SPECS:
         owner = robot if spec in ROBOT_SPECS else control
         node = tree
         *groups, leaf = spec.name.split(".")

@@ -18,7 +18,6 @@ from robotino_geom_mpc.geometric.decoupling import DecouplingField
 from robotino_geom_mpc.control.inverse_drive import InverseDrive
 from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.arrays import checked_array
 from robotino_geom_mpc.control.estimator import OdometryFilter
 from robotino_geom_mpc.model.dynamics import acceleration_block, wheel_forces
 from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings

@@ -66,7 +66,8 @@ class MotorKinematics:
             omega = W(0) R(theta)^T v and omega' = W(theta) a + theta' W'(theta) v, where
             W'(theta) v = W(theta) (y', -x', 0): both are W(0) applied to body-frame vectors.
         """
-        theta, v, a = np.asarray(theta, dtype=float), np.asarray(velocity, dtype=float), np.asarray(acceleration, dtype=float)
+        theta = np.asarray(theta, dtype=float)
+        v, a = np.asarray(velocity, dtype=float), np.asarray(acceleration, dtype=float)
         c, s = np.cos(theta), np.sin(theta)
         vx, vy, w = v[..., 0], v[..., 1], v[..., 2]
         bx, by = a[..., 0] + w * vy, a[..., 1] - w * vx

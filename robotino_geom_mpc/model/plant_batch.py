@@ -65,7 +65,8 @@ class PlantBatch:
 
     def odometry(self) -> tuple[np.ndarray, np.ndarray]:
         """The ideal measurement of every run, noise-free: poses (B, 3) and body-frame twists (v_x, v_y, theta')
-        (B, 3), the array form of `RobotinoPlant.noisy_odometry_floats`."""
+        (B, 3), the array form of `RobotinoPlant.noisy_odometry_floats`.
+        """
         x, vx, y, vy, theta, w = self.state[:, :6].T
         c, s = np.cos(theta), np.sin(theta)
         return self.state[:, 0:5:2].copy(), np.column_stack((c * vx + s * vy, -s * vx + c * vy, w))

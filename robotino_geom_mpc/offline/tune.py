@@ -12,8 +12,9 @@ of N mismatched, noisy runs whose draws are the same for every trial:
     constraint p99 over the runs of the peak current <= the nominal current.
 
 Trial 0 is the base weights (the search starts from them). A trial whose
-nominal closed loop is unstable (`mpc.check_closed_loop`) is pruned before any run; so is one whose first quarter of runs already has a
-p95 above the median of the earlier trials' at that stage (optuna's
+nominal closed loop is unstable (`mpc.check_closed_loop`) is pruned before
+any run; so is one whose first quarter of runs already has a p95 above the
+median of the earlier trials' at that stage (optuna's
 MedianPruner). The best feasible trial is then run again, with the base
 weights beside it, on a held-out study (draws from another seed): the
 certificate. Plain Python: no rclpy.

@@ -13,6 +13,8 @@ velocity's high-frequency content.
 
 from __future__ import annotations
 
+from typing import Any
+
 import math
 from collections.abc import Sequence
 
@@ -267,7 +269,7 @@ class OdometryFilter:
         start
             The start poses (x, y, theta), shape (B, 3).
         """
-        stacked = cls(period_s, time_constant_s)
+        stacked: Any = cls(period_s, time_constant_s)  # the same attributes with a batch axis
         if any(twist not in TWIST_MODELS for twist in twists):
             raise EstimatorError(f"twists must be of {', '.join(TWIST_MODELS)}, got {sorted(set(twists))}")
         stacked._period_mean = np.array([twist == "period_mean" for twist in twists])
@@ -285,7 +287,8 @@ class OdometryFilter:
         the measurements are the caller's own (unchecked).
         """
         x, vx, y, vy, theta, w = X.T
-        px, vx0, py, vy0, pt, w0 = self._last.T
+        last: Any = self._last  # (B, 6) in a batch
+        px, vx0, py, vy0, pt, w0 = last.T
         h, L = self._half_period, self.gain
         dt = 2.0 * h
         a = w * dt
@@ -301,5 +304,6 @@ class OdometryFilter:
         py = py + L * (y - py)
         innovation = theta - pt
         pt = pt + L * (innovation - _TWO_PI * np.round(innovation / _TWO_PI))  # math.remainder's wrap
-        self._last = np.column_stack((px, vx, py, vy, pt, w))
-        return self._last[:, 0::2]
+        last = np.column_stack((px, vx, py, vy, pt, w))
+        self._last = last
+        return last[:, 0::2]

@@ -38,6 +38,8 @@ L (i*_k - i*_{k-1})/Ts with the back-EMF at the tick lags by 9.5 mA
 
 from __future__ import annotations
 
+from typing import Any
+
 import math
 from collections.abc import Callable, Sequence
 
@@ -153,6 +155,8 @@ class InverseDrive:
         Control period Ts over which each voltage is held.
     """
 
+    _i0: Any  # the predicted start currents: 3 floats, or (B, 3) in a batch
+
     def __init__(self, p: RobotinoParams, period_s: float) -> None:
         if not (math.isfinite(period_s) and period_s > 0.0):
             raise DriveError(f"period_s must be finite and > 0, got {period_s!r}")
@@ -176,11 +180,12 @@ class InverseDrive:
         current estimate the shape (B, 3); the float forms serve one run only.
         """
         runs = [cls(p, period_s) for p in robots]
-        stacked = cls.__new__(cls)
+        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
         column = lambda values: np.array(values, dtype=float)[:, None]  # noqa: E731
-        stacked.zoh = ZOHDrive.__new__(ZOHDrive)
+        zoh: Any = ZOHDrive.__new__(ZOHDrive)
+        stacked.zoh = zoh
         for name, value in vars(runs[0].zoh).items():
-            setattr(stacked.zoh, name, column([getattr(run.zoh, name) for run in runs]))
+            setattr(zoh, name, column([getattr(run.zoh, name) for run in runs]))
         stacked.period_s = runs[0].period_s
         stacked.supply_voltage_v = column([run.supply_voltage_v for run in runs])
         stacked.current_per_force = column([run.current_per_force for run in runs])
@@ -201,7 +206,8 @@ class InverseDrive:
         (`rate_of_current` maps (B, 3) mean currents to (B, 3) motor-speed rates).
         """
         vc, vs, vw, vr = self._voltage_row
-        i0, supply = self._i0, self.supply_voltage_v
+        i0: Any = self._i0  # (B, 3) in a batch
+        supply: Any = self.supply_voltage_v  # (B, 1) in a batch
         U = vc * i_cmd + vs * i0 + vw * omega + vr * omega_rate
         saturated = np.abs(U).max(axis=-1) > supply[:, 0]
         ec, es, ew, er = self._end_row

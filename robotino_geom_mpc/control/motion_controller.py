@@ -165,7 +165,7 @@ class MotionController:
     def _rate_of_current(self, theta: float, theta_m: float, velocity: np.ndarray, current: np.ndarray) -> np.ndarray:
         """Motor-speed rate under the acceleration the currents give (used when the voltage saturates)."""
         acc = self._acceleration_of_current(theta_m, current) - self._damping * velocity
-        return np.array(self.kinematics.speeds_and_rates_floats(theta, velocity, acc)[1])
+        return np.array(self.kinematics.speeds_and_rates_floats(theta, velocity.tolist(), acc.tolist())[1])
 
     def _check(self, X: object, preview: object) -> tuple[list[float], list[list[float]]]:
         """X and the preview as Python floats, or ControllerInputError naming the bad one.

@@ -19,6 +19,8 @@ horizon) can make the loop unstable, which a controller must refuse.
 
 from __future__ import annotations
 
+from typing import Any
+
 from collections.abc import Sequence
 from itertools import chain
 import math
@@ -296,7 +298,7 @@ class DecoupledMPC:
         The array forms (`delta_u`) then give each run its own gain; the float forms serve one run only.
         """
         runs = [cls(robot, control) for robot in robots]
-        stacked = cls.__new__(cls)
+        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
         stacked.period_s, stacked.horizon = runs[0].period_s, runs[0].horizon
         for name in ("q", "r", "A_d", "B_d", "G_p", "F_1p", "F_2p", "hessian", "gain", "stacked_gain",
                      "prediction_map"):

@@ -9,6 +9,8 @@ paper places singularities (erratum 2: there are none).
 
 from __future__ import annotations
 
+from typing import Any
+
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -159,7 +161,7 @@ class DecouplingField:
     @classmethod
     def batch(cls, robots: Sequence[RobotinoParams]) -> DecouplingField:
         """The fields of B robots at once: T(0) of shape (B, 3, 3), for the array forms (`field`, `forces`)."""
-        stacked = cls.__new__(cls)
+        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
         stacked.p = tuple(robots)
         stacked.T0 = np.linalg.inv(np.stack([acceleration_block(0.0, p) for p in stacked.p]))
         stacked._T0_rows = None  # no float path for a batch

@@ -73,14 +73,16 @@ class EncoderError(RobotinoError, ValueError):
     """A bad encoder setting (counts per revolution, slip, odometry model), named in the message."""
 
 
-def encoder_counts(wheel_angles: np.ndarray, gear_ratio: float, counts_per_rev: int) -> np.ndarray:
+def encoder_counts(
+    wheel_angles: np.ndarray, gear_ratio: float | np.ndarray, counts_per_rev: int | np.ndarray
+) -> np.ndarray:
     """Counts of the motor encoders: floor(gear * wheel angle * counts_per_rev / (2 pi)), as integers."""
     return np.floor(np.asarray(wheel_angles, dtype=float) * (gear_ratio * counts_per_rev / (2.0 * math.pi))).astype(
         np.int64)
 
 
 def wheel_speeds_from_counts(
-    delta_counts: np.ndarray, dt: float, gear_ratio: float, counts_per_rev: int
+    delta_counts: np.ndarray, dt: float, gear_ratio: float | np.ndarray, counts_per_rev: int | np.ndarray
 ) -> np.ndarray:
     """Mean wheel angular speeds [rad/s] over dt [s] from the count differences of the motor encoders."""
     return np.asarray(delta_counts, dtype=float) * (2.0 * math.pi / (gear_ratio * counts_per_rev * dt))

@@ -6,6 +6,8 @@ turns gear / r times as fast; d_i(theta) = R(theta) d_i(0) turns W(theta) into W
 
 from __future__ import annotations
 
+from typing import Any
+
 import math
 from collections.abc import Sequence
 
@@ -43,7 +45,7 @@ class MotorKinematics:
     @classmethod
     def batch(cls, robots: Sequence[RobotinoParams]) -> MotorKinematics:
         """The kinematics of B robots at once: W(0) of shape (B, 3, 3), for the array form `speeds_and_rates`."""
-        stacked = cls.__new__(cls)
+        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
         stacked.W0 = np.stack([cls(p).W0 for p in robots])
         stacked._W0 = None  # no float path for a batch
         return stacked

@@ -83,7 +83,9 @@ class PlantBatch:
         """
         key = (group, dt)
         if key not in self._loop_maps:
-            coefficients = plant._matrices(dt).coefficients.reshape(_BASIS, _N_LOOP, _N_LOOP)[:, : len(_ROWS)]
+            fitted = plant._matrices(dt).coefficients
+            assert fitted is not None  # isotropic groups only (the fast path)
+            coefficients = fitted.reshape(_BASIS, _N_LOOP, _N_LOOP)[:, : len(_ROWS)]
             self._loop_maps[key] = coefficients.transpose(2, 0, 1).reshape(_N_LOOP, _BASIS * len(_ROWS))
         return self._loop_maps[key]
 

@@ -38,6 +38,8 @@ setup(
             "ros-jazzy-common-interfaces==5.3.6",
             "ros-jazzy-rosgraph-msgs==2.0.3",
         ],
+        "cluster": ["dask[distributed]>=2024.8"],  # study/tune --scheduler: batches on a Dask cluster
+        "tune": ["optuna>=5,<6"],  # the tune verb's sampler (TPE), pruning and trial storage
         "constrained": ["daqp>=0.11,<1"],  # control.mode constrained (imported when a constrained controller is built)
         "bench": ["osqp>=1.0,<2", "daqp>=0.11,<1", "quadprog>=0.1.11,<0.2"],  # the QP solvers compared side by side
         "test": [

@@ -12,7 +12,8 @@ from robotino_geom_mpc.model import dynamics as model
 from robotino_geom_mpc.control.constrained import ConstrainedMPC, ConstrainedModeError
 from robotino_geom_mpc.control.motion_controller import MotionController
 from robotino_geom_mpc.geometric.decoupling import DecouplingField
-from robotino_geom_mpc.control.inverse_drive import MotorKinematics, ZOHDrive
+from robotino_geom_mpc.control.inverse_drive import ZOHDrive
+from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.scenarios import get_scenario

@@ -5,7 +5,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from robotino_geom_mpc.model import dynamics as model
-from robotino_geom_mpc.control.inverse_drive import DriveError, InverseDrive, MotorKinematics, ZOHDrive
+from robotino_geom_mpc.control.inverse_drive import DriveError, InverseDrive, ZOHDrive
+from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.params.files import load_params
 
 pytestmark = pytest.mark.unit

@@ -118,7 +118,7 @@ def test_closed_form_equals_qp_solver(params, seed):
     u_prev = rng.normal(scale=0.1, size=3)
     Y_d = rng.normal(scale=1e-3, size=(N, 3))
     dU = mpc.solve(x, u_prev, Y_d)
-    first = mpc.delta_u(x, u_prev, Y_d)
+    first = mpc.delta_u(x.ravel(), u_prev, Y_d)
     for a in range(3):
         ref = _qp_by_simulation(mpc.A_d[a], mpc.B_d[a], x[a], u_prev[a], Y_d[:, a], mpc.q[a], mpc.r[a])
         np.testing.assert_allclose(dU[:, a], ref, rtol=0, atol=1e-9)
@@ -161,5 +161,5 @@ def test_float_path_equals_the_numpy_path(params):
         Y_d = rng.normal(0.0, 1.0, (control.horizon, 3))
         fast = mpc.delta_u_floats(X.tolist(), u_prev.tolist(), Y_d.tolist())
         assert type(fast) is list and all(type(v) is float for v in fast)
-        reference = mpc.delta_u(X.reshape(3, 2), u_prev, Y_d)
+        reference = mpc.delta_u(X, u_prev, Y_d)
         np.testing.assert_allclose(fast, reference, rtol=0.0, atol=1e-12 * max(1.0, np.abs(reference).max()))

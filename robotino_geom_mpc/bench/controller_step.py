@@ -159,7 +159,7 @@ def bench_controller_step(quick: bool) -> dict[str, float]:
 
     def closed_form_pass() -> None:
         for k in range(steps):
-            mpc.delta_u(states[k], u_prev[k], previews[k])
+            mpc.delta_u(X_used[k], u_prev[k], previews[k])
 
     ctrl_s, per_axis_s, stacked_s, closed_s = median_per_call(
         [controller_pass, osqp_pass("per_axis"), osqp_pass("stacked"), closed_form_pass], steps, repeats

@@ -1,4 +1,4 @@
-"""Benchmark ``study``: the aggregate real-time factor of a short Monte-Carlo study on all cores."""
+"""Benchmark ``study``: the aggregate real-time factor of a Monte-Carlo study, batched against run by run."""
 
 from __future__ import annotations
 
@@ -11,34 +11,50 @@ from robotino_geom_mpc.params.files import load_params
 __all__ = ["bench_study"]
 
 
-@benchmark("study", "Monte-Carlo robustness study (`study.run_study`) of paper-circle on all cores, "
-           "simulated seconds per wall second of the whole study, beside the same runs one after another here")
+@benchmark("study", "Monte-Carlo study (`study.run_study`) of paper-circle on all cores, simulated seconds per wall "
+           "second, batched against run by run and two workers against one on the same draws, and the batched "
+           "loop's cost per run and tick")
 def bench_study(quick: bool) -> dict[str, float]:
-    """`study.run_study` of 8 (quick: 2) runs per core of paper-circle, 22 s each (quick: 5 s).
+    """1000 (quick: 64) runs of paper-circle, 22 s each (quick: 5 s), stepped together on all cores.
 
-    The wall time counts the process pool's start and the collection of every
-    row, as `robotino-geom-mpc study` does (not the figures). Its peer, measured
-    right after on the same draws: the runs one after another in this process
-    (`study.run_one`, one core, no pool), ``study_serial_realtime_factor``;
-    ``study_speedup_vs_serial`` is the study's factor over it (at most about
-    the number of cores; 600x on 2 cores needs 300x per core, 73 ms per 22 s run).
+    The wall time counts the process pool's start and the collection of every row, as
+    `robotino-geom-mpc study` does (not the figures). Its peers, measured right after on the same draws:
+    a tenth of the runs run by run (``batched=False``, the per-tick float path) on the same cores,
+    ``study_per_run_aggregate_realtime_factor`` and ``study_batched_speedup_vs_per_run``; a quarter of the
+    runs batched on one worker against two, ``study_two_workers_speedup_vs_one``; and one batch of 200
+    (quick: 32) runs in this process, ``batched_us_per_run_tick`` (one core and one OpenBLAS thread, no pool).
     """
-    from robotino_geom_mpc.offline.study import draw_runs, run_one, run_study, summarize
+    from robotino_geom_mpc.offline.study import _one_blas_thread as one_blas_thread
+    from robotino_geom_mpc.offline.batch_simulation import run_batch
+    from robotino_geom_mpc.offline.study import _setting, draw_runs, run_study, summarize
 
     workers = os.cpu_count() or 1
-    per_core, duration_s = (2, 5.0) if quick else (8, None)
+    runs, duration_s, in_process = (64, 5.0, 32) if quick else (1000, None, 200)
     robot, control = load_params()
-    draws = draw_runs(per_core * workers, 0)
-    result = run_study("paper-circle", robot, control, draws, duration_s=duration_s, workers=workers,
-                       progress=False)
-    summary = summarize(result, "paper-circle")
+    draws = draw_runs(runs, 0)
+
+    def factor(chosen, batched=True, count=workers) -> tuple[float, dict]:
+        result = run_study("paper-circle", robot, control, chosen, duration_s=duration_s, workers=count,
+                           progress=False, batched=batched)
+        summary = summarize(result, "paper-circle")
+        return summary["aggregate_realtime_factor"], summary
+
+    batched, summary = factor(draws)
+    per_run, _ = factor(draws[: max(workers, runs // 10)], batched=False)
+    quarter = draws[: max(2, runs // 4)]
+    two, _ = factor(quarter, count=2)
+    one, _ = factor(quarter, count=1)
+    settings = [_setting(robot, draw) for draw in draws[:in_process]]
+    one_blas_thread()  # as in the study's workers (OpenBLAS threads only spin on these sizes)
     start = time.perf_counter()
-    serial = [run_one("paper-circle", robot, control, draw, duration_s, 1.0) for draw in draws]
-    serial_factor = sum(row["simulated_s"] for row in serial) / (time.perf_counter() - start)
+    data = run_batch("paper-circle", control, settings, duration_s=duration_s)
+    per_tick_us = (time.perf_counter() - start) / (len(settings) * data[0].n) * 1e6
     return {
-        "study_aggregate_realtime_factor": summary["aggregate_realtime_factor"],
-        "study_serial_realtime_factor": serial_factor,
-        "study_speedup_vs_serial": summary["aggregate_realtime_factor"] / serial_factor,
+        "study_aggregate_realtime_factor": batched,
+        "study_per_run_aggregate_realtime_factor": per_run,
+        "study_batched_speedup_vs_per_run": batched / per_run,
+        "study_two_workers_speedup_vs_one": two / one,
+        "batched_us_per_run_tick": per_tick_us,
         "study_runs": float(summary["runs"]),
         "study_failed_runs": float(summary["failed_runs"]),
         "study_workers": float(workers),

@@ -29,6 +29,7 @@ VERBS: dict[str, str] = {
     "regress": "recompute a recording's wheel voltages with a fresh controller and compare",
     "reindex": "make a bag usable after its recorder was killed (finalised MCAP, metadata.yaml)",
     "study": "Monte-Carlo robustness study: many offline runs with the controller's model drawn off the truth",
+    "tune": "search the MPC weights and horizon over Monte-Carlo studies, with a held-out certificate",
     "bench": "time the control step against OSQP and the offline simulation",
     "identify": "fit the real robot's driver chain (dead time, ramps, speed loop) from a short cmd_vel excitation",
 }

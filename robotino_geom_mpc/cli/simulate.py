@@ -177,7 +177,7 @@ def _scenario_name(text: str) -> str:
 def add_scenario_argument(parser: argparse.ArgumentParser) -> None:
     """The ``--scenario NAME`` option of `simulate` and `run`: the choices and their help from the registry."""
     parser.add_argument("--scenario", required=True, type=_scenario_name, choices=tuple(SCENARIOS), metavar="NAME",
-                        help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
+                        help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()).replace("%", "%%"))
 
 
 def add_odometry_argument(parser: argparse.ArgumentParser) -> None:

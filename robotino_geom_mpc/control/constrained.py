@@ -41,7 +41,8 @@ from itertools import chain
 import numpy as np
 
 from robotino_geom_mpc.geometric.decoupling import DecouplingField
-from robotino_geom_mpc.control.inverse_drive import MotorKinematics, ZOHDrive
+from robotino_geom_mpc.control.inverse_drive import ZOHDrive
+from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.control.limit_screen import LimitScreen
 from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings

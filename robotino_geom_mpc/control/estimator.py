@@ -13,7 +13,12 @@ velocity's high-frequency content.
 
 from __future__ import annotations
 
+from typing import Any
+
 import math
+from collections.abc import Sequence
+
+import numpy as np
 
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import TWIST_MODELS
@@ -250,3 +255,55 @@ class OdometryFilter:
         pt += L * math.remainder(theta - pt, _TWO_PI)
         self._last = (px, vx, py, vy, pt, w)
         return px, py, pt
+
+    @classmethod
+    def batch(cls, period_s: float, time_constant_s: float, twists: Sequence[str], start: np.ndarray) -> OdometryFilter:
+        """The filters of B runs at once, each started at a known pose (`start_at`), for `update_batch`.
+
+        Parameters
+        ----------
+        period_s, time_constant_s
+            As for the class (shared by the runs).
+        twists
+            Each run's twist model (`TWIST_MODELS`).
+        start
+            The start poses (x, y, theta), shape (B, 3).
+        """
+        stacked: Any = cls(period_s, time_constant_s)  # the same attributes with a batch axis
+        if any(twist not in TWIST_MODELS for twist in twists):
+            raise EstimatorError(f"twists must be of {', '.join(TWIST_MODELS)}, got {sorted(set(twists))}")
+        stacked._period_mean = np.array([twist == "period_mean" for twist in twists])
+        start = np.asarray(start, dtype=float)
+        if start.shape != (len(twists), 3) or not np.all(np.isfinite(start)):
+            raise EstimatorError(f"start must be {len(twists)} finite poses, got shape {start.shape}")
+        stacked._last = np.zeros((len(twists), 6))
+        stacked._last[:, 0::2] = start
+        return stacked
+
+    def update_batch(self, X: np.ndarray) -> np.ndarray:
+        """`update` over one period for a batch (`batch`): measured states X (B, 6) in, estimates (B, 3) out.
+
+        The same predictor per run (its twist model), correction and heading wrap as `update`, as arrays;
+        the measurements are the caller's own (unchecked).
+        """
+        x, vx, y, vy, theta, w = X.T
+        last: Any = self._last  # (B, 6) in a batch
+        px, vx0, py, vy0, pt, w0 = last.T
+        h, L = self._half_period, self.gain
+        dt = 2.0 * h
+        a = w * dt
+        small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sdt = np.where(small, (1.0 - a * a / 6.0) * dt, np.sin(a) / w)
+            cdt = np.where(small, 0.5 * a * dt, (1.0 - np.cos(a)) / w)
+        mean = self._period_mean
+        px = np.where(mean, px + (sdt * vx + cdt * vy), px + h * (vx0 + vx))
+        py = np.where(mean, py + (sdt * vy - cdt * vx), py + h * (vy0 + vy))
+        pt = np.where(mean, pt + a, pt + h * (w0 + w))
+        px = px + L * (x - px)
+        py = py + L * (y - py)
+        innovation = theta - pt
+        pt = pt + L * (innovation - _TWO_PI * np.round(innovation / _TWO_PI))  # math.remainder's wrap
+        last = np.column_stack((px, vx, py, vy, pt, w))
+        self._last = last
+        return last[:, 0::2]

@@ -38,6 +38,8 @@ L (i*_k - i*_{k-1})/Ts with the back-EMF at the tick lags by 9.5 mA
 
 from __future__ import annotations
 
+from typing import Any
+
 import math
 from collections.abc import Callable, Sequence
 
@@ -45,10 +47,9 @@ import numpy as np
 
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.arrays import checked_array
-from robotino_geom_mpc.model.dynamics import wheel_directions
 from robotino_geom_mpc.params.specs import RobotinoParams
 
-__all__ = ["DriveError", "ZOHDrive", "InverseDrive", "MotorKinematics"]
+__all__ = ["DriveError", "ZOHDrive", "InverseDrive"]
 
 _SATURATION_PASSES = 4  # fixed-point passes for the mean current under clipped voltages
 
@@ -154,6 +155,8 @@ class InverseDrive:
         Control period Ts over which each voltage is held.
     """
 
+    _i0: Any  # the predicted start currents: 3 floats, or (B, 3) in a batch
+
     def __init__(self, p: RobotinoParams, period_s: float) -> None:
         if not (math.isfinite(period_s) and period_s > 0.0):
             raise DriveError(f"period_s must be finite and > 0, got {period_s!r}")
@@ -168,6 +171,101 @@ class InverseDrive:
         self._voltage_row = tuple(voltage_row.tolist())
         self._end_row = tuple(self.zoh.end_current(basis[1], voltage_row, basis[2], basis[3]).tolist())
         self.reset()
+
+    @classmethod
+    def batch(cls, robots: Sequence[RobotinoParams], period_s: float) -> InverseDrive:
+        """The drives of B robots at once, for the array forms (`step_batch`, `limited_step_batch`).
+
+        Every coefficient gets the shape (B, 1) (the ZOH relations broadcast over the three wheels) and the
+        current estimate the shape (B, 3); the float forms serve one run only.
+        """
+        runs = [cls(p, period_s) for p in robots]
+        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
+        column = lambda values: np.array(values, dtype=float)[:, None]  # noqa: E731
+        zoh: Any = ZOHDrive.__new__(ZOHDrive)
+        stacked.zoh = zoh
+        for name, value in vars(runs[0].zoh).items():
+            setattr(zoh, name, column([getattr(run.zoh, name) for run in runs]))
+        stacked.period_s = runs[0].period_s
+        stacked.supply_voltage_v = column([run.supply_voltage_v for run in runs])
+        stacked.current_per_force = column([run.current_per_force for run in runs])
+        stacked._voltage_row = np.array([run._voltage_row for run in runs]).T[:, :, None]  # (4, B, 1)
+        stacked._end_row = np.array([run._end_row for run in runs]).T[:, :, None]
+        stacked._i0 = np.zeros((len(runs), 3))
+        stacked._last = stacked._one_period = None
+        return stacked
+
+    def step_batch(
+        self, i_cmd: np.ndarray, omega: np.ndarray, omega_rate: np.ndarray,
+        rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`step` for a batch (`batch`): arrays (B, 3) in; voltages (B, 3), saturated (B,), mean currents (B, 3).
+
+        The same relations in the same order as `step`, run by run: an unclipped run takes the voltage and
+        end-current rows, a clipped one the ZOH relations with the mean current found by the fixed point
+        (`rate_of_current` maps (B, 3) mean currents to (B, 3) motor-speed rates).
+        """
+        vc, vs, vw, vr = self._voltage_row
+        i0: Any = self._i0  # (B, 3) in a batch
+        supply: Any = self.supply_voltage_v  # (B, 1) in a batch
+        U = vc * i_cmd + vs * i0 + vw * omega + vr * omega_rate
+        saturated = np.abs(U).max(axis=-1) > supply[:, 0]
+        ec, es, ew, er = self._end_row
+        end = ec * i_cmd + es * i0 + ew * omega + er * omega_rate
+        mean = i_cmd
+        if saturated.any():
+            clipped = np.clip(U, -supply, supply)
+            rate = omega_rate
+            clipped_mean = self.zoh.mean_current(i0, clipped, omega, rate)
+            if rate_of_current is not None:
+                for _ in range(_SATURATION_PASSES):
+                    rate = rate_of_current(clipped_mean)
+                    clipped_mean = self.zoh.mean_current(i0, clipped, omega, rate)
+            rows = saturated[:, None]
+            U = np.where(rows, clipped, U)
+            mean = np.where(rows, clipped_mean, i_cmd)
+            end = np.where(rows, self.zoh.end_current(i0, clipped, omega, rate), end)
+        self._i0 = end
+        return U, saturated, mean
+
+    def limited_step_batch(
+        self, i_cmd: np.ndarray, omega: np.ndarray, omega_rate: np.ndarray, rate_at_rest: Callable[[], np.ndarray],
+        current_limit: float, rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """`limited_step` for a batch: as `step_batch`, plus the scale s (B,) of each run's command.
+
+        A run whose full command keeps its limits keeps it (s = 1); every other one is stepped again from the
+        same start currents with its command scaled by the largest s whose affine bounds a + s b all hold
+        (the candidates of `limited_step`).
+        """
+        i0 = self._i0
+        U, saturated, mean = self.step_batch(i_cmd, omega, omega_rate, rate_of_current)
+        end = self._i0
+        keep = ~saturated & (np.maximum(np.abs(i_cmd).max(axis=-1), np.abs(end).max(axis=-1)) <= current_limit)
+        scale = np.ones(len(keep))
+        if keep.all():
+            return U, saturated, mean, scale
+        rest = rate_at_rest()
+        ec, es, ew, er = self._end_row
+        vc, vs, vw, vr = self._voltage_row
+        dr = omega_rate - rest
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for a, b, bound in (
+                (np.zeros_like(i_cmd), i_cmd, current_limit),
+                (es * i0 + ew * omega + er * rest, ec * i_cmd + er * dr, current_limit),
+                (vs * i0 + vw * omega + vr * rest, vc * i_cmd + vr * dr, self.supply_voltage_v),
+            ):
+                full = a + b
+                binds = (np.abs(full) > bound) & (np.abs(a) < bound)
+                candidate = np.where(binds, (np.copysign(bound, full) - a) / b, np.inf)
+                scale = np.minimum(scale, candidate.min(axis=-1))
+        scale = np.where(keep, 1.0, scale)
+        self._i0 = i0
+        scaled = scale[:, None]
+        U2, saturated2, mean2 = self.step_batch(scaled * i_cmd, omega, rest + scaled * dr, rate_of_current)
+        rows = keep[:, None]
+        self._i0 = np.where(rows, end, self._i0)
+        return (np.where(rows, U, U2), np.where(keep, saturated, saturated2), np.where(rows, mean, mean2), scale)
 
     @property
     def current_estimate(self) -> np.ndarray:
@@ -345,62 +443,3 @@ class InverseDrive:
         self._one_period = self._i0
         return clipped.tolist(), True, mean.tolist()
 
-
-class MotorKinematics:
-    """Motor speeds omega = W(theta) v and their rate, the per-tick form of `model.motor_speeds`.
-
-    W(theta) = (gear / r) [d_i(theta), l] with d_i(theta) = R(theta) d_i(0)
-    (R the planar rotation), so W(theta) = W(0) diag(R(theta)^T, 1): the
-    odom-frame velocity turned into the body frame, one small product per
-    tick instead of rebuilding the wheel directions.
-
-    Parameters
-    ----------
-    p
-        Wheel radius, wheel distance l and gear ratio.
-    """
-
-    def __init__(self, p: RobotinoParams) -> None:
-        self.W0 = p.gear_ratio / p.r * np.column_stack((wheel_directions(0.0), np.full(3, p.l)))
-        self._W0 = tuple(map(tuple, self.W0.tolist()))
-
-    def matrix(self, theta: float) -> np.ndarray:
-        """W(theta), shape (3, 3): omega = W(theta) (x', y', theta')."""
-        c, s = math.cos(theta), math.sin(theta)
-        return self.W0 @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-
-    def speeds_and_rates(
-        self, theta: float, velocity: Sequence[float] | np.ndarray, acceleration: Sequence[float] | np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Motor speeds omega and their rate omega' for a body velocity and acceleration.
-
-        Parameters
-        ----------
-        theta
-            Heading [rad].
-        velocity, acceleration
-            (x', y', theta') and (x'', y'', theta'') in the odom frame.
-
-        Returns
-        -------
-        omega, omega_rate : ndarray, shape (3,)
-            omega' = W(theta) a + theta' W'(theta) v, where W'(theta) v = W(theta) (y', -x', 0).
-        """
-        omega, rate = self.speeds_and_rates_floats(theta, velocity, acceleration)
-        return np.array(omega), np.array(rate)
-
-    def speeds_and_rates_floats(
-        self, theta: float, velocity: Sequence[float] | np.ndarray, acceleration: Sequence[float] | np.ndarray
-    ) -> tuple[list[float], list[float]]:
-        """`speeds_and_rates` on Python floats, for the per-tick path."""
-        vx, vy, w = velocity[0], velocity[1], velocity[2]
-        ax, ay, aw = acceleration[0], acceleration[1], acceleration[2]
-        c, s = math.cos(theta), math.sin(theta)
-        bx, by = ax + w * vy, ay - w * vx
-        px, py = c * vx + s * vy, c * vy - s * vx
-        qx, qy = c * bx + s * by, c * by - s * bx
-        (a0, b0, e0), (a1, b1, e1), (a2, b2, e2) = self._W0
-        return (
-            [a0 * px + b0 * py + e0 * w, a1 * px + b1 * py + e1 * w, a2 * px + b2 * py + e2 * w],
-            [a0 * qx + b0 * qy + e0 * aw, a1 * qx + b1 * qy + e1 * aw, a2 * qx + b2 * qy + e2 * aw],
-        )

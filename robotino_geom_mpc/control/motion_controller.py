@@ -15,9 +15,9 @@ import numpy as np
 
 from robotino_geom_mpc.control.constrained import ConstrainedMPC
 from robotino_geom_mpc.geometric.decoupling import DecouplingField
-from robotino_geom_mpc.control.inverse_drive import InverseDrive, MotorKinematics
+from robotino_geom_mpc.control.inverse_drive import InverseDrive
+from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.arrays import checked_array
 from robotino_geom_mpc.control.estimator import OdometryFilter
 from robotino_geom_mpc.model.dynamics import acceleration_block, wheel_forces
 from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings
@@ -165,7 +165,7 @@ class MotionController:
     def _rate_of_current(self, theta: float, theta_m: float, velocity: np.ndarray, current: np.ndarray) -> np.ndarray:
         """Motor-speed rate under the acceleration the currents give (used when the voltage saturates)."""
         acc = self._acceleration_of_current(theta_m, current) - self._damping * velocity
-        return self.kinematics.speeds_and_rates(theta, velocity, acc)[1]
+        return np.array(self.kinematics.speeds_and_rates_floats(theta, velocity.tolist(), acc.tolist())[1])
 
     def _check(self, X: object, preview: object) -> tuple[list[float], list[list[float]]]:
         """X and the preview as Python floats, or ControllerInputError naming the bad one.
@@ -342,24 +342,29 @@ class MotionController:
 
 
 def state_from_odometry(pose: object, twist_body: object) -> np.ndarray:
-    """Body state X = (x, x', y, y', theta, theta') of eq. (2) from an odometry measurement.
+    """Body states X = (x, x', y, y', theta, theta') of eq. (2) from odometry measurements (the array form).
 
     Parameters
     ----------
     pose
-        Measured (x, y, theta) in the odom frame.
+        Measured (x, y, theta) in the odom frame, shape (..., 3) (a batch axis, or none for one measurement).
     twist_body
-        (v_x, v_y, theta') in the robot frame, as nav_msgs/Odometry carries it.
+        (v_x, v_y, theta') in the robot frame, as nav_msgs/Odometry carries it, the same shape.
 
     Returns
     -------
-    ndarray, shape (6,)
+    ndarray, shape (..., 6)
         The velocity rotated into the odom frame by the *measured* heading
-        (all a controller on the robot knows).
+        (all a controller on the robot knows). `odometry_state_floats` is the float form.
     """
-    pose = checked_array(pose, (3,), "pose", ControllerInputError, finite=False)
-    twist = checked_array(twist_body, (3,), "twist_body", ControllerInputError, finite=False)
-    return np.array(odometry_state_floats(pose.tolist(), twist.tolist()))
+    pose, twist = np.asarray(pose, dtype=float), np.asarray(twist_body, dtype=float)
+    if pose.shape[-1:] != (3,) or twist.shape != pose.shape:
+        raise ControllerInputError(f"pose and twist_body must both have shape (..., 3), got {pose.shape} and "
+                                   f"{twist.shape}")
+    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+    vx, vy = twist[..., 0], twist[..., 1]
+    return np.stack((pose[..., 0], c * vx - s * vy, pose[..., 1], s * vx + c * vy, pose[..., 2], twist[..., 2]),
+                    axis=-1)
 
 
 def step_interval(stamp_ns: int, last_ns: int | None, period_ns: int) -> float | None:

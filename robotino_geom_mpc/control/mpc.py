@@ -19,6 +19,8 @@ horizon) can make the loop unstable, which a controller must refuse.
 
 from __future__ import annotations
 
+from typing import Any
+
 from collections.abc import Sequence
 from itertools import chain
 import math
@@ -262,24 +264,47 @@ class DecoupledMPC:
         """The whole optimal increment sequence of eq. (56), shape (N, 3)."""
         return np.einsum("anm,ma->na", self.gain, self.free_error(x, u_prev, Y_d))
 
-    def delta_u(self, x: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray) -> np.ndarray:
-        """First component Delta u(k) of eq. (56) for the three axes, shape (3,).
+    def delta_u(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray) -> np.ndarray:
+        """First component Delta u(k) of eq. (56) for the three axes, the array form (any leading batch axes).
 
         Parameters
         ----------
-        x
-            Per-axis states (pos, vel), shape (3, 2): X of eq. (2) reshaped.
+        X
+            Body states (x, x', y, y', theta, theta') of eq. (2), shape (..., 6).
         u_prev
-            u(k-1), shape (3,).
+            u(k-1), shape (..., 3).
         Y_d
-            Reference positions y_d(k+1) .. y_d(k+N), shape (N, 3).
+            Reference positions y_d(k+1) .. y_d(k+N), shape (..., N, 3).
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            ``stacked_gain @ (Y_d.ravel(), X, u(k-1))`` per run; with a stacked MPC (`batch`, gains
+            (B, 3, 3N + 9)) each run by its own gain.
 
         Notes
         -----
         Shapes are the caller's responsibility here (the controller checks its
-        inputs once); this is the per-tick fast path.
+        inputs once). `delta_u_floats` is the same law on Python floats.
         """
-        return self.stacked_gain @ np.concatenate((Y_d.ravel(), x.ravel(), u_prev))
+        Y_d = np.asarray(Y_d, dtype=float)
+        z = np.concatenate((Y_d.reshape(*Y_d.shape[:-2], -1), X, u_prev), axis=-1)
+        return np.einsum("...ak,...k->...a", self.stacked_gain, z)
+
+    @classmethod
+    def batch(cls, robots: Sequence[RobotinoParams], control: ControlParams) -> DecoupledMPC:
+        """The MPCs of B controller models at once: every array attribute gains a leading batch axis (B, ...).
+
+        The array forms (`delta_u`) then give each run its own gain; the float forms serve one run only.
+        """
+        runs = [cls(robot, control) for robot in robots]
+        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
+        stacked.period_s, stacked.horizon = runs[0].period_s, runs[0].horizon
+        for name in ("q", "r", "A_d", "B_d", "G_p", "F_1p", "F_2p", "hessian", "gain", "stacked_gain",
+                     "prediction_map"):
+            setattr(stacked, name, np.stack([getattr(run, name) for run in runs]))
+        stacked._reference_gains = stacked._state_gains = None  # no float path for a batch
+        return stacked
 
     def predicted_floats(
         self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]]

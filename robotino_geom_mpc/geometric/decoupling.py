@@ -2,12 +2,14 @@
 
 `decoupling_field_toolbox` builds T_x, T_y, T_theta with the geometric toolbox;
 `DecouplingField` is the fast path of the control loop, T(theta) =
-T(0) diag(R(theta)^T, 1) with T(0) from the toolbox; `check_decoupling`
+T(0) diag(R(theta)^T, 1) with T(0) = G3(0)^{-1} (eq. 37); `check_decoupling`
 verifies both on a theta grid that contains the points pi/2 + k pi where the
 paper places singularities (erratum 2: there are none).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import math
 from collections.abc import Sequence
@@ -17,7 +19,7 @@ import numpy as np
 
 from robotino_geom_mpc.geometric import subspaces as geo
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.model.dynamics import A_matrix, C_matrix, VELOCITY_INDEX, g_theta
+from robotino_geom_mpc.model.dynamics import A_matrix, C_matrix, VELOCITY_INDEX, acceleration_block, g_theta
 from robotino_geom_mpc.params.specs import RobotinoParams
 
 __all__ = [
@@ -127,7 +129,9 @@ class DecouplingField:
     Parameters
     ----------
     p
-        Robot parameters; T(0) is computed once with `decoupling_field_toolbox`.
+        Robot parameters; T(0) = G3(0)^{-1} is computed once (eq. 37 at theta = 0, the closed form of
+        eqs. 33-36; `decoupling_field_toolbox` builds the same columns with the geometric toolbox, and
+        `check_decoupling` compares the two).
 
     Notes
     -----
@@ -142,7 +146,7 @@ class DecouplingField:
 
     def __init__(self, p: RobotinoParams) -> None:
         self.p = p
-        self.T0 = decoupling_field_toolbox(0.0, p)
+        self.T0 = np.linalg.inv(acceleration_block(0.0, p))
         self._T0_rows = tuple(map(tuple, self.T0.tolist()))
 
     def field(self, theta: object) -> np.ndarray:
@@ -153,6 +157,22 @@ class DecouplingField:
         rot[..., 0, 0], rot[..., 0, 1], rot[..., 1, 0], rot[..., 1, 1] = c, s, -s, c
         rot[..., 2, 2] = 1.0
         return self.T0 @ rot
+
+    @classmethod
+    def batch(cls, robots: Sequence[RobotinoParams]) -> DecouplingField:
+        """The fields of B robots at once: T(0) of shape (B, 3, 3), for the array forms (`field`, `forces`)."""
+        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
+        stacked.p = tuple(robots)
+        stacked.T0 = np.linalg.inv(np.stack([acceleration_block(0.0, p) for p in stacked.p]))
+        stacked._T0_rows = None  # no float path for a batch
+        return stacked
+
+    def forces(self, theta: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Wheel forces F = T(theta) u [N] (eqs. 36-37), the array form: theta (...,), u (..., 3) -> (..., 3).
+
+        With a batch field (`batch`) theta and u carry its batch axis (B,) and (B, 3).
+        """
+        return np.einsum("...ij,...j->...i", self.field(theta), u)
 
     def forces_floats(self, theta: float, u: Sequence[float]) -> list[float]:
         """Wheel forces F = T(theta) u [N] (eqs. 36-37) on Python floats, the per-tick path of `field`.

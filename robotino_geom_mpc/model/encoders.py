@@ -30,6 +30,7 @@ from robotino_geom_mpc.params.specs import ParamSpec, RobotinoParams
 
 if TYPE_CHECKING:
     from robotino_geom_mpc.model.plant import RobotinoPlant
+    from robotino_geom_mpc.model.plant_batch import PlantBatch
 
 __all__ = [
     "ODOMETRY_MODELS",
@@ -42,8 +43,10 @@ __all__ = [
     "wheel_speeds_from_counts",
     "body_twist",
     "integrate_pose",
+    "integrate_poses",
     "twist_covariance",
     "EncoderOdometry",
+    "EncoderOdometryBatch",
     "odometry_source",
 ]
 
@@ -70,27 +73,31 @@ class EncoderError(RobotinoError, ValueError):
     """A bad encoder setting (counts per revolution, slip, odometry model), named in the message."""
 
 
-def encoder_counts(wheel_angles: np.ndarray, gear_ratio: float, counts_per_rev: int) -> np.ndarray:
+def encoder_counts(
+    wheel_angles: np.ndarray, gear_ratio: float | np.ndarray, counts_per_rev: int | np.ndarray
+) -> np.ndarray:
     """Counts of the motor encoders: floor(gear * wheel angle * counts_per_rev / (2 pi)), as integers."""
     return np.floor(np.asarray(wheel_angles, dtype=float) * (gear_ratio * counts_per_rev / (2.0 * math.pi))).astype(
         np.int64)
 
 
 def wheel_speeds_from_counts(
-    delta_counts: np.ndarray, dt: float, gear_ratio: float, counts_per_rev: int
+    delta_counts: np.ndarray, dt: float, gear_ratio: float | np.ndarray, counts_per_rev: int | np.ndarray
 ) -> np.ndarray:
     """Mean wheel angular speeds [rad/s] over dt [s] from the count differences of the motor encoders."""
     return np.asarray(delta_counts, dtype=float) * (2.0 * math.pi / (gear_ratio * counts_per_rev * dt))
 
 
-def body_twist(wheel_speeds: np.ndarray, p: RobotinoParams) -> np.ndarray:
+def body_twist(wheel_speeds: np.ndarray, p: RobotinoParams | np.ndarray) -> np.ndarray:
     """(v_x, v_y, omega) in the robot frame from the wheel speeds [rad/s]: the inverse of `wheel_rim_speeds`.
 
-    The rim speed of wheel i is v_i = d_i(0) . (v_x, v_y) + l omega (`model.dynamics`); the 3x3 matrix of those
-    rows is invertible (the wheels are 120 degrees apart).
+    The rim speed of wheel i is v_i = d_i(0) . (v_x, v_y) + l omega (`model.dynamics`); the 3x3 matrix K of those
+    rows is invertible (the wheels are 120 degrees apart), and the twist is r K^-1 times the wheel speeds. The
+    array form: wheel speeds (..., 3) of one robot `p`, or (B, 3) with `p` the B robots' r K^-1 stacked
+    (B, 3, 3), give twists of the same shape.
     """
-    kinematics = np.column_stack((wheel_directions(0.0), np.full(3, p.l)))
-    return np.linalg.solve(kinematics, p.r * np.asarray(wheel_speeds, dtype=float))
+    rows = _twist_of_wheel_speeds(p) if isinstance(p, RobotinoParams) else p
+    return np.einsum("...ij,...j->...i", rows, np.asarray(wheel_speeds, dtype=float))
 
 
 def twist_covariance(p: RobotinoParams, counts_per_rev: int, slip_std: float, period_s: float) -> np.ndarray:
@@ -213,6 +220,77 @@ class EncoderOdometry:
         if noise is None:
             return pose, twist
         return (pose[0] + noise[0], pose[1] + noise[1], pose[2] + noise[2]), twist
+
+
+class EncoderOdometryBatch:
+    """`EncoderOdometry` of B runs at once, the array form: dead reckoning of a `PlantBatch` from its encoders.
+
+    Parameters
+    ----------
+    plant
+        The batch of simulated robots; each run's wheel angles and the time are read at each measurement.
+    counts_per_rev, slip_std
+        Per run, shapes (B,) (as for `EncoderOdometry`).
+    slip_normals
+        The standard normal draws of the slip, shape (updates, B, 3), row k for the k-th update (a run
+        without slip: any finite values); None: no run slips.
+
+    Notes
+    -----
+    The same operations as `EncoderOdometry.update`, in the same order, per run: the seen angles gain the
+    slip, the counts are their floors, the twist is r K^-1 times the count differences' speeds and the pose
+    follows the SE(2) exponential of that twist (`integrate_pose`).
+    """
+
+    def __init__(self, plant: PlantBatch, counts_per_rev: np.ndarray, slip_std: np.ndarray,
+                 slip_normals: np.ndarray | None = None) -> None:
+        counts_per_rev = np.asarray(counts_per_rev)
+        slip_std = np.asarray(slip_std, dtype=float)
+        B = len(plant.params)
+        if counts_per_rev.shape != (B,) or np.any(counts_per_rev < 1):
+            raise EncoderError(f"counts_per_rev must be {B} positive integers")
+        if slip_std.shape != (B,) or not np.all((slip_std >= 0.0) & (slip_std <= 1.0)):
+            raise EncoderError(f"slip_std must be {B} numbers in [0, 1]")
+        self.plant, self._slip, self._normals, self._updates = plant, slip_std[:, None], slip_normals, 0
+        self._twist_rows = np.stack([_twist_of_wheel_speeds(p) for p in plant.params])  # r K^-1 per run
+        self._gear = np.array([p.gear_ratio for p in plant.params])[:, None]
+        self._counts_per_rev = counts_per_rev[:, None]
+        self.pose = plant.pose.copy()
+        self.twist = np.zeros((B, 3))
+        self._angles = plant.wheel_angles.copy()
+        self._seen = self._angles.copy()
+        self._counts = encoder_counts(self._seen, self._gear, self._counts_per_rev)
+        self._time_s = plant.time_s
+
+    def update(self) -> tuple[np.ndarray, np.ndarray]:
+        """Read the encoders and integrate the poses over the time since the last update; (poses, twists) (B, 3)."""
+        dt = self.plant.time_s - self._time_s
+        if dt > 0.0:
+            angles = self.plant.wheel_angles.copy()
+            d = angles - self._angles
+            if self._normals is not None:
+                d = d * (1.0 + self._slip * self._normals[self._updates])
+            self._updates += 1
+            seen = self._seen + d
+            counts = encoder_counts(seen, self._gear, self._counts_per_rev)
+            speeds = wheel_speeds_from_counts(counts - self._counts, dt, self._gear, self._counts_per_rev)
+            self.twist = body_twist(speeds, self._twist_rows)
+            self.pose = integrate_poses(self.pose, self.twist, dt)
+            self._angles, self._seen, self._counts, self._time_s = angles, seen, counts, self.plant.time_s
+        return self.pose, self.twist
+
+
+def integrate_poses(pose: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
+    """`integrate_pose` of B poses and twists (B, 3) over dt: the array form (`integrate_pose` is the float one)."""
+    vx, vy, w = twist.T
+    a = w * dt
+    small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(small, 1.0 - a * a / 6.0, np.sin(a) / a)
+        c = np.where(small, 0.5 * a, (1.0 - np.cos(a)) / a)
+    dx, dy = (s * vx - c * vy) * dt, (c * vx + s * vy) * dt
+    ct, st = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+    return np.column_stack((pose[:, 0] + ct * dx - st * dy, pose[:, 1] + st * dx + ct * dy, pose[:, 2] + a))
 
 
 def odometry_source(plant: RobotinoPlant, model: str = "ideal", counts_per_rev: int = DEFAULT_COUNTS_PER_REV,

@@ -15,19 +15,28 @@ Each run is `simulation.run_scenario` with
   noise, or dead reckoning from 2048-count wheel encoders plus the noise).
 
 `draw_runs` makes the draws from one seed (same seed, same draws), `run_study`
-spreads the runs over processes (`concurrent.futures.ProcessPoolExecutor`, forked
-after the imports, in batches of runs per task) with a progress bar, and a run that raises becomes a row with its error
-instead of ending the study. `summarize` gives the study's figures and
-`write_study` writes DIR/runs.csv, DIR/summary.json and the figures
-(`study_plots`). Plain Python and numpy: no rclpy.
+cuts them into batches and runs each batch as one task: by default stepped
+together (`batch_simulation.run_batch`, each run equal to its own
+`run_scenario`), or run by run (``batched=False``). The tasks go to the local
+cores (`concurrent.futures.ProcessPoolExecutor`, forked after the imports) or,
+with ``scheduler``, to a Dask cluster (`dask.distributed`; the ``cluster``
+extra): a batch whose worker dies is run again elsewhere, and each batch's
+rows are taken once, from the one future that holds them. The batches and
+their runs depend on the draws only, so the rows are the same whatever runs
+them (wall times aside). A run that raises becomes a row with its error instead
+of ending the study. `summarize` gives the study's figures and `write_study`
+writes DIR/runs.csv, DIR/summary.json and the figures (`study_plots`). Plain
+Python and numpy: no rclpy.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import multiprocessing
 import os
+import pickle
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, fields
@@ -42,6 +51,7 @@ from robotino_geom_mpc.model.encoders import ODOMETRY_MODELS
 
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.offline.batch_simulation import RunSetting, run_batch
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.scenarios import get_scenario
 from robotino_geom_mpc.offline.simulation import run_scenario
@@ -49,7 +59,7 @@ from robotino_geom_mpc.offline.simulation import run_scenario
 __all__ = [
     "MASS_RANGE", "INERTIA_RANGE", "FRICTION_RANGE", "NOISE_MAX", "METRICS", "STATISTICS",
     "COLUMNS", "DRAW_FIELDS", "StudyError", "Draw", "StudyResult", "draw_runs", "run_draw", "run_one",
-    "run_study", "summarize", "write_study", "read_rows",
+    "run_rows", "batch_size", "run_study", "summarize", "write_study", "read_rows",
 ]
 
 MASS_RANGE = (0.8, 1.2)  # controller's mass over the truth
@@ -62,7 +72,8 @@ METRICS = (  # the keys of `results.compute_metrics` a row keeps
     "peak_voltage_v", "saturated_steps", "infeasible_steps", "rms_position_error_odom_m", "odometry_drift_max_m",
 )
 STATISTICS = ("rms_position_error_m", "peak_current_a")  # summarised as median, p95, worst
-BATCH_MAX = 16  # runs per pool task at most
+BATCH_MAX = 16  # runs per pool task at most, run by run
+BATCHED_MAX = 500  # runs per task at most, stepped together (about 150 MB of a 22 s scenario's series)
 
 
 class StudyError(RobotinoError, ValueError):
@@ -178,12 +189,56 @@ def run_one(
     return {key: row[key] for key in COLUMNS}
 
 
-def _run_batch(
+def _setting(robot: RobotinoParams, draw: Draw) -> RunSetting:
+    """The `batch_simulation.RunSetting` of a draw: the arguments `run_draw` gives `run_scenario`."""
+    return RunSetting(robot.scaled(mass=draw.mass, inertia=draw.inertia, friction=draw.friction), robot, draw.seed,
+                      (draw.noise_position_m, draw.noise_yaw_rad), draw.odometry)
+
+
+def run_rows(
     scenario: str, robot: RobotinoParams, control: ControlParams, draws: list[Draw], duration_s: float | None,
-    settle_time_s: float, network: dict[str, Any] | None = None,
+    settle_time_s: float, batched: bool = True, network: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
-    """`run_one` of each draw: one pool task, so a task's messages carry several runs."""
-    return [run_one(scenario, robot, control, draw, duration_s, settle_time_s, network) for draw in draws]
+    """The rows of some draws (one task of `run_study`): stepped together, or `run_one` of each.
+
+    Stepped together, each row's ``wall_s`` is its share of the batch's wall time; a batch that raises
+    (one bad run fails the batch) is run again run by run, so that only the bad runs get an error. Runs over
+    a link (`network`) go run by run: the batched loop has no link.
+    """
+    _one_blas_thread()  # a task's process shares the cores with the other tasks' (a Dask worker's too)
+    if not batched or network:
+        return [run_one(scenario, robot, control, draw, duration_s, settle_time_s, network) for draw in draws]
+    start = time.perf_counter()
+    try:
+        runs = run_batch(scenario, control, [_setting(robot, draw) for draw in draws], duration_s=duration_s)
+    except Exception:  # noqa: BLE001  (the per-run path names each failing run)
+        return run_rows(scenario, robot, control, draws, duration_s, settle_time_s, batched=False)
+    rows = []
+    for draw, data in zip(draws, runs):
+        row: dict[str, Any] = {**asdict(draw), "simulated_s": 0.0, **dict.fromkeys(METRICS), "error": ""}
+        try:
+            metrics = compute_metrics(data, settle_time_s=settle_time_s)
+        except Exception as exc:  # noqa: BLE001
+            row["error"] = f"{type(exc).__name__}: {exc}"
+        else:
+            row["simulated_s"] = data.n * data.control_period_s
+            row.update({key: metrics.get(key) for key in METRICS})
+        rows.append(row)
+    share = (time.perf_counter() - start) / len(rows)
+    return [{key: (share if key == "wall_s" else row[key]) for key in COLUMNS} for row in rows]
+
+
+def batch_size(runs: int, workers: int, batched: bool = True) -> int:
+    """Runs per task.
+
+    Stepped together: a quarter of the runs (the per-tick cost is paid once a batch, so batches are large),
+    at most `BATCHED_MAX`, whatever the workers, so that the batches (and so every row, to the last bit) are
+    the same on any number of workers or machines. Run by run: at least 8 tasks a worker so the last ones
+    balance, at most `BATCH_MAX`.
+    """
+    if batched:
+        return max(1, min(BATCHED_MAX, -(-runs // 4)))
+    return max(1, min(BATCH_MAX, runs // (8 * workers)))
 
 
 def _one_blas_thread() -> None:
@@ -196,6 +251,40 @@ def _context() -> multiprocessing.context.BaseContext:
     return multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else None)
 
 
+def _local_rows(tasks: list[tuple], workers: int, bar: tqdm) -> list[dict[str, Any]]:
+    """The tasks' rows from a pool of `workers` forked processes."""
+    rows: list[dict[str, Any]] = []
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_context()) as pool:
+        for future in as_completed([pool.submit(run_rows, *task) for task in tasks]):
+            batch = future.result()
+            rows += batch
+            bar.update(len(batch))
+    return rows
+
+
+def _cluster_rows(tasks: list[tuple], scheduler: str, bar: tqdm) -> list[dict[str, Any]]:
+    """The tasks' rows from the Dask cluster at `scheduler` (tasks of dead workers are rerun by Dask)."""
+    try:
+        from dask.distributed import Client
+        from dask.distributed import as_completed as completed
+    except ImportError:
+        raise StudyError("--scheduler needs dask.distributed: pip install 'robotino_geom_mpc[cluster]'") from None
+    rows: list[dict[str, Any]] = []
+    try:
+        client = Client(scheduler, timeout=20)
+    except (OSError, TimeoutError) as exc:
+        raise StudyError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+    with client:
+        # one key per batch, from its content: a rerun after a worker's death is the same task
+        futures = [client.submit(run_rows, *task, key=f"study-{hashlib.sha1(pickle.dumps(task)).hexdigest()}")
+                   for task in tasks]
+        for future in completed(futures):
+            batch = future.result()
+            rows += batch
+            bar.update(len(batch))
+    return rows
+
+
 def run_study(
     scenario: str,
     robot: RobotinoParams,
@@ -206,9 +295,11 @@ def run_study(
     workers: int | None = None,
     settle_time_s: float = 1.0,
     progress: bool = True,
+    batched: bool = True,
+    scheduler: str | None = None,
     network: dict[str, Any] | None = None,
 ) -> StudyResult:
-    """Run every draw (`run_one`) on `workers` processes.
+    """Run every draw, in batches, on `workers` local processes or on a Dask cluster.
 
     Parameters
     ----------
@@ -223,23 +314,28 @@ def run_study(
     duration_s
         Simulated time of each run; the scenario's if None.
     workers
-        Processes; ``os.cpu_count()`` if None.
+        Local processes; ``os.cpu_count()`` if None (the batch sizes follow it; with a scheduler, the
+        cluster's workers run the batches).
     settle_time_s
         Passed to `results.compute_metrics`.
     progress
         Show a tqdm progress bar on stderr.
+    batched
+        Step each batch's runs together (`batch_simulation.run_batch`); False: one after another (`run_one`).
+    scheduler
+        Address of a Dask scheduler (e.g. ``tcp://10.0.0.5:8786``); None: the local cores.
     network
         ``link_up``, ``link_down``, ``compensate`` of every run (`simulation.run_scenario`); None: the scenario's.
 
     Returns
     -------
     StudyResult
-        The rows in draw order and the wall time from the pool's start to the last row.
+        The rows in draw order and the wall time from the start to the last row.
 
     Raises
     ------
     StudyError
-        No draws, or `workers` < 1.
+        No draws, `workers` < 1, or an unreachable scheduler.
     scenarios.ScenarioError
         Unknown scenario (before any run starts).
     """
@@ -250,19 +346,13 @@ def run_study(
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise StudyError(f"workers must be a positive integer, got {workers!r}")
     workers = min(workers, len(draws))
-    size = max(1, min(BATCH_MAX, len(draws) // (8 * workers)))  # >= 8 batches a worker: the last ones balance
+    batched = batched and not network  # the batched loop has no link: runs over one go run by run
+    size = batch_size(len(draws), workers, batched)
+    tasks = [(scenario, robot, control, draws[k : k + size], duration_s, settle_time_s, batched, network)
+             for k in range(0, len(draws), size)]
     start = time.perf_counter()
-    rows: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=workers, mp_context=_context(),
-                             initializer=_one_blas_thread) as pool:
-        futures = [pool.submit(_run_batch, scenario, robot, control, draws[k : k + size], duration_s, settle_time_s,
-                               network) for k in range(0, len(draws), size)]
-        with tqdm(total=len(draws), desc=f"study {scenario}", unit="run", disable=not progress,
-                  mininterval=0.5) as bar:
-            for future in as_completed(futures):
-                batch = future.result()
-                rows += batch
-                bar.update(len(batch))
+    with tqdm(total=len(draws), desc=f"study {scenario}", unit="run", disable=not progress, mininterval=0.5) as bar:
+        rows = _local_rows(tasks, workers, bar) if scheduler is None else _cluster_rows(tasks, scheduler, bar)
     wall_s = time.perf_counter() - start
     rows.sort(key=lambda row: row["index"])
     return StudyResult(rows, wall_s)

@@ -33,8 +33,12 @@ from typing import Any
 
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.params.rcl_yaml import NO_VALUE, RclFileError, rcl_parameters
+import yaml
+
 from robotino_geom_mpc.params.specs import (
     ALL_SPECS,
+    CONTROL_SPECS,
+    ROBOT_SPECS,
     CHAIN_ACTIVE_SPEC,
     CHAIN_SPECS,
     ControlParams,
@@ -51,6 +55,7 @@ __all__ = [
     "load_params",
     "parse_parameter_file",
     "read_parameter_file",
+    "write_parameter_file",
 ]
 
 _ROBOT_CONTROL = tuple(s.name for s in ALL_SPECS)
@@ -230,3 +235,26 @@ def load_params(
     values = read_parameter_file(path, node)
     where = str(path)
     return params_from_values(values, where)
+
+
+def write_parameter_file(path: str | os.PathLike, robot: RobotinoParams, control: ControlParams,
+                         header: str = "") -> Path:
+    """Write every robot and control parameter (`ROBOT_SPECS`, `CONTROL_SPECS`) as a ROS 2 parameter file for
+    all nodes (``/**``).
+
+    The file is what `load_params`, ``run --params`` and the nodes' ``--params-file`` read; `header` becomes
+    its leading comment lines. Returns the path.
+    """
+    tree: dict[str, Any] = {}
+    for spec in ROBOT_SPECS + CONTROL_SPECS:
+        owner = robot if spec in ROBOT_SPECS else control
+        node = tree
+        *groups, leaf = spec.name.split(".")
+        for group in groups:
+            node = node.setdefault(group, {})
+        value = getattr(owner, spec.attr)
+        node[leaf] = value.item() if hasattr(value, "item") else value
+    path = Path(path)
+    comments = "".join(f"# {line}\n" for line in header.splitlines())
+    path.write_text(comments + yaml.safe_dump({"/**": {"ros__parameters": tree}}, sort_keys=False), encoding="utf-8")
+    return path

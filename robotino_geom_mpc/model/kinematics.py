@@ -1,0 +1,95 @@
+"""Motor speeds omega = W(theta) v of the three drives and their rate, for the controller (eqs. 9-10).
+
+The rim speed of wheel i is d_i(theta) . (x', y') + l theta' (`model.dynamics.wheel_rim_speeds`) and its motor
+turns gear / r times as fast; d_i(theta) = R(theta) d_i(0) turns W(theta) into W(0) on body-frame vectors.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from robotino_geom_mpc.model.dynamics import wheel_directions
+from robotino_geom_mpc.params.specs import RobotinoParams
+
+__all__ = ["MotorKinematics"]
+
+
+class MotorKinematics:
+    """Motor speeds omega = W(theta) v and their rate, the per-tick form of `model.motor_speeds`.
+
+    W(theta) = (gear / r) [d_i(theta), l] with d_i(theta) = R(theta) d_i(0)
+    (R the planar rotation), so W(theta) = W(0) diag(R(theta)^T, 1): the
+    odom-frame velocity turned into the body frame, one small product per
+    tick instead of rebuilding the wheel directions.
+
+    Parameters
+    ----------
+    p
+        Wheel radius, wheel distance l and gear ratio.
+    """
+
+    def __init__(self, p: RobotinoParams) -> None:
+        self.W0 = p.gear_ratio / p.r * np.column_stack((wheel_directions(0.0), np.full(3, p.l)))
+        self._W0 = tuple(map(tuple, self.W0.tolist()))
+
+    def matrix(self, theta: float) -> np.ndarray:
+        """W(theta), shape (3, 3): omega = W(theta) (x', y', theta')."""
+        c, s = math.cos(theta), math.sin(theta)
+        return self.W0 @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    @classmethod
+    def batch(cls, robots: Sequence[RobotinoParams]) -> MotorKinematics:
+        """The kinematics of B robots at once: W(0) of shape (B, 3, 3), for the array form `speeds_and_rates`."""
+        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
+        stacked.W0 = np.stack([cls(p).W0 for p in robots])
+        stacked._W0 = None  # no float path for a batch
+        return stacked
+
+    def speeds_and_rates(
+        self, theta: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Motor speeds omega and their rate omega' for a body velocity and acceleration (array form).
+
+        Parameters
+        ----------
+        theta
+            Heading [rad], shape (...,) (a batch axis, or none for one run).
+        velocity, acceleration
+            (x', y', theta') and (x'', y'', theta'') in the odom frame, shape (..., 3).
+
+        Returns
+        -------
+        omega, omega_rate : ndarray, shape (..., 3)
+            omega = W(0) R(theta)^T v and omega' = W(theta) a + theta' W'(theta) v, where
+            W'(theta) v = W(theta) (y', -x', 0): both are W(0) applied to body-frame vectors.
+        """
+        theta = np.asarray(theta, dtype=float)
+        v, a = np.asarray(velocity, dtype=float), np.asarray(acceleration, dtype=float)
+        c, s = np.cos(theta), np.sin(theta)
+        vx, vy, w = v[..., 0], v[..., 1], v[..., 2]
+        bx, by = a[..., 0] + w * vy, a[..., 1] - w * vx
+        body_velocity = np.stack((c * vx + s * vy, c * vy - s * vx, w), axis=-1)
+        body_rate = np.stack((c * bx + s * by, c * by - s * bx, a[..., 2]), axis=-1)
+        return (np.einsum("...ij,...j->...i", self.W0, body_velocity),
+                np.einsum("...ij,...j->...i", self.W0, body_rate))
+
+    def speeds_and_rates_floats(
+        self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
+    ) -> tuple[list[float], list[float]]:
+        """`speeds_and_rates` on Python floats, for the per-tick path."""
+        vx, vy, w = velocity[0], velocity[1], velocity[2]
+        ax, ay, aw = acceleration[0], acceleration[1], acceleration[2]
+        c, s = math.cos(theta), math.sin(theta)
+        bx, by = ax + w * vy, ay - w * vx
+        px, py = c * vx + s * vy, c * vy - s * vx
+        qx, qy = c * bx + s * by, c * by - s * bx
+        (a0, b0, e0), (a1, b1, e1), (a2, b2, e2) = self._W0
+        return (
+            [a0 * px + b0 * py + e0 * w, a1 * px + b1 * py + e1 * w, a2 * px + b2 * py + e2 * w],
+            [a0 * qx + b0 * qy + e0 * aw, a1 * qx + b1 * qy + e1 * aw, a2 * qx + b2 * qy + e2 * aw],
+        )

@@ -109,12 +109,13 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("seed", int, "Seed of the odometry noise (and of the wheel slip)", "", 0, 2**31 - 1, False),
     ParamSpec("timing_report", str, "File the loop's timing figures go to as one JSON object at the end of a run "
               "(its folder must exist); empty: none"),
+    ParamSpec("timing_window_s", float, "Realtime: report the figures per window this long too", "s", 0.0, 1e6, False),
 ) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
-    "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0,
-    "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "",
+    "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0, "seed": 0,
+    "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "timing_report": "", "timing_window_s": 0.0,
     **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS,
 }
 
@@ -190,7 +191,7 @@ class PlantNode(Node):
             self.started_at = monotonic()
             self.hold = CommandHold(self.started_at, 1.0 / self.params["physics_rate_hz"])  # a refused one: 0 V
             self.ticks = 0  # published
-            self.timing = LoopTiming()
+            self.timing = LoopTiming(window_s=self.params["timing_window_s"])
             self.publish_timer = self.create_timer(self.control.period_s, self._publish_realtime, clock=steady)
         self.get_logger().info(f"plant simulator ready ({self.params['mode']}, Ts = {self.control.period_s:g} s)")
 

@@ -44,8 +44,10 @@ SAMPLE_S = 2.0  # how often each process's memory and CPU are read
 RESTARTS = 200  # controller kills and restarts (quick: 5)
 RUNS = 100  # `run`s in a row (quick: 5)
 RUN_S = 2.0  # each one's length
-# the plant's topics: one message a published tick each (realtime; /tf with publish_tf, the default)
-PLANT_TOPICS = ("odom", "ground_truth/odom", "joint_states", "/tf")
+# messages a published tick of the plant's topics in the bag (realtime): its odometry, ground truth and wheels'
+# joint states one each; /tf two: its odom -> base_link (publish_tf, the default) and the description publisher's
+# wheel transforms (one per joint_states)
+PLANT_TOPICS = {"/odom": 1, "/ground_truth/odom": 1, "/joint_states": 1, "/tf": 2}
 _END_MARGIN_S = 120.0  # the soak's plant must have ended this long after its duration
 
 
@@ -66,12 +68,14 @@ def process_rss_cpu(pid: int) -> tuple[float, float]:
 class ProcessSampler:
     """Samples the memory and CPU time of named processes every `interval_s` in a thread (a context manager).
 
-    `samples[name]` is a list of (steady time [s], RSS [bytes], CPU time [s]).
+    `samples[name]` is a list of (steady time [s], RSS [bytes], CPU time [s]); `load` of (steady time [s], the
+    machine's 1-minute load average).
     """
 
     def __init__(self, pids: dict[str, int], interval_s: float = SAMPLE_S) -> None:
         self.pids, self.interval_s = dict(pids), interval_s
         self.samples: dict[str, list[tuple[float, float, float]]] = {name: [] for name in pids}
+        self.load: list[tuple[float, float]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="soak-sampler", daemon=True)
 
@@ -81,7 +85,8 @@ class ProcessSampler:
             self._stop.wait(self.interval_s)
 
     def sample(self) -> None:
-        """One sample of every process still running."""
+        """One sample of every process still running, and of the machine's load."""
+        self.load.append((time.monotonic(), os.getloadavg()[0]))
         for name, pid in self.pids.items():
             try:
                 rss, cpu = process_rss_cpu(pid)
@@ -97,6 +102,11 @@ class ProcessSampler:
         rss = statistics.fmean(s[1] for s in inside) / 1e6
         cpu = 100.0 * (inside[-1][2] - inside[0][2]) / (inside[-1][0] - inside[0][0])
         return rss, cpu
+
+    def window_load(self, start: float, end: float) -> float:
+        """The mean 1-minute load average of the machine between steady times `start` and `end` (NaN: none)."""
+        inside = [value for t, value in self.load if start <= t <= end]
+        return statistics.fmean(inside) if inside else float("nan")
 
     def __enter__(self) -> ProcessSampler:
         self._thread.start()
@@ -195,7 +205,8 @@ def soak(duration_s: float, folder: Path, log: Callable[[str], None]) -> dict[st
     rows = []
     for w in windows:
         row = {"start_s": w["start_steady_s"] - origin, "end_s": w["end_steady_s"] - origin, "ticks": w["ticks"],
-               "missed": w["missed"], "latency_ms": w["latency_ms"], "processes": {}}
+               "missed": w["missed"], "latency_ms": w["latency_ms"], "processes": {},
+               "load": sampler.window_load(w["start_steady_s"], w["end_steady_s"])}
         for name in nodes:
             figures = sampler.window(name, w["start_steady_s"], w["end_steady_s"])
             if figures is not None:
@@ -209,7 +220,7 @@ def soak(duration_s: float, folder: Path, log: Callable[[str], None]) -> dict[st
     answered = [r for r in rows if r["latency_ms"] is not None]
     drift = {q: drift_over_spread([r["latency_ms"][q] for r in answered]) for q in ("p50", "p99", "p99.9")}
     result = {"windows": rows, "ticks": timing["ticks"], "bag": counts, "growth": growth, "drift": drift,
-              "lost": {topic: timing["ticks"] - counts.get(topic, 0) for topic in PLANT_TOPICS},
+              "lost": {topic: per * timing["ticks"] - counts.get(topic, 0) for topic, per in PLANT_TOPICS.items()},
               "missed": timing["missed"], "window_s": window_s}
     for line in soak_table(result):
         log(line)
@@ -219,14 +230,14 @@ def soak(duration_s: float, folder: Path, log: Callable[[str], None]) -> dict[st
 def soak_table(result: dict[str, Any]) -> list[str]:
     """The soak's windows as text lines: time, missed, latency, and RSS / CPU per process."""
     names = sorted({name for row in result["windows"] for name in row["processes"]})
-    lines = ["window [s]     ticks missed  p50/p99/p99.9 ms     " + "  ".join(f"{n[:16]:>16}" for n in names),
-             " " * 47 + "  ".join(f"{'RSS MB / CPU %':>16}" for _ in names)]
+    lines = ["window [s]     load  ticks missed  p50/p99/p99.9 ms     " + "  ".join(f"{n[:16]:>16}" for n in names),
+             " " * 53 + "  ".join(f"{'RSS MB / CPU %':>16}" for _ in names)]
     for row in result["windows"]:
         lat = row["latency_ms"] or {}
         cells = [f"{row['processes'][n]['rss_mb']:7.2f} / {row['processes'][n]['cpu_pct']:5.1f}"
                  if n in row["processes"] else f"{'-':>16}" for n in names]
-        lines.append(f"{row['start_s']:6.0f}-{row['end_s']:<6.0f} {row['ticks']:6d} {row['missed']:6d}  "
-                     f"{lat.get('p50', float('nan')):5.2f}/{lat.get('p99', float('nan')):5.2f}/"
+        lines.append(f"{row['start_s']:6.0f}-{row['end_s']:<6.0f} {row['load']:5.1f} {row['ticks']:6d} "
+                     f"{row['missed']:6d}  {lat.get('p50', float('nan')):5.2f}/{lat.get('p99', float('nan')):5.2f}/"
                      f"{lat.get('p99.9', float('nan')):5.2f}     " + "  ".join(f"{c:>16}" for c in cells))
     lines.append("growth after the first window [MB/10 min]: " + ", ".join(
         f"{n} {g:+.3f}" for n, g in result["growth"].items()))
@@ -264,6 +275,7 @@ def _flat(result: dict[str, Any]) -> dict[str, float]:
                              "soak_missed_ticks": result["missed"]}
     for k, row in enumerate(result["windows"]):
         out[f"soak_w{k}_missed_ticks"] = row["missed"]
+        out[f"soak_w{k}_load"] = row["load"]
         for q, value in (row["latency_ms"] or {}).items():
             out[f"soak_w{k}_latency_{q.replace('.', '_')}_ms"] = value
         for name, figures in row["processes"].items():

@@ -13,7 +13,7 @@ setup: $(STAMP)
 $(STAMP): setup.py setup.cfg package.xml Makefile tools/build_interfaces.sh
 	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install --quiet --upgrade "pip>=24"
-	$(VENV)/bin/python -m pip install --quiet --editable ".[ros,test]"
+	$(VENV)/bin/python -m pip install --quiet --editable ".[ros,test,viz]"
 	tools/build_interfaces.sh $(VENV)  # tf2_msgs where the wheels have none
 	touch $(STAMP)
 

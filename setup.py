@@ -39,8 +39,12 @@ setup(
             "ros-jazzy-common-interfaces==5.3.6",
             "ros-jazzy-rosgraph-msgs==2.0.3",
         ],
+        "viz": [
+            "foxglove-sdk>=0.30,<0.31",  # run --foxglove: the live view's WebSocket server
+        ],
         "test": [
             "pytest>=8,<10",
+            "websockets>=15,<16",  # the live view test's Foxglove WebSocket client
             "hypothesis>=6.100,<7",
             "colcon-common-extensions==0.3.0",
             "quadprog>=0.1.11,<0.2",
@@ -59,6 +63,7 @@ setup(
             "trajectory_node = robotino_geom_mpc.nodes.trajectory_node:main",
             "recorder_node = robotino_geom_mpc.recording.recorder_node:main",
             "robot_description_publisher = robotino_geom_mpc.nodes.robot_description_node:main",
+            "live_view_node = robotino_geom_mpc.nodes.live_view_node:main",
         ],
     },
 )

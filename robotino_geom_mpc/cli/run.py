@@ -85,8 +85,22 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
                         "and paths a sender publishes on goal_pose and plan; the run lasts until they end + 3 s")
+    parser.add_argument("--foxglove", type=_port, nargs="?", const=8765, default=None, metavar="PORT",
+                        help="serve the run's topics live to Foxglove on ws://localhost:PORT (default 8765; needs "
+                        "the [viz] extra); a lockstep run then goes at real time")
     parser.set_defaults(func=run)
     return parser
+
+
+def _port(text: str) -> int:
+    """A TCP port (1..65535) for argparse."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"port {port} is not in 1..65535")
+    return port
 
 
 def _raise_interrupt(*_: object) -> None:
@@ -136,6 +150,15 @@ def _close_recording(group: NodeGroup, recorder: NodeProcess, bag: Path) -> None
         _stopped_cleanly(group, recorder, GRACE_S)
 
 
+def _check_viz() -> None:
+    """`UsageError` naming the install line when the Foxglove SDK (the [viz] extra) is missing."""
+    import importlib.util
+
+    if importlib.util.find_spec("foxglove") is None:
+        raise UsageError("--foxglove needs the Foxglove SDK: pip install 'robotino_geom_mpc[viz]' "
+                         "(or pip install foxglove-sdk)")
+
+
 def _goals_duration(args: argparse.Namespace, params_file: Path) -> float:
     """The run length for a goal file: its motions planned offline with the trajectory node's limits, + 3 s."""
     from robotino_geom_mpc.reference.goal_file import LIMIT_DEFAULTS, load_goal_file, motion_limits, planned_end_s
@@ -178,9 +201,14 @@ def run(args: argparse.Namespace) -> int:
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
                                odometry=args.odometry, command_interface=args.command_interface,
                                goals_file=None if args.goals is None else args.goals.resolve(),
-                               overrides={"plant_node": {"timing_report": str(report)}})
+                               overrides={"plant_node": {"timing_report": str(report)}},
+                               live_view_port=args.foxglove)
+    if args.foxglove is not None:
+        _check_viz()
     mode = "lockstep" if args.lockstep else "realtime"
     print(f"run {args.scenario} over DDS ({mode}, {duration:g} s, Ts = {control.period_s:g} s); logs in {out / 'logs'}")
+    if args.foxglove is not None:
+        print(f"  live view: connect Foxglove to ws://localhost:{args.foxglove}")
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     group = NodeGroup(log_dir=out / "logs")
     start = time.monotonic()

@@ -120,6 +120,7 @@ def node_arguments(
     goals_file: str | os.PathLike | None = None,
     command_interface: str = "voltages",
     environ: Mapping[str, str] | None = None,
+    live_view_port: int | None = None,
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`.
 
@@ -137,6 +138,9 @@ def node_arguments(
     `environ` is the environment the nodes will run in (`os.environ` if None, as for a `NodeGroup` without
     ``env``): where `dds_environment` gives them the package's profile, a lockstep plant settles
     `PROFILE_SETTLE_S` before tick 0 instead of its default.
+    With `live_view_port` a ``live_view_node`` serves every topic there (Foxglove WebSocket); a lockstep plant
+    waits for its subscriptions too (one more on each topic it waits for) and runs at real time at most
+    (``lockstep_max_realtime_factor`` 1), so the view shows the run from tick 0 at the pace it would have.
     """
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.scenarios import node_parameters
@@ -150,6 +154,8 @@ def node_arguments(
         wait_for = list(LOCKSTEP_WAIT_FOR) if bag is None else recorder_wait_for(command_interface)
         if goals_file is not None:  # the goal sender's odom subscription (its clock) too
             wait_for = [f"odom:{int(w.split(':')[1]) + 1}" if w.startswith("odom:") else w for w in wait_for]
+        if live_view_port is not None:  # the live view subscribes every topic
+            wait_for = [f"{topic}:{int(count) + 1}" for topic, _, count in (w.rpartition(":") for w in wait_for)]
     remaps = namespace_remaps(namespace, lockstep)
     frames = {name: {"frame_prefix": frame_prefix(namespace)} for name in FRAME_PREFIX_NODES} if namespace else {}
     args = {}
@@ -168,6 +174,8 @@ def node_arguments(
                               remaps)
     own_profile = dds_environment(os.environ if environ is None else environ)
     settle = {"lockstep_settle_s": PROFILE_SETTLE_S} if lockstep and own_profile else {}
+    if lockstep and live_view_port is not None:
+        settle["lockstep_max_realtime_factor"] = 1.0
     args["plant_node"] = ros_args(params_file, {
         **scenario_overrides["plant_node"],
         "mode": mode,
@@ -186,6 +194,9 @@ def node_arguments(
         **extra.get("robot_description_publisher", {})}, remaps)
     if goals_file is not None:
         args["goal_sender"] = ros_args(None, {"goals_file": str(goals_file), "mode": mode}, remaps)
+    if live_view_port is not None:
+        args["live_view_node"] = ros_args(None, {"port": int(live_view_port), **extra.get("live_view_node", {})},
+                                          remaps)
     return args
 
 

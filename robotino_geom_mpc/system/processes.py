@@ -3,7 +3,9 @@
 Each node runs as ``sys.executable -m MODULE --ros-args ...`` in its own
 process group with stdout/stderr in files, so a Ctrl-C of the caller does not
 reach the nodes directly and every node is stopped in order: SIGINT, then
-SIGTERM and SIGKILL after grace periods, nothing left running.
+SIGTERM and SIGKILL after grace periods, nothing left running. Before the SIGKILL a node gets SIGUSR1, on which
+a node process prints every thread's stack on stderr (`ros.spin.start_rclpy`): the report of a node that did not
+stop says where it hung.
 """
 
 from __future__ import annotations
@@ -260,6 +262,19 @@ def wait_for_exit(popens: list[subprocess.Popen], timeout_s: float) -> None:
             os.close(fd)
 
 
+STACKS_WAIT_S = 0.5  # how long a node that is about to be killed gets to print its stacks (SIGUSR1)
+
+
+def _print_stacks(nodes: list[NodeProcess]) -> None:
+    """SIGUSR1 to each of `nodes` (a node process prints its threads' stacks on stderr), then wait `STACKS_WAIT_S`."""
+    for node in nodes:
+        try:
+            os.killpg(node.popen.pid, signal.SIGUSR1)
+        except ProcessLookupError:
+            pass
+    time.sleep(STACKS_WAIT_S)
+
+
 @dataclass
 class NodeProcess:
     """One running node: its name, the Popen, and the files holding its output."""
@@ -362,6 +377,8 @@ class NodeGroup:
             running = [n for n in self.nodes if n.popen.poll() is None]
             if not running:
                 break
+            if sig == signal.SIGKILL:
+                _print_stacks(running)
             for node in running:
                 try:
                     os.killpg(node.popen.pid, sig)
@@ -380,6 +397,8 @@ class NodeGroup:
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
             if node.popen.poll() is not None:
                 break
+            if sig == signal.SIGKILL:
+                _print_stacks([node])
             try:
                 os.killpg(node.popen.pid, sig)
             except ProcessLookupError:

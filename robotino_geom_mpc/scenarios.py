@@ -20,6 +20,9 @@ rest (no ramp-in), the start transient of its Fig. 6.
 trajectory node (`reference.goals.GoalReference`; offline, without goals,
 it holds for its 10 s).
 
+``wifi`` runs paper-circle over a WiFi-like radio link (`WIFI_LINK`, each way) between
+the robot and the off-board nodes: the controller then sends plans (`control.delay_compensation`).
+
 ``robustness`` runs paper-circle with a controller whose model is off:
 mass +20 %, yaw inertia -20 % (the two errors push the translational and
 rotational loops in opposite directions), body friction twice the true one,
@@ -37,6 +40,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.network.link import LinkParams
 from robotino_geom_mpc.params.specs import ROBOT_SPECS, RobotinoParams
 from robotino_geom_mpc.reference.goals import GoalReference
 from robotino_geom_mpc.reference.trajectories import Reference, make_reference
@@ -91,6 +95,9 @@ class Scenario:
         The controller's model over the true robot; None: the controller knows the robot.
     noise
         The odometry noise the plant adds.
+    link
+        The radio link between the robot and the off-board nodes, the same each way
+        (`network.link.LinkParams`); None: the nodes talk without one.
     """
 
     name: str
@@ -99,6 +106,7 @@ class Scenario:
     reference_options: tuple[tuple[str, Any], ...] = ()
     mismatch: ModelMismatch | None = None
     noise: OdometryNoise = OdometryNoise()
+    link: LinkParams | None = None
 
     def make_reference(self, **options: Any) -> Reference:
         """The scenario's reference; `options` (e.g. point-to-point ``waypoints``) override its own."""
@@ -118,6 +126,10 @@ class Scenario:
 
 _MISMATCH = ModelMismatch(mass=1.2, inertia=0.8, friction=2.0)
 
+WIFI_LINK = LinkParams(delay_s=0.015, jitter_s=0.015, loss=0.05, burst_length=3.0)
+"""A WiFi-like link, each way: 15-30 ms one way (a loaded 2.4 GHz cell with a few stations and retries; a quiet
+one is 2-5 ms), 5 % of the packets lost in bursts of 3 on average (fading, a station roaming or scanning)."""
+
 SCENARIOS: dict[str, Scenario] = {
     s.name: s
     for s in (
@@ -131,6 +143,8 @@ SCENARIOS: dict[str, Scenario] = {
         Scenario("robustness", "paper-circle with the controller's model off (mass x1.2, yaw inertia x0.8, "
                  "body friction x2) and odometry noise 1 mm / 1 mrad", "paper-circle",
                  mismatch=_MISMATCH, noise=OdometryNoise(position_m=1e-3, yaw_rad=1e-3)),
+        Scenario("wifi", "paper-circle over a WiFi-like link: 15 ms plus up to 15 ms each way, 5 % loss in "
+                 "bursts of 3 packets", "paper-circle", link=WIFI_LINK),
         Scenario("goals", "hold the pose until goals (goal_pose) and planner paths (plan) arrive; C^3 motions "
                  "within velocity, acceleration, jerk and rim-speed limits", "goals"),
     )
@@ -167,7 +181,8 @@ def node_parameters(scenario: str | Scenario, robot: RobotinoParams) -> dict[str
     -------
     dict
         ``{"plant_node": ..., "controller_node": ..., "trajectory_node": ...}``: the plant's
-        ``odometry_noise.*``; the controller's robot parameters (the config/*.yaml names, e.g.
+        ``odometry_noise.*`` (and ``link.up.*`` / ``link.down.*`` for a scenario over a link); the
+        controller's robot parameters (the config/*.yaml names, e.g.
         ``robot.mass_kg``) that its mismatched model changes; the trajectory's ``scenario``.
 
     Raises
@@ -182,6 +197,8 @@ def node_parameters(scenario: str | Scenario, robot: RobotinoParams) -> dict[str
         "plant_node": {
             "odometry_noise.position_m": float(scenario.noise.position_m),
             "odometry_noise.yaw_rad": float(scenario.noise.yaw_rad),
+            **({f"link.{way}.{name}": value for way in ("up", "down") for name, value in asdict(scenario.link).items()}
+               if scenario.link is not None else {}),
         },
         "controller_node": {
             spec.name: getattr(model, spec.attr)

@@ -98,7 +98,7 @@ def test_a_second_signal_never_kills_a_node(tmp_path, moment, second, gap_s):
 
 def test_node_processes_are_recognised_from_their_command_line():
     """`stop_signals_early` acts in a node process only: ``python -m MODULE`` or the console script."""
-    from robotino_geom_mpc.ros import processes, signals
+    from robotino_geom_mpc.system import processes, signals
 
     assert signals.NODE_MODULES == processes.NODE_MODULES  # two copies until processes imports it from signals
     for executable, module in signals.NODE_MODULES.items():

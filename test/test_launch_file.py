@@ -19,10 +19,9 @@ import pytest
 
 import ament_index_python.packages
 
-from robotino_geom_mpc.params.specs import ALL_SPECS, \
-from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.files import load_params, read_parameter_file
 from robotino_geom_mpc.params.presets import config_file, default_params_file
-    params_from_values, read_parameter_file
+from robotino_geom_mpc.params.specs import ALL_SPECS, params_from_values
 from robotino_geom_mpc.description.urdf import DescriptionError, robotino_urdf
 from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, NamespaceError, node_arguments, \
     recorder_wait_for

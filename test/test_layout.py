@@ -59,7 +59,7 @@ def test_only_nodes_and_ros_plumbing_import_rclpy():
     assert _imports_rclpy(["robotino_geom_mpc.nodes.controller_node"]) == {"robotino_geom_mpc.nodes.controller_node": True}
 
 
-CORE = ("errors", "arrays", "scenarios", "params", "model", "geometric", "control", "reference")
+CORE = ("errors", "arrays", "scenarios", "params", "model", "geometric", "control", "reference", "network")
 
 
 def test_the_math_core_never_imports_ros():

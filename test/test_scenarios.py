@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.network.link import LinkParams
 from robotino_geom_mpc.params.specs import ALL_SPECS
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
@@ -23,7 +24,8 @@ def robot():
 
 
 def test_the_registry_holds_the_scenarios_with_todays_numbers():
-    assert list(SCENARIOS) == ["paper-circle", "paper-circle-step", "lemniscate", "point-to-point", "robustness", "goals"]
+    assert list(SCENARIOS) == ["paper-circle", "paper-circle-step", "lemniscate", "point-to-point", "robustness", "wifi",
+                               "goals"]
     for name, scenario in SCENARIOS.items():
         assert scenario.name == name and scenario.description and scenario.reference in (*REFERENCES, "goals")
     assert all(SCENARIOS[n].mismatch is None and SCENARIOS[n].noise.position_m == SCENARIOS[n].noise.yaw_rad == 0.0
@@ -34,6 +36,11 @@ def test_the_registry_holds_the_scenarios_with_todays_numbers():
     assert (robustness.noise.position_m, robustness.noise.yaw_rad) == (1e-3, 1e-3)
     with pytest.raises(dataclasses.FrozenInstanceError):
         robustness.reference = "lemniscate"
+    wifi = SCENARIOS["wifi"]
+    assert wifi.reference == "paper-circle" and wifi.mismatch is None and wifi.noise.position_m == 0.0
+    assert dataclasses.asdict(wifi.link) == {"delay_s": 0.015, "jitter_s": 0.015, "loss": 0.05, "burst_length": 3.0,
+                                             "duplicate": 0.0}
+    assert all(SCENARIOS[n].link is None for n in SCENARIOS if n != "wifi")
 
 
 def test_default_duration_is_the_references_length():
@@ -70,7 +77,7 @@ def test_a_scenarios_reference_takes_options():
 @pytest.mark.parametrize("name, match", [
     ("robustnes", r"did you mean 'robustness'\?"),
     ("paper_circle", r"did you mean 'paper-circle'\?"),
-    ("spiral", r"unknown scenario 'spiral' \(valid: paper-circle, paper-circle-step, lemniscate, point-to-point, robustness, goals\)"),
+    ("spiral", r"unknown scenario 'spiral' \(valid: paper-circle, paper-circle-step, lemniscate, point-to-point, robustness, wifi, goals\)"),
     (None, "unknown scenario None"),
 ])
 def test_unknown_names_are_refused_with_the_closest_one(name, match):
@@ -92,7 +99,9 @@ def test_controller_model_scales_mass_inertia_and_friction_only(robot):
 def test_node_parameters_name_the_nodes_own_parameters_with_the_file_values_scaled(robot):
     """Keys against the config file and the nodes' specs; values against the file read with plain YAML."""
     file_values = yaml.safe_load(default_params_file().read_text())["/**"]["ros__parameters"]
-    plant_names = {s.name for s in PLANT_SPECS}
+    # the plant's link.* parameters (netros's branch) are the link's fields each way
+    plant_names = {s.name for s in PLANT_SPECS} | {f"link.{way}.{f.name}" for way in ("up", "down")
+                                                   for f in dataclasses.fields(LinkParams)}
     controller_names = {s.name for s in ALL_SPECS}
     for name in SCENARIOS:
         overrides = node_parameters(name, robot)
@@ -110,5 +119,7 @@ def test_node_parameters_name_the_nodes_own_parameters_with_the_file_values_scal
     assert node_parameters("robustness", robot)["plant_node"] == {"odometry_noise.position_m": 1e-3,
                                                                   "odometry_noise.yaw_rad": 1e-3}
     assert node_parameters(SCENARIOS["lemniscate"], robot)["controller_node"] == {}
+    wifi = node_parameters("wifi", robot)["plant_node"]
+    assert wifi["link.up.delay_s"] == wifi["link.down.delay_s"] == 0.015 and wifi["link.down.burst_length"] == 3.0
     with pytest.raises(ScenarioError):
         node_parameters("square", robot)

@@ -130,3 +130,29 @@ def test_encoder_odometry_reports_both_frames(tmp_path):
     assert 0.0 < metrics["odometry_drift_max_m"] < 1e-3
     assert metrics["rms_position_error_odom_m"] != metrics["rms_position_error_m"]
     assert "in the odom frame (encoders)" in proc.stdout
+
+
+@pytest.mark.parametrize("args, option", [
+    (["--link-loss", "1"], "--link-loss"),
+    (["--link-loss", "0.6"], "--link-loss"),  # isolated losses (bursts of 1) cannot make 60 %
+    (["--link-delay-ms", "-5"], "--link-delay-ms"),
+    (["--link-jitter-ms", "20000"], "--link-jitter-ms"),
+    (["--link-burst", "0.5", "--link-loss", "0.1"], "--link-burst"),
+])
+def test_link_options_out_of_range_exit_2_naming_the_option(tmp_path, capsys, args, option):
+    status = main(["simulate", "--scenario", "paper-circle", "--duration", "0.1", "--no-progress",
+                   "--out", str(tmp_path / "o"), *args])
+    assert status == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and option in err[0] and "link." in err[0] and "Traceback" not in err[0]
+
+
+def test_a_run_over_a_link_reports_it(tmp_path, capsys):
+    out = tmp_path / "o"
+    assert main(["simulate", "--scenario", "paper-circle", "--duration", "0.5", "--no-progress", "--out", str(out),
+                 "--link-delay-ms", "20", "--link-loss", "0.2", "--link-burst", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "link: up " in text and "compensated: round trip" in text
+    assert main(["simulate", "--scenario", "paper-circle", "--duration", "0.5", "--no-progress", "--out", str(out),
+                 "--link-delay-ms", "20", "--no-compensation"]) == 0
+    assert "uncompensated" in capsys.readouterr().out

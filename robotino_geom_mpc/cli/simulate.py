@@ -12,11 +12,13 @@ from dataclasses import replace
 from pathlib import Path
 
 from robotino_geom_mpc.model.encoders import ODOMETRY_MODELS
+from robotino_geom_mpc.network.link import LinkError, LinkParams
 
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario
 from . import VERBS, UsageError, positive_float, seed_value
 
-__all__ = ["add_parser", "add_scenario_argument", "add_odometry_argument", "run"]
+__all__ = ["add_parser", "add_scenario_argument", "add_odometry_argument", "add_link_arguments", "link_from_args",
+           "run"]
 
 SETTLE_TIME_S = 1.0
 
@@ -41,8 +43,61 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "0 = none, the paper's controller; default: the parameter file's)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_command_interface_argument(parser)
+    add_link_arguments(parser)
     parser.set_defaults(func=run)
     return parser
+
+
+_LINK_OPTIONS = (  # (option, LinkParams field, metavar, help)
+    ("--link-delay-ms", "delay_s", "D", "fixed one-way delay D [ms]"),
+    ("--link-jitter-ms", "jitter_s", "J", "plus a uniform jitter in [0, J] per packet [ms] (reorders packets)"),
+    ("--link-loss", "loss", "P", "long-run loss probability P in [0, 1) (Gilbert-Elliott bursts)"),
+    ("--link-burst", "burst_length", "B", "mean loss-burst length B [packets] (default 1: isolated losses; "
+     "needs P <= B / (B + 1))"),
+)
+
+
+def _finite_float(text: str) -> float:
+    """argparse type: a finite number (ranges are the link's to check, naming the option)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if value != value or value in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def add_link_arguments(parser: argparse.ArgumentParser) -> None:
+    """The emulated radio link's options (each way) of `simulate` and `study`, and ``--no-compensation``."""
+    group = parser.add_argument_group("radio link between the robot and the controller, each way "
+                                      "(network.link; docs/howto/networked_control.md)")
+    for option, _, metavar, text in _LINK_OPTIONS:
+        group.add_argument(option, type=_finite_float, default=None, metavar=metavar,
+                           help=f"{text}; any of these options runs the offline loop over the link "
+                           "(default: the scenario's link, none but for wifi)")
+    group.add_argument("--no-compensation", action="store_true",
+                       help="over a link: the plain controller, each command acting when it arrives and held "
+                       "(the uncompensated baseline) instead of the delay-compensating plans")
+
+
+def link_from_args(args: argparse.Namespace) -> LinkParams | None:
+    """The link of the ``--link-*`` options (the same each way), None when none is given.
+
+    Raises
+    ------
+    UsageError
+        For a value out of range, naming its option.
+    """
+    values = {field: getattr(args, option[2:].replace("-", "_")) for option, field, *_ in _LINK_OPTIONS}
+    if all(v is None for v in values.values()):
+        return None
+    delay, jitter, loss, burst = (values[f] for f in ("delay_s", "jitter_s", "loss", "burst_length"))
+    try:
+        return LinkParams.from_ms(delay or 0.0, jitter or 0.0, loss or 0.0, 1.0 if burst is None else burst)
+    except LinkError as exc:
+        option = next((o for o, f, *_ in _LINK_OPTIONS if f"link.{f}" in str(exc)), "--link-*")
+        raise UsageError(f"{option}: {exc}") from None
 
 
 def _current_limit(text: str) -> float:
@@ -96,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
     from robotino_geom_mpc.offline.simulation import run_scenario
 
     robot, control = load_params(args.params)
+    link = link_from_args(args)
     if args.current_limit is not None:
         control = replace(control, current_limit_a=args.current_limit)
     out = args.out if args.out is not None else Path("out") / args.scenario
@@ -107,7 +163,8 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     data = run_scenario(
         args.scenario, robot, control, duration_s=args.duration, seed=args.seed, progress=not args.no_progress,
-        odometry=args.odometry, command_interface=args.command_interface,
+        odometry=args.odometry, command_interface=args.command_interface, link_up=link, link_down=link,
+        compensate=not args.no_compensation,
     )
     wall_s = time.perf_counter() - start
 
@@ -130,5 +187,20 @@ def run(args: argparse.Namespace) -> int:
     within = "within" if m["current_within_nominal"] else "ABOVE"
     print(f"  peak current {m['peak_current_a']:.3g} A ({within} nominal {m['nominal_current_a']:g} A), "
           f"peak voltage {m['peak_voltage_v']:.3g} V (supply {m['supply_voltage_v']:g} V)")
+    if "link" in data.meta:
+        print(f"  link: {_link_summary(data.meta['link'])}")
     print(f"  wrote {out / 'metrics.json'}, {out / 'run.npz'} and {len(figures)} figures")
     return 0
+
+
+def _link_summary(meta: dict) -> str:
+    """One line on the link of a run (`offline.networked.NetworkedLoop.meta`)."""
+    up, down = meta["up"], meta["down"]
+    text = (f"up {up['lost']}/{up['sent']} lost, down {down['lost']}/{down['sent']} lost; "
+            + ("compensated" if meta["compensated"] else "uncompensated"))
+    c = meta.get("controller")
+    if c and c["round_trip_mean_s"] is not None:
+        text += (f": round trip {1e3 * c['round_trip_mean_s']:.3g} ms mean, {1e3 * c['round_trip_jitter_s']:.3g} ms "
+                 f"std, lead {c['lead_periods']} periods, {c['plans_lost']} plans lost, "
+                 f"{c['exhausted_periods']} periods without a plan")
+    return text

@@ -12,7 +12,7 @@ import argparse
 from pathlib import Path
 
 from . import VERBS, UsageError, positive_float, seed_value
-from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_scenario_argument
+from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_link_arguments, add_scenario_argument, link_from_args
 
 __all__ = ["add_parser", "run"]
 
@@ -49,6 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "(default: Robotino 3 preset)")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_link_arguments(parser)
     parser.set_defaults(func=run)
     return parser
 
@@ -61,13 +62,16 @@ def run(args: argparse.Namespace) -> int:
     from robotino_geom_mpc.offline.study import draw_runs, run_study, write_study
 
     robot, control = load_params(args.params)
+    link = link_from_args(args)
+    network = ({"link_up": link, "link_down": link, "compensate": not args.no_compensation}
+               if link is not None or args.no_compensation else None)
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UsageError(f"cannot create output folder {args.out}: {exc.strerror or exc}") from None
     draws = draw_runs(args.samples, args.seed, ODOMETRY_MODELS if args.odometry == "both" else (args.odometry,))
     result = run_study(args.scenario, robot, control, draws, duration_s=args.duration, workers=args.workers,
-                       settle_time_s=SETTLE_TIME_S, progress=not args.no_progress)
+                       settle_time_s=SETTLE_TIME_S, progress=not args.no_progress, network=network)
     s = write_study(args.out, args.scenario, robot, control, result, duration_s=args.duration,
                     settle_time_s=SETTLE_TIME_S)
     print(f"study {args.scenario}: {s['runs']} runs ({s['failed_runs']} failed), {s['simulated_s']:.4g} s "

@@ -172,6 +172,15 @@ class OdometryFilter:
             raise EstimatorError(f"start pose must be finite, got {(x, y, theta)}")
         self._last = (float(x), 0.0, float(y), 0.0, float(theta), 0.0)
 
+    def shift(self, dx: float, dy: float, dtheta: float) -> None:
+        """Move the estimate by (dx, dy, dtheta) [m, m, rad]: a caller's better prediction over the last interval.
+
+        No-op before the first measurement.
+        """
+        if self._last is not None:
+            px, vx, py, vy, pt, w = self._last
+            self._last = (px + dx, vx, py + dy, vy, pt + dtheta, w)
+
     @property
     def initialized(self) -> bool:
         """True once a measurement has been taken since construction or `reset`."""

@@ -139,6 +139,15 @@ class MotionController:
         if self.constrained is not None:
             self.constrained.reset()
 
+    def restart_from(self, u_prev: list[float], currents: list[float]) -> None:
+        """Continue as if the accelerations `u_prev` had been applied in the last period and the drives' currents
+        were `currents` [A] now (the delay-compensating controller's rollout starts from its prediction).
+
+        The pose filter and the constrained mode's warm start are left as they are.
+        """
+        self._u_prev = [float(v) for v in u_prev]
+        self.drive.reset(np.array(currents, dtype=float))
+
     def start_at(self, x: float, y: float, theta: float) -> None:
         """Start the pose filter at a known pose of the robot at rest (`OdometryFilter.start_at`), no-op without one.
 

@@ -23,6 +23,10 @@ The loop keeps numpy out of its per-tick bookkeeping (a call on a 3-vector
 costs about as much as a dozen float operations): it collects the ticks'
 values and turns them into arrays once, at the end.
 
+Over an emulated radio link (``link_up`` / ``link_down``) step 3 is replaced by the
+robot's and the controller's sides of the link, in the order `offline.networked`
+writes down (the lockstep DDS loop reproduces it); steps 1, 4 and 5 stay.
+
 A scenario (`scenarios.SCENARIOS`) names the reference, the controller's
 model (`scenarios.Scenario.controller_model`: the robot, or a mismatched one in ``robustness``)
 and the odometry noise.
@@ -31,6 +35,7 @@ and the odometry noise.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import asdict, replace
 
 import numpy as np
@@ -41,9 +46,12 @@ from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import DEFAULT_KI, DEFAULT_KP, DEFAULT_RATE_HZ, WheelSpeedLoop, \
     WheelSpeedLoopError
 
+from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
+from robotino_geom_mpc.network.link import LinkParams
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.offline.networked import NetworkedLoop, link_meta
 from robotino_geom_mpc.offline.results import RunData
 from robotino_geom_mpc.scenarios import get_scenario
 
@@ -69,6 +77,9 @@ def run_scenario(
     wheel_slip_std: float = 0.0,
     command_interface: str = "voltages",
     wheel_pi: tuple[float, float, float] | None = None,
+    link_up: LinkParams | None = None,
+    link_down: LinkParams | None = None,
+    compensate: bool = True,
 ) -> RunData:
     """Simulate one scenario in closed loop.
 
@@ -105,6 +116,14 @@ def run_scenario(
     wheel_pi
         (kp [V s/rad], ki [V/rad], rate [Hz]) of those loops; None: the plant node's defaults
         (`wheel_speed_loop.DEFAULT_KP`, ...: `tuned_gains` of the Robotino 3 preset, 1 kHz).
+    link_up, link_down
+        The emulated radio link's two directions (`network.link.LinkParams`): odometry and the robot's
+        reports up, commands down. With either given (and enabled) the loop is `offline.networked`'s;
+        None for both: the scenario's link (``wifi``), else the undelayed loop above, unchanged.
+    compensate
+        Over a link: the delay-compensating, plan-making controller (`control.delay_compensation`) and
+        the robot's plan buffer; False: the plain controller, its command acting on arrival and held
+        (the uncompensated baseline).
 
     Returns
     -------
@@ -120,6 +139,9 @@ def run_scenario(
         Non-positive duration, negative noise or a bad odometry setting.
     """
     spec = get_scenario(scenario)
+    if link_up is None and link_down is None and spec.link is not None:
+        link_up = link_down = spec.link
+    networked = any(link is not None and link.enabled for link in (link_up, link_down))
     if odometry_noise is None:
         odometry_noise = (spec.noise.position_m, spec.noise.yaw_rad)
     noise = tuple(float(v) for v in odometry_noise)
@@ -147,7 +169,12 @@ def run_scenario(
             raise SimulationError(str(exc)) from None
     if odometry in CONTROLLER_TWIST:
         control = replace(control, odometry_twist=CONTROLLER_TWIST[odometry])
-    controller = MotionController(spec.controller_model(robot), control)
+    if networked and compensate:
+        controller = DelayCompensatingController(spec.controller_model(robot), control, command_interface)
+        extra = controller.preview_length
+    else:
+        controller = MotionController(spec.controller_model(robot), control)
+        extra = N
     controller.start_at(*reference.position(np.zeros(1))[0].tolist())  # robot and reference start together
     # The run's pose noise drawn at once: the same values as one `RobotinoPlant.pose_noise` draw per tick.
     std_position, std_yaw = noise
@@ -155,24 +182,32 @@ def run_scenario(
              if std_position or std_yaw else [None] * n)
 
     t = np.arange(n) * Ts
-    targets = reference.position(np.arange(n + N + 1) * Ts)  # row j: the reference at j Ts
+    targets = reference.position(np.arange(n + extra + 1) * Ts)  # row j: the reference at j Ts
     # Only floats and arrays are kept per tick (no tuples): nothing for the garbage collector to scan.
     poses, measured, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], [], []
-    measure, control_step, plant_step = source.noisy_odometry_floats, controller.step, plant.step
+    measure, plant_step = source.noisy_odometry_floats, plant.step
+    loop = NetworkedLoop(controller, targets, Ts, link_up, link_down, seed, command_interface) if networked else None
     for k in tqdm(range(n), desc=scenario, unit="tick", disable=not progress, mininterval=0.5):
         pose_measured, twist_measured = measure(draws[k])
-        out = control_step(odometry_state_floats(pose_measured, twist_measured), targets[k + 1 : k + N + 1])
+        if loop is None:
+            out = controller.step(odometry_state_floats(pose_measured, twist_measured), targets[k + 1 : k + N + 1])
+            command, flags = out.voltages, (out.saturated, out.infeasible, out.compute_time_s)
+        else:
+            start = time.perf_counter()
+            command = loop.command(k, pose_measured, twist_measured)
+            flags = (any(abs(v) >= robot.supply_voltage_v for v in command) and speed_loop is None, False,
+                     time.perf_counter() - start)
         poses += plant.pose_floats()
         measured += pose_measured
-        voltages += out.voltages
-        saturated.append(out.saturated)
-        infeasible.append(out.infeasible)
-        compute.append(out.compute_time_s)
+        voltages += command
+        saturated.append(flags[0])
+        infeasible.append(flags[1])
+        compute.append(flags[2])
         if speed_loop is None:
-            plant_step(out.voltages, Ts)
+            plant_step(command, Ts)
             substep_currents.append(plant.substep_currents)
         else:
-            held, trace = speed_loop.run(plant, controller.next_velocity(), Ts)
+            held, trace = speed_loop.run(plant, controller.next_velocity() if loop is None else command, Ts)
             voltages[-3:] = held.mean(axis=0).tolist()
             substep_currents.append(trace)
     pose = np.array(poses).reshape(n, 3)
@@ -203,5 +238,6 @@ def run_scenario(
                if odometry == "encoders" else {}),
             "controller_mismatch": None if spec.mismatch is None else asdict(spec.mismatch),
             "plant_params": "plant_robot" if plant_robot is not None else "robot",
+            **({"link": {"up": link_meta(link_up), "down": link_meta(link_down), **loop.meta()}} if loop else {}),
         },
     )

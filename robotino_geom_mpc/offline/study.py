@@ -140,22 +140,24 @@ def draw_runs(samples: int, seed: int, odometry: tuple[str, ...] = ODOMETRY_MODE
 
 
 def run_draw(
-    scenario: str, robot: RobotinoParams, control: ControlParams, draw: Draw, duration_s: float | None
+    scenario: str, robot: RobotinoParams, control: ControlParams, draw: Draw, duration_s: float | None,
+    network: dict[str, Any] | None = None,
 ) -> Any:
     """`simulation.run_scenario` of one draw: the plant on `robot`, the controller on its scaled copy.
 
+    `network` holds run_scenario's ``link_up``, ``link_down`` and ``compensate`` (None: the scenario's link).
     Returns the `results.RunData`; raises what `run_scenario` raises.
     """
     return run_scenario(
         scenario, robot.scaled(mass=draw.mass, inertia=draw.inertia, friction=draw.friction), control,
         duration_s=duration_s, seed=draw.seed, plant_robot=robot,
-        odometry_noise=(draw.noise_position_m, draw.noise_yaw_rad), odometry=draw.odometry,
+        odometry_noise=(draw.noise_position_m, draw.noise_yaw_rad), odometry=draw.odometry, **(network or {}),
     )
 
 
 def run_one(
     scenario: str, robot: RobotinoParams, control: ControlParams, draw: Draw, duration_s: float | None,
-    settle_time_s: float,
+    settle_time_s: float, network: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The row of one draw: its draws, simulated and wall seconds, `METRICS`, and ``error``.
 
@@ -165,7 +167,7 @@ def run_one(
     row: dict[str, Any] = {**asdict(draw), "simulated_s": 0.0, **dict.fromkeys(METRICS), "error": ""}
     start = time.perf_counter()
     try:
-        data = run_draw(scenario, robot, control, draw, duration_s)
+        data = run_draw(scenario, robot, control, draw, duration_s, network)
         metrics = compute_metrics(data, settle_time_s=settle_time_s)
     except Exception as exc:  # noqa: BLE001  (any failure of one run is that run's row, never the study's end)
         row["error"] = f"{type(exc).__name__}: {exc}"
@@ -178,10 +180,10 @@ def run_one(
 
 def _run_batch(
     scenario: str, robot: RobotinoParams, control: ControlParams, draws: list[Draw], duration_s: float | None,
-    settle_time_s: float,
+    settle_time_s: float, network: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """`run_one` of each draw: one pool task, so a task's messages carry several runs."""
-    return [run_one(scenario, robot, control, draw, duration_s, settle_time_s) for draw in draws]
+    return [run_one(scenario, robot, control, draw, duration_s, settle_time_s, network) for draw in draws]
 
 
 def _context() -> multiprocessing.context.BaseContext:
@@ -199,6 +201,7 @@ def run_study(
     workers: int | None = None,
     settle_time_s: float = 1.0,
     progress: bool = True,
+    network: dict[str, Any] | None = None,
 ) -> StudyResult:
     """Run every draw (`run_one`) on `workers` processes.
 
@@ -220,6 +223,8 @@ def run_study(
         Passed to `results.compute_metrics`.
     progress
         Show a tqdm progress bar on stderr.
+    network
+        ``link_up``, ``link_down``, ``compensate`` of every run (`simulation.run_scenario`); None: the scenario's.
 
     Returns
     -------
@@ -245,8 +250,8 @@ def run_study(
     rows: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=workers, mp_context=_context(),
                              initializer=one_blas_thread) as pool:
-        futures = [pool.submit(_run_batch, scenario, robot, control, draws[k : k + size], duration_s, settle_time_s)
-                   for k in range(0, len(draws), size)]
+        futures = [pool.submit(_run_batch, scenario, robot, control, draws[k : k + size], duration_s, settle_time_s,
+                               network) for k in range(0, len(draws), size)]
         with tqdm(total=len(draws), desc=f"study {scenario}", unit="run", disable=not progress,
                   mininterval=0.5) as bar:
             for future in as_completed(futures):

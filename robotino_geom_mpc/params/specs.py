@@ -128,6 +128,43 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
         100.0,
         False,
     ),
+    ParamSpec(
+        "control.plan_length",
+        int,
+        "Periods M of each command plan an off-board controller sends (control.delay_compensation): the robot's "
+        "buffer runs on the last plan through that many periods of lost or late plans",
+        "periods",
+        1,
+        200,
+        False,
+    ),
+    ParamSpec(
+        "control.lead_min_periods",
+        int,
+        "Smallest lead of a plan (its first command acts this many periods after the odometry it was made from)",
+        "periods",
+        0,
+        200,
+        False,
+    ),
+    ParamSpec(
+        "control.lead_max_periods",
+        int,
+        "Largest lead of a plan: round trips beyond it make plans start late (the robot then runs the previous one)",
+        "periods",
+        0,
+        200,
+        False,
+    ),
+    ParamSpec(
+        "control.lead_quantile",
+        float,
+        "Quantile of the measured round trips (robot's receipt of a plan - its odometry's stamp) the lead covers",
+        "",
+        0.5,
+        1.0,
+        False,
+    ),
 )
 
 ALL_SPECS: tuple[ParamSpec, ...] = ROBOT_SPECS + CONTROL_SPECS
@@ -247,7 +284,8 @@ class RobotinoParams:
 
 @dataclass(frozen=True)
 class ControlParams:
-    """Controller settings: period, horizon, per-axis weights, mode, odometry filter and twist, current limit."""
+    """Controller settings: period, horizon, per-axis weights, mode, odometry filter and twist, current limit, and
+    the plans of an off-board controller (length, lead bounds and quantile; unused without a link)."""
 
     period_s: float
     horizon: int
@@ -261,6 +299,10 @@ class ControlParams:
     odometry_filter_time_constant_s: float
     odometry_twist: str
     current_limit_a: float
+    plan_length: int = 25
+    lead_min_periods: int = 0
+    lead_max_periods: int = 30
+    lead_quantile: float = 0.99
 
     @property
     def q(self) -> tuple[float, float, float]:

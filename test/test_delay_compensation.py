@@ -1,0 +1,117 @@
+"""The delay-compensating controller against independent truths: its prediction through the commands in flight
+against a step-by-step simulation of the plant (`RobotinoPlant`) under the commands the robot applied; with no
+delay, its plans' first entries against the undelayed loop (`MotionController` alone); its lead, reports and
+refusals against hand-worked cases."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
+from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController
+from robotino_geom_mpc.model.plant import RobotinoPlant
+from robotino_geom_mpc.network.link import LinkParams
+from robotino_geom_mpc.offline.networked import NetworkedLoop
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.scenarios import get_scenario
+
+ROBOT, CONTROL = load_params(None)
+TS = CONTROL.period_s
+
+
+def closed_loop(controller, link_up, link_down, n, seed=0):
+    """The offline loop's ticks (`offline.networked`) on a plant; per tick the plant's true body state and, per
+    plan, (tick of its first action, predicted state there)."""
+    reference = get_scenario("paper-circle").make_reference()
+    extra = controller.preview_length if isinstance(controller, DelayCompensatingController) else controller.horizon
+    targets = reference.position(np.arange(n + extra + 1) * TS)
+    controller.start_at(*targets[0].tolist())
+    plant = RobotinoPlant(ROBOT)
+    loop = NetworkedLoop(controller, targets, TS, link_up, link_down, seed, "voltages")
+    states, voltages, predictions = [], [], {}
+    for k in range(n):
+        pose, twist = plant.odometry_floats()
+        states.append(plant.body_state)
+        before = getattr(controller, "prediction", None)
+        command = loop.command(k, pose, twist)
+        if getattr(controller, "prediction", None) is not before:
+            t_a, predicted = controller.prediction
+            predictions[round(t_a / TS)] = np.array(predicted)
+        voltages.append(command)
+        plant.step(command, TS)
+    return np.array(states), np.array(voltages), predictions
+
+
+def test_prediction_through_in_flight_commands_matches_the_plant():
+    # up 20 ms, down 30-50 ms: round trips of 5-7 periods; a lead of 8 has every plan there before it acts
+    control = replace(CONTROL, lead_min_periods=8, lead_max_periods=8)
+    controller = DelayCompensatingController(ROBOT, control)
+    states, _, predictions = closed_loop(controller, LinkParams(0.02), LinkParams(0.03, 0.02), 400)
+    ticks = [k for k in predictions if 100 <= k < 400]
+    assert len(ticks) > 250
+    predicted = np.array([predictions[k] for k in ticks])
+    true = states[ticks]
+    position = np.abs(predicted[:, [0, 2]] - true[:, [0, 2]]).max()
+    heading = np.abs(predicted[:, 4] - true[:, 4]).max()
+    # eq. (49) under the applied accelerations against eqs. (1-10) under the voltages, 8 periods ahead
+    assert position < 3e-6 and heading < 3e-6
+    # what a controller that ignores the commands in flight would predict: the measured state, moved at its
+    # velocity over the lead; the motion in between is what the prediction has to get right
+    stale = np.array([states[k - 8][[0, 2]] + 8 * TS * states[k - 8][[1, 3]] for k in ticks])
+    assert np.abs(stale - true[:, [0, 2]]).max() > 100 * position
+
+
+def test_without_delay_the_plans_first_entries_are_the_undelayed_loops_voltages():
+    control = replace(CONTROL, lead_min_periods=0, lead_max_periods=0)
+    _, compensated, _ = closed_loop(DelayCompensatingController(ROBOT, control), LinkParams(), LinkParams(), 300)
+    _, undelayed, _ = closed_loop(MotionController(ROBOT, control), LinkParams(), LinkParams(), 300)
+    assert np.abs(compensated - undelayed).max() < 1e-12
+    assert np.abs(undelayed).max() > 1.0  # the loop did something
+
+
+def test_lead_is_the_round_trips_quantile_within_its_bounds():
+    control = replace(CONTROL, lead_min_periods=2, lead_max_periods=9, lead_quantile=0.99)
+    controller = DelayCompensatingController(ROBOT, control)
+    preview = np.zeros((controller.preview_length, 3))
+    X = (0.0,) * 6
+    assert controller.plan(0.0, X, preview).times_s[0] == pytest.approx(9 * TS)  # nothing measured: lead_max
+    for trip in (3, 4, 5, 4, 3):
+        controller.report_receipt(0.0, trip * TS)
+    assert controller.plan(TS, X, preview).times_s[0] == pytest.approx(TS + 5 * TS)
+    for _ in range(50):
+        controller.report_receipt(0.0, 30 * TS)  # far beyond lead_max
+    assert controller.plan(2 * TS, X, preview).times_s[0] == pytest.approx(2 * TS + 9 * TS)
+    assert controller.statistics().lead_periods == 9
+
+
+def test_reports_of_what_ran_mark_plans_lost_and_late():
+    control = replace(CONTROL, lead_min_periods=2, lead_max_periods=2)
+    controller = DelayCompensatingController(ROBOT, control)
+    preview = np.zeros((controller.preview_length, 3))
+    for k in range(4):
+        controller.plan(k * TS, (0.0,) * 6, preview)  # plan k acts from tick k + 2
+    controller.report_receipt(0.0, 2 * TS)
+    controller.report_applied(2 * TS, 0.0, 0)
+    controller.report_applied(3 * TS, 0.0, 1)  # plan 1 was due at tick 3 and did not run
+    stats = controller.statistics()
+    assert (stats.plans_sent, stats.plans_received, stats.plans_lost) == (4, 1, 1)
+    controller.report_receipt(TS, 4 * TS)  # it was late, not lost
+    stats = controller.statistics()
+    assert (stats.plans_received, stats.plans_lost) == (2, 0)
+    controller.report_applied(4 * TS, None)
+    assert controller.statistics().exhausted_periods == 1
+
+
+def test_bad_and_stale_odometry():
+    controller = DelayCompensatingController(ROBOT, CONTROL)
+    preview = np.zeros((controller.preview_length, 3))
+    with pytest.raises(ControllerInputError, match="X"):
+        controller.plan(0.0, (np.nan,) + (0.0,) * 5, preview)
+    with pytest.raises(ControllerInputError, match="preview"):
+        controller.plan(0.0, (0.0,) * 6, preview[:-1])
+    assert controller.statistics().plans_sent == 0
+    assert controller.plan(TS, (0.0,) * 6, preview) is not None
+    assert controller.plan(0.0, (0.0,) * 6, preview) is None  # overtaken on the up-link
+    assert controller.plan(TS, (0.0,) * 6, preview) is None  # a duplicate
+    assert controller.statistics().odometry_stale == 2

@@ -129,3 +129,26 @@ def test_run_foxglove_serves_the_recorded_messages_live(tmp_path):
     urdf = store.deserialize_cdr(live["/robot_description"][0], "std_msgs/msg/String").data
     assert urdf == store.deserialize_cdr(recorded["/robot_description"][0], "std_msgs/msg/String").data
     assert "<robot" in urdf
+
+
+def test_a_lockstep_run_with_the_live_view_waits_for_it_and_goes_at_real_time():
+    """node_arguments: the live view's node and port; the lockstep plant waits for one more subscription on each
+    topic (the view subscribes every topic, so the recorder's still count) and is paced at real time at most."""
+    from robotino_geom_mpc.params.presets import default_params_file
+    from robotino_geom_mpc.system.processes import node_arguments, recorder_wait_for
+
+    plain = node_arguments("paper-circle", default_params_file(), 3.0, True, bag="/tmp/bag")
+    viewed = node_arguments("paper-circle", default_params_file(), 3.0, True, bag="/tmp/bag", live_view_port=8770)
+    assert set(viewed) == set(plain) | {"live_view_node"}
+    assert "port:=8770" in viewed["live_view_node"]
+
+    def plant_parameter(args, name):
+        values = [a.split(":=", 1)[1] for a in args["plant_node"] if a.startswith(f"{name}:=")]
+        return values[-1] if values else None
+
+    wanted = [f"{topic}:{int(count) + 1}" for topic, _, count in (w.rpartition(":") for w in recorder_wait_for())]
+    assert plant_parameter(viewed, "lockstep_wait_for") == "[" + ",".join(f'"{w}"' for w in wanted) + "]"
+    assert plant_parameter(viewed, "lockstep_max_realtime_factor") == "1.0"
+    assert plant_parameter(plain, "lockstep_max_realtime_factor") is None
+    realtime = node_arguments("paper-circle", default_params_file(), 3.0, False, live_view_port=8770)
+    assert plant_parameter(realtime, "lockstep_max_realtime_factor") is None

@@ -34,8 +34,8 @@ from typing import Any
 
 from robotino_geom_mpc.bench.registry import BenchmarkError, BenchmarkSkipped, benchmark
 
-__all__ = ["PLANT_TOPICS", "RESTARTS", "RUNS", "RUN_S", "SAMPLE_S", "SOAK_S", "WINDOW_S", "ProcessSampler",
-           "bag_counts", "bench_soak", "drift_over_spread", "growth_mb_per_10min", "process_rss_cpu", "run_loop",
+__all__ = ["PLANT_TOPICS", "SEQUENCED_TOPICS", "RESTARTS", "RUNS", "RUN_S", "SAMPLE_S", "SOAK_S", "WINDOW_S", "ProcessSampler",
+           "bag_counts", "bag_sequences", "bench_soak", "drift_over_spread", "growth_mb_per_10min", "process_rss_cpu", "run_loop",
            "soak", "window_length"]
 
 SOAK_S = 1800.0  # the soak's default length (quick: 60 s)
@@ -48,6 +48,9 @@ RUN_S = 2.0  # each one's length
 # joint states one each; /tf two: its odom -> base_link (publish_tf, the default) and the description publisher's
 # wheel transforms (one per joint_states)
 PLANT_TOPICS = {"/odom": 1, "/ground_truth/odom": 1, "/joint_states": 1, "/tf": 2}
+# the plant's topics with one writer: their messages' DDS publication sequence numbers (the bag keeps them) run
+# 1, 2, ... over the ticks, so a gap is a lost message and the first one tells what went before the recording
+SEQUENCED_TOPICS = ("/odom", "/ground_truth/odom", "/joint_states")
 _END_MARGIN_S = 120.0  # the soak's plant must have ended this long after its duration
 
 
@@ -148,6 +151,20 @@ def bag_counts(bag: str | os.PathLike) -> dict[str, int]:
     return counts
 
 
+def bag_sequences(bag: str | os.PathLike, topics: tuple[str, ...]) -> dict[str, tuple[int, int, int]]:
+    """Per topic of `topics` (each with one writer): (messages, first and last publication sequence number)."""
+    from mcap.reader import make_reader
+
+    seen: dict[str, list[int]] = {}
+    for file in sorted(Path(bag).glob("*.mcap")):
+        with open(file, "rb") as f:
+            for _, channel, message in make_reader(f).iter_messages(topics=list(topics)):
+                entry = seen.setdefault(channel.topic, [0, message.sequence, message.sequence])
+                entry[0] += 1
+                entry[1], entry[2] = min(entry[1], message.sequence), max(entry[2], message.sequence)
+    return {topic: tuple(entry) for topic, entry in seen.items()}
+
+
 def _stop_like_run(group, nodes: dict) -> None:
     """Stop the nodes as `run` does: the loop's nodes first (SIGINT, escalating), then the recorder (its drain)."""
     import signal
@@ -170,8 +187,11 @@ def soak(duration_s: float, folder: Path, log: Callable[[str], None]) -> dict[st
     """Run the realtime loop with the recorder for `duration_s` into `folder`; the per-window table and the summary.
 
     Returns ``windows`` (per window: start and end [s from the first], ticks, missed, latency_ms, and per process
-    ``rss_mb`` and ``cpu_pct``), ``ticks``, ``bag`` (topic -> count), ``lost`` (topic of `PLANT_TOPICS` -> ticks
-    less its count), ``growth`` (process -> MB per 10 min after the first window) and ``drift`` (p50, p99, p99.9 ->
+    ``rss_mb`` and ``cpu_pct``), ``ticks``, ``bag`` (topic -> count), ``short`` (topic of `PLANT_TOPICS` -> ticks
+    less its count), ``lost`` (topic of `SEQUENCED_TOPICS` -> sequence numbers missing between its first and last
+    recorded message), ``before`` (-> messages published before its first recorded one: a realtime loop does not
+    wait for the recorder, as with ``ros2 bag record``), ``after`` (-> published after its last recorded one),
+    ``growth`` (process -> MB per 10 min after the first window) and ``drift`` (p50, p99, p99.9 ->
     `drift_over_spread`).
 
     Raises
@@ -213,6 +233,7 @@ def soak(duration_s: float, folder: Path, log: Callable[[str], None]) -> dict[st
                 row["processes"][name] = {"rss_mb": figures[0], "cpu_pct": figures[1]}
         rows.append(row)
     counts = bag_counts(bag)
+    sequences = bag_sequences(bag, SEQUENCED_TOPICS)
     later = rows[1:]  # after the warm-up window
     growth = {name: growth_mb_per_10min([0.5 * (r["start_s"] + r["end_s"]) for r in later if name in r["processes"]],
                                         [r["processes"][name]["rss_mb"] for r in later if name in r["processes"]])
@@ -220,7 +241,10 @@ def soak(duration_s: float, folder: Path, log: Callable[[str], None]) -> dict[st
     answered = [r for r in rows if r["latency_ms"] is not None]
     drift = {q: drift_over_spread([r["latency_ms"][q] for r in answered]) for q in ("p50", "p99", "p99.9")}
     result = {"windows": rows, "ticks": timing["ticks"], "bag": counts, "growth": growth, "drift": drift,
-              "lost": {topic: per * timing["ticks"] - counts.get(topic, 0) for topic, per in PLANT_TOPICS.items()},
+              "short": {topic: per * timing["ticks"] - counts.get(topic, 0) for topic, per in PLANT_TOPICS.items()},
+              "lost": {topic: last - first + 1 - n for topic, (n, first, last) in sequences.items()},
+              "before": {topic: first - 1 for topic, (_, first, _) in sequences.items()},
+              "after": {topic: timing["ticks"] - last for topic, (_, _, last) in sequences.items()},
               "missed": timing["missed"], "window_s": window_s}
     for line in soak_table(result):
         log(line)
@@ -244,6 +268,9 @@ def soak_table(result: dict[str, Any]) -> list[str]:
     lines.append("latency drift |last - first| / stdev over windows: " + ", ".join(
         f"{q} {v:.2f}" for q, v in result["drift"].items()))
     lines.append(f"ticks {result['ticks']}, bag: " + ", ".join(f"{t} {c}" for t, c in sorted(result["bag"].items())))
+    lines.append("lost between the first and last recorded (sequence numbers): " + ", ".join(
+        f"{t} {n}" for t, n in result["lost"].items()) + "; published before the recording: " + ", ".join(
+        f"{t} {n}" for t, n in result["before"].items()))
     return lines
 
 
@@ -287,8 +314,9 @@ def _flat(result: dict[str, Any]) -> dict[str, float]:
         out[f"soak_latency_{q.replace('.', '_')}_drift_over_spread"] = ratio
     for topic, count in result["bag"].items():
         out[f"soak_bag_count_{topic.strip('/').replace('/', '_')}"] = count
-    for topic, lost in result["lost"].items():
-        out[f"soak_bag_lost_{topic.strip('/').replace('/', '_')}"] = abs(lost)
+    for key in ("lost", "before", "after", "short"):
+        for topic, n in result[key].items():
+            out[f"soak_bag_{key}_{topic.strip('/').replace('/', '_')}"] = abs(n)
     return {key: value for key, value in out.items() if value == value}  # NaN (too few windows) left out
 
 

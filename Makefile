@@ -1,19 +1,20 @@
 # make setup: .venv with the package (editable) and everything it needs; idempotent.
-# make demo:  the main job (see README).   make test: the whole test suite.
+# make demo:  the main job (see README).   make test: the whole test suite.   make unit: its in-process tier.
+# make check: ruff, mypy on the core, import-linter and the unit tier (under a minute).   make docs: the site.
 PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)
 DEMO_OUT ?= out/demo
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test unit check docs bench clean
 
 setup: $(STAMP)
 
 $(STAMP): setup.py setup.cfg package.xml Makefile tools/build_interfaces.sh
 	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install --quiet --upgrade "pip>=24"
-	$(VENV)/bin/python -m pip install --quiet --editable ".[ros,test,viz]"
+	$(VENV)/bin/python -m pip install --quiet --editable ".[ros,test,docs,viz]"
 	tools/build_interfaces.sh $(VENV)  # tf2_msgs where the wheels have none
 	touch $(STAMP)
 
@@ -23,8 +24,20 @@ demo: setup
 test: setup
 	$(VENV)/bin/python -m pytest -q test
 
+unit: setup
+	$(VENV)/bin/python -m pytest -q -m "unit and not slow" test
+
+check: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
+	$(VENV)/bin/lint-imports
+	$(VENV)/bin/python -m pytest -q -m "unit and not slow" test
+
+docs: setup
+	$(VENV)/bin/sphinx-build -W --keep-going -q -b html docs docs/_build/html
+
 bench: setup
 	$(VENV)/bin/robotino-geom-mpc bench
 
 clean:
-	rm -rf $(VENV) build install log out *.egg-info
+	rm -rf $(VENV) build install log out *.egg-info docs/_build

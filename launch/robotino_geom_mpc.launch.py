@@ -7,8 +7,8 @@
 
 Launch arguments
 ----------------
-scenario       a scenario of ``robotino_geom_mpc.scenarios``: paper-circle | lemniscate | point-to-point |
-               robustness. Each node gets the scenario's overrides (``scenarios.node_parameters``): the
+scenario       a name of ``robotino_geom_mpc.scenarios.SCENARIOS`` (the documentation's scenario page lists
+               them, generated from it). Each node gets the scenario's overrides (``scenarios.node_parameters``): the
                trajectory the scenario (its reference), the controller its model (mismatched in
                robustness), the plant the odometry noise
 params_file    ROS 2 parameter file, ``/**`` section read by every node (default: config/robotino3.yaml);
@@ -35,8 +35,14 @@ command_interface  voltages (default): the controller sends wheel_voltages to th
 duration       run length [s] of the plant; 0 runs until stopped. The plant ends the run: when it exits
                (its duration, or a failure) the launch shuts the other nodes down, as ``run`` stops them
 seed           seed of the plant's odometry noise
+command_buffer true: also start the robot-side command buffer (``command_buffer_node``: ``cmd_vel_plan`` in,
+               the driver's ``cmd_vel`` out at the plans' times, zero twist when they stop; on a real
+               Robotino it runs on the robot's PC beside the driver, see docs/howto/real_robot_buffer.md)
 record         true: also start the MCAP recorder (bag in ``bag``)
 bag            recording directory (default: rosbag2_<date> in the working directory)
+rviz           true: also start rviz2 with config/robotino.rviz (fixed frame odom, the robot model, TF, the
+               reference and predicted paths, the odometry) where rviz2 is installed; where it is not, the
+               launch says so in its log and runs without it (docs/howto/views.md)
 
 The robot description (the URDF from the plant's parameters, `description.urdf.robotino_urdf`) is
 published in realtime by robot_state_publisher where it is installed, else (and always in lockstep, where its
@@ -53,7 +59,7 @@ from the recording.
 import math
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+from launch.actions import DeclareLaunchArgument, EmitEvent, LogInfo, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
 from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PathJoinSubstitution
@@ -99,9 +105,23 @@ def _has_robot_state_publisher() -> bool:
     return True
 
 
+def _rviz(config: dict, namespace: str, remappings: list) -> list:
+    """rviz2 with the package's view where it is installed (the ament index), else a log line saying so."""
+    from ament_index_python.packages import get_package_share_directory
+
+    try:
+        get_package_share_directory("rviz2")
+    except (LookupError, OSError):  # not in the index (PackageNotFoundError), or no index at all
+        return [LogInfo(msg="rviz:=true but rviz2 is not installed (apt install ros-jazzy-rviz2): running without "
+                            f"it; open {config['rviz_config']} in rviz2 elsewhere, or the Foxglove layout")]
+    return [Node(package="rviz2", executable="rviz2", name="rviz2", namespace=namespace, remappings=remappings,
+                 arguments=["-d", config["rviz_config"]], output="screen")]
+
+
 def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
     """The robot description publisher: in realtime robot_state_publisher if installed, else the package's own
-    (with `mode`: lockstep makes its joint_states and /tf keep-all, robot_state_publisher's are keep-last)."""
+    (with `mode`: lockstep makes its joint_states and /tf keep-all, robot_state_publisher's are keep-last).
+    """
     if mode == "realtime" and _has_robot_state_publisher():
         robot, _ = load_params(plant_params)
         return Node(package="robot_state_publisher", executable="robot_state_publisher",
@@ -112,7 +132,8 @@ def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
 
 def _nodes(context) -> list:
     """The nodes of the run, each with its scenario's overrides (`scenarios.node_parameters`), and the
-    handler that shuts the launch down when the plant exits."""
+    handler that shuts the launch down when the plant exits.
+    """
     config = context.launch_configurations
     scenario, params_file = config["scenario"], config["params_file"]
     robot, _ = load_params(params_file)
@@ -153,16 +174,21 @@ def _nodes(context) -> list:
         plant_node,
         _description(config["plant_params"], prefix, mode, **common),
     ]
+    if _flag(config, "command_buffer"):
+        nodes.append(Node(package=PACKAGE, executable="command_buffer_node", name="robotino_command_buffer",
+                          parameters=[params_file], **common))
     if record:
         nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
                           parameters=[params_file, {"output": config["bag"], "scenario": scenario}], **common))
+    views = _rviz(config, namespace, remappings) if _flag(config, "rviz") else []
     ended = EmitEvent(event=Shutdown(reason="the plant ended the run"))
-    return [*nodes, RegisterEventHandler(OnProcessExit(target_action=plant_node, on_exit=[ended]))]
+    return [*nodes, *views, RegisterEventHandler(OnProcessExit(target_action=plant_node, on_exit=[ended]))]
 
 
 def generate_launch_description() -> LaunchDescription:
     default_params = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "robotino3.yaml"])
     default_profile = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "fastdds_localhost.xml"])
+    default_rviz = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "robotino.rviz"])
     return LaunchDescription([
         DeclareLaunchArgument("scenario", default_value="paper-circle", description="scenario (scenarios.py)"),
         DeclareLaunchArgument("params_file", default_value=default_params, description="parameter file (/** section)"),
@@ -183,7 +209,12 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("duration", default_value="0.0",
                               description="run length [s], 0: until stopped; the plant's exit ends the launch"),
         DeclareLaunchArgument("seed", default_value="0", description="seed of the odometry noise"),
+        DeclareLaunchArgument("command_buffer", default_value="false",
+                              description="start the robot-side command buffer (cmd_vel_plan -> cmd_vel)"),
         DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),
         DeclareLaunchArgument("bag", default_value="", description="recording directory"),
+        DeclareLaunchArgument("rviz", default_value="false",
+                              description="true: also start rviz2 with rviz_config (a log line where not installed)"),
+        DeclareLaunchArgument("rviz_config", default_value=default_rviz, description="the RViz view of rviz:=true"),
         OpaqueFunction(function=_nodes),
     ])

@@ -37,7 +37,8 @@ class CommandHold:
 
     def advance(self, target: int, timeout_s: float, drive: Callable[[np.ndarray, float], None]) -> bool:
         """Drive the grid up to point `target` (`drive(voltages, seconds)` per run); True if the held command
-        timed out in it (once per command)."""
+        timed out in it (once per command).
+        """
         held = math.isfinite(self.command_time)
         stale = math.floor((self.command_time + timeout_s - self.started_at) / self.dt) + 1 if held else self.grid
         while self.grid < target:

@@ -22,7 +22,8 @@ so and the plant runs without /tf.
 wheel-speed PI loops applied over the period the currents of ``wheel_currents`` cover (what
 `simulation.run_scenario` records as a cmd_vel run's voltages), published just before those currents.
 
-All go out only while a subscription is matched, with the plant's other publishers' QoS.
+All go out only while a subscription is matched, with the plant's other publishers' QoS, through the writer's
+``send(publisher, message)`` (`publish_acknowledged` by default; the plant's link replaces it).
 """
 
 from __future__ import annotations
@@ -70,7 +71,8 @@ _TF_FIELDS = tuple(f"transforms[0].{field}" for field in STAMP_FIELDS + (
 def plant_odometry(sigma_position: float, sigma_yaw: float, frame_prefix: str = "",
                    twist_covariance: np.ndarray | None = None) -> Odometry:
     """The plant's Odometry, values zero: frames and covariances set (pose variance from the noise,
-    z/roll/pitch certain: planar; the twist's (3, 3) covariance of v_x, v_y, omega, None: noise-free)."""
+    z/roll/pitch certain: planar; the twist's (3, 3) covariance of v_x, v_y, omega, None: noise-free).
+    """
     msg = odometry_message(frame_prefix)
     pose_var = (max(sigma_position**2, _CERTAIN),) * 2 + (_CERTAIN,) * 3 + (max(sigma_yaw**2, _CERTAIN),)
     msg.pose.covariance = np.diag(pose_var).ravel()
@@ -117,6 +119,7 @@ class StateOutputs:
 
     def __init__(self, node: Node, qos: QoSProfile, publish_tf: bool, frame_prefix: str) -> None:
         self.node = node
+        self.send = lambda pub, message: publish_acknowledged(node, pub, message)
         self.odom_frame = check_frame_prefix(frame_prefix) + ODOM_FRAME
         self.base_frame = frame_prefix + BASE_LINK
         self.joint_pub = node.create_publisher(JointState, "joint_states", qos)
@@ -145,11 +148,9 @@ class StateOutputs:
         """Publish /tf (`pose` x, y, yaw of the odometry) and the joints, stamped `stamp` (sec, nanosec)."""
         if self.tf_pub is not None and self.tf_pub.get_subscription_count():
             x, y, theta = pose
-            publish_acknowledged(self.node, self.tf_pub, self.tf_cdr.pack(
-                *stamp, x, y, *yaw_quaternion_zw(theta)))
+            self.send(self.tf_pub, self.tf_cdr.pack(*stamp, x, y, *yaw_quaternion_zw(theta)))
         if self.joint_pub.get_subscription_count():
-            publish_acknowledged(self.node, self.joint_pub,
-                                 self.joint_cdr.pack(*stamp, *wheel_angles, *wheel_speeds, *wheel_torques))
+            self.send(self.joint_pub, self.joint_cdr.pack(*stamp, *wheel_angles, *wheel_speeds, *wheel_torques))
 
 
 class AppliedVoltages:
@@ -165,6 +166,7 @@ class AppliedVoltages:
 
     def __init__(self, node: Node, qos: QoSProfile) -> None:
         self.node = node
+        self.send = lambda pub, message: publish_acknowledged(node, pub, message)
         self.pub = node.create_publisher(Float64MultiArray, "applied_voltages", qos)
         self.cdr = three_values_template(VOLTAGE_LABEL)
         self.volt_seconds = np.zeros(3)
@@ -172,7 +174,8 @@ class AppliedVoltages:
 
     def drive(self, loop: Any, plant: Any, twist_body: tuple[float, ...], duration_s: float) -> np.ndarray:
         """Run `loop` (a `wheel_speed_loop.WheelSpeedLoop`) on `plant` for `duration_s` towards `twist_body`,
-        account the voltages it held; returns each drive's peak |armature current| [A] over that time."""
+        account the voltages it held; returns each drive's peak |armature current| [A] over that time.
+        """
         held, currents = loop.run(plant, twist_body, duration_s)
         self.volt_seconds += held.mean(axis=0) * duration_s
         self.seconds += duration_s
@@ -181,6 +184,6 @@ class AppliedVoltages:
     def publish(self) -> None:
         """Publish the mean since the last publish (if a reader is matched and time has passed), then restart it."""
         if self.seconds > 0.0 and self.pub.get_subscription_count():
-            publish_acknowledged(self.node, self.pub, self.cdr.pack(*(self.volt_seconds / self.seconds).tolist()))
+            self.send(self.pub, self.cdr.pack(*(self.volt_seconds / self.seconds).tolist()))
         self.volt_seconds = np.zeros(3)
         self.seconds = 0.0

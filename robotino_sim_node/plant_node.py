@@ -53,9 +53,11 @@ answer of tick 0 to the answer of the last tick; the wait for tick 0's answer (t
 take a Fast DDS announcement period of 3 s) is logged apart. The report at the end of a run is one log line
 and, if ``timing_report`` names a file, one JSON object there (`loop_timing` gives the keys and their
 meaning), written once every reader has acknowledged the run's samples.
-
-Parameters: the robot/control parameters of config/*.yaml (``/**`` section; a plant-robot mismatch is the
-plant and the controller reading different files or overrides) plus those in `PLANT_SPECS`.
+``chain.active`` enabled (realtime, cmd_vel): the plant behind the real robot's driver + firmware (`chain_driver`).
+Networked (`plant_network`): ``link.up.*`` / ``link.down.*`` (`link_params`) put an emulated radio link between
+the robot and everything off-board; ``plans`` takes plans instead of plain commands, reports ``command_applied``
+(`plant_plans`). Parameters: the robot/control parameters of config/*.yaml (``/**`` section; a mismatch: the
+plant and the controller reading different files) plus those in `PLANT_SPECS`.
 """
 
 from __future__ import annotations
@@ -71,23 +73,30 @@ from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from geometry_msgs.msg import Twist
 from std_msgs.msg import Float64MultiArray
+from trajectory_msgs.msg import JointTrajectory
 
 from robotino_geom_mpc.params.specs import ParamSpec
 from robotino_geom_mpc.description.urdf import JOINT_NAMES, DescriptionError, check_frame_prefix
 from robotino_geom_mpc.ros.cdr import CdrTemplate, MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.messages import CURRENT_LABEL, VOLTAGE_LABEL, three_values_layout, three_values_template
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos, wait_acknowledged
-from robotino_geom_mpc.ros.spin import FINISHED_ACK_WAIT_S, data_publishers, monotonic, run_node
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
+from robotino_geom_mpc.ros.spin import monotonic, run_node
+from robotino_sim_node.chain_driver import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, attach_chain
 from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
 from robotino_geom_mpc.model.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source, twist_covariance
+from robotino_sim_node.link_params import LINK_DEFAULTS, LINK_SPECS, link_params, link_problem
 from robotino_sim_node.lockstep_start import StartHandshake
-from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, lockstep_line, lockstep_report, realtime_report, \
-    write_report
+from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, realtime_report
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
 from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, AppliedVoltages, StateOutputs, odometry_template, \
     odometry_values
+from robotino_sim_node.plant_lockstep import PlantLockstep
+from robotino_sim_node.plant_network import PlantNetwork
+from robotino_sim_node.plant_plans import PlantPlans
+from robotino_sim_node.radio import Radio
+from robotino_sim_node.sim_link import SimLink
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
 
@@ -104,26 +113,29 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
               "(1: a deterministic run watched at real time); 0: as fast as the loop answers", "", 0.0, 1e6, False),
     ParamSpec("lockstep_settle_s", float, "Lockstep: send tick 0 this long after the start handshake is met, so "
               "that the other nodes' endpoints, shown by the graph, have matched each other too", "s", 0.0, 60.0, True),
-    ParamSpec("odometry_noise.position_m", float, "Standard deviation of the odometry x, y noise", "m", 0.0, 1.0, False),
+    ParamSpec("odometry_noise.position_m", float, "Standard deviation of odometry x, y noise", "m", 0.0, 1.0, False),
     ParamSpec("odometry_noise.yaw_rad", float, "Standard deviation of the odometry yaw noise", "rad", 0.0, 1.0, False),
     ParamSpec("seed", int, "Seed of the odometry noise (and of the wheel slip)", "", 0, 2**31 - 1, False),
     ParamSpec("timing_report", str, "File the loop's timing figures go to as one JSON object at the end of a run "
               "(its folder must exist); empty: none"),
+    ParamSpec("plans", bool, "Take the plans (wheel_voltage_plan / cmd_vel_plan) instead of the plain commands "
+              "and report what was applied on command_applied"),
     ParamSpec("timing_window_s", float, "Realtime: report the figures per window this long too", "s", 0.0, 1e6, False),
-) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS
+) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS + LINK_SPECS + CHAIN_NODE_SPECS
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
     "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0, "seed": 0,
-    "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "timing_report": "", "timing_window_s": 0.0,
-    **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS,
+    "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "timing_report": "", "plans": False,
+    "timing_window_s": 0.0, **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS, **LINK_DEFAULTS,
+    **CHAIN_NODE_DEFAULTS,
 }
 
 _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray")  # other layouts than the controller's
 _MAX_BEHIND_S = 1.0  # realtime: a longer stall is skipped, not integrated
 
 
-class PlantNode(Node):
+class PlantNode(PlantLockstep, PlantNetwork, Node):
     """The plant simulator node (see the module docstring for its interface)."""
 
     def __init__(self) -> None:
@@ -131,7 +143,8 @@ class PlantNode(Node):
         self.params = SpecParameters(
             self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params,
             # the realtime grid (steps of 1 / physics_rate_hz), the odometry model
-            fixed=("mode", "physics_rate_hz", "timing_report", *ODOMETRY_DEFAULTS, *TF_DEFAULTS, *WHEEL_PI_DEFAULTS),
+            fixed=("mode", "physics_rate_hz", "timing_report", "plans", *ODOMETRY_DEFAULTS, *TF_DEFAULTS,
+                   *WHEEL_PI_DEFAULTS, *LINK_DEFAULTS, *CHAIN_NODE_DEFAULTS), check=link_problem,
         )
         try:
             self.frame_prefix = check_frame_prefix(self.params["frame_prefix"])
@@ -146,8 +159,7 @@ class PlantNode(Node):
         self.odometry = self._new_odometry()
         self.period_ns = int(round(self.control.period_s * 1e9))
         self.rng = np.random.default_rng(self.params["seed"])  # the noise stream of `simulation.run_scenario`
-        self.done = Future()
-        self.exit_status = 0
+        self.done, self.exit_status = Future(), 0
 
         qos = publish_qos(self.lockstep)
         self.odom_pub = self.create_publisher(Odometry, "odom", qos)
@@ -160,19 +172,39 @@ class PlantNode(Node):
         self.speed_loop = WheelSpeedLoop(self.robot, p["wheel_pi.kp"], p["wheel_pi.ki"], p["wheel_pi.rate_hz"]) \
             if p["command_interface"] == "cmd_vel" else None
         self.applied = None if self.speed_loop is None else AppliedVoltages(self, qos)  # the PI loops' voltages
-        self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command, CONTROL_QOS,
-                                                    raw=True) if self.speed_loop is None else \
-            self.create_subscription(Twist, "cmd_vel", self._on_twist, CONTROL_QOS)
+        self.plans = PlantPlans(self, p["command_interface"], self.control.period_s) if p["plans"] else None
+        up, down = link_params(p.values, "up"), link_params(p.values, "down")
+        self.networked = self.plans is not None or up.enabled or down.enabled  # else: as without a link
+        self.radio = Radio(self, up, down, p["seed"]) if self.networked and not self.lockstep else None
+        self.sim_link = SimLink(up, down, p["seed"]) if self.networked and self.lockstep else None
+        self.applied_pub = self.create_publisher(JointTrajectory, "command_applied", qos) if self.plans else None
+        if self.plans is not None:
+            self.command_sub = self.create_subscription(self.plans.msg_type, self.plans.topic, self._on_plan,
+                                                        qos)  # lockstep: every answer of a tick is kept
+        elif self.speed_loop is None:
+            self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command,
+                                                        CONTROL_QOS, raw=True)
+        else:
+            self.command_sub = self.create_subscription(Twist, "cmd_vel", self._on_twist, CONTROL_QOS)
         self.handshake = StartHandshake(self, self.command_sub, {
             "odom": self.odom_pub, "ground_truth/odom": self.truth_pub, "wheel_currents": self.current_pub,
             "joint_states": self.state_out.joint_pub, "/tf": self.state_out.tf_pub, "/clock": self.clock_pub,
-            "clock": self.clock_pub, "applied_voltages": self.applied and self.applied.pub})
+            "clock": self.clock_pub, "applied_voltages": self.applied and self.applied.pub,
+            "command_applied": self.applied_pub})
+        self.bundle: list | None = None  # networked: the messages of the tick being measured (one radio packet)
+        if self.networked:
+            self.state_out.send = self._send
+            if self.applied is not None:
+                self.applied.send = self._send
 
         self.peak_currents = np.zeros(3)
         self.measurement: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         self.have_period = False  # a period has been integrated since the first measurement
         self._build_messages()
         self.counts = {"clamped_commands": 0, "refused_commands": 0, "command_timeouts": 0}
+        self.held: tuple[float, tuple[float, ...]] | None = None  # networked lockstep: (arrival, plain command)
+        self.delivered: list[tuple[int, list]] = []  # networked lockstep: this tick's bundles (stamp, messages)
+        self.expected = self.answers = 0  # networked lockstep: answers due this tick, received
         self.tick = 0
         duration = self.params["duration_s"]
         self.last_tick = max(1, int(round(duration / self.control.period_s))) - 1 if duration > 0 else None
@@ -189,10 +221,12 @@ class PlantNode(Node):
             self.resend_timer = self.create_timer(self.params["lockstep_resend_s"] / 2, self._resend, clock=steady)
         else:
             self.started_at = monotonic()
+            self.clock_offset_s = self.get_clock().now().nanoseconds * 1e-9 - self.started_at  # robot - steady
             self.hold = CommandHold(self.started_at, 1.0 / self.params["physics_rate_hz"])  # a refused one: 0 V
             self.ticks = 0  # published
             self.timing = LoopTiming(window_s=self.params["timing_window_s"])
             self.publish_timer = self.create_timer(self.control.period_s, self._publish_realtime, clock=steady)
+        self.chain = attach_chain(self)  # chain.active: the driver + firmware chain takes commands and odometry
         self.get_logger().info(f"plant simulator ready ({self.params['mode']}, Ts = {self.control.period_s:g} s)")
 
     # parameters ---------------------------------------------------------------------------------
@@ -223,31 +257,18 @@ class PlantNode(Node):
         return odometry_source(self.plant, p["odometry_model"], p["encoder.counts_per_rev"],
                                p["encoder.wheel_slip_std"], p["seed"], getattr(previous, "pose", None))
 
-    # lockstep -----------------------------------------------------------------------------------
-    def _try_start(self) -> None:
-        now = monotonic()
-        if self.handshake.poll(now, self.params["lockstep_settle_s"]):
-            self.start_timer.cancel()
-            self.started = True
-            self.started_at = now
-            self._publish_tick(fresh=True)
-
-    def _resend(self) -> None:
-        now = monotonic()
-        if self.started and not self.done.done() and self.pace_timer.is_canceled() \
-                and now - self.published_at > self.params["lockstep_resend_s"]:
-            self.resent += 1
-            self.get_logger().warn(
-                f"no command for tick {self.tick} (t = {self._time_ns() * 1e-9:.3f} s) for "
-                f"{now - self.tick_sent_at:.1f} s: resending ({self.resent} resends so far)",
-                throttle_duration_sec=2.0)
-            self._publish_tick(fresh=False)
-
+    # lockstep (the run's start, resends, pace, report: `plant_lockstep`) ----------------------------
     def _time_ns(self) -> int:
         return self.tick * self.period_ns
 
     def _publish_tick(self, fresh: bool) -> None:
         """Odometry first (the controller's critical path), then /clock, the currents and the rest."""
+        if self.sim_link is not None:
+            if fresh:
+                self._network_run()
+            else:
+                self._network_tick(fresh=False)
+            return
         self._publish_measurements(divmod(self._time_ns(), 1_000_000_000), fresh, clock=True)
         self.published_at = monotonic()
         if fresh:
@@ -289,40 +310,30 @@ class PlantNode(Node):
 
     def _apply(self, values: tuple[float, ...], valid: bool) -> None:
         """A command (voltages or twist): held from the next grid point (realtime), or the tick's period."""
+        if self.sim_link is not None:
+            self._answer(values)
+            return
+        if self.radio is not None:  # it arrives when the link delivers it
+            self.radio.send("down", lambda: self._hold_command(values, valid))
+            return
         if not self.lockstep:
-            begin = monotonic()
-            if valid:
-                self.timing.command(begin)
-            self._advance(begin, ceil=True)  # the old command up to now; the new one from the next grid point
-            self.hold.hold(values, begin)
-            self.busy_s += monotonic() - begin
+            self._hold_command(values, valid)
             return
         if not self.started or self.done.done():
             return
         begin = monotonic()
-        self.wait_s += begin - self.published_at
-        self.peak_currents = self._drive(values, self.control.period_s)
-        self.have_period = True
-        if self.tick == 0:
-            self.first_answer_at = begin
-            self.busy_s = self.wait_s = 0.0  # per-tick figures of the running loop (ticks 1 ..)
-        if self.last_tick is not None and self.tick >= self.last_tick:
-            self._publish_currents()  # of the last period; no tick follows
-            self._report_run(begin)
-            self.done.set_result(True)  # the last tick is answered: the run is over
-            return
-        self.tick += 1
-        delay = self.pace.delay(monotonic())
-        if delay > 0.0:
-            self.pace_timer.timer_period_ns = max(1, int(delay * 1e9))
-            self.pace_timer.reset()
-        else:
+        if self._lockstep_period(values):
             self._publish_tick(fresh=True)
         self.busy_s += monotonic() - begin
 
-    def _paced_tick(self) -> None:  # the tick `lockstep_max_realtime_factor` held back, at its slot
-        self.pace_timer.cancel()
-        self._publish_tick(fresh=True)
+    def _hold_command(self, values: tuple[float, ...], valid: bool) -> None:
+        """Realtime: the command held from the next grid point."""
+        begin = monotonic()
+        if valid:
+            self.timing.command(begin)
+        self._advance(begin, ceil=True)  # the old command up to now; the new one from the next grid point
+        self.hold.hold(values, begin)
+        self.busy_s += monotonic() - begin
 
     def _clamp(self, values: tuple[float, ...]) -> tuple[float, ...]:
         """`values` clamped to the supply, as an H-bridge applies them; a throttled warning and a count."""
@@ -335,24 +346,6 @@ class PlantNode(Node):
             throttle_duration_sec=1.0)
         return applied
 
-    def _report_run(self, last_answer_at: float) -> None:
-        """Log the run's real-time factor (ticks 1 .. n - 1, from the answer of tick 0 to that of the last)."""
-        report = lockstep_report(self.tick + 1, self.control.period_s, self.started_at, self.first_answer_at,
-                                 last_answer_at, self.busy_s, self.wait_s, resent=self.resent, **self.counts)
-        self.get_logger().info(lockstep_line(report))
-        self._write_report(report)
-
-    def _write_report(self, report: dict) -> None:
-        """Write the timing report to ``timing_report`` (if set) when the readers have the run's samples (so `run`
-        may stop the other nodes once it is there); a failure is logged and the exit status 1."""
-        if self.params["timing_report"]:
-            wait_acknowledged(self, data_publishers(self), FINISHED_ACK_WAIT_S)
-            try:
-                write_report(self.params["timing_report"], report)
-            except OSError as exc:
-                self.get_logger().error(f"cannot write the timing report: {exc}")
-                self.exit_status = 1
-
     # realtime -----------------------------------------------------------------------------------
     def _advance(self, now: float, ceil: bool = False) -> float:
         """Integrate up to the grid point before (`ceil`: after) steady time `now`; returns the plant's time."""
@@ -363,6 +356,9 @@ class PlantNode(Node):
             self.get_logger().warn(f"plant {((target - hold.grid) * hold.dt):.2f} s behind: skipping ahead",
                                    throttle_duration_sec=1.0)
             hold.grid = target
+        if self.plans is not None:
+            self._advance_plans(target)
+            return self.started_at + hold.grid * hold.dt
         timeout = self.params["command_timeout_s"]
         if hold.advance(target, timeout, self._drive_for_peak):
             self.counts["command_timeouts"] += 1
@@ -384,9 +380,15 @@ class PlantNode(Node):
                                                self.busy_s, **self.counts))
             self.done.set_result(True)
             return
-        stamp_ns = clock_ns - int((now - self._advance(now)) * 1e9)
+        grid_time = self._advance(now)
         self.timing.published(monotonic())
-        self._publish_measurements(divmod(stamp_ns, 1_000_000_000), fresh=True)
+        if self.radio is not None:  # the robot clock of the grid point; the tick's packet leaves over the link
+            stamp_ns = int(round((self.clock_offset_s + grid_time) * 1e9))
+            bundle = self._measure_bundle(divmod(stamp_ns, 1_000_000_000))
+            self.radio.send("up", lambda: self._publish_bundle(bundle), stamp_ns * 1e-9)
+        else:
+            stamp_ns = clock_ns - int((now - grid_time) * 1e9)
+            self._publish_measurements(divmod(stamp_ns, 1_000_000_000), fresh=True)
         self.have_period = True
         self.ticks += 1
         self.busy_s += monotonic() - now
@@ -409,19 +411,20 @@ class PlantNode(Node):
         if self.applied is not None:  # cmd_vel: the PI loops' mean voltages over that period, just before
             self.applied.publish()
         if self.current_pub.get_subscription_count():
-            publish_acknowledged(self, self.current_pub,
-                                 self.current_cdr.pack(*np.copysign(self.peak_currents, self.plant.currents).tolist()))
+            self._send(self.current_pub, self.current_cdr.pack(*np.copysign(self.peak_currents,
+                                                                            self.plant.currents).tolist()))
         self.peak_currents = np.zeros(3)
 
     def _publish_measurements(self, stamp: tuple[int, int], fresh: bool, clock: bool = False) -> None:
         """Odom (noisy), /clock, currents, ground truth, joints at `stamp` (sec, nanosec); a resent tick (not
         `fresh`): odom and /clock only (they drive the loop; tf2 refuses a repeated stamp on /tf). The others are
         built only while a subscription is matched; the currents of the period just integrated follow this
-        tick's odometry, before its ground truth."""
+        tick's odometry, before its ground truth.
+        """
         if fresh or self.measurement is None:
             noise = (self.params["odometry_noise.position_m"], self.params["odometry_noise.yaw_rad"])
             self.measurement = self.odometry.odometry_floats(self.rng, noise)
-        publish_acknowledged(self, self.odom_pub, self.odom_cdr.pack(*stamp, *odometry_values(*self.measurement)))
+        self._send(self.odom_pub, self.odom_cdr.pack(*stamp, *odometry_values(*self.measurement)))
         if clock:
             publish_acknowledged(self, self.clock_pub, self.clock_cdr.pack(*stamp))
         if not fresh:
@@ -429,8 +432,7 @@ class PlantNode(Node):
         if self.have_period:
             self._publish_currents()
         if self.truth_pub.get_subscription_count():
-            publish_acknowledged(self, self.truth_pub,
-                                 self.truth_cdr.pack(*stamp, *odometry_values(*self.plant.odometry_floats())))
+            self._send(self.truth_pub, self.truth_cdr.pack(*stamp, *odometry_values(*self.plant.odometry_floats())))
         plant = self.plant
         self.state_out.publish(stamp, self.measurement[0], plant.wheel_angles.tolist(), plant.wheel_speeds.tolist(),
                                (self.effort_per_a * plant.currents).tolist())
@@ -438,7 +440,6 @@ class PlantNode(Node):
 
 def _all_specs() -> tuple[ParamSpec, ...]:
     from robotino_geom_mpc.params.specs import ALL_SPECS
-
     return ALL_SPECS + PLANT_SPECS
 
 

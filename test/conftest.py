@@ -1,10 +1,14 @@
-"""Test session setup: an isolated DDS domain and the ament index of the venv.
+"""Test session setup: an isolated DDS domain, the ament index of the venv, the tiers, Hypothesis in CI.
 
 Set before anything imports rclpy: each session gets its own random
 ROS_DOMAIN_ID, discovery stays on localhost, and every participant (the
 tests' own and the nodes') gets the Fast DDS profile `run` gives its nodes
 (`processes.dds_environment`). At the end, the Fast DDS segments that the
 session's killed processes left in /dev/shm are removed.
+
+Every test is in one tier, marked in its file (setup.cfg lists the markers): ``unit`` (in-process, no
+child process, no DDS: `make unit`) or ``ros`` (starts processes: nodes over DDS, the CLI, worker pools);
+``slow`` marks the long ones besides. Under CI=true Hypothesis runs derandomized (the same examples each run).
 """
 
 import os
@@ -13,6 +17,11 @@ import sys
 import time
 
 import pytest
+from hypothesis import settings
+
+settings.register_profile("ci", derandomize=True, print_blob=True)
+if os.environ.get("CI", "").lower() == "true":
+    settings.load_profile("ci")
 
 os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 101))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -31,6 +40,16 @@ def pytest_sessionfinish(session, exitstatus):
     from robotino_geom_mpc.system.shm import remove_zombie_segments
 
     remove_zombie_segments(_SESSION_START)
+
+
+TIERS = ("unit", "ros")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Refuse a test without exactly one tier (a file's ``pytestmark``, or the test's own mark)."""
+    untiered = [item.nodeid for item in items if sum(item.get_closest_marker(t) is not None for t in TIERS) != 1]
+    if untiered:
+        raise pytest.UsageError(f"tests need exactly one of the marks {TIERS}: {untiered[:5]} ({len(untiered)})")
 
 
 @pytest.fixture

@@ -206,7 +206,7 @@ def _publish(spec: list[dict]) -> None:
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile
 
-    from robotino_geom_mpc.recording.bag import message_class
+    from robotino_geom_mpc.recording.definitions import message_class
 
     rclpy.init()
     node = rclpy.create_node("test_publisher")

@@ -11,6 +11,8 @@ import pytest
 from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = pytest.mark.ros
+
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -9,7 +9,11 @@ from mcap.reader import make_reader
 from rclpy.serialization import serialize_message
 
 from recording_helpers import PYTHON, build_message, env, values_of
-from robotino_geom_mpc.recording.bag import BagError, BagReader, BagWriter
+from robotino_geom_mpc.recording.bag_reader import BagReader
+from robotino_geom_mpc.recording.bag_writer import BagWriter
+from robotino_geom_mpc.recording.bagfile import BagError
+
+pytestmark = pytest.mark.ros
 
 COUNT = 600
 

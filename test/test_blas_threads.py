@@ -1,5 +1,6 @@
-"""`blas_threads.one_blas_thread`: numpy's and scipy's OpenBLAS report one thread after it, read back through
-OpenBLAS's own getters in a fresh process started with two threads."""
+"""BLAS on one thread where the cores are already filled: a study worker and a node, read back through
+threadpoolctl's own report (`threadpool_info`) in fresh processes started with two BLAS threads.
+"""
 
 from __future__ import annotations
 
@@ -8,33 +9,37 @@ import os
 import subprocess
 import sys
 
-CODE = """
-import ctypes, json
+import pytest
+
+pytestmark = pytest.mark.ros
+
+STUDY_WORKER = """
+import json
+from concurrent.futures import ProcessPoolExecutor
+from threadpoolctl import threadpool_info
 import numpy, scipy.linalg
-from robotino_geom_mpc.blas_threads import one_blas_thread
+from robotino_geom_mpc.offline import study
 
-def threads():
-    out = {}
-    for line in open("/proc/self/maps"):
-        path = line.split()[-1]
-        if "openblas" in path.lower() and ".so" in path and path not in out:
-            lib = ctypes.CDLL(path)
-            getters = [n for n in ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads",
-                                   "openblas_get_num_threads64_", "openblas_get_num_threads") if hasattr(lib, n)]
-            out[path] = getattr(lib, getters[0])() if getters else None
-    return out
+def blas_threads():
+    import numpy, scipy.linalg  # both libraries loaded in the worker
+    return {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
 
-before = threads()
-one_blas_thread()
-print(json.dumps([before, threads()]))
+if __name__ == "__main__":
+    with ProcessPoolExecutor(1, mp_context=study._context()) as plain:
+        before = plain.submit(blas_threads).result()
+    with ProcessPoolExecutor(1, mp_context=study._context(), initializer=study._one_blas_thread) as pool:
+        after = pool.submit(blas_threads).result()
+    print(json.dumps([before, after]))
 """
 
 
-def test_numpy_and_scipy_openblas_on_one_thread():
+def test_a_study_worker_runs_blas_on_one_thread(tmp_path):
+    script = tmp_path / "worker.py"
+    script.write_text(STUDY_WORKER)
     env = dict(os.environ, OPENBLAS_NUM_THREADS="2")
-    proc = subprocess.run([sys.executable, "-c", CODE], capture_output=True, text=True, timeout=60, env=env)
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120, env=env,
+                          cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     before, after = json.loads(proc.stdout)
-    assert len(before) >= 2  # numpy's and scipy's bundled libraries
-    assert set(before.values()) == {2}  # the getters read what the process started with
-    assert set(after.values()) == {1}
+    assert len(before) >= 2 and set(before.values()) == {2}  # numpy's and scipy's OpenBLAS, as the process started
+    assert after.keys() == before.keys() and set(after.values()) == {1}

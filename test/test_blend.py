@@ -8,6 +8,8 @@ from numpy.polynomial import Polynomial
 
 from robotino_geom_mpc.control.blend import BlendError, ReferenceBlend
 
+pytestmark = pytest.mark.unit
+
 PERIOD = 0.01
 CASES = [  # dp, dv, da, linear limit, angular limit
     ((0.8, -0.5, 0.3), (0.3, 0.1, -0.2), (-0.05, 0.04, 0.0), 0.3, 1.0),  # restart far from the reference

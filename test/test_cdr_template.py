@@ -29,6 +29,8 @@ from robotino_geom_mpc.ros.messages import preview_message, preview_template, pr
 from robotino_geom_mpc.description.urdf import JOINT_NAMES
 from robotino_sim_node.outputs import ODOM_FIELDS, joint_template, odometry_values, plant_odometry
 
+pytestmark = pytest.mark.unit
+
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 rng = np.random.default_rng(20261122)
 
@@ -150,7 +152,7 @@ def test_template_does_not_change_the_message():
 
 
 def test_cdr_reader_decodes_odometry_without_importing_rosbags(monkeypatch):
-    """The fallback decodes the field values rclpy serialized, with rosbags not importable; garbage is MalformedMessage."""
+    """The fallback decodes the values rclpy serialized, with rosbags not importable; garbage is MalformedMessage."""
     from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 
     monkeypatch.setitem(sys.modules, "rosbags.typesys", None)  # any import of it fails

@@ -7,6 +7,8 @@ import pytest
 
 from robotino_geom_mpc.cli import VERBS, main
 
+pytestmark = pytest.mark.ros
+
 
 def test_top_level_help_lists_every_verb_without_importing_them():
     code = (

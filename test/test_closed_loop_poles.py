@@ -20,6 +20,8 @@ from robotino_geom_mpc.control.mpc import (
 from robotino_geom_mpc.params.specs import ParamError
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = pytest.mark.unit
+
 STEPS = 1500
 GROWN = 1e9  # a norm this many times the start's is growth
 

@@ -1,6 +1,7 @@
 """The cmd_vel path: the controller's twist (model velocity at k+1 in base_link) and the lockstep loop through the
 plant's wheel-speed PI loops, against a closed-form axis step and the offline loop of `simulate`; `run` records a
-cmd_vel run (its metrics those of `simulate`, its twists those of the offline controller, read by mcap-ros2-support)."""
+cmd_vel run (its metrics those of `simulate`, its twists those of the offline controller, read by mcap-ros2-support).
+"""
 
 import json
 import math
@@ -18,12 +19,15 @@ from probe import ProbeSpinner
 from robotino_geom_mpc.control.motion_controller import MotionController
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
-from robotino_geom_mpc.recording.bag import BagError, BagWriter
+from robotino_geom_mpc.recording.bag_writer import BagWriter
+from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.regress import regress_bag
 from robotino_geom_mpc.recording.report import run_data_from_bag
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.system.processes import RECORDER_WAIT_FOR, NodeGroup, node_arguments, recorder_wait_for
 from robotino_geom_mpc.offline.simulation import run_scenario
+
+pytestmark = pytest.mark.ros
 
 DURATION_S = 3.0
 # the probe's subscriptions; the plant subscribes cmd_vel (no wheel_voltages reader in this loop)
@@ -133,7 +137,8 @@ def test_the_recorder_waits_for_the_command_of_the_interface():
     # the description publisher's joint_states reader beside the recorder's, for the wheel TF from tick 0
     assert recorder_wait_for() == [w.replace("joint_states:1", "joint_states:2") for w in RECORDER_WAIT_FOR]
     cmd_vel = recorder_wait_for("cmd_vel")
-    assert "cmd_vel:2" in cmd_vel and "applied_voltages:1" in cmd_vel and not any("wheel_voltages" in w for w in cmd_vel)
+    assert "cmd_vel:2" in cmd_vel and "applied_voltages:1" in cmd_vel
+    assert not any("wheel_voltages" in w for w in cmd_vel)
     argv = node_arguments("paper-circle", default_params_file(), 1.0, True, bag="/tmp/b", command_interface="cmd_vel")
     (value,) = [a.split(":=", 1)[1] for a in argv["plant_node"] if a.startswith("lockstep_wait_for:=")]
     assert json.loads(value) == cmd_vel
@@ -157,7 +162,8 @@ def test_a_bag_without_any_command_topic_is_refused_by_report_and_regress_by_nam
 
 def test_regress_on_cmd_vel_takes_a_preview_the_node_refuses_as_a_zero_twist(tmp_path):
     """A preview of the wrong length (another horizon) is refused by the node: zero twist, no step. regress
-    expects exactly that (one tick, a zero twist matches, a moving one does not), instead of failing."""
+    expects exactly that (one tick, a zero twist matches, a moving one does not), instead of failing.
+    """
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from geometry_msgs.msg import Transform, Twist, Vector3
     from nav_msgs.msg import Odometry

@@ -16,6 +16,8 @@ from robotino_geom_mpc.ros.qos import LATCHED_QOS, PUBLISH_QOS
 from harness import Harness
 from robotino_geom_mpc.system.processes import ros_args
 
+pytestmark = pytest.mark.ros
+
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = "robotino_geom_mpc"
 EXECUTABLES = ("plant_node", "controller_node", "trajectory_node", "recorder_node")

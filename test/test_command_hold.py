@@ -5,6 +5,8 @@ import pytest
 
 from robotino_sim_node.command_hold import MAX_CHUNK, CommandHold
 
+pytestmark = pytest.mark.unit
+
 
 def _runs(hold, target, timeout_s):
     runs = []

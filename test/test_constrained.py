@@ -17,6 +17,8 @@ from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.scenarios import get_scenario
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def setup():

@@ -14,7 +14,6 @@ from hypothesis import strategies as st
 
 from robotino_geom_mpc.bench.constrained import (
     OsqpConstrainedQP,
-    bench_constrained,
     constrained_inputs,
     fastest_agreeing,
     qp_arguments,
@@ -24,6 +23,8 @@ from robotino_geom_mpc.bench.controller_step import OSQP_TOLERANCES
 from robotino_geom_mpc.control.constrained import ConstrainedMPC
 from robotino_geom_mpc.control.mpc import DecoupledMPC
 from robotino_geom_mpc.params.files import load_params
+
+pytestmark = pytest.mark.unit
 
 
 @pytest.fixture(scope="module")
@@ -98,19 +99,6 @@ def test_warm_start_from_the_last_active_set_saves_iterations_and_keeps_the_answ
     assert sum(warm_iterations) < sum(cold_iterations)
 
 
-def test_benchmark_reports_its_figures_with_osqp_agreeing():
-    figures = bench_constrained(quick=True)
-    for key in ("constrained_step_us", "constrained_step_worst_us", "constrained_step_speedup_vs_osqp",
-                "constrained_over_closed_form", "constrained_paced_binding_step_us",
-                "constrained_paced_speedup_vs_osqp"):
-        assert np.isfinite(figures[key]) and figures[key] > 0.0
-    assert figures["constrained_step_worst_us"] >= figures["constrained_step_us"]
-    assert 0.0 < figures["constrained_step_speedup_vs_osqp_worst"] <= figures["constrained_step_speedup_vs_osqp"]
-    assert figures["constrained_osqp_max_u_difference"] <= 1e-6 * 10.0  # |u| reaches ~10 m/s^2 in the position step
-    assert figures["constrained_osqp_eps"] in OSQP_TOLERANCES
-    assert figures["constrained_binding_ticks"] >= 10
-
-
 def test_osqp_peer_is_the_loosest_polished_tolerance_that_agrees():
     """The benchmark's OSQP peer: polished, the loosest tolerance giving u to 1e-6; a looser one does not.
 
@@ -163,7 +151,8 @@ def _pair(model, control):
 
 def test_screen_passes_only_feasible_ticks_and_keeps_u_bit_for_bit(inputs):
     """On every bench input: each screened tick's rows (the full check, independent instance) lie in [-1, 1],
-    u equals the always-checking `solve` bit for bit, and the screen decides most nominal ticks."""
+    u equals the always-checking `solve` bit for bit, and the screen decides most nominal ticks.
+    """
     _, control = load_params()
     control = replace(control, mode="constrained")
     for name, inputs_set in inputs.items():
@@ -191,12 +180,14 @@ def _tick(rng, scale_y):
     return X, rng.normal(0.0, 0.3, 3), Y_d, rng.normal(0.0, 0.2, 3)
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), size=st.floats(-7.0, -0.5), scale_y=st.floats(-5.0, -2.5),
        shift=st.floats(-50.0, 50.0))
 def test_screen_never_passes_a_tick_the_full_check_fails(seed, size, scale_y, shift):
     """Property: from a checked reference tick, any other tick (moved by 10**size in every input, and its
-    positions translated by `shift` metres) that the screen passes meets every limit, with the closed form's u."""
+    positions translated by `shift` metres) that the screen passes meets every limit, with the closed form's u.
+    """
     robot, control = load_params()
     control = replace(control, mode="constrained")
     rng = np.random.default_rng(seed)
@@ -218,7 +209,8 @@ def test_screen_never_passes_a_tick_the_full_check_fails(seed, size, scale_y, sh
 
 def test_screen_decides_small_changes_and_defers_large_ones():
     """The property above is not vacuous: a 1e-7 change of a feasible tick is screened, a change that
-    drives the closed form over a limit is not (the full check runs and the QP answers)."""
+    drives the closed form over a limit is not (the full check runs and the QP answers).
+    """
     robot, control = load_params()
     control = replace(control, mode="constrained")
     X, u_prev, Y_d, i_start = _tick(np.random.default_rng(5), 1e-4)
@@ -234,7 +226,8 @@ def test_screen_decides_small_changes_and_defers_large_ones():
 
 def test_a_binding_tick_drops_the_screen_reference():
     """After a tick where a limit binds, the next tick is checked in full even when the old reference would
-    screen it, and its u is the closed form's; then the screen passes ticks near it again."""
+    screen it, and its u is the closed form's; then the screen passes ticks near it again.
+    """
     robot, control = load_params()
     control = replace(control, mode="constrained")
     X, u_prev, Y_d, i_start = _tick(np.random.default_rng(5), 1e-4)

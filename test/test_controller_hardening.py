@@ -6,7 +6,9 @@
   it for minutes); a twist just below the bound is tracked.
 * Parameter sets that cannot run (a timeout under two periods, a model T(theta) cannot be built on) are
   refused and the node keeps running.
-* Realtime under ``use_sim_time``: a clock that goes back (a bag played in a loop, a simulator reset)
+* A preview whose frame_id is not the controller's ``<frame_prefix>odom`` is refused, naming both frames.
+* Realtime under ``use_sim_time``: the watchdog counts simulated time (no stale data while the clock
+  stands); a clock that goes back (a bag played in a loop, a simulator reset)
   resumes the tracking once the watchdog has declared the data stale; before, every later input was
   dropped as older than the last used.
 * Realtime: a controller stopped with SIGINT leaves the drives at zero volts.
@@ -26,6 +28,8 @@ from robotino_geom_mpc.reference.trajectories import make_reference
 from robotino_geom_mpc.ros.messages import ns_to_stamp, preview_message, yaw_to_quaternion
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.qos import PUBLISH_QOS
+
+pytestmark = pytest.mark.ros
 
 NODE = "robotino_controller"
 
@@ -130,6 +134,25 @@ def test_an_input_that_is_no_measurement_is_refused_with_zero_volts(harness, loc
     assert lockstep.node.popen.poll() is None, lockstep.node.stderr_tail()
 
 
+@pytest.mark.parametrize("frame", ["hard/odom", "map", ""])
+def test_a_preview_in_another_frame_is_refused_naming_both_frames(harness, lockstep, frame):
+    """The controller (frame_prefix '') takes previews in 'odom' only: one in its namespace's prefixed odom (a
+    prefix mismatch), in map or without a frame gives its tick zero volts and an ERROR naming both frames.
+    """
+    _, control = load_params()
+    stamp = (500 + 10 * len(lockstep.voltages)) * round(control.period_s * 1e9)
+    preview = preview_message(make_reference("paper-circle"), stamp, control.period_s, control.horizon)
+    preview.header.frame_id = frame
+    got_v, got_d = lockstep.tick(preview, _odometry(stamp))
+    errors = [(s, kv) for s, kv in got_d if s.level == DiagnosticStatus.ERROR]
+    assert got_v[:1] == [[0.0, 0.0, 0.0]] and errors, (got_v, got_d)
+    status, kv = errors[-1]
+    assert kv["last_refusal"] == "preview_frame" and f"'{frame}'" in status.message and "'odom'" in status.message
+    good = preview_message(make_reference("paper-circle"), stamp + 10**7, control.period_s, control.horizon)
+    got_v, got_d = lockstep.tick(good, _odometry(stamp + 10**7))  # the same preview in 'odom' is tracked
+    assert got_d[-1][0].message == "tracking" and got_v[-1] != [0.0, 0.0, 0.0], got_d
+
+
 def test_a_twist_just_below_the_bound_is_tracked(harness, lockstep):
     _, control = load_params()
     stamp = 900 * round(control.period_s * 1e9)
@@ -186,7 +209,11 @@ def test_realtime_sim_time_going_back_resumes_tracking_after_the_watchdog(harnes
                                  "reference_timeout_s": 0.2})
         assert len(_tracking(rig, lambda k: 1000 * 10**9 + k * 10**7, clock)) == 3, node.stderr_tail()
         d0 = len(rig.diagnostics)
-        h.spin_for(0.6)  # nothing for 0.6 s of steady time: the watchdog declares the data stale
+        h.spin_for(0.6)  # steady time without data but no simulated time: nothing is stale (the watchdog's clock)
+        assert not any("watchdog: stale" in _status(d)[0].message for d in rig.diagnostics[d0:])
+        for k in range(60):  # 0.6 s of simulated time without data: the watchdog declares the data stale
+            clock(1000 * 10**9 + (100 + k) * 10**7)
+        h.spin_for(0.1)
         assert any("watchdog: stale" in _status(d)[0].message for d in rig.diagnostics[d0:])
         # the clock restarts at 10 s: every input is older than the last used
         assert len(_tracking(rig, lambda k: 10 * 10**9 + k * 10**7, clock, tries=30)) == 3, [

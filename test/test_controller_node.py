@@ -22,6 +22,8 @@ from harness import Harness
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.messages import preview_message
 
+pytestmark = pytest.mark.ros
+
 NODE = "robotino_controller"
 
 
@@ -225,7 +227,8 @@ def test_parameter_set_is_validated_and_refusal_keeps_the_old_value(harness, loc
 
 def _rig(h, namespace: str):
     """The test's side of a controller in `namespace`: collected voltages and diagnostics, odometry and preview
-    publishers."""
+    publishers.
+    """
     return (h.collect(f"{namespace}/wheel_voltages", Float64MultiArray),
             h.collect(f"{namespace}/diagnostics", DiagnosticArray),
             h.node.create_publisher(Odometry, f"{namespace}/odom", PUBLISH_QOS),
@@ -401,7 +404,8 @@ def test_lockstep_controller_says_what_it_waits_for(tmp_path_factory):
 
 def test_realtime_stamps_are_checked_against_the_node_clock(harness, tmp_path_factory):
     """Stale (an hour old, zero), future: refused with zero volts; older than the last used: dropped, then the
-    watchdog's zero volts (no valid input left within the timeout)."""
+    watchdog's zero volts (no valid input left within the timeout).
+    """
     h = harness
     _, control = load_params()
     reference = make_reference("paper-circle")

@@ -17,6 +17,8 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import run_scenario
 
+pytestmark = pytest.mark.unit
+
 X0 = np.array([0.01, 0.15, -0.02, -0.1, 0.4, 0.3])  # (x, x', y, y', theta, theta')
 TOLERANCE = 1.02  # issue 16: the peak current at most the nominal plus 2 %
 
@@ -61,7 +63,8 @@ def test_scaled_u_keeps_its_direction_and_the_largest_wheel_sits_at_the_limit(pa
     # eq. (10) over the period on the coupled plant: the average is the command, the largest
     # wheel's average or end current is at the limit, the peak within a hair of it
     trace = _period_on_plant(robot, X0, np.array(out.voltages), control.period_s)
-    np.testing.assert_allclose(trace.mean(axis=0), out.currents, atol=5e-3 * limit)  # the plant has the back-EMF the controller predicted to 0.3 %
+    # the plant has the back-EMF the controller predicted to 0.3 %
+    np.testing.assert_allclose(trace.mean(axis=0), out.currents, atol=5e-3 * limit)
     predicted = max(np.abs(out.currents).max(), np.abs(ctl.drive.current_estimate).max())
     assert predicted == pytest.approx(limit, rel=1e-9)  # the controller's own eq. (10)
     assert max(np.abs(out.currents).max(), np.abs(trace[-1]).max()) == pytest.approx(limit, rel=5e-3)
@@ -78,6 +81,7 @@ def test_a_command_within_the_limits_is_left_alone(params):
     assert out.voltages == free.voltages and out.u == free.u
 
 
+@pytest.mark.slow
 def test_robustness_seeds_keep_the_nominal_current_with_no_start_kick(params):
     """Robustness scenario, seeds 0-19, full 22 s runs; with the limit off the start stays within nominal."""
     robot, control = params
@@ -98,7 +102,8 @@ def test_robustness_seeds_keep_the_nominal_current_with_no_start_kick(params):
 @pytest.mark.parametrize("noise", [(3e-3, -2e-3, 1e-3), (-1e-3, 3.5e-3, -2e-3)])
 def test_the_start_kick_came_from_the_first_measurements_noise(params, noise):
     """Tick 0 at rest on the reference's start: a filter initialised by the noisy first measurement hands its
-    whole noise to the MPCs' position gain (amperes); started at the known pose it hands L n(0)."""
+    whole noise to the MPCs' position gain (amperes); started at the known pose it hands L n(0).
+    """
     robot, control = params
     control = replace(control, current_limit_a=0.0)
     Y_d = np.zeros((control.horizon, 3))

@@ -9,6 +9,8 @@ import pytest
 
 from robotino_geom_mpc.system.processes import dds_environment
 
+pytestmark = pytest.mark.ros
+
 NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 
 
@@ -129,7 +131,8 @@ def test_a_sample_does_not_wake_the_writers_event_thread_once_per_reader(tmp_pat
     """Fast DDS 2.14 restarts a reader's NACK-suppression timer per sample; with the profile's 20 ms it runs
     (and wakes the event thread) about once per 20 ms, not once per sample: the kernel's counters of that thread
     over a 1000-sample burst (52-79 switches, also beside two busy cores), beside the same profile without the
-    setting as the control (2213-3753)."""
+    setting as the control (2213-3753).
+    """
     (profile,) = dds_environment({}).values()
     tree = ET.parse(profile)
     (times,) = tree.getroot().findall("f:data_writer/f:times", NS)

@@ -10,6 +10,8 @@ from robotino_geom_mpc.model.dynamics import A_matrix, acceleration_block, g_the
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import preset_file
 
+pytestmark = pytest.mark.unit
+
 PRESETS = ("robotino3", "robotino2")
 
 
@@ -107,7 +109,8 @@ def test_rotation_command_turns_through_pi_over_2_without_moving(robot):
 
 
 def test_check_reports_failure_for_a_wrong_field(robot, monkeypatch):
-    monkeypatch.setattr(dec.DecouplingField, "field", lambda self, theta: np.broadcast_to(self.T0, np.shape(theta) + (3, 3)))
+    monkeypatch.setattr(dec.DecouplingField, "field",
+                        lambda self, theta: np.broadcast_to(self.T0, np.shape(theta) + (3, 3)))
     bad = dec.check_decoupling(robot, n_theta=90)
     assert bad.max_residual > 0.5
     assert not bad.passed

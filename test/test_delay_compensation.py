@@ -1,7 +1,8 @@
 """The delay-compensating controller against independent truths: its prediction through the commands in flight
 against a step-by-step simulation of the plant (`RobotinoPlant`) under the commands the robot applied; with no
 delay, its plans' first entries against the undelayed loop (`MotionController` alone); its lead, reports and
-refusals against hand-worked cases."""
+refusals against hand-worked cases.
+"""
 
 from dataclasses import replace
 
@@ -16,13 +17,16 @@ from robotino_geom_mpc.offline.networked import NetworkedLoop
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.scenarios import get_scenario
 
+pytestmark = [pytest.mark.unit, pytest.mark.slow]  # closed loops over an emulated link
+
 ROBOT, CONTROL = load_params(None)
 TS = CONTROL.period_s
 
 
 def closed_loop(controller, link_up, link_down, n, seed=0):
     """The offline loop's ticks (`offline.networked`) on a plant; per tick the plant's true body state and, per
-    plan, (tick of its first action, predicted state there)."""
+    plan, (tick of its first action, predicted state there).
+    """
     reference = get_scenario("paper-circle").make_reference()
     extra = controller.preview_length if isinstance(controller, DelayCompensatingController) else controller.horizon
     targets = reference.position(np.arange(n + extra + 1) * TS)

@@ -8,6 +8,8 @@ from robotino_geom_mpc.model import dynamics as model
 from robotino_geom_mpc.control.inverse_drive import DriveError, InverseDrive, MotorKinematics, ZOHDrive
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = pytest.mark.unit
+
 Ts = 0.01
 
 

@@ -52,6 +52,7 @@ def _run(speeds, periods, cpr=CPR):
     return wheels, pose, twist, counts
 
 
+@pytest.mark.unit
 def test_counts_are_the_floor_of_the_motor_angle_in_counts():
     speeds = [3.7, -1.3, 0.05]  # wheel rad/s
     _, _, _, counts = _run(speeds, 50)
@@ -66,6 +67,7 @@ def _count_step():
     return 2.0 * math.pi / (ROBOT.gear_ratio * CPR)
 
 
+@pytest.mark.unit
 def test_straight_line_integrates_to_the_analytical_pose():
     v, T = 0.3, 2.0  # m/s along the robot's x axis, heading 0
     rim = [v * math.sin(phi) for phi in PHI]  # v_i = d_i(0) . (v, 0) with d_i = (sin phi_i, cos phi_i)
@@ -78,6 +80,7 @@ def test_straight_line_integrates_to_the_analytical_pose():
     assert twist[0] == pytest.approx(v, abs=2.0 * ROBOT.r * q / TS)
 
 
+@pytest.mark.unit
 def test_pure_rotation_integrates_to_the_analytical_heading():
     w, T = 1.5, 3.0  # rad/s
     speeds = [ROBOT.l * w / ROBOT.r] * 3  # v_i = l theta'
@@ -89,6 +92,7 @@ def test_pure_rotation_integrates_to_the_analytical_heading():
     assert pose[2] != w * T  # quantised, not the exact value
 
 
+@pytest.mark.unit
 def test_wheel_speeds_are_within_one_count_per_period_of_the_plant():
     plant = RobotinoPlant(ROBOT)
     odometry = EncoderOdometry(plant, CPR)
@@ -113,6 +117,7 @@ def test_wheel_speeds_are_within_one_count_per_period_of_the_plant():
     assert 0.0 < np.hypot(*(np.array(odometry.pose[:2]) - plant.pose[:2])) < 2e-5
 
 
+@pytest.mark.unit
 def test_body_twist_inverts_the_rim_speeds():
     rng = np.random.default_rng(0)
     for twist in rng.normal(size=(20, 3)):
@@ -120,6 +125,7 @@ def test_body_twist_inverts_the_rim_speeds():
         assert np.allclose(body_twist(speeds, ROBOT), twist, atol=1e-12)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("twist", [(0.4, -0.2, 2.0), (0.3, 0.1, 0.0), (0.0, 0.0, -1.0)])
 def test_integrate_pose_matches_a_numerical_integration(twist):
     start, dt = (0.5, -0.2, 0.7), 0.3
@@ -133,6 +139,7 @@ def test_integrate_pose_matches_a_numerical_integration(twist):
     assert np.allclose(integrate_pose(start, twist, dt), ref, atol=1e-11)
 
 
+@pytest.mark.unit
 def test_slip_scatters_the_measured_wheel_speeds_by_the_fraction():
     wheels = ConstantWheels([10.0, -10.0, 5.0])
     odometry = EncoderOdometry(wheels, 2**30, slip_std=0.05, seed=4)  # quantisation negligible
@@ -158,11 +165,14 @@ def _twist_errors(speeds: np.ndarray, slip_std: float, seed: int, periods: int =
     return np.array(errors)
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 @pytest.mark.parametrize("advance, ratio", [("random", 2.0 / 3.0), ("half a count", 1.0)])
 def test_twist_covariance_bounds_the_quantisation_and_is_reached_at_half_a_count(advance, ratio):
     """A steady wheel's count difference is off by f (1 - f) counts squared in variance (f: the fractional part
     of its advance per period): 1/6 on average over f, 1/4 at f = 1/2, which the bound takes for every wheel
-    (the wheels' errors independent: over phases, on average)."""
+    (the wheels' errors independent: over phases, on average).
+    """
     bound = np.diag(twist_covariance(ROBOT, CPR, 0.0, TS))
     count_speed = 2.0 * math.pi / (ROBOT.gear_ratio * CPR * TS)  # one count per period [rad/s]
     rng = np.random.default_rng(7)
@@ -177,9 +187,11 @@ def test_twist_covariance_bounds_the_quantisation_and_is_reached_at_half_a_count
     assert np.all(np.abs(variance / bound - ratio) < 0.1 * ratio), variance / bound
 
 
+@pytest.mark.unit
 def test_twist_covariance_takes_the_slip_at_the_nominal_speed():
     """Wheels at the motors' nominal speed advance a whole number of counts a period here (no quantisation
-    error to speak of), so the scatter is the slip's: slip_std times the nominal wheel speed."""
+    error to speak of), so the scatter is the slip's: slip_std times the nominal wheel speed.
+    """
     nominal = ROBOT.nominal_speed_rpm * 2.0 * math.pi / 60.0 / ROBOT.gear_ratio
     speeds = np.array([1.0, -1.0, 1.0]) * nominal
     errors = np.concatenate([_twist_errors(speeds, 0.02, seed, 800) for seed in range(5)])
@@ -188,6 +200,7 @@ def test_twist_covariance_takes_the_slip_at_the_nominal_speed():
     assert np.all(np.abs(errors.var(axis=0) / slip_only - 1.0) < 0.1), errors.var(axis=0) / slip_only
 
 
+@pytest.mark.unit
 def test_pose_noise_is_the_ideal_models_draws():
     plant = RobotinoPlant(ROBOT)
     plant.step(np.array([5.0, -3.0, 1.0]), TS)
@@ -198,6 +211,7 @@ def test_pose_noise_is_the_ideal_models_draws():
     assert np.allclose(np.subtract(noisy, clean), np.subtract(ideal, plant.pose), atol=1e-15)
 
 
+@pytest.mark.unit
 def test_a_second_update_at_the_same_time_changes_nothing_and_the_start_is_the_plant_pose():
     plant = RobotinoPlant(ROBOT, state0=np.array([1.0, 0, 2.0, 0, 0.5, 0, 0, 0, 0]))
     odometry = EncoderOdometry(plant, CPR)
@@ -207,6 +221,7 @@ def test_a_second_update_at_the_same_time_changes_nothing_and_the_start_is_the_p
     assert odometry.update() == first
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("kwargs, message", [
     ({"model": "lidar"}, "odometry model"),
     ({"model": "encoders", "counts_per_rev": 0}, "counts_per_rev"),
@@ -219,14 +234,17 @@ def test_bad_settings_are_refused(kwargs, message):
         odometry_source(RobotinoPlant(ROBOT), **kwargs)
 
 
+@pytest.mark.unit
 def test_ideal_source_is_the_plant():
     plant = RobotinoPlant(ROBOT)
     assert odometry_source(plant, "ideal") is plant
 
 
+@pytest.mark.unit
 def test_period_mean_filter_reproduces_the_encoder_pose_and_the_trapezoid_lags():
     """Noise-free encoder odometry of a plant under varying voltages: the pose filter with the period_mean
-    predictor predicts each dead-reckoned pose exactly (estimate = measured pose to 1e-12), the trapezoid not."""
+    predictor predicts each dead-reckoned pose exactly (estimate = measured pose to 1e-12), the trapezoid not.
+    """
     from robotino_geom_mpc.control.motion_controller import odometry_state_floats
     from robotino_geom_mpc.control.estimator import OdometryFilter
 
@@ -245,6 +263,7 @@ def test_period_mean_filter_reproduces_the_encoder_pose_and_the_trapezoid_lags()
     assert errors["instantaneous"] > 1e-5
 
 
+@pytest.mark.unit
 def test_paper_circle_with_encoder_odometry_meets_the_issue_16_target():
     """Issue 16, item 3: odom-frame RMS tracking error <= 0.3 mm, peak current <= nominal + 2 % (0.877 A)."""
     from robotino_geom_mpc.offline.results import compute_metrics
@@ -255,6 +274,7 @@ def test_paper_circle_with_encoder_odometry_meets_the_issue_16_target():
     assert m["peak_current_a"] <= 1.02 * ROBOT.nominal_current_a
 
 
+@pytest.mark.unit
 def test_encoder_odometry_gives_the_controller_the_period_mean_predictor(monkeypatch):
     """run_scenario and node_arguments set control.odometry_twist = period_mean with encoders, and only then."""
     import robotino_geom_mpc.offline.simulation as simulation
@@ -278,9 +298,11 @@ def test_encoder_odometry_gives_the_controller_the_period_mean_predictor(monkeyp
         assert f"odometry_model:={odometry}" in args["plant_node"]
 
 
+@pytest.mark.ros
 def test_lockstep_loop_with_encoder_odometry_equals_the_offline_loop(tmp_path):
     """The three node processes started with node_arguments(odometry="encoders") reproduce
-    run_scenario(odometry="encoders") to 1e-6: the plant's dead reckoning and the controller's predictor."""
+    run_scenario(odometry="encoders") to 1e-6: the plant's dead reckoning and the controller's predictor.
+    """
     import time
 
     from probe import PROBE_WAIT_FOR, ProbeSpinner

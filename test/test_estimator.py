@@ -9,6 +9,8 @@ from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 from robotino_geom_mpc.control.estimator import EstimatorError, OdometryFilter, filter_gain, noise_std_ratio
 from robotino_geom_mpc.control.mpc import discretize_axis
 
+pytestmark = pytest.mark.unit
+
 TS = 0.01
 
 
@@ -215,7 +217,8 @@ def _se2_step(pose, twist_body, dt):
 
 def _period_mean_rows(pose0, twists, dts):
     """Odometry as an encoder gives it: the pose at each time and the body twist held over the last interval
-    (zero before the first), rotated into the odom frame with the pose's heading (eq. 2); and the true poses."""
+    (zero before the first), rotated into the odom frame with the pose's heading (eq. 2); and the true poses.
+    """
     poses, twist = [tuple(pose0)], (0.0, 0.0, 0.0)
     rows = []
     for k in range(len(dts) + 1):
@@ -233,7 +236,8 @@ def _period_mean_rows(pose0, twists, dts):
 def test_period_mean_twist_of_a_constant_acceleration_track_is_predicted_exactly(vel, acc):
     """Constant acceleration, the twist the mean over each period: the period-mean predictor tracks the pose to
     1e-12; the trapezoid on the same twists lags by its per-period error a Ts^2 / 2, to the fixed point
-    e = -(a Ts^2 / 2) (1 - L) / L of e = (1 - L)(e + prediction error)."""
+    e = -(a Ts^2 / 2) (1 - L) / L of e = (1 - L)(e + prediction error).
+    """
     tau, n = 0.5, 3000
     states, truth = _track(n, (1.0, -2.0, 0.3), vel, acc)
     exact = states.copy()  # instantaneous samples
@@ -249,7 +253,8 @@ def test_period_mean_twist_of_a_constant_acceleration_track_is_predicted_exactly
 
 def test_period_mean_twist_while_turning_reproduces_the_dead_reckoned_pose():
     """Body twists held over irregular intervals while the robot turns (SE(2) exponential by expm): the
-    period-mean predictor is that dead reckoning, so the estimate is the pose to 1e-12; the trapezoid is not."""
+    period-mean predictor is that dead reckoning, so the estimate is the pose to 1e-12; the trapezoid is not.
+    """
     rng = np.random.default_rng(11)
     n = 800
     twists = np.column_stack((rng.uniform(-0.5, 0.5, n), rng.uniform(-0.5, 0.5, n), rng.uniform(-3.0, 3.0, n)))
@@ -271,7 +276,8 @@ def test_unknown_twist_model_is_refused():
 @pytest.mark.parametrize("twist", ["instantaneous", "period_mean"])
 def test_start_at_a_known_pose_is_a_filter_that_had_been_running_at_rest_there(twist):
     """start_at(s) then noisy measurements = a filter that first saw the robot at rest at s for a while: the first
-    measurement's noise enters as L n(0), not n(0) (the start kick the MPCs' position gain would make of it)."""
+    measurement's noise enters as L n(0), not n(0) (the start kick the MPCs' position gain would make of it).
+    """
     start, n0 = (0.3, -0.2, 3.1), np.array([2e-3, -3e-3, 1e-3])
     states, _ = _track(200, start, (0.0, 0.0, 0.0), (0.4, -0.3, 0.5))
     states[:, 0::2] += np.random.default_rng(8).normal(0.0, 1e-3, (200, 3))

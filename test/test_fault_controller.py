@@ -31,6 +31,8 @@ from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.qos import PUBLISH_QOS
 from robotino_geom_mpc.model.plant import RobotinoPlant
 
+pytestmark = pytest.mark.ros
+
 TICKS = 260
 DISTURBANCES = {120: "skip", 160: "late", 200: "duplicate"}
 CHANGE_AT = 150  # the tick before which q_x is set
@@ -175,7 +177,8 @@ def _fail_safe_episodes(statuses: list, period_s: float, command_timeout_s: floa
     """(start, end, blend_s) of each stretch of zero volts in `statuses` ((stamp, message, values) of the
     controller's diagnostics, in order): a zero-volt status (watchdog, refused input, disabled) until the next
     answer, or a gap in the answers longer than the plant's command timeout (its drive watchdog); `blend_s` is the
-    restart blend after it. A dropped input (stamped as that input, no answer) is neither."""
+    restart blend after it. A dropped input (stamped as that input, no answer) is neither.
+    """
     gap_ns = (command_timeout_s - period_s) * 1e9
     answers = [status for status in statuses if not status[1].startswith("dropped")]
     return [(s0, s1, float(kv1["blend_remaining_s"]) if m1 == "tracking" else 0.0)
@@ -194,7 +197,8 @@ def _reblends(episodes):
 
 def _kill_and_restart(h, tmp_path, ns, victim):
     """Plant, trajectory and controller in realtime on paper-circle; `victim` SIGKILLed after 5 s of tracking,
-    restarted 1 s later. Returns what the test checks."""
+    restarted 1 s later. Returns what the test checks.
+    """
     robot, control = load_params()
     currents = h.collect(f"/{ns}/wheel_currents", Float64MultiArray)
     joints = h.collect(f"/{ns}/joint_states", JointState)
@@ -263,7 +267,8 @@ def test_a_node_killed_and_restarted_mid_circle_restarts_bumplessly(harness, tmp
     construction for a voltage held one period, but in real time a command that comes late, short of a stop,
     is held longer while the back-EMF moves on. One full-suite run had fail-safe stops of 10, 10 and 301 ms
     right after the restart (a stalled host) and 0.866 A at a commanded tick for a nominal 0.86 A, most
-    likely so (not reproduced in seven runs since, four of them beside a busy core)."""
+    likely so (not reproduced in seven runs since, four of them beside a busy core).
+    """
     out = _kill_and_restart(harness, tmp_path_factory.mktemp("kill"), f"kill_{victim.split('_')[0]}", victim)
     robot, episodes = out["robot"], out["episodes"]
     gear_km = robot.gear_ratio * robot.torque_constant_n_m_per_a

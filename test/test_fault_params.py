@@ -20,6 +20,8 @@ from robotino_geom_mpc.params.files import NODE_PARAMETERS, RCLPY_PARAMETERS
 from robotino_geom_mpc.params.presets import preset_file
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 
+pytestmark = pytest.mark.ros
+
 GOALS_EXAMPLE = Path(__file__).resolve().parents[1] / "config" / "goals_example.yaml"
 TIMEOUT_S = 120.0  # generous: the node's imports on a loaded machine; the test waits for the exit, not the time
 
@@ -117,7 +119,8 @@ def test_the_command_line_refuses_each_file_with_the_same_message(refused):
 
 def test_correct_files_merged_in_order_start_the_node_with_their_values(tmp_path):
     """The preset, then a file overriding one robot/control key in ``/**`` (written ``2e6``, a number for rcl),
-    a controller section, and a section of another package's node: the controller starts with those values."""
+    a controller section, and a section of another package's node: the controller starts with those values.
+    """
     override = tmp_path / "override.yaml"
     override.write_text(textwrap.dedent("""\
         /**:

@@ -23,6 +23,8 @@ from robotino_geom_mpc.ros.qos import PUBLISH_QOS
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from test_plant_node import _full_state, _offline
 
+pytestmark = pytest.mark.ros
+
 SUPPLY_V = load_params()[0].supply_voltage_v
 
 

@@ -23,6 +23,8 @@ from harness import Harness
 from robotino_geom_mpc.params.presets import preset_file
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 
+pytestmark = pytest.mark.ros
+
 NODES = {  # executable -> node name
     "plant_node": "robotino_plant",
     "controller_node": "robotino_controller",

@@ -12,6 +12,8 @@ from robotino_geom_mpc.model.dynamics import A_matrix, C_matrix, coupled_rhs
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import preset_file
 
+pytestmark = pytest.mark.unit
+
 PROPS = settings(max_examples=60, deadline=None)
 
 
@@ -22,7 +24,8 @@ def robot(request):
 
 def chains(degrees, rng, extra=0):
     """Integrator chains of the given lengths (one per input/output), extra hidden states,
-    feedback and output injection (which keep the structure at infinity), rotated by an orthogonal map."""
+    feedback and output injection (which keep the structure at infinity), rotated by an orthogonal map.
+    """
     p = len(degrees)
     n = int(sum(degrees)) + extra
     A, B, C = np.zeros((n, n)), np.zeros((n, p)), np.zeros((p, n))
@@ -62,8 +65,11 @@ def test_cascade_matrices_are_the_jacobian_of_the_coupled_plant(robot):
         z0 = np.zeros(9)
         z0[4] = theta
         h = 1e-6
-        J = np.column_stack([(coupled_rhs(z0 + h * d, np.zeros(3), robot) - coupled_rhs(z0 - h * d, np.zeros(3), robot)) / (2 * h) for d in np.eye(9)])
-        Ju = np.column_stack([(coupled_rhs(z0, h * d, robot) - coupled_rhs(z0, -h * d, robot)) / (2 * h) for d in np.eye(3)])
+        u0 = np.zeros(3)
+        J = np.column_stack([(coupled_rhs(z0 + h * d, u0, robot) - coupled_rhs(z0 - h * d, u0, robot)) / (2 * h)
+                             for d in np.eye(9)])
+        Ju = np.column_stack([(coupled_rhs(z0, h * d, robot) - coupled_rhs(z0, -h * d, robot)) / (2 * h)
+                              for d in np.eye(3)])
         assert np.allclose(A_c, J, rtol=1e-6, atol=1e-6 * np.max(np.abs(J)))
         assert np.allclose(B_c, Ju, rtol=1e-6)
         assert fc.functional_order(A_c, B_c, C_c) == fc.markov_order(A_c, B_c, C_c) == 3

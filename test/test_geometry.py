@@ -8,6 +8,8 @@ from hypothesis import strategies as st
 
 from robotino_geom_mpc.geometric import subspaces as geo
 
+pytestmark = pytest.mark.unit
+
 PROPS = settings(max_examples=60, deadline=None)
 
 
@@ -292,11 +294,13 @@ def _sp_minS(A, C, B):
     return S
 
 
+@pytest.mark.slow
 @PROPS
 @given(systems())
 def test_algorithms_equal_the_recursions_of_an_independent_implementation(system):
     """maxV, minS, minI and z_sequence (private cores on their own intermediates) against the same
-    recursions on scipy's orth / null_space, iterated to their fixed points."""
+    recursions on scipy's orth / null_space, iterated to their fixed points.
+    """
     A, B, C, _ = system
     n = A.shape[0]
     E = sla.null_space(C)

@@ -20,6 +20,8 @@ from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.reference.time_law import septic
 from robotino_geom_mpc.reference.trajectories import preview
 
+pytestmark = pytest.mark.unit
+
 ROBOT, _ = load_params(default_params_file())
 
 

@@ -36,6 +36,8 @@ from robotino_geom_mpc.nodes.goal_inputs import GOAL_QOS
 from robotino_geom_mpc.ros.messages import quaternion_to_yaw, stamp_to_ns, yaw_to_quaternion
 from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
 
+pytestmark = pytest.mark.ros
+
 NOMINAL_CURRENT_A = 0.86
 MODE = os.environ.get("GOALS_TEST_MODE", "lockstep")
 GOALS = [(0.4, 0.0, 0.0), (0.4, 0.3, 1.2), (0.0, 0.2, -0.6)]
@@ -198,7 +200,8 @@ def test_limits_and_frame_prefix_are_validated(goal_run):
 def test_parameter_sets_keep_the_goal_and_a_prefix_moves_preview_and_path(goal_run):
     """Only a new scenario or waypoints make a new reference; a set of another parameter or of the same
     scenario (``ros2 param load``) keeps the goal. A new ``frame_prefix`` puts the preview, the path and the
-    accepted goals in ``<prefix>odom``."""
+    accepted goals in ``<prefix>odom``.
+    """
     run, h = goal_run, goal_run.h
     goal = np.array([0.25, -0.15, 0.4])
     run.goal_pub.publish(_pose(*goal))

@@ -7,6 +7,8 @@ import pytest
 
 from robotino_geom_mpc.bench.host_steal import PROC_STAT, StealSampler, read_steal_s
 
+pytestmark = pytest.mark.unit
+
 HZ = os.sysconf("SC_CLK_TCK")
 
 

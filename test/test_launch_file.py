@@ -1,12 +1,18 @@
 """The launch file's description, built with stand-ins for `launch` and `launch_ros` (neither is on PyPI).
 
 The stand-ins record what the file passes to each action, and its `OpaqueFunction` is evaluated with a
-context whose launch configurations the test sets, so the test checks the file's own logic: which nodes
+context whose launch configurations the test sets, so the test checks the file's own logic only: which nodes
 start, with which parameters for each scenario (against `scenarios.node_parameters` and against the
 models `simulation.run_scenario` uses offline), the namespace, remappings and frame prefix of every node
 (against `processes.node_arguments`, the arguments `run` gives its processes), the nodes' environment
 (Fast DDS profile, one BLAS thread), the robot description publisher, and that every launch configuration
 it reads is a declared argument. (That it compiles and names installed files: test_colcon_build.)
+
+What the stand-ins cannot show (launch_ros's handling of the actions, the processes it starts, their
+shutdown) was run by hand with the real launch 3.4.3 and launch_ros 0.26.6 (docs/howto/launch.md); what
+reaches the nodes from it is pinned through files: the parameter files launch_ros wrote in two real
+launches (test/data/launch_ros), which an emulation of its writer reproduces byte for byte, and the
+emulated files of every configuration pass each node's parameter-file check.
 """
 
 import importlib.util
@@ -16,10 +22,12 @@ import types
 from pathlib import Path
 
 import pytest
+import yaml
 
 import ament_index_python.packages
 
-from robotino_geom_mpc.params.files import load_params, read_parameter_file
+from robotino_geom_mpc.params.files import check_parameter_files, load_params, parse_parameter_file, \
+    read_parameter_file
 from robotino_geom_mpc.params.presets import config_file, default_params_file
 from robotino_geom_mpc.params.specs import ALL_SPECS, params_from_values
 from robotino_geom_mpc.description.urdf import DescriptionError, robotino_urdf
@@ -28,9 +36,12 @@ from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, RECORDER_WAIT
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
 from robotino_geom_mpc.offline.simulation import run_scenario
 
+pytestmark = pytest.mark.unit
+
 LAUNCH_FILE = Path(__file__).resolve().parents[1] / "launch" / "robotino_geom_mpc.launch.py"
 PARAMS = str(default_params_file())
 PROFILE = str(config_file("fastdds_localhost.xml"))
+RVIZ = str(config_file("robotino.rviz"))
 LOOP = {"trajectory_node", "controller_node", "plant_node"}
 DESCRIPTION = "robot_description_publisher"  # the package's own, where robot_state_publisher is not installed
 
@@ -51,7 +62,7 @@ def _kind(name: str) -> type:
 
 STAND_INS = {
     "launch": {"LaunchDescription": _kind("LaunchDescription")},
-    "launch.actions": {n: _kind(n) for n in ("DeclareLaunchArgument", "EmitEvent", "OpaqueFunction",
+    "launch.actions": {n: _kind(n) for n in ("DeclareLaunchArgument", "EmitEvent", "LogInfo", "OpaqueFunction",
                                              "RegisterEventHandler")},
     "launch.event_handlers": {"OnProcessExit": _kind("OnProcessExit")},
     "launch.events": {"Shutdown": _kind("Shutdown")},
@@ -107,8 +118,9 @@ def _of(kind: str, items) -> list[Recorded]:
 
 def _defaults(description) -> dict[str, str]:
     """The declared arguments' defaults, as launch would perform them (the file paths set here; the profile
-    as without FASTRTPS_DEFAULT_PROFILES_FILE in the environment)."""
-    files = {"params_file": PARAMS, "plant_params": PARAMS, "fastdds_profile": PROFILE}
+    as without FASTRTPS_DEFAULT_PROFILES_FILE in the environment).
+    """
+    files = {"params_file": PARAMS, "plant_params": PARAMS, "fastdds_profile": PROFILE, "rviz_config": RVIZ}
     values = {a.args[0]: a.kwargs["default_value"] for a in _of("DeclareLaunchArgument", description)}
     assert all(isinstance(v, str) for k, v in values.items() if k not in files)
     return {**values, **files}
@@ -245,7 +257,8 @@ def test_namespace_moves_every_node_as_run_does(description, lockstep):
             assert _ros_args_remaps(args[name]) == launched, name
     for name in LOOP | {"recorder_node"}:
         got = _overrides(nodes[name]).get("frame_prefix")
-        assert got == _ros_args_parameter(args[name], "frame_prefix") == ("robot1/" if name in FRAME_PREFIX_NODES else None), name
+        want = "robot1/" if name in FRAME_PREFIX_NODES else None
+        assert got == _ros_args_parameter(args[name], "frame_prefix") == want, name
     files, description_overrides = nodes[DESCRIPTION].kwargs["parameters"]
     mode = "lockstep" if lockstep == "true" else "realtime"
     assert files == PARAMS and description_overrides == {"frame_prefix": "robot1/", "mode": mode}
@@ -276,7 +289,8 @@ def test_robot_state_publisher_publishes_the_plants_urdf_where_installed(descrip
 @pytest.mark.parametrize("interface", ["voltages", "cmd_vel"])
 def test_command_interface_reaches_controller_and_plant_as_run_gives_it(description, interface):
     """command_interface (and, recorded, the plant's lockstep_wait_for) as `node_arguments` passes them to `run`'s
-    processes: cmd_vel to the controller and the plant, voltages left to their default."""
+    processes: cmd_vel to the controller and the plant, voltages left to their default.
+    """
     nodes, _ = _launch(description, command_interface=interface, lockstep="true", record="true", bag="/tmp/b")
     args = node_arguments("paper-circle", PARAMS, 0.0, True, bag="/tmp/b", command_interface=interface)
     for name in LOOP | {"recorder_node"}:
@@ -310,3 +324,113 @@ def test_the_profile_default_is_the_environments_then_the_packages(description):
     package = default.kwargs["default_value"]
     assert type(package).__name__ == "PathJoinSubstitution" and package.args[0][1:] == ["config",
                                                                                          "fastdds_localhost.xml"]
+
+
+# --- the parameter files launch_ros writes for the file's dicts ------------------------------------------------
+LAUNCH_ROS_FILES = Path(__file__).resolve().parent / "data" / "launch_ros"
+# the arguments of the real launches whose files test/data/launch_ros keeps (launch 3.4.3, launch_ros 0.26.6)
+FIXTURE_ARGUMENTS = {
+    "robustness_lockstep_record": {"scenario": "robustness", "lockstep": "true", "record": "true", "duration": "8.0",
+                                   "bag": "/tmp/ros27_src/runs/loopbag"},
+    "robot1_cmd_vel_realtime_record": {"namespace": "robot1", "command_interface": "cmd_vel", "record": "true",
+                                       "duration": "3.0", "bag": "/tmp/ros27_src/runs/bag_rt_ns"},
+}
+
+
+def _launch_ros_value(value):
+    """A value as launch_ros 0.26.6 evaluates it (normalize_parameters.py, evaluate_parameters.py): a string goes
+    through a YAML round trip, a list becomes a tuple of one type (ints and floats: floats).
+    """
+    if isinstance(value, str):
+        return yaml.safe_load(yaml.dump(value))
+    if isinstance(value, (list, tuple)):
+        kinds = {type(v) for v in value}
+        if kinds <= {int, float} and float in kinds:
+            return tuple(float(v) for v in value)
+        return tuple(yaml.safe_load(yaml.dump(v)) if isinstance(v, str) else v for v in value)
+    return value
+
+
+def _launch_ros_file(node: Recorded, params: dict) -> str:
+    """The text launch_ros 0.26.6 writes for a dict of a Node's ``parameters`` (`Node._create_params_file_from_dict`):
+    nested dicts flattened with '.', under the node's full name (``/<namespace>/<name>``), '/**' for a node
+    without a name, with ``yaml.dump(..., default_flow_style=False)``.
+    """
+    flat = {}
+
+    def walk(tree: dict, prefix: str = "") -> None:
+        for key, value in tree.items():
+            if isinstance(value, dict):
+                walk(value, f"{prefix}{key}.")
+            else:
+                flat[f"{prefix}{key}"] = _launch_ros_value(value)
+
+    walk(params)
+    name = node.kwargs.get("name")
+    key = "/**" if name is None else f"{node.kwargs['namespace'].rstrip('/')}/{name}"
+    return yaml.dump({key: {"ros__parameters": flat}}, default_flow_style=False)
+
+
+def _written(nodes: dict[str, Recorded], folder: Path) -> dict[str, list[Path]]:
+    """Each node's ``--params-file`` list as launch_ros gives it: its files, its dicts written as launch_ros does."""
+    files = {}
+    for executable, node in nodes.items():
+        files[executable] = []
+        for i, entry in enumerate(node.kwargs["parameters"]):
+            if isinstance(entry, dict):
+                path = folder / f"{executable}_{i}.yaml"
+                path.write_text(_launch_ros_file(node, entry))
+                entry = path
+            files[executable].append(Path(entry))
+    return files
+
+
+@pytest.mark.parametrize("case", list(FIXTURE_ARGUMENTS))
+def test_the_files_launch_ros_writes_are_those_it_wrote_in_a_real_launch(description, case, tmp_path):
+    """The emulated writer against the files launch_ros 0.26.6 wrote (kept in test/data/launch_ros): the same
+    bytes, ``!!python/tuple`` included; so the next test checks the form a real launch gives the nodes.
+    """
+    nodes, _ = _launch(description, **FIXTURE_ARGUMENTS[case])
+    written = _written(nodes, tmp_path)
+    for executable in nodes:
+        real = (LAUNCH_ROS_FILES / case / f"{executable}.yaml").read_text()
+        assert written[executable][-1].read_text() == real, executable
+    assert "!!python/tuple" in (LAUNCH_ROS_FILES / case / "plant_node.yaml").read_text()
+
+
+@pytest.mark.parametrize("lockstep, record, interface", [
+    ("true", "true", "voltages"), ("true", "true", "cmd_vel"), ("false", "true", "voltages"),
+    ("true", "false", "voltages"),
+])
+@pytest.mark.parametrize("scenario", list(SCENARIOS))
+def test_every_node_accepts_the_files_launch_ros_gives_it(description, tmp_path, scenario, lockstep, record, interface):
+    """The bug of issue 27: a recorded lockstep launch gave the plant a ``!!python/tuple`` its pre-check refused.
+    Each node's files, as launch_ros writes them, pass the pre-check it makes before rclpy.init; the plant reads
+    ``lockstep_wait_for`` from them as the list the file meant.
+    """
+    nodes, _ = _launch(description, scenario=scenario, lockstep=lockstep, record=record, command_interface=interface,
+                       namespace="robot1" if interface == "cmd_vel" else "", bag="/tmp/bag")
+    written = _written(nodes, tmp_path)
+    for files in written.values():
+        check_parameter_files(files)
+    (values,) = parse_parameter_file(written["plant_node"][-1]).values()
+    assert values.get("lockstep_wait_for") == (recorder_wait_for(interface) if record == "true" else None)
+
+
+def test_rviz_starts_rviz2_with_the_packages_view_where_installed_and_says_so_where_not(description, monkeypatch,
+                                                                                      tmp_path):
+    opaque, = _of("OpaqueFunction", description)
+    missing = opaque.kwargs["function"](Context({**_defaults(description), "rviz": "true"}))
+    (log,) = _of("LogInfo", missing)
+    assert "rviz2 is not installed" in log.kwargs["msg"] and RVIZ in log.kwargs["msg"]
+    assert "rviz2" not in {n.kwargs["executable"] for n in _of("Node", missing)}
+    monkeypatch.setattr(ament_index_python.packages, "get_package_share_directory",
+                        lambda package: str(tmp_path) if package == "rviz2" else _not_installed(package))
+    installed = opaque.kwargs["function"](Context({**_defaults(description), "rviz": "true", "namespace": "robot1"}))
+    (rviz,) = [n for n in _of("Node", installed) if n.kwargs["executable"] == "rviz2"]
+    assert rviz.kwargs["arguments"] == ["-d", RVIZ] and rviz.kwargs["namespace"] == "/robot1"
+    assert not _of("LogInfo", installed)
+    off = opaque.kwargs["function"](Context(_defaults(description)))
+    assert not _of("LogInfo", off) and "rviz2" not in {n.kwargs["executable"] for n in _of("Node", off)}
+    (declared,) = [a for a in _of("DeclareLaunchArgument", description) if a.args[0] == "rviz_config"]
+    assert declared.kwargs["default_value"].args[0][1:] == ["config", "robotino.rviz"]

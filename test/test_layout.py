@@ -1,8 +1,11 @@
-"""The layout's rules: the math core is plain numpy/scipy, only nodes and ROS plumbing import rclpy, files stay short."""
+"""The layout's rules that import-linter cannot check: which modules load rclpy when imported (import-linter
+sees every import, also those inside functions), the nodes start without pip-only solvers, files stay short; and
+the import-linter contracts (`.importlinter`: the plain core, the layers) hold and can fail.
+"""
 
 from __future__ import annotations
 
-import ast
+import pytest
 import json
 import pkgutil
 import subprocess
@@ -12,14 +15,16 @@ from pathlib import Path
 import robotino_geom_mpc
 import robotino_sim_node
 
+pytestmark = pytest.mark.ros
+
 ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 450
 # the modules that may import rclpy when imported: the nodes, the recorder node and the ROS plumbing subpackage
 ALLOWED_PREFIXES = ("robotino_geom_mpc.nodes.", "robotino_geom_mpc.ros.", "robotino_geom_mpc.recording.recorder_node",
                     "robotino_sim_node.plant_node", "robotino_sim_node.lockstep_start",
-                    "robotino_sim_node.outputs")
-# modules of ros/ that need no ROS at all (decoders of message values, the process launcher, the SHM cleaner)
-PLAIN_ROS_MODULES = ("robotino_geom_mpc.ros.decode", "robotino_geom_mpc.system.processes", "robotino_geom_mpc.system.shm")
+                    "robotino_sim_node.outputs", "robotino_sim_node.chain_driver")
+# modules of ros/ that load no ROS at import (the report reads bags with them): the CDR readers, decoded values
+PLAIN_ROS_MODULES = ("robotino_geom_mpc.ros.cdr", "robotino_geom_mpc.ros.decode")
 
 
 def _modules() -> list[str]:
@@ -56,29 +61,25 @@ def test_only_nodes_and_ros_plumbing_import_rclpy():
         culprits = [name for name, loads in _imports_rclpy(candidates).items() if loads]
         raise AssertionError(f"these modules import rclpy at import time: {culprits}")
     # and the check can fail: a node module does load it
-    assert _imports_rclpy(["robotino_geom_mpc.nodes.controller_node"]) == {"robotino_geom_mpc.nodes.controller_node": True}
+    node = "robotino_geom_mpc.nodes.controller_node"
+    assert _imports_rclpy([node]) == {node: True}
 
 
-CORE = ("errors", "arrays", "scenarios", "params", "model", "geometric", "control", "reference", "network")
+def _lint_imports(config: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([str(Path(sys.executable).with_name("lint-imports")), "--config", str(config)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
 
 
-def test_the_math_core_never_imports_ros():
-    pkg = ROOT / "robotino_geom_mpc"
-    paths = [p for name in CORE for p in ([pkg / f"{name}.py"] if (pkg / f"{name}.py").exists()
-                                           else sorted((pkg / name).glob("*.py")))]
-    offenders = []
-    for path in paths:
-        for node in ast.walk(ast.parse(path.read_text())):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [alias.name for alias in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                names = [node.module]
-            offenders += [f"{path.name}: {n}" for n in names
-                          if n.split(".")[0] in ("rclpy", "rosbags", "mcap", "mcap_ros2", "robotino_sim_node")
-                          or n.split(".")[0].endswith("_msgs") or n.startswith("robotino_geom_mpc.")
-                          and n.split(".")[1] not in CORE]
-    assert len(paths) > 20 and offenders == []
+def test_the_import_contracts_hold_and_can_fail(tmp_path):
+    kept = _lint_imports(ROOT / ".importlinter")
+    assert kept.returncode == 0 and "0 broken" in kept.stdout, kept.stdout + kept.stderr
+    # the same tool on a contract the code breaks (the nodes import rclpy) reports it
+    broken = tmp_path / "broken.ini"
+    broken.write_text("[importlinter]\nroot_packages =\n    robotino_geom_mpc\ninclude_external_packages = True\n\n"
+                      "[importlinter:contract:nodes-plain]\nname = nodes without rclpy\ntype = forbidden\n"
+                      "source_modules =\n    robotino_geom_mpc.nodes\nforbidden_modules =\n    rclpy\n")
+    result = _lint_imports(broken)
+    assert result.returncode == 1 and "1 broken" in result.stdout and "robotino_geom_mpc.nodes" in result.stdout
 
 
 def test_no_package_file_over_the_line_limit():
@@ -89,7 +90,8 @@ def test_no_package_file_over_the_line_limit():
 
 def test_the_nodes_import_no_pip_only_solver():
     """daqp (the constrained mode) and osqp (the benchmarks) have no rosdep key: a ROS install via rosdep
-    lacks them, so no node may import them at start; the constrained mode imports daqp when built."""
+    lacks them, so no node may import them at start; the constrained mode imports daqp when built.
+    """
     nodes = ["robotino_sim_node.plant_node", "robotino_geom_mpc.nodes.trajectory_node",
              "robotino_geom_mpc.nodes.controller_node", "robotino_geom_mpc.nodes.robot_description_node",
              "robotino_geom_mpc.nodes.goal_sender", "robotino_geom_mpc.recording.recorder_node"]

@@ -13,6 +13,8 @@ from robotino_geom_mpc.system.processes import NodeGroup
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import run_scenario
 
+pytestmark = pytest.mark.ros
+
 DURATION_S = 5.0
 WALL_CLOCK_KEYS = ("compute_time",)  # measured, not simulated
 
@@ -25,7 +27,12 @@ def test_lockstep_dds_loop_equals_the_offline_loop(tmp_path):
             plant = lockstep_nodes(group, "paper-circle", DURATION_S, wait_for=PROBE_WAIT_FOR)
             assert group.wait(plant, 240.0), plant.stderr_tail()
             assert plant.popen.returncode == 0
-        time.sleep(0.3)  # the probe takes the last samples
+        counts, still_since = None, time.monotonic()  # the probe takes the last samples (it lags on a loaded host)
+        while time.monotonic() - still_since < 2.0:
+            time.sleep(0.2)
+            now = (len(probe.probe.truth), len(probe.probe.currents), len(probe.probe.voltages))
+            if now != counts:
+                counts, still_since = now, time.monotonic()
         dds = probe.probe.run_data("paper-circle")
     finally:
         probe.close()

@@ -7,6 +7,8 @@ from hypothesis import strategies as st
 
 from robotino_sim_node.loop_timing import LockstepPace, LoopTiming
 
+pytestmark = pytest.mark.unit
+
 
 def test_counts_from_the_first_answered_tick():
     timing = LoopTiming()

@@ -16,6 +16,8 @@ from mcap.reader import make_reader
 from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = pytest.mark.ros
+
 DURATION_S = 5.0
 LOOP_TOPICS = ("/odom", "/clock", "/ground_truth/odom", "/wheel_currents", "/joint_states", "/reference_preview",
                "/wheel_voltages", "/diagnostics", "/tf")

@@ -7,6 +7,8 @@ from robotino_geom_mpc.model import dynamics as model
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import preset_file
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module", params=("robotino3", "robotino2"))
 def robot(request):
@@ -40,7 +42,8 @@ def test_A_and_C_are_eqs_3_and_5(robot):
     A = model.A_matrix(robot)
     expected = np.zeros((6, 6))
     expected[0, 1] = expected[2, 3] = expected[4, 5] = 1.0
-    expected[1, 1], expected[3, 3], expected[5, 5] = -robot.k_x / robot.M, -robot.k_y / robot.M, -robot.k_theta / robot.J
+    expected[1, 1], expected[3, 3] = -robot.k_x / robot.M, -robot.k_y / robot.M
+    expected[5, 5] = -robot.k_theta / robot.J
     assert np.array_equal(A, expected)
     assert np.array_equal(model.C_matrix(), np.eye(6)[[0, 2, 4]])
     assert np.array_equal(np.vstack((model.C_x(), model.C_y(), model.C_theta())), model.C_matrix())

@@ -17,6 +17,8 @@ from robotino_geom_mpc.control.mpc import (
 )
 from robotino_geom_mpc.params.files import load_params
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def params():

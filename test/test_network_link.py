@@ -5,6 +5,8 @@ import pytest
 
 from robotino_geom_mpc.network.link import Link, LinkError, LinkParams
 
+pytestmark = pytest.mark.unit
+
 N = 100_000
 
 

@@ -1,11 +1,14 @@
 """The robot-side plan buffer's choice of entry on loss, reordering, duplicates and exhaustion, against hand-worked
-sequences; its refusals of malformed plans."""
+sequences; its refusals of malformed plans.
+"""
 
 import math
 
 import pytest
 
 from robotino_geom_mpc.network.plan import CommandPlan, PlanBuffer, PlanError
+
+pytestmark = pytest.mark.unit
 
 TS = 0.01
 

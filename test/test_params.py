@@ -24,6 +24,7 @@ def _write(tmp_path, tree_or_text, name="bad.yaml"):
     return path
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("name", ["robotino3", "robotino2"])
 def test_presets_load_and_match_the_yaml(name):
     robot, control = load_params(preset_file(name))
@@ -32,11 +33,13 @@ def test_presets_load_and_match_the_yaml(name):
     assert robot.inductance_h == raw["motor"]["inductance_h"]
     assert control.horizon == raw["control"]["horizon"]
     # effective mass and inertia: body plus three rotors reflected through the gear (independent formula)
-    m_rotor = raw["motor"]["rotor_inertia_kg_m2"] * raw["robot"]["gear_ratio"] ** 2 / raw["robot"]["wheel_radius_m"] ** 2
+    rob = raw["robot"]
+    m_rotor = raw["motor"]["rotor_inertia_kg_m2"] * rob["gear_ratio"] ** 2 / rob["wheel_radius_m"] ** 2
     assert robot.M == pytest.approx(raw["robot"]["mass_kg"] + 1.5 * m_rotor)
-    assert robot.J == pytest.approx(raw["robot"]["yaw_inertia_kg_m2"] + 3 * raw["robot"]["wheel_distance_m"] ** 2 * m_rotor)
+    assert robot.J == pytest.approx(rob["yaw_inertia_kg_m2"] + 3 * rob["wheel_distance_m"] ** 2 * m_rotor)
 
 
+@pytest.mark.unit
 def test_every_spec_is_in_the_presets():
     flat = _preset_tree()["/**"]["ros__parameters"]
     for spec in ROBOT_SPECS + CONTROL_SPECS:
@@ -44,6 +47,7 @@ def test_every_spec_is_in_the_presets():
         assert key in flat[section], spec.name
 
 
+@pytest.mark.unit
 def test_default_is_robotino3():
     assert load_params()[0] == load_params(preset_file("robotino3"))[0]
 
@@ -60,6 +64,7 @@ def _mutate(section, key, value):
 _DELETE = object()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "section, key, value, expect",
     [
@@ -82,13 +87,15 @@ def test_bad_values_name_the_key_and_the_file(tmp_path, section, key, value, exp
     assert "\n" not in message
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "text, expect",
     [
         ("robot: [unclosed\n", "not valid YAML"),
-        ("- just\n- a list\n", "expected a mapping"),
-        ("/**:\n  ros__parameters: 5\n", "'/**' must contain a 'ros__parameters' mapping"),
-        ("/**: [1, 2]\n", "'/**' must contain a 'ros__parameters' mapping"),
+        ("- just\n- a list\n", "Sequences cannot be key at line 1"),  # rcl's words (params.rcl_yaml)
+        ("/**:\n  ros__parameters: 5\n", "Cannot have a value before ros__parameters at line 2"),
+        ("/**: [1, 2]\n", "Sequences can only be values and not keys in params. Error at line 1"),
+        ("/**:\n  ros__parameters:\n    a: &x 1\n    b: *x\n", "Will not support aliasing at line 4"),
         ("other_node:\n  ros__parameters: {robot: {mass_kg: 1.0}}\n", "no '/**' section"),
     ],
 )
@@ -99,6 +106,7 @@ def test_bad_files_name_the_file(tmp_path, text, expect):
     assert str(path) in str(info.value) and expect in str(info.value)
 
 
+@pytest.mark.unit
 def test_missing_file(tmp_path):
     path = tmp_path / "nope.yaml"
     with pytest.raises(ParamError, match="nope.yaml"):
@@ -111,6 +119,7 @@ def _cli(*args):
     )
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize(
     "content, key",
     [
@@ -167,6 +176,7 @@ def stand_in():
     rclpy.shutdown(context=context)
 
 
+@pytest.mark.ros
 def test_check_refuses_a_set_whose_complete_values_fail_and_keeps_the_old_ones(stand_in):
     from rclpy.parameter import Parameter
 
@@ -188,6 +198,7 @@ def test_check_refuses_a_set_whose_complete_values_fail_and_keeps_the_old_ones(s
     assert node.set_parameters([Parameter("control.horizon", value=6)])[0].successful
 
 
+@pytest.mark.ros
 def test_check_refuses_the_start_values_with_node_start_error(stand_in):
     from robotino_geom_mpc.ros.parameters import NodeStartError
 
@@ -196,6 +207,7 @@ def test_check_refuses_the_start_values_with_node_start_error(stand_in):
         make(**{"control.q_x": 10.0, "control.r_x": 1.0})
 
 
+@pytest.mark.ros
 def test_a_check_that_raises_refuses_the_set_instead_of_crashing(stand_in):
     from rclpy.parameter import Parameter
 

@@ -16,6 +16,8 @@ from test_goal_motion import limits, usage
 from robotino_geom_mpc.reference.goal_motion import GoalError
 from robotino_geom_mpc.reference.goals import GoalReference
 
+pytestmark = pytest.mark.unit
+
 POSES = np.array([[0.3, 0.0, 0.0], [0.6, 0.3, 0.8], [0.6, 0.6, 1.6], [0.3, 0.6, 1.6], [0.0, 0.3, 0.5]])
 
 
@@ -35,6 +37,7 @@ def test_path_passes_through_every_pose_and_rests_at_the_last():
     np.testing.assert_allclose(end[1:], 0.0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_path_keeps_the_limits_and_is_c3():
     lim = limits()
     ref = GoalReference()

@@ -10,6 +10,8 @@ from robotino_geom_mpc.model.dynamics import coupled_rhs, wheel_rim_speeds
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.model.plant import PlantError, RobotinoPlant
 
+pytestmark = pytest.mark.unit
+
 DT = 0.01
 ROBOT, _ = load_params()
 
@@ -64,6 +66,7 @@ def assert_close_run(got, ref, pos, angle, vel, current, wheel):
 STATE0 = np.array([0.3, 0.2, -0.1, -0.3, 2.0, 1.5, 0.4, -0.2, 0.1])
 
 
+@pytest.mark.slow
 def test_matches_tight_reference_with_rotation():
     # Measured (4 substeps): 1.3e-8 m, 2e-15 rad, 6e-9 m/s, 3.1e-7 A, 2e-8 rad of wheel; bounds with margin.
     U = rich_voltages(40, seed=1)
@@ -88,6 +91,7 @@ def test_turn_rate_beyond_the_fit_uses_the_exact_path():
     assert_close_run(got, ref, pos=1e-8, angle=1e-9, vel=3e-8, current=2e-5, wheel=2e-7)
 
 
+@pytest.mark.slow
 def test_anisotropic_friction_fallback_matches_reference():
     robot = replace(ROBOT, body_friction_y_n_s_per_m=3.0 * ROBOT.k_x)
     U = rich_voltages(15, seed=3)
@@ -98,6 +102,7 @@ def test_anisotropic_friction_fallback_matches_reference():
     assert_close_run(got, ref, pos=1e-7, angle=1e-10, vel=3e-7, current=2e-6, wheel=2e-6)
 
 
+@pytest.mark.slow
 def test_convergence_with_substeps():
     # Errors fall as the substeps grow (third order per substep in the heading's curvature).
     U = rich_voltages(20, seed=4)

@@ -21,6 +21,8 @@ from harness import Harness
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.model.plant import RobotinoPlant
 
+pytestmark = pytest.mark.ros
+
 NOISE = (0.002, 0.003)
 SEED = 7
 
@@ -171,7 +173,8 @@ def test_refuses_to_start_with_a_bad_parameter(override, name):
 def test_lockstep_max_realtime_factor_caps_the_loop(tmp_path):
     """At most 0.5 simulated seconds a wall second: tick k + 1 goes out 2 Ts after tick k at the soonest (tick 1
     at once), so the run's factor over ticks 1 .. n - 1 is at most 0.5 (n - 1) / (n - 2). Unpaced, this loop
-    answered by the harness runs tens of times faster than real time."""
+    answered by the harness runs tens of times faster than real time.
+    """
     _, control = load_params()
     factor, n, Ts = 0.5, 21, control.period_s
     report = tmp_path / "timing.json"

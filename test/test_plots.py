@@ -10,6 +10,8 @@ import pytest
 from robotino_geom_mpc.offline.plots import DPI, FIGURE_SIZES_IN, write_plots
 from robotino_geom_mpc.offline.results import RunData
 
+pytestmark = [pytest.mark.unit, pytest.mark.slow]  # each test draws a simulated run's figures
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import pytest
 import numpy as np
 
 from robotino_geom_mpc.offline.plots import FIGURE_SIZES_IN, write_plots
 from robotino_geom_mpc.offline.results import RunData
+
+pytestmark = pytest.mark.ros
 
 
 def _run() -> RunData:

@@ -25,6 +25,8 @@ from robotino_geom_mpc.system.processes import LOCKSTEP_WAIT_FOR, NodeGroup
 from robotino_geom_mpc.scenarios import get_scenario
 from robotino_geom_mpc.model.plant import RobotinoPlant
 
+pytestmark = pytest.mark.ros
+
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 

@@ -6,6 +6,7 @@ The long test records 100 Hz for 60 s and 1 kHz for 10 s at the same time (about
 
 from __future__ import annotations
 
+import pytest
 import signal
 import time
 
@@ -17,7 +18,9 @@ from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
 from recording_helpers import (TYPES, expected_values, remove_dead_segments, shm_segments, values_of,
                                wait_for)
-from robotino_geom_mpc.recording.bag import BagReader
+from robotino_geom_mpc.recording.bag_reader import BagReader
+
+pytestmark = pytest.mark.ros
 
 
 def _recording(bag: BagReader, topic: str, kind: str) -> list[tuple[float, ...]]:

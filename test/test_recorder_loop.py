@@ -17,7 +17,9 @@ from std_msgs.msg import Float64MultiArray
 from harness import Harness
 from recording_helpers import expected_values, values_of, wait_for
 from robotino_geom_mpc.bench.recorder_cpu import READERS, bench_recorder_cpu
-from robotino_geom_mpc.recording.bag import BagReader
+from robotino_geom_mpc.recording.bag_reader import BagReader
+
+pytestmark = pytest.mark.ros
 
 
 def test_parameter_service_and_discovery_run_while_recording(procs, tmp_path):

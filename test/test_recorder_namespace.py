@@ -7,8 +7,11 @@ from types import SimpleNamespace
 import pytest
 
 from recording_helpers import PYTHON
-from robotino_geom_mpc.recording.bag import BagError, BagReader
+from robotino_geom_mpc.recording.bag_reader import BagReader
+from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.report import find_topic
+
+pytestmark = pytest.mark.ros
 
 
 def test_a_namespaced_recorder_records_its_robot_and_tf_only(procs, tmp_path):

@@ -21,9 +21,13 @@ from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.system.processes import RECORDER_WAIT_FOR
-from robotino_geom_mpc.recording.bag import RUN_METADATA, BagReader, BagWriter
+from robotino_geom_mpc.recording.bag_reader import BagReader
+from robotino_geom_mpc.recording.bag_writer import BagWriter
+from robotino_geom_mpc.recording.bagfile import RUN_METADATA
 from robotino_geom_mpc.recording.regress import regress_bag
 from robotino_geom_mpc.recording.report import by_publish_time, controller_diagnostics, stamp_ns
+
+pytestmark = pytest.mark.ros
 
 PARAMS = str(default_params_file())
 # what the plant waits for before tick 0: the controller's and the recorder's subscriptions

@@ -24,8 +24,12 @@ from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
 from recording_helpers import (PYTHON, build_message, env, expected_values, remove_dead_segments,
                                shm_segments, values_of, wait_for)
-from robotino_geom_mpc.recording.bag import RUN_METADATA, BagReader, BagWriter, damage_report
+from robotino_geom_mpc.recording.bag_reader import BagReader, damage_report
+from robotino_geom_mpc.recording.bag_writer import BagWriter
+from robotino_geom_mpc.recording.bagfile import RUN_METADATA
 from robotino_geom_mpc.recording.bag_writer import write_metadata_yaml
+
+pytestmark = pytest.mark.ros
 
 FLUSH_S = 0.2
 RATE_HZ = 200.0

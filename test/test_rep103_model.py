@@ -5,6 +5,7 @@ Truths used: a rigid body with the wheels at `wheel_positions` pushing along the
 plant integrated step by step, and the no-slip contact velocity v + omega x p_i of each wheel.
 """
 
+import pytest
 import math
 
 import numpy as np
@@ -16,6 +17,8 @@ from robotino_geom_mpc.geometric.decoupling import DecouplingField
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.model.encoders import EncoderOdometry
 from robotino_geom_mpc.model.plant import RobotinoPlant
+
+pytestmark = pytest.mark.unit
 
 ROBOT, CONTROL = load_params()
 TS = CONTROL.period_s

@@ -22,8 +22,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from recording_helpers import PYTHON, build_message, values_of
-from robotino_geom_mpc.recording.bag import BagWriter
+from robotino_geom_mpc.recording.bag_writer import BagWriter
 from rclpy.serialization import serialize_message
+
+pytestmark = pytest.mark.ros
 
 JITTER_S = 0.03
 

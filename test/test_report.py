@@ -17,9 +17,12 @@ from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.params.files import read_parameter_file
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.offline.plots import FIGURE_SIZES_IN
-from robotino_geom_mpc.recording.bag import RUN_METADATA, BagWriter
+from robotino_geom_mpc.recording.bag_writer import BagWriter
+from robotino_geom_mpc.recording.bagfile import RUN_METADATA
 from robotino_geom_mpc.recording.report import report_bag, run_data_from_bag
 from robotino_geom_mpc.offline.results import RunData, compute_metrics, read_metrics
+
+pytestmark = pytest.mark.ros
 
 TS = 0.01
 HORIZON = 4
@@ -167,7 +170,7 @@ def test_report_on_a_truncated_recording_names_the_damage_and_covers_what_was_re
 
     from mcap.reader import make_reader
 
-    from robotino_geom_mpc.recording.bag import BagReader
+    from robotino_geom_mpc.recording.bag_reader import BagReader
 
     path, expected = synthetic
     source = BagReader(path)
@@ -247,18 +250,20 @@ def _random_messages(rng):
         yield "diagnostic_msgs/msg/DiagnosticArray", diag
 
 
-def test_cdr_values_read_what_the_decoders_decode():
-    """The byte readers give, on rclpy's serialization of random messages, what they take from rosbags' decoded
-    message; big-endian bytes (rosbags' serializer) go to the decoded message and give the same values."""
+def test_cdr_readers_read_what_the_decoders_decode():
+    """The byte readers (`ros.cdr`) give, on rclpy's and rosbags' serializations of random messages, what they
+    take from rosbags' decoded message; big-endian bytes (rosbags' serializer) go to the decoded message and give
+    the same values.
+    """
     from rosbags.typesys import Stores, get_typestore
 
-    from robotino_geom_mpc.recording import cdr_values as cv
+    from robotino_geom_mpc.ros import cdr, decode
 
-    readers = {"nav_msgs/msg/Odometry": (cv.odometry_pose, cv.odometry_pose_of_message),
-               "trajectory_msgs/msg/MultiDOFJointTrajectory": (cv.preview_start, cv.preview_start_of_message),
-               "std_msgs/msg/Float64MultiArray": (cv.three_values, cv.three_values_of_message),
-               "diagnostic_msgs/msg/DiagnosticArray": (cv.diagnostics_with("error_x_m"),
-                                                       cv.diagnostics_with_of_message("error_x_m"))}
+    readers = {"nav_msgs/msg/Odometry": (cdr.odometry_pose, decode.odometry_pose_of_message),
+               "trajectory_msgs/msg/MultiDOFJointTrajectory": (cdr.preview_start, decode.preview_start_of_message),
+               "std_msgs/msg/Float64MultiArray": (cdr.float64_array, decode.float64_array_of_message),
+               "diagnostic_msgs/msg/DiagnosticArray": (cdr.diagnostics_with("error_x_m"),
+                                                       decode.diagnostics_with_of_message("error_x_m"))}
     store = get_typestore(Stores.ROS2_JAZZY)
     seen = set()
     for type_name, msg in _random_messages(np.random.default_rng(7)):
@@ -267,10 +272,11 @@ def test_cdr_values_read_what_the_decoders_decode():
         decoded = store.deserialize_cdr(data, type_name)
         expected = of_message(decoded)
         assert read(data) == expected, type_name
+        assert read(bytes(store.serialize_cdr(decoded, type_name))) == expected, type_name  # a second writer
         big = store.serialize_cdr(decoded, type_name, little_endian=False)
         with pytest.raises(ValueError):
             read(big)
-        assert cv.values_of(big, read, of_message, lambda: store.deserialize_cdr(big, type_name)) == expected
+        assert cdr.values_of(big, read, of_message, lambda: store.deserialize_cdr(big, type_name)) == expected
         seen.add((type_name, expected[1] is None if type_name.startswith(("traj", "diag")) else len(expected)))
     for type_name in ("trajectory_msgs/msg/MultiDOFJointTrajectory", "diagnostic_msgs/msg/DiagnosticArray"):
         assert {(type_name, True), (type_name, False)} <= seen  # with and without the values looked for
@@ -278,11 +284,12 @@ def test_cdr_values_read_what_the_decoders_decode():
 
 def test_bag_reader_reads_the_messages_mcap_reads(synthetic):
     """BagReader's chunk walk gives mcap's own reader's messages (channel, times, sequence, bytes); a record
-    running past its chunk's end is refused."""
+    running past its chunk's end is refused.
+    """
     from mcap.reader import make_reader
     from mcap.records import Chunk
 
-    from robotino_geom_mpc.recording.bag import BagReader
+    from robotino_geom_mpc.recording.bag_reader import BagReader
     from robotino_geom_mpc.recording.bag_reader import _chunk_records
 
     path, _ = synthetic

@@ -20,6 +20,8 @@ from robotino_geom_mpc.offline.results import (
     write_metrics,
 )
 
+pytestmark = pytest.mark.unit
+
 TS = 0.01
 
 

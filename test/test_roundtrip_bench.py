@@ -1,7 +1,6 @@
 """The bare rclpy round trip (`bench.roundtrip`): its statistics against stand-in samples, its report, a real run."""
 
 import json
-import math
 import os
 import subprocess
 import sys
@@ -11,6 +10,8 @@ import pytest
 from robotino_geom_mpc.bench.registry import BenchmarkError
 from robotino_geom_mpc.bench.roundtrip import bench_roundtrip, nearest_rank, read_roundtrip_report, roundtrip_figures
 from robotino_geom_mpc.system.processes import NodeGroup
+
+pytestmark = pytest.mark.ros
 
 
 def test_figures_are_the_nearest_rank_median_and_p99_in_us():
@@ -46,13 +47,6 @@ def test_the_report_must_hold_the_round_trips_asked_for(tmp_path):
         read_roundtrip_report(path, 2)
     with pytest.raises(BenchmarkError, match="no report"):
         read_roundtrip_report(tmp_path / "missing.json", 2)
-
-
-def test_a_real_run_completes_with_consistent_positive_figures():
-    out = bench_roundtrip(count=300, warmup=50, timeout_s=120.0)
-    assert set(out) == {"roundtrip_us_median", "roundtrip_us_p99"}
-    assert all(math.isfinite(v) for v in out.values())
-    assert 0.0 < out["roundtrip_us_median"] <= out["roundtrip_us_p99"]
 
 
 def test_a_failing_process_is_a_benchmark_error_and_nothing_is_left_running(monkeypatch):

@@ -16,6 +16,8 @@ from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import run_scenario
 
+pytestmark = pytest.mark.ros
+
 DURATION_S = 3.0
 
 
@@ -43,7 +45,8 @@ def test_run_lockstep_records_and_reports_the_metrics_of_simulate(tmp_path):
 
 def test_run_robustness_is_simulates_robustness_with_its_mismatch_and_noise(tmp_path):
     """The nodes get the scenario's controller model and odometry noise: the recording's metrics are those of the
-    offline robustness run with the same seed (the nominal loop tracks to microns, this one to a tenth of a mm)."""
+    offline robustness run with the same seed (the nominal loop tracks to microns, this one to a tenth of a mm).
+    """
     out = tmp_path / "robustness"
     proc = _cli("run", "--scenario", "robustness", "--duration", "2", "--seed", "4", "--out", str(out))
     assert proc.returncode == 0, proc.stderr + proc.stdout
@@ -81,7 +84,8 @@ def test_a_failing_node_is_named_and_nothing_is_left_running(tmp_path):
 
 def test_wait_for_exit_wakes_at_an_exit_and_else_at_its_timeout():
     """`wait_for_exit` (the run's waits for its nodes) returns when one of the processes ends, not at the end of
-    its 60 s timeout (woken, not timed out: well under half of it), and with none ending after its timeout."""
+    its 60 s timeout (woken, not timed out: well under half of it), and with none ending after its timeout.
+    """
     quick = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(0.3)"])
     slow = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
     try:
@@ -100,7 +104,8 @@ def test_wait_for_exit_wakes_at_an_exit_and_else_at_its_timeout():
 
 def test_each_node_gets_its_scenarios_overrides():
     """node_arguments passes node_parameters on: robustness reaches the controller and the plant, not only the
-    trajectory (values against the file's robot, scaled by hand)."""
+    trajectory (values against the file's robot, scaled by hand).
+    """
     robot, _ = load_params()
     args = node_arguments("robustness", default_params_file(), 3.0, True, seed=5)
     assert args["controller_node"][-2:] == ["-p", "mode:=lockstep"]

@@ -15,7 +15,8 @@ import pytest
 from robotino_geom_mpc.system.processes import NodeGroup, NodeProcess
 from robotino_geom_mpc.system.shm import SHM_DIR, remove_zombie_segments, zombie_segments
 
-pytestmark = pytest.mark.skipif(not SHM_DIR.is_dir(), reason="Fast DDS keeps its segments in /dev/shm on Linux only")
+pytestmark = [pytest.mark.ros,
+              pytest.mark.skipif(not SHM_DIR.is_dir(), reason="Fast DDS keeps its segments in /dev/shm on Linux only")]
 
 _PARTICIPANT = """
 import time

@@ -14,6 +14,8 @@ from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.offline.plots import FIGURE_SIZES_IN
 from robotino_geom_mpc.offline.results import METRIC_KEYS, compute_metrics, load_run, read_metrics
 
+pytestmark = pytest.mark.ros
+
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(

@@ -11,6 +11,8 @@ from robotino_geom_mpc.reference.trajectories import make_reference
 from robotino_geom_mpc.scenarios import ScenarioError, get_scenario
 from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def params():

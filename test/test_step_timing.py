@@ -16,6 +16,8 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.reference.trajectories import make_reference
 from robotino_geom_mpc.model.plant import RobotinoPlant
 
+pytestmark = pytest.mark.unit
+
 FAULT_TICK = 500  # 5 s: well after the start transient
 AFTER_S = 3.0  # the old filter error decayed over ~2.8 s
 BOUND_V = 1.0
@@ -90,6 +92,7 @@ def test_assuming_one_period_fails_the_same_bound(setup, fault):
     assert deviation > BOUND_V, f"{fault}: {deviation:.3f} V"
 
 
+@pytest.mark.slow
 def test_jittered_stamps_stay_within_a_volt(setup):
     """Every measurement up to +-3 ms off its grid time (a loaded host), the intervals told to the controller."""
     control = setup[1]

@@ -27,6 +27,8 @@ from robotino_geom_mpc.offline.study import (
     COLUMNS, DRAW_FIELDS, METRICS, STATISTICS, Draw, StudyError, draw_runs, read_rows, run_study, write_study,
 )
 
+pytestmark = pytest.mark.ros
+
 SAMPLES, SEED, DURATION_S = 6, 7, 2.0
 
 

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import pytest
 import subprocess
 import sys
 from dataclasses import replace
@@ -25,6 +26,8 @@ from robotino_geom_mpc.model.encoders import (
     EncoderOdometry, body_twist, encoder_counts, integrate_pose, wheel_speeds_from_counts,
 )
 from robotino_geom_mpc.model.plant import RobotinoPlant
+
+pytestmark = pytest.mark.ros
 
 ROBOT, CONTROL = load_params()
 TS = CONTROL.period_s

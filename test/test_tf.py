@@ -28,6 +28,8 @@ from robotino_geom_mpc.ros.messages import stamp_to_ns
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 from robotino_geom_mpc.ros.qos import LOCKSTEP_PUBLISH_QOS, PUBLISH_QOS
 
+pytestmark = pytest.mark.ros
+
 tf2_msgs = pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs not installed ('make setup' builds it)")
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -220,7 +222,8 @@ def test_wheel_tf_of_other_joint_state_layouts(tmp_path):
 def test_a_stalled_description_publisher_loses_no_wheel_tf_in_lockstep(tmp_path, mode):
     """The publisher stopped (SIGSTOP) while BURST joint_states are sent, then resumed: in lockstep its keep-all
     reader and /tf writer turn every one into /tf, in order; in realtime its keep-last 100 reader cannot hold
-    the burst DDS delivers at once on resume, so some are lost (what a `run` bag lost under a busy core)."""
+    the burst DDS delivers at once on resume, so some are lost (what a `run` bag lost under a busy core).
+    """
     burst = 1000
     with NodeGroup(log_dir=tmp_path) as group, Harness(f"tf_stall_{mode}") as h:
         tf = h.collect("/tf", tf2_msgs.TFMessage, LOCKSTEP_PUBLISH_QOS)

@@ -17,6 +17,8 @@ from robotino_geom_mpc.reference.trajectories import (
     shift_preview,
 )
 
+pytestmark = pytest.mark.unit
+
 H = 1e-5  # finite-difference step [s]
 
 

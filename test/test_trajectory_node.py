@@ -18,6 +18,8 @@ from robotino_geom_mpc.ros.qos import LATCHED_QOS, PUBLISH_QOS
 from harness import DEEP_QOS, Harness
 from robotino_geom_mpc.system.processes import NodeGroup, ros_args
 
+pytestmark = pytest.mark.ros
+
 NODE = "robotino_trajectory"
 WAYPOINTS = [0.3, 0.1, 0.0, 0.3, 0.1, 1.0]
 

@@ -28,8 +28,8 @@ from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
 from robotino_geom_mpc.offline.simulation import run_scenario
 
-pytestmark = pytest.mark.skipif(os.geteuid() != 0 or shutil.which("ip") is None,
-                                reason="needs root and iproute2 (ip netns)")
+pytestmark = [pytest.mark.ros, pytest.mark.skipif(os.geteuid() != 0 or shutil.which("ip") is None,
+                                                  reason="needs root and iproute2 (ip netns)")]
 
 ADDRESSES = ("10.77.0.1", "10.77.0.2")  # the plant's host, the controller's
 LINGER_S = 0.5  # after the plant's last tick: the controller's last answer reaches the recorder

@@ -7,6 +7,7 @@ a robot's topics in that robot's namespace, each node where it belongs, and no l
 namespaces but the global /tf, where each robot's frames carry its prefix (``robot1/odom``).
 """
 
+import pytest
 import threading
 import time
 
@@ -22,6 +23,8 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
 from robotino_geom_mpc.offline.simulation import run_scenario
+
+pytestmark = pytest.mark.ros
 
 DURATION_S = 3.0
 ROBOTS = {"robot1": "paper-circle", "robot2": "lemniscate"}

@@ -14,6 +14,8 @@ from robotino_geom_mpc.params.presets import default_params_file, preset_file
 from robotino_geom_mpc.description.urdf import DescriptionError, UrdfJoint, check_frame_prefix, joint_transform, \
     robotino_urdf, urdf_joints
 
+pytestmark = pytest.mark.unit
+
 SHIPPED = Path(__file__).resolve().parents[1] / "urdf" / "robotino.urdf"
 BETA = (0.0, -2.0 * math.pi / 3.0, 2.0 * math.pi / 3.0)  # wheel i at l (cos beta_i, sin beta_i) (ROBOTINO_NOTES)
 

@@ -7,6 +7,8 @@ from hypothesis import strategies as st
 
 from robotino_geom_mpc.control.warm_qp import WarmDaqp
 
+pytestmark = pytest.mark.unit
+
 quadprog = pytest.importorskip("quadprog")
 
 

@@ -12,6 +12,8 @@ from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import DEFAULT_KI, DEFAULT_KP, SPEED_LOOP_TIME_CONSTANT_S, WheelSpeedLoop, \
     WheelSpeedLoopError, tuned_gains
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def robot():

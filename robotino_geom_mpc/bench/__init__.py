@@ -21,6 +21,8 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
   beside the loop without it and a bare rclpy process start.
 * `recorder_cpu`: the recorder's CPU time per message of a run's topics,
   beside bare rclpy readers (executor, wait set) of the same messages.
+* `networked`: the realtime loop with plans (over the wifi link, and on one host without a link) beside the
+  uncompensated controller, RMS position error from the bags.
 * `soak` (only by name: ``bench --only soak [--duration S]``): the realtime
   loop with the recorder for 30 minutes, per 5-minute window; the controller
   killed and restarted 200 times (`restarts`); ``run`` 100 times in a row.
@@ -35,6 +37,7 @@ from robotino_geom_mpc.bench import cdr  # noqa: F401
 from robotino_geom_mpc.bench import constrained  # noqa: F401
 from robotino_geom_mpc.bench import end_to_end  # noqa: F401
 from robotino_geom_mpc.bench import recorder_cpu  # noqa: F401
+from robotino_geom_mpc.bench import networked  # noqa: F401
 from robotino_geom_mpc.bench import soak  # noqa: F401
 from robotino_geom_mpc.bench.registry import REGISTRY, BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
 

@@ -21,6 +21,7 @@ built field by field, and every reader returns the same values; otherwise
 from __future__ import annotations
 
 import random
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -73,12 +74,20 @@ def message_cases(period_s: float) -> dict[str, dict[str, Any]]:
 
 def _setter(msg: Any, paths: tuple[str, ...]) -> Callable[[tuple], Any]:
     """Sets the `paths` fields of `msg` to given values and returns it (the fields resolved once)."""
-    from robotino_geom_mpc.ros.cdr import field_setter
-
-    set_fields = field_setter(msg, paths)
+    fields = []
+    for path in paths:  # (object holding the field, its name, element index or None), as `CdrTemplate` reads paths
+        *parents, last = [re.fullmatch(r"(\w+)(?:\[(\d+)\])?", part).groups() for part in path.split(".")]
+        holder = msg
+        for name, index in parents:
+            holder = getattr(holder, name) if index is None else getattr(holder, name)[int(index)]
+        fields.append((holder, last[0], None if last[1] is None else int(last[1])))
 
     def build(values: tuple) -> Any:
-        set_fields(values)
+        for (holder, name, index), value in zip(fields, values):
+            if index is None:
+                setattr(holder, name, value)
+            else:
+                getattr(holder, name)[index] = value
         return msg
 
     return build
@@ -92,7 +101,8 @@ def _sample(template: Any, rng: random.Random) -> tuple:
     return tuple(values)
 
 
-@benchmark("cdr", "CdrTemplate.pack and CdrLayout.read against rclpy's (de)serialization and the nodes' fallback decoder")
+@benchmark("cdr", "CdrTemplate.pack and CdrLayout.read against rclpy's (de)serialization "
+           "and the nodes' fallback decoder")
 def bench_cdr(quick: bool) -> dict[str, float]:
     """Per message: pack vs set + serialize_message, layout read vs deserialize_message and vs cdr_reader [us]."""
     try:

@@ -37,12 +37,11 @@ from robotino_geom_mpc.bench.registry import BenchmarkError, wait_for_run
 from robotino_geom_mpc.bench.roundtrip import bench_roundtrip
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
-from robotino_geom_mpc.system.processes import LOCKSTEP_WAIT_FOR, NodeGroup, node_arguments
+from robotino_geom_mpc.system.processes import LOCKSTEP_WAIT_FOR, TIMING_REPORT, NodeGroup, node_arguments
 
-__all__ = ["LOCKSTEP_RUNS", "ROUNDTRIPS", "TIMING_REPORT", "lockstep_nodes", "bench_lockstep", "bench_realtime",
+__all__ = ["LOCKSTEP_RUNS", "ROUNDTRIPS", "lockstep_nodes", "bench_lockstep", "bench_realtime",
            "dds_benchmarks", "missed_ticks", "read_timing_report"]
 
-TIMING_REPORT = "plant_timing.json"  # in the run's log directory
 # the keys of the plant's timing report and the types of their values (None: may be null)
 _REPORT_KEYS: dict[str, tuple[type | None, ...]] = {
     "mode": (str,), "ticks": (int,), "loop_ticks": (int,), "simulated_s": (int, float), "wall_s": (int, float),
@@ -63,6 +62,7 @@ def lockstep_nodes(
     plant_overrides: dict[str, Any] | None = None,
     trajectory_overrides: dict[str, Any] | None = None,
     timing_report: str | os.PathLike | None = None,
+    controller_overrides: dict[str, Any] | None = None,
 ):
     """Start trajectory, controller and plant (lockstep unless `realtime`); returns the plant's process.
 
@@ -76,7 +76,8 @@ def lockstep_nodes(
     args = node_arguments(scenario, params_file or default_params_file(), duration_s, not realtime,
                           wait_for=list(wait_for or LOCKSTEP_WAIT_FOR),
                           overrides={"plant_node": {**report, **(plant_overrides or {})},
-                                     "trajectory_node": trajectory_overrides or {}})
+                                     "trajectory_node": trajectory_overrides or {},
+                                     "controller_node": controller_overrides or {}})
     started = {name: group.start(name, argv) for name, argv in args.items()}
     return started["plant_node"]
 

@@ -54,7 +54,7 @@ def timed_run(out: Path, scenario: str = "paper-circle", duration_s: float = RUN
         If the run fails, times out, writes no metrics.json or its plant no timing report.
     """
     from robotino_geom_mpc.bench.dds import read_timing_report
-    from robotino_geom_mpc.cli.run import TIMING_REPORT
+    from robotino_geom_mpc.system.processes import TIMING_REPORT
 
     command = [*run_command(), "run", "--scenario", scenario, "--duration", f"{duration_s:g}", "--out", str(out)]
     start = time.perf_counter()

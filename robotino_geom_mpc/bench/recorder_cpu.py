@@ -53,7 +53,7 @@ def bench_recorder_cpu(ticks: int = 2000, rate_hz: float = 400.0, log_dir: Path 
         If a process fails or a reader did not get every message.
     """
     from robotino_geom_mpc.bench.recorder_load import MODULE, tick_messages  # not at import: run with -m
-    from robotino_geom_mpc.recording.bag import BagReader
+    from robotino_geom_mpc.recording.bag_reader import BagReader
 
     env = {"ROS_DOMAIN_ID": str(random.SystemRandom().randint(102, 200)), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     with tempfile.TemporaryDirectory(prefix="recorder_cpu_") as tmp, NodeGroup(log_dir=log_dir, env=env) as group:

@@ -21,9 +21,9 @@ import sys
 import threading
 import time
 
-from robotino_geom_mpc.bench.dds import TIMING_REPORT, lockstep_nodes, read_timing_report
+from robotino_geom_mpc.bench.dds import lockstep_nodes, read_timing_report
 from robotino_geom_mpc.bench.registry import BenchmarkError, wait_for_run
-from robotino_geom_mpc.system.processes import NodeGroup
+from robotino_geom_mpc.system.processes import TIMING_REPORT, NodeGroup
 
 SLEEP_SYSCALLS = {"x86_64": {"35", "230"}, "aarch64": {"101", "115"}}  # nanosleep, clock_nanosleep
 MIN_SLEEP_S = 0.2

@@ -30,6 +30,7 @@ VERBS: dict[str, str] = {
     "reindex": "make a bag usable after its recorder was killed (finalised MCAP, metadata.yaml)",
     "study": "Monte-Carlo robustness study: many offline runs with the controller's model drawn off the truth",
     "bench": "time the control step against OSQP and the offline simulation",
+    "identify": "fit the real robot's driver chain (dead time, ramps, speed loop) from a short cmd_vel excitation",
 }
 
 

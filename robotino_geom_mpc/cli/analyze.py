@@ -1,4 +1,4 @@
-"""`robotino-geom-mpc analyze`: subspaces, decoupling check, functional-controllability orders and the paper's errata."""
+"""`robotino-geom-mpc analyze`: subspaces, decoupling check, functional-controllability orders, the paper's errata."""
 
 from __future__ import annotations
 
@@ -34,7 +34,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     parser.add_argument("--params", metavar="FILE", help="ROS 2 parameter file (default: the Robotino 3 preset)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the report")
-    parser.add_argument("--n-theta", type=int, default=3600, metavar="N", help="grid points over [-pi, pi] (default 3600)")
+    parser.add_argument("--n-theta", type=int, default=3600, metavar="N",
+                        help="grid points over [-pi, pi] (default 3600)")
     parser.set_defaults(func=run)
     return parser
 
@@ -107,7 +108,8 @@ def errata(p: RobotinoParams, control: ControlParams) -> list[dict]:
 
     conds = {f"{t:.4f}": float(np.linalg.cond(acceleration_block(t, p))) for t in (-np.pi / 2, 0.0, np.pi / 2)}
     field = DecouplingField(p)
-    sing_res = max(float(np.max(np.abs(g_theta(t, p) @ field.field(t) - B_decoupled()))) for t in (-np.pi / 2, np.pi / 2))
+    sing_res = max(float(np.max(np.abs(g_theta(t, p) @ field.field(t) - B_decoupled())))
+                   for t in (-np.pi / 2, np.pi / 2))
 
     Ad, Bd, H = _x_axis_discrete(p, control.period_s)
     N = control.horizon
@@ -138,7 +140,8 @@ def errata(p: RobotinoParams, control: ControlParams) -> list[dict]:
             "corrected_det_min": float(dets.min()),
             "corrected_det_max": float(dets.max()),
             "summary": (
-                (f"printed acceleration block singular at theta = {near:.4f} rad " if roots else "printed block regular ")
+                (f"printed acceleration block singular at theta = {near:.4f} rad " if roots
+                 else "printed block regular ")
                 + f"({len(roots)} zero crossings over [-pi, pi]); corrected row (l/J, l/J, l/J): "
                 f"det constant {dets.mean():.6e} (spread {np.ptp(dets):.1e})"
             ),
@@ -184,7 +187,8 @@ def errata(p: RobotinoParams, control: ControlParams) -> list[dict]:
             "penalised_decision_moves_printed": N - 1,
             "summary": (
                 f"of the {N} decision moves Delta u(k) ... Delta u(k+{N - 1}), the printed index penalises "
-                f"{N - 1}, leaves the applied move Delta u(k) free and penalises Delta u(k+{N}), not a decision variable"
+                f"{N - 1}, leaves the applied move Delta u(k) free and penalises Delta u(k+{N}), "
+                f"not a decision variable"
             ),
         },
         {
@@ -240,7 +244,8 @@ def _text(report: dict) -> str:
         f"  fast path vs toolbox (rel.)  {report['fast_vs_toolbox_rel']:.3e}",
     ]
     for c in report["conditions"]:
-        lines.append(f"  {c['equation']:5s} {c['statement']:34s} {c['measure']:28s} {c['value']:.3e}  {'ok' if c['passed'] else 'FAIL'}")
+        verdict = 'ok' if c['passed'] else 'FAIL'
+        lines.append(f"  {c['equation']:5s} {c['statement']:34s} {c['measure']:28s} {c['value']:.3e}  {verdict}")
     lines += ["", "functional-controllability order (eq. 38 projection / Markov parameters):"]
     details = report["functional_controllability_details"]
     for part, cases in (("mechanical", details["mechanical"]), ("drive", details["drive"])):

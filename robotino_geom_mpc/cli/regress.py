@@ -48,7 +48,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the regression and print its verdict."""
-    from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
+    from robotino_geom_mpc.recording.bag_reader import BagReader, damage_report
+    from robotino_geom_mpc.recording.bagfile import BagError
     from robotino_geom_mpc.recording.regress import regress_bag
 
     try:

@@ -33,7 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Reindex the bag and say what was recovered and lost."""
-    from robotino_geom_mpc.recording.bag import BagError
+    from robotino_geom_mpc.recording.bagfile import BagError
     from robotino_geom_mpc.recording.reindex import reindex_bag
 
     try:
@@ -51,6 +51,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def warn_damage(verb: str, report: str | None) -> None:
-    """Print a damaged bag's one-line report (`recording.bag.damage_report`) as the verb's warning."""
+    """Print a damaged bag's one-line report (`recording.bag_reader.damage_report`) as the verb's warning."""
     if report is not None:
         print(f"robotino-geom-mpc {verb}: warning: {report}", file=sys.stderr)

@@ -46,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
     """Open the bag, replay it from a node named ``replay``; see the module docstring for the exit status."""
     import rclpy
 
-    from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
+    from robotino_geom_mpc.recording.bag_reader import BagReader, damage_report
+    from robotino_geom_mpc.recording.bagfile import BagError
     from robotino_geom_mpc.recording.replay import replay_bag
 
     try:

@@ -40,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
 
     A damaged bag is reported in one warning line (what was recovered); the report covers what was read.
     """
-    from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
+    from robotino_geom_mpc.recording.bag_reader import BagReader, damage_report
+    from robotino_geom_mpc.recording.bagfile import BagError
     from robotino_geom_mpc.recording.report import report_bag
 
     try:
@@ -53,4 +54,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(metrics, indent=2, sort_keys=True))
     else:
         print(f"{metrics['samples']} ticks; metrics and figures in {args.out}")
+        if metrics.get("link") is not None:
+            from robotino_geom_mpc.recording.link_report import link_line
+
+            print(f"link: {link_line(metrics['link'])}")
     return 0

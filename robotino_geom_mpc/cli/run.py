@@ -21,7 +21,17 @@ scenario and parameters. With ``--goals FILE`` (scenario ``goals``) a goal sende
 (`scenarios.node_parameters`): e.g. in ``robustness`` the controller a
 mismatched model and the plant odometry noise. With ``--command-interface cmd_vel`` the controller sends
 twists on cmd_vel, the plant holds them with its wheel-speed PI loops, and the metrics' voltages are those
-loops' (the plant's ``applied_voltages``).
+loops' (the plant's ``applied_voltages``). ``--chain NAME`` (with ``--realtime --command-interface cmd_vel``) puts
+the real robot's driver + firmware chain in the plant node and has the controller control through it
+(``chain.active``; `robotino_sim_node.chain_driver`, `nodes.chain_control`).
+
+Over a radio link (``--link-delay-ms D --link-jitter-ms J --link-loss P --link-burst B``, each way, or the
+``wifi`` scenario's own link) the plant emulates it (``link.up.*`` / ``link.down.*``: everything it publishes
+reaches the controller and the recorder when the link delivers it; commands and plans reach it so), the
+controller sends delay-compensated plans and the plant applies them and reports what it applied
+(``command_applied``; ``--no-compensation``: plain commands acting on arrival, the baseline). The recording then
+holds what the controller received and when, and what the robot applied: ``regress`` replays the plans, and the
+metrics get the link's measured figures (`recording.link_report`).
 """
 
 from __future__ import annotations
@@ -39,7 +49,8 @@ from typing import TYPE_CHECKING
 
 from robotino_geom_mpc.scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
-from robotino_geom_mpc.cli.simulate import add_command_interface_argument, add_odometry_argument, add_scenario_argument
+from robotino_geom_mpc.cli.simulate import add_chain_argument, add_command_interface_argument, add_link_arguments, \
+    add_odometry_argument, add_scenario_argument, chain_from_args, link_from_args
 
 if TYPE_CHECKING:
     from robotino_geom_mpc.system.processes import NodeGroup, NodeProcess
@@ -52,11 +63,11 @@ GRACE_S = 5.0
 RECORDER_GRACE_S = 70.0
 BAG_CLOSE_POLL_S = 0.005  # how often the stop looks for the recorder's closed bag
 RUN_END_POLL_S = 0.01  # how often `run` looks for the plant's timing report (the end of the run)
-TIMING_REPORT = "plant_timing.json"  # in DIR/logs: the plant's timing report (loop_timing), e.g. for bench
 # imported in a thread while the nodes start and run (the cores idle during discovery and the settle)
-REPORT_MODULES = ("robotino_geom_mpc.recording.bag", "robotino_geom_mpc.recording.report",
+REPORT_MODULES = ("robotino_geom_mpc.recording.bag_reader", "robotino_geom_mpc.recording.report",
                   "robotino_geom_mpc.cli.reindex", "rosbags.typesys.stores.ros2_jazzy")  # the last: the bag's types
 GOALS_SETTLE_S = 3.0  # --goals: the run goes on this long after the last motion ends (the loop settles)
+CHAIN_PI_RATE_HZ = 200.0  # --chain: the plant's wheel PI loops' rate over DDS
 REALTIME_START_S = 2.0  # realtime: the reference starts this much after the first odometry (start_settle_s + discovery)
 
 
@@ -78,9 +89,15 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         help="run length [s] (default: the scenario's length)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/run-<scenario>)")
     parser.add_argument("--params", type=Path, default=None, help="ROS 2 parameter file (default: Robotino 3 preset)")
-    parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
+    parser.add_argument("--seed", type=seed_value, default=0, metavar="N",
+                        help="seed of the odometry noise (default 0)")
     add_odometry_argument(parser)
     add_command_interface_argument(parser)
+    add_chain_argument(parser)
+    add_link_arguments(parser)
+    parser.add_argument("--plans", action="store_true",
+                        help="the controller sends delay-compensated plans and the plant applies them at their times "
+                        "even without a link (over a link they are the default)")
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
@@ -143,7 +160,8 @@ def _close_recording(group: NodeGroup, recorder: NodeProcess, bag: Path) -> None
     """SIGINT the recorder and wait until its bag is closed: metadata.yaml, the last file `BagWriter.close`
     writes, is there, or the recorder exits (its status is checked then). A recorder that closed its bag still
     exits (Fast DDS alone sleeps 0.1 s in its participant factory's destructor) while the report reads the bag;
-    `run` checks its status after the report."""
+    `run` checks its status after the report.
+    """
     recorder.popen.send_signal(signal.SIGINT)
     ended = group.wait(recorder, RECORDER_GRACE_S, done=(bag / "metadata.yaml").exists, poll_s=BAG_CLOSE_POLL_S)
     if not ended or recorder.popen.poll() is not None:  # exited: its status now; hung: SIGTERM, then SIGKILL
@@ -180,8 +198,17 @@ def run(args: argparse.Namespace) -> int:
     """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.params.presets import default_params_file
-    from robotino_geom_mpc.system.processes import NodeFailed, NodeGroup, node_arguments
+    from robotino_geom_mpc.system.processes import TIMING_REPORT, NodeFailed, NodeGroup, node_arguments
 
+    chain = chain_from_args(args)
+    overrides: dict = {}
+    if chain is not None:  # the plant behind the driver chain, the controller through it (both: chain.active)
+        if args.lockstep or args.command_interface != "cmd_vel":
+            raise UsageError("--chain needs --realtime and --command-interface cmd_vel (the driver's loop and the "
+                             "firmware's tick run on the wall clock)")
+        values = {"chain.active": "enabled", **chain.values()}
+        # the PI loops at 200 Hz (5 samples a tick, 1 kHz offline): the emulation keeps up with the wall clock
+        overrides = {"plant_node": {**values, "wheel_pi.rate_hz": CHAIN_PI_RATE_HZ}, "controller_node": dict(values)}
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)
     duration = args.duration if args.duration is not None else SCENARIOS[args.scenario].duration_s
@@ -198,10 +225,13 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
 
+    link = link_from_args(args)
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
-                               odometry=args.odometry, command_interface=args.command_interface,
+                               odometry=args.odometry, command_interface=args.command_interface, link=link,
+                               plans=False if args.no_compensation else (True if args.plans else None),
                                goals_file=None if args.goals is None else args.goals.resolve(),
-                               overrides={"plant_node": {"timing_report": str(report)}},
+                               overrides={**overrides, "plant_node": {**overrides.get("plant_node", {}),
+                                                                      "timing_report": str(report)}},
                                live_view_port=args.foxglove)
     if args.foxglove is not None:
         _check_viz()
@@ -240,7 +270,8 @@ def run(args: argparse.Namespace) -> int:
         if bag is None:
             print("  not recorded (--no-record): no metrics or figures")
             return 0
-        from robotino_geom_mpc.recording.bag import BagError, BagReader, damage_report
+        from robotino_geom_mpc.recording.bag_reader import BagReader, damage_report
+        from robotino_geom_mpc.recording.bagfile import BagError
         from robotino_geom_mpc.recording.report import report_bag
         from robotino_geom_mpc.cli.reindex import warn_damage
 
@@ -261,6 +292,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"  position error after settle: rms {metrics['rms_position_error_m']:.3g} m, "
           f"max {metrics['max_position_error_m']:.3g} m; peak current {metrics['peak_current_a']:.3g} A, "
           f"peak voltage {metrics['peak_voltage_v']:.3g} V")
+    if metrics.get("link") is not None:
+        from robotino_geom_mpc.recording.link_report import link_line
+
+        print(f"  link: {link_line(metrics['link'])}")
     if metrics.get("rms_position_error_odom_m") is not None:
         print(f"  in the odom frame: rms {metrics['rms_position_error_odom_m']:.3g} m; drift from the truth at the "
               f"end {metrics['odometry_drift_final_m']:.3g} m")

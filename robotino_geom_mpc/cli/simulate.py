@@ -17,8 +17,8 @@ from robotino_geom_mpc.network.link import LinkError, LinkParams
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario
 from . import VERBS, UsageError, positive_float, seed_value
 
-__all__ = ["add_parser", "add_scenario_argument", "add_odometry_argument", "add_link_arguments", "link_from_args",
-           "run"]
+__all__ = ["add_chain_argument", "add_link_arguments", "add_odometry_argument", "add_parser", "add_scenario_argument",
+           "chain_from_args", "link_from_args", "run"]
 
 SETTLE_TIME_S = 1.0
 
@@ -36,16 +36,71 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: out/<scenario>)")
     parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
                         help="simulated time [s] (default: the scenario's length)")
-    parser.add_argument("--seed", type=seed_value, default=0, metavar="N", help="seed of the odometry noise (default 0)")
+    parser.add_argument("--seed", type=seed_value, default=0, metavar="N",
+                        help="seed of the odometry noise (default 0)")
     add_odometry_argument(parser)
     parser.add_argument("--current-limit", type=_current_limit, default=None, metavar="A",
                         help="wheel current limit of the closed-form mode [A] (control.current_limit_a; "
                         "0 = none, the paper's controller; default: the parameter file's)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_command_interface_argument(parser)
+    add_chain_argument(parser)
+    parser.add_argument("--controller-chain", type=Path, default=None, metavar="FILE",
+                        help="with --chain: the controller's chain.* from this parameter file (identify's "
+                        "chain_params.yaml) instead of the true chain's")
     add_link_arguments(parser)
     parser.set_defaults(func=run)
     return parser
+
+
+def add_chain_argument(parser: argparse.ArgumentParser) -> None:
+    """The ``--chain NAME`` and ``--chain-set chain.NAME=VALUE`` options of `simulate`, `study` and `identify`."""
+    from robotino_geom_mpc.model.driver_chain import CHAIN_PRESETS
+
+    parser.add_argument("--chain", choices=tuple(CHAIN_PRESETS), default=None,
+                        help="put the real robot's driver and firmware chain between controller and plant "
+                        "(robocup-logistics: the ros2-robotino driver on a Robotino 3/4; needs --command-interface "
+                        "cmd_vel; docs/howto/real_robotino.md)")
+    parser.add_argument("--chain-set", action="append", default=[], metavar="chain.NAME=VALUE",
+                        help="override one chain parameter (repeatable), e.g. chain.link.delay_s=0.01")
+
+
+def controller_chain_from_file(path: Path, preset: str):  # noqa: ANN201 - ChainParams, imported lazily
+    """The controller's chain.* of a parameter file (`identify`'s), over `preset`; UsageError if bad."""
+    from robotino_geom_mpc.model.driver_chain import ChainError, chain_params
+    from robotino_geom_mpc.params.files import check_parameter_files, read_parameter_file
+
+    check_parameter_files([path])
+    values = read_parameter_file(path, "robotino_controller")
+    try:
+        return chain_params({k: v for k, v in values.items() if k.startswith("chain.") and k != "chain.active"},
+                            preset, str(path))
+    except ChainError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def chain_from_args(args: argparse.Namespace):  # noqa: ANN201 - ChainParams, imported lazily
+    """The `ChainParams` of ``--chain`` / ``--chain-set``, or None without ``--chain``; UsageError if bad."""
+    from robotino_geom_mpc.model.driver_chain import ChainError, chain_params
+
+    if args.chain is None:
+        if args.chain_set:
+            raise UsageError("--chain-set needs --chain")
+        return None
+    values = {}
+    for item in args.chain_set:
+        name, sep, text = item.partition("=")
+        if not sep:
+            raise UsageError(f"--chain-set wants chain.NAME=VALUE, got {item!r}")
+        try:
+            value = float(text)
+        except ValueError:
+            value = text
+        values[name.strip()] = value
+    try:
+        return chain_params(values, args.chain)
+    except ChainError as exc:
+        raise UsageError(str(exc)) from None
 
 
 _LINK_OPTIONS = (  # (option, LinkParams field, metavar, help)
@@ -150,8 +205,18 @@ def run(args: argparse.Namespace) -> int:
     from robotino_geom_mpc.offline.results import compute_metrics, save_run, write_metrics
     from robotino_geom_mpc.offline.simulation import run_scenario
 
+    chain = chain_from_args(args)
+    if chain is not None and args.command_interface != "cmd_vel":
+        raise UsageError("--chain needs --command-interface cmd_vel (the driver takes cmd_vel)")
+    if args.controller_chain is not None and chain is None:
+        raise UsageError("--controller-chain needs --chain")
+    controller_chain = None if args.controller_chain is None else controller_chain_from_file(args.controller_chain,
+                                                                                            args.chain)
     robot, control = load_params(args.params)
     link = link_from_args(args)
+    if chain is not None and (link is not None or args.no_compensation):
+        raise UsageError("--chain has its own link (chain.link.*, set by --chain-set), not --link-* or "
+                         "--no-compensation")
     if args.current_limit is not None:
         control = replace(control, current_limit_a=args.current_limit)
     out = args.out if args.out is not None else Path("out") / args.scenario
@@ -164,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
     data = run_scenario(
         args.scenario, robot, control, duration_s=args.duration, seed=args.seed, progress=not args.no_progress,
         odometry=args.odometry, command_interface=args.command_interface, link_up=link, link_down=link,
-        compensate=not args.no_compensation,
+        compensate=not args.no_compensation, chain=chain, controller_chain=controller_chain,
     )
     wall_s = time.perf_counter() - start
 
@@ -184,6 +249,10 @@ def run(args: argparse.Namespace) -> int:
               f"max {_fmt(m['max_position_error_odom_m'], 'm')}; drift from the truth at the end "
               f"{_fmt(m['odometry_drift_final_m'], 'm')}")
     print(f"  max |theta error|: {_fmt(m['max_abs_theta_error_rad'], 'rad')}")
+    if chain is not None:
+        print(f"  through the {args.chain} chain: measurement times reconstructed to "
+              f"{1e3 * data.meta['measurement_time_error_rms_s']:.2g} ms rms "
+              f"(max {1e3 * data.meta['measurement_time_error_max_s']:.2g} ms)")
     within = "within" if m["current_within_nominal"] else "ABOVE"
     print(f"  peak current {m['peak_current_a']:.3g} A ({within} nominal {m['nominal_current_a']:g} A), "
           f"peak voltage {m['peak_voltage_v']:.3g} V (supply {m['supply_voltage_v']:g} V)")

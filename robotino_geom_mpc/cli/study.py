@@ -12,7 +12,8 @@ import argparse
 from pathlib import Path
 
 from . import VERBS, UsageError, positive_float, seed_value
-from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_link_arguments, add_scenario_argument, link_from_args
+from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_chain_argument, add_link_arguments, \
+    add_scenario_argument, chain_from_args, link_from_args
 
 __all__ = ["add_parser", "run"]
 
@@ -32,7 +33,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=VERBS["study"],
         description="Monte-Carlo runs of a scenario in the offline closed loop with the controller's model "
         "drawn off the true robot (mass and yaw inertia +-20 %%, body friction x0.5-x2), odometry noise up to "
-        "2 mm / 2 mrad, ideal or encoder odometry and random noise seeds, on all cores. Writes DIR/runs.csv (draws and metrics, one row "
+        "2 mm / 2 mrad, ideal or encoder odometry and random noise seeds, on all cores. "
+        "Writes DIR/runs.csv (draws and metrics, one row "
         "per run), DIR/summary.json and the figures.",
     )
     add_scenario_argument(parser)
@@ -50,6 +52,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_link_arguments(parser)
+    add_chain_argument(parser)
     parser.set_defaults(func=run)
     return parser
 
@@ -61,10 +64,18 @@ def run(args: argparse.Namespace) -> int:
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.offline.study import draw_runs, run_study, write_study
 
+    chain = chain_from_args(args)
+    if chain is not None and args.odometry != "ideal":
+        raise UsageError("--chain gives the firmware's odometry: use it with --odometry ideal")
     robot, control = load_params(args.params)
     link = link_from_args(args)
     network = ({"link_up": link, "link_down": link, "compensate": not args.no_compensation}
                if link is not None or args.no_compensation else None)
+    if chain is not None:
+        if network is not None:
+            raise UsageError("--chain has its own link (chain.link.*, set by --chain-set), not --link-* or "
+                             "--no-compensation")
+        network = {"command_interface": "cmd_vel", "chain": chain}
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -241,7 +241,8 @@ class DelayCompensatingController:
         if self._last_stamp is not None:
             gap = round((stamp_s - self._last_stamp) / Ts)
             self._missing += max(gap - 1, 0)
-            dt = None if gap == 1 and abs(stamp_s - self._last_stamp - Ts) < TIME_TOLERANCE_S else stamp_s - self._last_stamp
+            interval = stamp_s - self._last_stamp
+            dt = None if gap == 1 and abs(interval - Ts) < TIME_TOLERANCE_S else interval
         self._last_stamp = stamp_s
         self._odometry += 1
         state = x.tolist()
@@ -310,7 +311,8 @@ class DelayCompensatingController:
                          newest_first: list[SentPlan]) -> np.ndarray:
         """What the filter's trapezoid (one over the whole gap) misses of the displacement (x, y, theta) over
         `gap` periods: the velocities at each period boundary from eq. (49) under the commands applied,
-        corrected linearly to end at the measured one (so only their shape is the model's)."""
+        corrected linearly to end at the measured one (so only their shape is the model's).
+        """
         if gap < 2:
             return np.zeros(3)
         period = self.history.period(self._last_stamp) - gap

@@ -257,7 +257,8 @@ class InverseDrive:
         i0, last, one_period = self._i0, self._last, self._one_period
         voltages, saturated, mean = self.step(i_cmd, omega, omega_rate, rate_of_current)
         end = self._i0
-        if not saturated and max(abs(i_cmd[0]), abs(i_cmd[1]), abs(i_cmd[2]), abs(end[0]), abs(end[1]), abs(end[2])) <= current_limit:
+        if not saturated and max(abs(i_cmd[0]), abs(i_cmd[1]), abs(i_cmd[2]),
+                                 abs(end[0]), abs(end[1]), abs(end[2])) <= current_limit:
             return voltages, saturated, mean, 1.0
         self._i0, self._last, self._one_period = i0, last, one_period
         rest = rate_at_rest()
@@ -317,7 +318,8 @@ class InverseDrive:
         """
         vc, vs, vw, vr = self._voltage_row
         (c0, c1, c2), (s0, s1, s2), (w0, w1, w2), (r0, r1, r2) = i_cmd, self._i0, omega, omega_rate
-        U = [vc * c0 + vs * s0 + vw * w0 + vr * r0, vc * c1 + vs * s1 + vw * w1 + vr * r1, vc * c2 + vs * s2 + vw * w2 + vr * r2]
+        U = [vc * c0 + vs * s0 + vw * w0 + vr * r0, vc * c1 + vs * s1 + vw * w1 + vr * r1,
+             vc * c2 + vs * s2 + vw * w2 + vr * r2]
         limit = self.supply_voltage_v
         if max(abs(U[0]), abs(U[1]), abs(U[2])) <= limit:
             self._last = (self._i0, U, omega, omega_rate)
@@ -331,17 +333,17 @@ class InverseDrive:
             return U, False, i_cmd
         i0 = self._i0
         zoh, i0_arr = self.zoh, np.array(i0)
-        omega, omega_rate = np.asarray(omega, dtype=float), np.asarray(omega_rate, dtype=float)
-        U = np.clip(U, -limit, limit)
-        mean = zoh.mean_current(i0_arr, U, omega, omega_rate)
+        speed, rate = np.asarray(omega, dtype=float), np.asarray(omega_rate, dtype=float)
+        clipped = np.clip(U, -limit, limit)
+        mean = zoh.mean_current(i0_arr, clipped, speed, rate)
         if rate_of_current is not None:
             for _ in range(_SATURATION_PASSES):
-                omega_rate = np.asarray(rate_of_current(mean), dtype=float)
-                mean = zoh.mean_current(i0_arr, U, omega, omega_rate)
-        self._i0 = zoh.end_current(i0_arr, U, omega, omega_rate).tolist()
-        self._last = (i0, U.tolist(), omega.tolist(), omega_rate.tolist())
+                rate = np.asarray(rate_of_current(mean), dtype=float)
+                mean = zoh.mean_current(i0_arr, clipped, speed, rate)
+        self._i0 = zoh.end_current(i0_arr, clipped, speed, rate).tolist()
+        self._last = (i0, clipped.tolist(), speed.tolist(), rate.tolist())
         self._one_period = self._i0
-        return U.tolist(), True, mean.tolist()
+        return clipped.tolist(), True, mean.tolist()
 
 
 class MotorKinematics:
@@ -368,7 +370,7 @@ class MotorKinematics:
         return self.W0 @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
 
     def speeds_and_rates(
-        self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
+        self, theta: float, velocity: Sequence[float] | np.ndarray, acceleration: Sequence[float] | np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Motor speeds omega and their rate omega' for a body velocity and acceleration.
 
@@ -388,7 +390,7 @@ class MotorKinematics:
         return np.array(omega), np.array(rate)
 
     def speeds_and_rates_floats(
-        self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
+        self, theta: float, velocity: Sequence[float] | np.ndarray, acceleration: Sequence[float] | np.ndarray
     ) -> tuple[list[float], list[float]]:
         """`speeds_and_rates` on Python floats, for the per-tick path."""
         vx, vy, w = velocity[0], velocity[1], velocity[2]

@@ -78,6 +78,7 @@ class LimitScreen:
     ) -> float:
         """sum_j c_j |q_j - q_r,j| (`set_reference`) from the floats; inf for a larger change of theta'."""
         px, vx, py, vy, theta, w = X
+        assert self._ref is not None  # `passes` checks
         if not abs(w - self._ref[0]) <= SCREEN_W_STEP:
             return math.inf
         ux, uy, ut = u_prev

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -57,9 +58,9 @@ class ControlOutput(NamedTuple):
         Wall-clock time of the step [s].
     """
 
-    voltages: tuple[float, float, float]
-    currents: tuple[float, float, float]
-    u: tuple[float, float, float]
+    voltages: tuple[float, ...]
+    currents: tuple[float, ...]
+    u: tuple[float, ...]
     saturated: bool
     infeasible: bool
     compute_time_s: float
@@ -157,7 +158,7 @@ class MotionController:
         if self.estimator is not None:
             self.estimator.start_at(x, y, theta)
 
-    def _acceleration_of_current(self, theta_m: float, current: np.ndarray) -> np.ndarray:
+    def _acceleration_of_current(self, theta_m: float, current: Sequence[float] | np.ndarray) -> np.ndarray:
         """Body acceleration (x'', y'', theta'') the wheel currents give (friction aside), eq. (9)."""
         return acceleration_block(theta_m, self.robot) @ wheel_forces(current, self.robot)
 
@@ -212,7 +213,7 @@ class MotionController:
     def _interval(dt_s: object) -> float:
         """dt_s (a real number, not a bool or a string) as a float > 0, or ControllerInputError."""
         number = isinstance(dt_s, (float, int, np.floating, np.integer)) and not isinstance(dt_s, bool)
-        dt = float(dt_s) if number else math.nan
+        dt = float(dt_s) if number else math.nan  # type: ignore[arg-type]  # a number, checked just above
         if not (math.isfinite(dt) and dt > 0.0):
             raise ControllerInputError(f"dt_s must be a finite number of seconds > 0 (or None), got {dt_s!r}")
         return dt
@@ -271,7 +272,8 @@ class MotionController:
         currents = self.drive.currents_floats(self.field.forces_floats(theta_m, u))
         ux, uy, uw = u
         dx, dy, dw = self._damping_rates
-        omega, omega_rate = self.kinematics.speeds_and_rates_floats(theta, (vx, vy, w), (ux - dx * vx, uy - dy * vy, uw - dw * w))
+        omega, omega_rate = self.kinematics.speeds_and_rates_floats(
+            theta, (vx, vy, w), (ux - dx * vx, uy - dy * vy, uw - dw * w))
         rate_of_current = lambda i: self._rate_of_current(theta, theta_m, np.array((vx, vy, w)), i)  # noqa: E731
         if self.current_limit_a > 0.0:
             rest = (-dx * vx, -dy * vy, -dw * w)

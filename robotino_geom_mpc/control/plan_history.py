@@ -30,7 +30,8 @@ ROUND_TRIP_WINDOW = 200
 @dataclass
 class SentPlan:
     """A plan as the controller sent it, with per entry the accelerations u it meant and the drives' currents
-    expected at the entry's end, and what the reports say of its arrival."""
+    expected at the entry's end, and what the reports say of its arrival.
+    """
 
     plan: CommandPlan
     u: list[list[float]]
@@ -125,7 +126,8 @@ class PlanHistory:
 
     def round_trip_quantile(self) -> float:
         """`quantile` of the recent round trips (nearest rank: the smallest value that covers that share of them),
-        computed again only after new ones; NaN before any."""
+        computed again only after new ones; NaN before any.
+        """
         if not self.round_trips:
             return math.nan
         if self._quantile[0] != self._samples:
@@ -136,7 +138,8 @@ class PlanHistory:
 
     def command(self, period: int, newest_first: list[SentPlan]) -> tuple[list[float], list[float], tuple] | None:
         """(u, end currents, entry) of what the robot applies in `period`: reported, else as its buffer chooses
-        among `newest_first` (`newest_first()`); None for no plan (zero command)."""
+        among `newest_first` (`newest_first()`); None for no plan (zero command).
+        """
         if period in self._applied:
             applied = self._applied[period]
             sent = None if applied is None else self._plans.get(applied[0])

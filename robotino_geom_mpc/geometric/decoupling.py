@@ -303,7 +303,8 @@ def check_decoupling(p: RobotinoParams, n_theta: int = 3600, tol: float = 1e-9) 
         )
         res_inv = float(np.max(geo.inclusion_residual(An @ R, R)))
         conditions.append(
-            ConditionResult(f"({eq_inv[j]})", a, f"A R_{a} subset R_{a}", "||(I-P_R) A Q_R|| / ||A||", res_inv, res_inv <= tol)
+            ConditionResult(f"({eq_inv[j]})", a, f"A R_{a} subset R_{a}", "||(I-P_R) A Q_R|| / ||A||", res_inv,
+                            res_inv <= tol)
         )
     return DecouplingReport(
         theta_grid_points=int(thetas.size),

@@ -23,7 +23,8 @@ import numpy as np
 from robotino_geom_mpc.geometric import subspaces as geo
 from robotino_geom_mpc.geometric.decoupling import AXES, B_decoupled, DecouplingField
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.model.dynamics import A_matrix, C_matrix, N_BODY, OUTPUT_INDEX, VELOCITY_INDEX, drive_matrices, g_theta, wheel_directions
+from robotino_geom_mpc.model.dynamics import (A_matrix, C_matrix, N_BODY, OUTPUT_INDEX, VELOCITY_INDEX, drive_matrices,
+                                              g_theta, wheel_directions)
 from robotino_geom_mpc.params.specs import RobotinoParams
 
 __all__ = [
@@ -99,7 +100,7 @@ def functional_order(
     bound = _bound(max_order, n)
     Fq = np.eye(n) if F is None else geo.image(F, rtol)
     if Fq.shape[0] != n:
-        raise FunctionalError(f"F must have {n} rows, got shape {np.shape(F)}")
+        raise FunctionalError(f"F must have {n} rows, got shape {np.asarray(F).shape}")
     kerC = geo.kernel(C, rtol)
     Z = geo.z_sequence(A, B, kerC, Fq, steps=min(bound - 1, n), rtol=rtol)
     for i, Z_prev in enumerate(Z, start=1):  # condition (38) for order i uses Z_{i-1}
@@ -108,7 +109,8 @@ def functional_order(
     return None
 
 
-def markov_order(A: object, B: object, C: object, max_order: int | None = None, rtol: float | None = None) -> int | None:
+def markov_order(A: object, B: object, C: object, max_order: int | None = None,
+                 rtol: float | None = None) -> int | None:
     """Order of functional controllability from the Markov parameters C A^k B (structure at infinity).
 
     Parameters

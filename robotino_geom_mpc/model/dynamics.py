@@ -156,7 +156,7 @@ def motor_speeds(theta: float, velocity: np.ndarray, p: RobotinoParams) -> np.nd
     return p.gear_ratio / p.r * wheel_rim_speeds(theta, velocity, p)
 
 
-def wheel_forces(currents: np.ndarray, p: RobotinoParams) -> np.ndarray:
+def wheel_forces(currents: np.typing.ArrayLike, p: RobotinoParams) -> np.ndarray:
     """Wheel forces F = gear Km i / r [N] (text after eq. 9, erratum 4)."""
     return p.gear_ratio * p.torque_constant_n_m_per_a / p.r * _vector(currents, 3, "currents")
 

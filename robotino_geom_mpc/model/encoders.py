@@ -20,7 +20,7 @@ gains, beyond the true one, a Gaussian slip with standard deviation
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -155,7 +155,7 @@ class EncoderOdometry:
             raise EncoderError(f"slip_std must be a number in [0, 1], got {slip_std!r}")
         self.plant, self.counts_per_rev, self.slip_std = plant, int(counts_per_rev), float(slip_std)
         self._rng = np.random.default_rng((int(seed), 1))  # apart from the pose noise stream default_rng(seed)
-        self.pose: Pose = tuple(plant.pose.tolist()) if pose is None else tuple(float(v) for v in pose)
+        self.pose = cast(Pose, tuple(plant.pose.tolist()) if pose is None else tuple(float(v) for v in pose))
         self.twist: tuple[float, float, float] = (0.0, 0.0, 0.0)  # no count difference yet
         p = plant.params
         # `update` runs `encoder_counts`, `wheel_speeds_from_counts` and `body_twist` on Python floats (numpy's
@@ -201,7 +201,8 @@ class EncoderOdometry:
         self, rng: np.random.Generator | None = None, noise_std: tuple[float, float] = (0.0, 0.0)
     ) -> tuple[Pose, tuple[float, float, float]]:
         """As `RobotinoPlant.odometry_floats`, from the encoders: the integrated pose plus the same Gaussian
-        pose noise (same draws from the generator) and the encoder-derived body twist."""
+        pose noise (same draws from the generator) and the encoder-derived body twist.
+        """
         return self.noisy_odometry_floats(self.plant.pose_noise(rng, noise_std))
 
     def noisy_odometry_floats(

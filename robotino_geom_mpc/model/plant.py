@@ -1,10 +1,9 @@
 """Plant integration core: the coupled Robotino (body, eqs. 1-9; DC drives, eq. 10) under held voltages.
 
-No rclpy here; `plant_node.py` wraps it. The equations are those of
-`robotino_geom_mpc.model.dynamics.coupled_rhs`, with the armature voltages held
-over each step (zero-order hold). They are not integrated by calling that
-function, which would need a numerical ODE step: they are linear in the state
-once the heading is fixed, so this module assembles them as matrices
+No rclpy here; `plant_node.py` wraps it. The equations are those of `model.dynamics.coupled_rhs`, with the
+armature voltages held over each step (zero-order hold). They are not integrated by calling that function,
+which would need a numerical ODE step: they are linear in the state once the heading is fixed, so this module
+assembles them as matrices
 (`RobotinoPlant._frame_matrix`, from the same `A_matrix`, `g_theta` and wheel
 directions) and propagates their exact transition matrices, exact for the
 stiff electrical mode (L / R = 1.5 ms against a 10 ms control period).
@@ -46,6 +45,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.linalg import expm
@@ -122,7 +122,7 @@ def _turn(angle: float) -> np.ndarray:
     return out
 
 
-def _voltage_values(voltages: object) -> tuple[float, float, float]:
+def _voltage_values(voltages: Any) -> tuple[float, float, float]:
     """The voltages as three Python floats, or PlantError; plain tuples, lists and float arrays fast."""
     kind = type(voltages)
     if (kind is tuple or kind is list) and len(voltages) == 3 and type(voltages[0]) is float \
@@ -261,7 +261,7 @@ class RobotinoPlant:
         heading_rows = np.vstack(
             (per_substep.reshape(n * _BASIS, _N_AUG), ends[0] + offset[0], ends[n] + offset[n - 1], ends[n], means)
         )
-        coefficients = None
+        coefficients: np.ndarray | None = None
         if self.isotropic:
             nodes = eps_max * np.cos(np.pi * (np.arange(_FIT_DEGREE + 1) + 0.5) / (_FIT_DEGREE + 1))
             samples = np.array([self._substep_map(e, 0.0, h).ravel() for e in nodes])
@@ -322,7 +322,8 @@ class RobotinoPlant:
             substep_map.dot(before, after)
         x, vx, y, vy, *rest = c.after[-1].tolist()[: len(_ROWS)]
         cos, sin = math.cos(end_angle), math.sin(end_angle)
-        self._w = [cos * x - sin * y, cos * vx - sin * vy, sin * x + cos * y, sin * vx + cos * vy, theta_end, *rest]
+        self._w: list[float] = [cos * x - sin * y, cos * vx - sin * vy, sin * x + cos * y, sin * vx + cos * vy,
+                                theta_end, *rest]
         self._trace = c.trace
         self._time_s += dt
 
@@ -332,7 +333,7 @@ class RobotinoPlant:
         self._w = state.tolist() + [0.0, 0.0, 0.0]  # w without the voltages, as floats
         self._trace = np.zeros((1, _N_LOOP))
         self._trace[0, _CURRENTS] = state[6:9]  # the peak currents before any step are |i(0)|
-        self._time_s = 0.0
+        self._time_s: float = 0.0
 
     # ------------------------------------------------------------------ measurements
 

@@ -61,9 +61,7 @@ class WheelSpeedLoopError(RobotinoError, ValueError):
 
 
 def tuned_gains(p: RobotinoParams, time_constant_s: float = SPEED_LOOP_TIME_CONSTANT_S) -> tuple[float, float]:
-    """(kp [V s/rad], ki [V/rad]) of a first-order speed loop of `time_constant_s` (module docstring).
-
-    """
+    """(kp [V s/rad], ki [V/rad]) of a first-order speed loop of `time_constant_s` (module docstring)."""
     reflect = (p.r / p.gear_ratio) ** 2 / 1.5
     damping = p.k_x * reflect + p.viscous_friction_n_m_s
     electrical = p.torque_constant_n_m_per_a**2 / p.resistance_ohm

@@ -183,7 +183,8 @@ class PlanBuffer:
 
     def _useful(self, now_s: float, extra: CommandPlan | None = None) -> list[CommandPlan]:
         """The plans held (and `extra`), oldest basis first, that a time from `now_s` on can still choose: not
-        used up, not outlasted by a newer plan that has started."""
+        used up, not outlasted by a newer plan that has started.
+        """
         plans = sorted(self._plans + ([extra] if extra is not None else []), key=lambda p: p.basis_s)
         out, started_end = [], -math.inf  # the latest end among the newer plans already started
         for plan in reversed(plans):

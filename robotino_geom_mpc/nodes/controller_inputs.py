@@ -15,7 +15,8 @@ Bad input (`ros.decode` and `control.motion_controller.MotionController.state_pr
   ``tilt_tolerance_rad`` (``quaternion_tilt``), on odometry and on every
   preview point; a measurement no robot on its wheels gives (``implausible``:
   a twist whose motor speeds exceed twice the no-load speed U_supply / Km, a
-  pose or preview position beyond 1000 km); in realtime, a stamp older than
+  pose or preview position beyond 1000 km); a preview whose frame_id is not
+  the controller's ``<frame_prefix>odom`` (``frame``); in realtime, a stamp older than
   ``odom_timeout_s`` (preview: ``reference_timeout_s``) against the node clock
   (``stale``: an hour old, or zero) or ahead of it by more than
   ``future_tolerance_s`` (``future``). In lockstep a refused preview makes the
@@ -31,8 +32,9 @@ Bad input (`ros.decode` and `control.motion_controller.MotionController.state_pr
   message). If nothing valid follows, the watchdog gives zero volts after
   the timeout.
 
-Stale data: a steady-clock watchdog checks the arrival age of the accepted
-odometry and preview: older than ``odom_timeout_s`` / ``reference_timeout_s``
+Stale data: a watchdog checks the arrival age of the accepted odometry and
+preview, in steady time, or in node-clock time under ``use_sim_time`` (a slow
+simulation is slow, not stale): older than ``odom_timeout_s`` / ``reference_timeout_s``
 means (realtime) zero volts, a throttled warning, the watchdog state in the
 diagnostics, and a bumpless restart when data return; the stamps used so far
 are forgotten then, so inputs stamped before them are taken (a clock that went
@@ -64,7 +66,8 @@ __all__ = ["CONTROLLER_DEFAULTS", "CONTROLLER_SPECS", "FIXED_WHILE_RUNNING", "In
            "closed_loop_problem", "reference_jump"]
 
 CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("mode", str, "realtime: freshest preview, watchdog outputs zero volts; lockstep: preview of the same stamp",
+    ParamSpec("mode", str, "realtime: freshest preview, watchdog outputs zero volts; "
+              "lockstep: preview of the same stamp",
               choices=("realtime", "lockstep")),
     ParamSpec("odom_timeout_s", float, "Odometry older than this (arrival, and stamp against the node clock in "
               "realtime) is stale: zero volts", "s", 0.0, 60.0, True),
@@ -87,16 +90,20 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("command_interface", str, "voltages: wheel_voltages (std_msgs/Float64MultiArray) to the DC drives; "
               "cmd_vel: the MPC's base_link velocity for the next period (geometry_msgs/Twist) to a velocity-"
               "controlled base", choices=("voltages", "cmd_vel")),
+    ParamSpec("plans", bool, "Off-board over a network: per odometry a delay-compensated plan of control.plan_length "
+              "commands on wheel_voltage_plan / cmd_vel_plan (the plain command carries its first entry); reads "
+              "command_applied (controller_plans)"),
 )
 CONTROLLER_DEFAULTS: dict[str, Any] = {
     "mode": "realtime", "odom_timeout_s": 0.1, "reference_timeout_s": 0.1, "future_tolerance_s": 0.05,
     "quaternion_norm_tolerance": QUATERNION_NORM_TOLERANCE, "tilt_tolerance_rad": TILT_TOLERANCE_RAD,
     "reference_jump_m": 0.005, "reference_jump_rad": 0.02,
     "blend_acceleration_mps2": LINEAR_LIMIT_MPS2, "blend_acceleration_radps2": ANGULAR_LIMIT_RADPS2,
-    "frame_prefix": "", "command_interface": "voltages",
+    "frame_prefix": "", "command_interface": "voltages", "plans": False,
 }
 # the mode, the outputs, and what must agree with the trajectory node (the preview's layout)
-FIXED_WHILE_RUNNING = ("mode", "frame_prefix", "command_interface", "control.period_s", "control.horizon")
+FIXED_WHILE_RUNNING = ("mode", "frame_prefix", "command_interface", "control.period_s", "control.horizon", "plans",
+                       "control.plan_length", "control.lead_max_periods")
 
 
 def closed_loop_problem(values: dict[str, Any]) -> str | None:

@@ -1,4 +1,4 @@
-"""Controller node: one `MotionController.step` (three MPCs, eq. 56 -> T(theta), eqs. 33-37 -> inverse drive) per odometry.
+"""Controller node: one `MotionController.step` (three MPCs, eq. 56 -> T(theta), eqs. 33-37 -> inverse drive) a tick.
 
 Topics (relative names)
 -----------------------
@@ -29,31 +29,28 @@ services   ``~/enable``           std_srvs/SetBool. Disabled: zero output every 
 Publishers: `controller_outputs.ControllerOutputs`. Inputs are read in
 place by a `ros.cdr.CdrLayout` (any other layout: `ros.cdr.cdr_reader`).
 
-Each odometry message is one control tick: the node computes on its arrival.
-The preview used is the one whose stamp equals the odometry stamp in
-``lockstep`` (the odometry waits for it if it comes first), the freshest in
-``realtime``, moved in time from its stamp to the odometry's with its
-velocities and accelerations (`reference.trajectories.shift_preview`). The step gets
-``dt_s`` = the interval between the stamps of this odometry and of the last
-one used (None when it is exactly one period, and after a (re)start).
+Each odometry message is one control tick: the node computes on its arrival. The preview used is the one
+whose stamp equals the odometry stamp in ``lockstep`` (the odometry waits for it if it comes first), the
+freshest in ``realtime``, moved in time to the odometry's stamp with its velocities and accelerations
+(`reference.trajectories.shift_preview`). The step gets ``dt_s`` = the interval between the stamps of this
+odometry and of the last one used (None when it is exactly one period, and after a (re)start).
 
-Time: the stamps of the inputs; in realtime the node clock (``use_sim_time``
-honoured) is read once per input to check its stamp.
+Time: the stamps of the inputs; in realtime the node clock (``use_sim_time`` honoured) is read once per
+input to check its stamp. The watchdog counts the node clock under ``use_sim_time`` (read at start),
+steady time otherwise. Frames: a preview not in ``<frame_prefix>odom`` is refused (reason ``frame``).
 
 Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagnostic naming the reason).
+Plans (``plans``, an off-board controller over a network): `controller_plans` (delay-compensated plans on
+``wheel_voltage_plan`` / ``cmd_vel_plan``, the robot's ``command_applied`` read, the link in the diagnostics). In
+lockstep the odometries of a tick are answered in arrival order, each with the preview of its stamp.
 
-Bumpless (re)start (`control.blend.BlendEngagement`): at
-the first tick (except tick t = 0 of a lockstep run, where robot and
-reference start together as in `simulate`), at the first tick after the
-watchdog saw stale data or ``~/enable`` turned the controller on again, at the tick
-using a preview whose reference jumped
-(more than ``reference_jump_m`` / ``reference_jump_rad`` from the previous
-preview moved to its stamp, e.g. a restarted trajectory node starting over
-at the origin), and after a parameter change, the controller is reset
-(u(k-1) = 0, pose filter restarted) and a C^3 offset o(t) is added to the
-preview, taking the reference from the measured pose and velocity (zero
-acceleration) to itself within the shortest time T whose offset acceleration
-stays within ``blend_acceleration_mps2`` / ``blend_acceleration_radps2``.
+Bumpless (re)start (`control.blend.BlendEngagement`): at the first tick (except tick t = 0 of a lockstep
+run, where robot and reference start together as in `simulate`), after stale data or ``~/enable`` turned
+on again, at a preview whose reference jumped (more than ``reference_jump_m`` / ``reference_jump_rad``
+from the previous preview moved to its stamp, e.g. a restarted trajectory node) and after a parameter
+change, the controller is reset (u(k-1) = 0, pose filter restarted) and a C^3 offset o(t) is added to the
+preview, taking the reference from the measured pose and velocity to itself within the shortest time
+whose offset acceleration stays within ``blend_acceleration_mps2`` / ``blend_acceleration_radps2``.
 
 Parameters: the robot/control parameters of config/*.yaml (``/**`` section)
 plus `controller_inputs.CONTROLLER_SPECS`. A set is refused with the reason
@@ -78,19 +75,23 @@ from std_srvs.srv import SetBool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from robotino_geom_mpc.control.blend import BlendEngagement, BlendError
-from robotino_geom_mpc.control.motion_controller import MAX_POSITION_M, ControllerInputError, MotionController, step_interval
+from robotino_geom_mpc.control.motion_controller import (MAX_POSITION_M, ControllerInputError, MotionController,
+                                                         step_interval)
 from robotino_geom_mpc.params.specs import ALL_SPECS
 from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix
+from robotino_geom_mpc.nodes.chain_control import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, chain_control
 from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
     InputCounters, closed_loop_problem, reference_jump
 from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
+from robotino_geom_mpc.nodes.controller_plans import LINK_KEYS, ControllerPlans
+from robotino_geom_mpc.nodes.controller_watchdog import ControllerWatchdog
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
     stamp_problem, state_of_odometry, time_ns
-from robotino_geom_mpc.ros.messages import odometry_layout, preview_layout
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, preview_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CONTROL_QOS
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, LOCKSTEP_PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 
 __all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
@@ -98,19 +99,20 @@ __all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
 # the general decoders (field names are all `odometry_values` and `preview_point_values` use, so either one fits)
 _read_odom = cdr_reader(Odometry, "nav_msgs/msg/Odometry")
 _read_preview = cdr_reader(MultiDOFJointTrajectory, "trajectory_msgs/msg/MultiDOFJointTrajectory")
-_WAIT_LOG_PERIOD_S = 5.0  # throttle of the "waiting for ..." log
 
 _EVENT_KEYS = ("watchdog", *InputCounters.KEYS, "blend_remaining_s", "blend_engagements")
 _ROBOT_CONTROL = frozenset(s.name for s in ALL_SPECS)
+REPORT_WINDOW_S = 2.0  # plans: a command_applied report further from the newest odometry stamp is refused
 
 
-class ControllerNode(Node):
+class ControllerNode(ControllerWatchdog, Node):
     """The controller node (see the module docstring for its interface)."""
 
     def __init__(self) -> None:
         super().__init__("robotino_controller")
-        self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS, {**spec_defaults(), **CONTROLLER_DEFAULTS},
-                                     self._on_params, fixed=FIXED_WHILE_RUNNING, check=closed_loop_problem)
+        defaults = {**spec_defaults(), **CONTROLLER_DEFAULTS, **CHAIN_NODE_DEFAULTS}
+        self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS + CHAIN_NODE_SPECS, defaults, self._on_params,
+                                     fixed=(*FIXED_WHILE_RUNNING, *CHAIN_NODE_DEFAULTS), check=closed_loop_problem)
         self.robot, self.control = self.params.robot_control()
         self.controller = MotionController(self.robot, self.control)
         self.lockstep = self.params["mode"] == "lockstep"
@@ -121,30 +123,41 @@ class ControllerNode(Node):
             prefix = check_frame_prefix(self.params["frame_prefix"])
         except DescriptionError as exc:
             raise NodeStartError(f"parameter 'frame_prefix': {exc}") from None
-        self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS, self._event_values, self.control.horizon,
-                                         prefix, self.params["command_interface"])
-        self.enabled = True
-        self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
+        self.plans = ControllerPlans(self, self.robot, self.control, self.params["command_interface"], self.lockstep,
+                                     REPORT_WINDOW_S) if self.params["plans"] else None
+        self.preview_points = self.control.horizon if self.plans is None else self.plans.preview_length
+        self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS + (LINK_KEYS if self.plans else ()),
+                                         self._event_values, self.control.horizon, prefix,
+                                         self.params["command_interface"])
+        self.odom_frame = prefix + ODOM_FRAME  # the frame of the previews it takes
+        self.chain = chain_control(self)  # chain.active: control through the driver chain (`chain_control`)
+        self.enabled, self.enable_srv = True, self.create_service(SetBool, "~/enable", self._on_enable)
         self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
-        self.preview_layout = preview_layout(self.control.period_s, self.control.horizon, prefix)
-        self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, CONTROL_QOS, raw=True)
-        self.preview_sub = self.create_subscription(
-            MultiDOFJointTrajectory, "reference_preview", self._on_preview, CONTROL_QOS, raw=True
-        )
+        self.preview_layout = preview_layout(self.control.period_s, self.preview_points, prefix)
+        # lockstep plans: the previews of the ticks before an odometry's late delivery are all kept
+        qos = LOCKSTEP_PUBLISH_QOS if self.plans is not None and self.lockstep else CONTROL_QOS
+        self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, qos, raw=True)
+        self.preview_sub = self.create_subscription(MultiDOFJointTrajectory, "reference_preview", self._on_preview,
+                                                    qos, raw=True)
 
         self.theta = 0.0  # last measured (continuous) yaw
         # lockstep: stamp [ns] -> (positions, velocities, accelerations), each (N + 1, 3)
         self.previews: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         # the newest preview: stamp [ns], positions, velocities, accelerations (realtime: the one used)
         self.latest_preview: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.pending: tuple[int, np.ndarray] | None = None  # lockstep: odometry waiting for its preview
+        self.pending: tuple[int, np.ndarray] | None = None  # lockstep: the first odometry waiting for its preview
+        self.waiting: list[tuple[int, np.ndarray]] = []  # lockstep: odometries in arrival order, with that one first
         self.pending_since = 0.0
         self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
-        self.odom_time = self.preview_time = None  # steady arrival times of accepted inputs
-        self.start_time = monotonic()
+        # the watchdog's clock, read at start: the node clock under use_sim_time (a slow simulation is slow, not
+        # stale), else steady time
+        self.sim_time = bool(self.get_parameter("use_sim_time").value)
+        self._watch_now = (lambda: self.get_clock().now().nanoseconds * 1e-9) if self.sim_time else monotonic
+        self.odom_time = self.preview_time = None  # arrival times of accepted inputs (`_watch_now`)
+        self.start_time = self._watch_now()
         self.watchdog_state = "waiting"
         self.counters = InputCounters()
-        self.blend = BlendEngagement(self.control.period_s, self.control.horizon)
+        self.blend = BlendEngagement(self.control.period_s, self.preview_points)
         self.watchdog = self._start_watchdog()
         self.get_logger().info(f"controller ready ({self.params['mode']}, mode {self.control.mode}, "
                                f"N = {self.control.horizon}, Ts = {self.control.period_s:g} s)")
@@ -161,9 +174,10 @@ class ControllerNode(Node):
         self.blend_limits = (p["blend_acceleration_mps2"], p["blend_acceleration_radps2"])
 
     def _start_watchdog(self):
-        """The steady-clock timer of the watchdog, at half the shorter timeout."""
+        """The timer of the watchdog, at half the shorter timeout, on the watchdog's clock (`_watch_now`)."""
         timeout = min(self.params["odom_timeout_s"], self.params["reference_timeout_s"])
-        return self.create_timer(timeout / 2, self._check_watchdog, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        clock = self.get_clock() if self.sim_time else Clock(clock_type=ClockType.STEADY_TIME)
+        return self.create_timer(timeout / 2, self._check_watchdog, clock=clock)
 
     def _on_params(self, changed: dict) -> None:
         self._read_limits()
@@ -173,6 +187,8 @@ class ControllerNode(Node):
         if _ROBOT_CONTROL & changed.keys():
             self.robot, self.control = self.params.robot_control()
             self.controller = MotionController(self.robot, self.control)
+            if self.plans is not None:
+                self.plans.rebuild(self.robot, self.control)
             self.blend.request("parameters")  # the new controller starts from u(k-1) = 0: blend from the state
             self.get_logger().info(f"parameters {sorted(changed)} changed: controller rebuilt, bumpless restart")
 
@@ -221,7 +237,10 @@ class ControllerNode(Node):
                 msg = _read_preview(data)
                 sec, nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec
                 stamp = time_ns(sec, nanosec)  # first: a wrongly sized preview is refused for its tick
-                values = (sec, nanosec, *preview_point_values(msg, self.control.horizon))
+                if msg.header.frame_id != self.odom_frame:  # another robot's odom, or a prefix mismatch
+                    raise InputRejected(f"reference_preview is in frame '{msg.header.frame_id}', not in the "
+                                        f"controller's '{self.odom_frame}'", "frame")
+                values = (sec, nanosec, *preview_point_values(msg, self.preview_points))
             else:
                 stamp = time_ns(values[0], values[1])
             latest = self.latest_preview
@@ -239,7 +258,7 @@ class ControllerNode(Node):
         except (MalformedMessage, InputRejected) as exc:
             self._refuse_preview(stamp, getattr(exc, "reason", "malformed"), str(exc))
             return
-        self.preview_time = monotonic()
+        self.preview_time = self._watch_now()
         if latest is None or stamp > latest[0]:
             jump = reference_jump(latest, stamp, arrays[0][0], *self.jump_limits)
             if jump is not None:
@@ -249,10 +268,31 @@ class ControllerNode(Node):
         if not self.lockstep:
             return
         self.previews[stamp] = arrays
-        if self.pending is not None and self.pending[0] == stamp:
-            odom_stamp, X = self.pending
-            self.pending = None
-            self._control(odom_stamp, X, *arrays, stamp)
+        self._drain()
+
+    def _drain(self) -> None:
+        """Lockstep: step the waiting odometries in arrival order while the preview of the first is there (over
+        a link several arrive at one tick, each answered in turn).
+        """
+        while self.waiting:
+            stamp, X = self.waiting[0]
+            if self.last_odom_ns is not None and stamp <= self.last_odom_ns:  # overtaken while it waited
+                del self.waiting[0]
+                self._drop(stamp, "odom", "old")
+                continue
+            arrays = self.previews.get(stamp)
+            if arrays is None:
+                break
+            del self.waiting[0]
+            self.pending_since = self._watch_now()
+            if isinstance(arrays, InputRejected):
+                self._reject(stamp, "odom", f"preview_{arrays.reason}", f"the preview of this tick was refused: "
+                             f"{arrays}")
+            else:
+                self._control(stamp, X, *arrays, stamp)
+            for old in [s for s in self.previews if s < stamp]:
+                del self.previews[old]
+        self.pending = self.waiting[0] if self.waiting else None
 
     def _refuse_preview(self, stamp: int | None, reason: str, message: str) -> None:
         """Realtime: zero volts now; lockstep: for the tick of its stamp (of none if unknown: only counted)."""
@@ -264,9 +304,7 @@ class ControllerNode(Node):
         if stamp is None:
             return
         self.previews[stamp] = InputRejected(message, reason)
-        if self.pending is not None and self.pending[0] == stamp:
-            self.pending = None
-            self._reject(stamp, "odom", f"preview_{reason}", f"the preview of this tick was refused: {message}")
+        self._drain()
 
     def _on_odom(self, data: bytes) -> None:
         try:
@@ -278,6 +316,7 @@ class ControllerNode(Node):
             self._reject(None, "odom", getattr(exc, "reason", "malformed"), str(exc))
             return
         problem = stamp_problem(stamp, self.last_odom_ns, self._now_ns(), self.odom_timeout_ns, self.future_ns)
+        problem = None if self.chain is not None and problem in ("duplicate", "stale") else problem  # `chain_control`
         if problem is not None:
             if problem == "duplicate" and self.lockstep:
                 self.outputs.deliver_answer()  # the plant resent a tick: answer again only if undelivered
@@ -294,29 +333,23 @@ class ControllerNode(Node):
         except InputRejected as exc:
             self._reject(stamp, "odom", exc.reason, str(exc))
             return
-        self.odom_time = monotonic()
+        self.odom_time = self._watch_now()
         self.theta = X[4]
         if self.lockstep:
-            for old in [s for s in self.previews if s < stamp]:
-                del self.previews[old]
-            arrays = self.previews.get(stamp)
-            if arrays is None:
-                if self.pending is None or self.pending[0] != stamp:
+            if all(waiting != stamp for waiting, _ in self.waiting):
+                if not self.waiting:
                     self.pending_since = self.odom_time
-                self.pending = (stamp, X)
-                return
-            if isinstance(arrays, InputRejected):
-                self._reject(stamp, "odom", f"preview_{arrays.reason}", f"the preview of this tick was refused: "
-                             f"{arrays}")
-                return
-            self._control(stamp, X, *arrays, stamp)
+                self.waiting.append((stamp, X))
+            self._drain()
             return
         if self.latest_preview is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
             return  # stale reference: the watchdog outputs zero volts
+        if self.chain is not None:
+            return self.chain.control(self, stamp, X)
         preview_stamp, positions, velocities, accelerations = self.latest_preview
         dt = (stamp - preview_stamp) * 1e-9
-        self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt), velocities + dt * accelerations,
-                      accelerations, preview_stamp)
+        self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt),
+                      velocities + dt * accelerations, accelerations, preview_stamp)
 
     # control ------------------------------------------------------------------------------------
     def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
@@ -331,9 +364,11 @@ class ControllerNode(Node):
             self.outputs.diagnose(stamp, DiagnosticStatus.OK, "disabled")
             return
         reason = self.blend.due(preview_stamp)
-        if reason == "start" and self.lockstep and stamp == 0:
+        first = self.previews.get(0) if self.plans is not None else None  # over a link tick 0 may be lost
+        if reason == "start" and self.lockstep and (stamp == 0 or isinstance(first, tuple)):
             self.blend.reason = reason = None  # t = 0 of a lockstep run: robot and reference start together
-            self.controller.start_at(*positions[0].tolist())
+            start = (positions if stamp == 0 else first[0])[0].tolist()
+            (self.controller if self.plans is None else self.plans.controller).start_at(*start)
         try:
             if reason is not None:
                 self._engage(stamp, X, positions[0], velocities[0], accelerations[0], reason)
@@ -344,6 +379,9 @@ class ControllerNode(Node):
             offsets = self.blend.offsets(stamp)
             if offsets is not None:
                 preview = preview + offsets
+            if self.plans is not None:
+                self._plan(stamp, X, preview, X[0::2] - positions[0], preview_stamp)
+                return
             out = self.controller.step(X, preview, dt_s)
         except (ControllerInputError, BlendError) as exc:
             self._reject(stamp, "input", "controller", str(exc))
@@ -368,10 +406,28 @@ class ControllerNode(Node):
             f"{self.control.period_s if dt_s is None else dt_s:.9g}"]
         self.outputs.diagnose(stamp, level, "tracking", tracking)
 
+    def _plan(self, stamp: int, X: np.ndarray, preview: np.ndarray, error: np.ndarray, preview_stamp: int) -> None:
+        """Plans: the plan of this odometry published, its first entry as the plain command (none for an
+        odometry not newer than one taken: it came reordered or twice over the link).
+        """
+        begin = monotonic()
+        plan = self.plans.plan(stamp, X, preview)
+        if plan is None:
+            self._drop(stamp, "odom", "old")
+            return
+        self.last_odom_ns = stamp
+        self.outputs.answer(stamp, list(plan.entries[0]))
+        if self.outputs.diagnosing():
+            self.outputs.diagnose(stamp, DiagnosticStatus.OK, "tracking", [f"{e:.9g}" for e in error.tolist()] + [
+                f"{(monotonic() - begin) * 1e3:.4f}", "false", "false", str(preview_stamp),
+                f"{self.control.period_s:.9g}"])
+
     def _engage(self, stamp: int, X: np.ndarray, position: np.ndarray, velocity: np.ndarray,
                 acceleration: np.ndarray, reason: str) -> None:
         """Bumpless (re)start: reset the controller and blend the reference in from the measured state."""
         self.controller.reset()
+        if self.plans is not None:
+            self.plans.controller.reset()
         blend = self.blend.engage(stamp, X, position, velocity, acceleration, *self.blend_limits)
         if self.blend.blend is not None:
             limited = " (limit raised: the reference's own acceleration needs more)" if blend.limited else ""
@@ -382,47 +438,7 @@ class ControllerNode(Node):
     def _event_values(self, stamp: int) -> list[str]:
         """The values of `_EVENT_KEYS` at `stamp` [ns] (every diagnostic carries them)."""
         return [self.watchdog_state, *self.counters.values(), f"{self.blend.remaining_s(stamp):.4f}",
-                str(self.blend.engagements)]
-
-    # watchdog -----------------------------------------------------------------------------------
-    def _log_wait(self, now: float) -> None:
-        """Say what the controller waits for when it has heard nothing for a timeout (throttled)."""
-        if self.pending is not None and now - self.pending_since > self.params["reference_timeout_s"]:
-            what = (f"the odometry of stamp {self.pending[0]} ns waits {now - self.pending_since:.1f} s for the "
-                    f"reference_preview of that stamp on {self.preview_sub.topic_name} "
-                    f"({self.count_publishers(self.preview_sub.topic_name)} publishers)")
-        elif now - (self.odom_time or self.start_time) > self.params["odom_timeout_s"]:
-            heard = "since the start" if self.odom_time is None else "since the last one"
-            what = (f"no odometry on {self.odom_sub.topic_name} for {now - (self.odom_time or self.start_time):.1f} s "
-                    f"{heard} ({self.count_publishers(self.odom_sub.topic_name)} publishers)")
-        elif self.preview_time is None and now - self.start_time > self.params["reference_timeout_s"]:
-            what = (f"no reference_preview on {self.preview_sub.topic_name} yet "
-                    f"({self.count_publishers(self.preview_sub.topic_name)} publishers)")
-        else:
-            return
-        self.get_logger().info(f"waiting: {what}", throttle_duration_sec=_WAIT_LOG_PERIOD_S)
-
-    def _check_watchdog(self) -> None:
-        now = monotonic()
-        if self.odom_time is None or self.preview_time is None or self.lockstep:
-            self._log_wait(now)  # lockstep: the plant holds the time; only say what is missing
-            if self.odom_time is None or self.preview_time is None:
-                return
-        if now - self.odom_time > self.params["odom_timeout_s"]:
-            state = "stale_odom"
-        elif now - self.preview_time > self.params["reference_timeout_s"]:
-            state = "stale_reference"
-        else:
-            state = "ok"
-        self.watchdog_state = state
-        if state == "ok" or self.lockstep:
-            return
-        self.blend.request("watchdog")  # data that return restart the tracking bumplessly
-        # and are taken on any fresh stamp, also one before the last used (a sim clock reset, a bag replayed in a loop)
-        self.last_odom_ns, self.latest_preview = None, None
-        self.get_logger().warn(f"watchdog: {state.replace('_', ' ')}; zero volts", throttle_duration_sec=1.0)
-        self.outputs.send_zero()
-        self.outputs.diagnose(None, DiagnosticStatus.WARN, f"watchdog: {state}")
+                str(self.blend.engagements), *(self.plans.values() if self.plans is not None else ())]
 
 
 def main(args: list[str] | None = None) -> int:

@@ -37,7 +37,8 @@ PATH_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durabilit
 
 def _path_template(frame: str, horizon: int) -> CdrTemplate:
     """nav_msgs/Path of `horizon` poses in `frame` as a template: header stamp, then per pose its stamp, x, y and the
-    yaw quaternion's z, w (`messages.yaw_quaternion_zw`: x = y = 0)."""
+    yaw quaternion's z, w (`messages.yaw_quaternion_zw`: x = y = 0).
+    """
     path = Path(poses=[PoseStamped() for _ in range(horizon)])
     path.header.frame_id = frame
     for pose in path.poses:

@@ -17,7 +17,8 @@ other than ``<frame_prefix>odom`` (this node has no transforms; an empty frame_i
 non-finite position, a quaternion that is not a unit rotation about z (`ros.decode.check_yaw_quaternion`), an
 empty path, and a motion no duration up to 600 s keeps within the limits (`reference.goal_motion.GoalError`).
 
-Limits (`GOAL_SPECS`: `reference.goal_file.LIMIT_SPECS` and ``frame_prefix``): per axis velocity, acceleration and jerk (x and y share the linear ones) and the
+Limits (`GOAL_SPECS`: `reference.goal_file.LIMIT_SPECS` and ``frame_prefix``): per axis velocity, acceleration and
+jerk (x and y share the linear ones) and the
 wheels' rim speed; ``goals.max_rim_speed_mps`` = 0 takes the motor's nominal speed at the rim
 (`reference.goal_motion.nominal_rim_speed`, 0.94 m/s on Robotino 3); the defaults and their currents are
 `reference.goal_file`'s.

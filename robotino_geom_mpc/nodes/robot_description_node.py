@@ -55,7 +55,8 @@ __all__ = ["DESCRIPTION_SPECS", "RobotDescriptionNode", "main"]
 DESCRIPTION_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("frame_prefix", str, "Prefix of the frame ids (the URDF's links), e.g. 'robot1/'; empty: none"),
     ParamSpec("mode", str, "realtime: joint_states and /tf keep-last 100 (never waits); lockstep: keep-all, every "
-              "wheel transform reaches a recorder (a slow reader holds the loop back)", choices=("realtime", "lockstep")),
+              "wheel transform reaches a recorder (a slow reader holds the loop back)",
+              choices=("realtime", "lockstep")),
 )
 _MOVING = ("revolute", "continuous")
 _ROTATION = ("x", "y", "z", "w")

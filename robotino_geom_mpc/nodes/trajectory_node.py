@@ -109,9 +109,12 @@ TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
               "preview and odom has a publisher (discovery between the nodes ends first)", "s", 0.0, 60.0, False),
     ParamSpec("clock_timeout_s", float, "Lockstep: after this long without /clock, log (throttled) what the node "
               "waits for", "s", 0.0, 3600.0, True),
+    ParamSpec("preview_points", int, "Points after the first in each preview; 0: control.horizon (N). A controller "
+              "with plans needs its DelayCompensatingController.preview_length", "", 0, 10000, False),
 )
-_DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1.0, "clock_timeout_s": 5.0}
-_FIXED = ("mode", "control.period_s", "control.horizon", "clock_timeout_s")
+_DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1.0, "clock_timeout_s": 5.0,
+             "preview_points": 0}
+_FIXED = ("mode", "control.period_s", "control.horizon", "clock_timeout_s", "preview_points")
 _GOAL_PATH_STEP = 5  # after a goal, reference_path has a pose every this many control periods
 _WAIT_LOG_PERIOD_S = 5.0  # at most one "waiting for /clock" line per this long (or per clock_timeout_s if longer)
 
@@ -258,7 +261,7 @@ class TrajectoryNode(Node):
         The table is the reference sampled at every tick in one vectorised call, as
         `simulation.run_scenario` samples its targets, so the positions are those of the offline loop.
         """
-        period_s, horizon = self.params["control.period_s"], self.params["control.horizon"]
+        period_s, horizon = self.params["control.period_s"], self._preview_points()
         k, off = divmod(t_ns, self._period_ns())
         if self.grid is None:
             times = np.arange(int(self.reference.duration_s / period_s) + horizon + 2) * period_s
@@ -267,8 +270,11 @@ class TrajectoryNode(Node):
             return None
         return self.grid[k : k + horizon + 1].ravel().tolist()
 
+    def _preview_points(self) -> int:
+        return self.params["preview_points"] or self.params["control.horizon"]
+
     def _publish_preview(self, t_ns: int, reference_t_ns: int) -> None:
-        period_s, horizon = self.params["control.period_s"], self.params["control.horizon"]
+        period_s, horizon = self.params["control.period_s"], self._preview_points()
         if self.preview_cdr is None:
             self.preview_cdr = preview_template(period_s, horizon, self.params["frame_prefix"])
         values = self._grid_values(reference_t_ns) if self.lockstep else None

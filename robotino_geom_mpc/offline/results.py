@@ -79,7 +79,8 @@ def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
 def _series(value: object, name: str, columns: int | None, n: int | None) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
     want = (n,) if columns is None else (n, columns)
-    if arr.ndim != len(want) or (columns is not None and arr.shape[1] != columns) or (n is not None and arr.shape[0] != n):
+    if (arr.ndim != len(want) or (columns is not None and arr.shape[1] != columns)
+            or (n is not None and arr.shape[0] != n)):
         rows = "n" if n is None else str(n)
         shape = f"({rows},)" if columns is None else f"({rows}, {columns})"
         raise RunDataError(f"{name} must have shape {shape}, got {arr.shape}")

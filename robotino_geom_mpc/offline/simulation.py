@@ -51,6 +51,8 @@ from robotino_geom_mpc.control.motion_controller import MotionController, odomet
 from robotino_geom_mpc.network.link import LinkParams
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.model.driver_chain import ChainParams
+from robotino_geom_mpc.offline.chain_loop import run_chain_scenario
 from robotino_geom_mpc.offline.networked import NetworkedLoop, link_meta
 from robotino_geom_mpc.offline.results import RunData
 from robotino_geom_mpc.scenarios import get_scenario
@@ -77,6 +79,8 @@ def run_scenario(
     wheel_slip_std: float = 0.0,
     command_interface: str = "voltages",
     wheel_pi: tuple[float, float, float] | None = None,
+    chain: ChainParams | None = None,
+    controller_chain: ChainParams | None = None,
     link_up: LinkParams | None = None,
     link_down: LinkParams | None = None,
     compensate: bool = True,
@@ -116,6 +120,11 @@ def run_scenario(
     wheel_pi
         (kp [V s/rad], ki [V/rad], rate [Hz]) of those loops; None: the plant node's defaults
         (`wheel_speed_loop.DEFAULT_KP`, ...: `tuned_gains` of the Robotino 3 preset, 1 kHz).
+    chain
+        The real robot's driver and firmware chain (`model.driver_chain`) between controller and plant:
+        the run is `chain_loop.run_chain_scenario`'s (cmd_vel only, ideal odometry); None: no chain.
+    controller_chain
+        What the controller takes the chain to be (e.g. `identify`'s file); `chain` if None.
     link_up, link_down
         The emulated radio link's two directions (`network.link.LinkParams`): odometry and the robot's
         reports up, commands down. With either given (and enabled) the loop is `offline.networked`'s;
@@ -138,6 +147,13 @@ def run_scenario(
     SimulationError
         Non-positive duration, negative noise or a bad odometry setting.
     """
+    if chain is not None:
+        if command_interface != "cmd_vel" or odometry != "ideal":
+            raise SimulationError("a chain takes cmd_vel and gives the firmware's odometry: command_interface "
+                                  f"must be cmd_vel and odometry ideal, got {command_interface!r}, {odometry!r}")
+        return run_chain_scenario(scenario, robot, chain, duration_s=duration_s, seed=seed, progress=progress,
+                                  plant_robot=plant_robot, odometry_noise=odometry_noise,
+                                  controller_chain=controller_chain)
     spec = get_scenario(scenario)
     if link_up is None and link_down is None and spec.link is not None:
         link_up = link_down = spec.link

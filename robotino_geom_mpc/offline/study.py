@@ -35,11 +35,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from robotino_geom_mpc.model.encoders import ODOMETRY_MODELS
 
-from robotino_geom_mpc.blas_threads import one_blas_thread
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.offline.results import compute_metrics
@@ -186,6 +186,11 @@ def _run_batch(
     return [run_one(scenario, robot, control, draw, duration_s, settle_time_s, network) for draw in draws]
 
 
+def _one_blas_thread() -> None:
+    """A worker's BLAS libraries on one thread: the workers fill the cores, BLAS threads would only spin."""
+    threadpool_limits(limits=1, user_api="blas")
+
+
 def _context() -> multiprocessing.context.BaseContext:
     """Fork where there is fork: the workers start with this process's imports done (numpy, scipy, the package)."""
     return multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else None)
@@ -249,7 +254,7 @@ def run_study(
     start = time.perf_counter()
     rows: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=workers, mp_context=_context(),
-                             initializer=one_blas_thread) as pool:
+                             initializer=_one_blas_thread) as pool:
         futures = [pool.submit(_run_batch, scenario, robot, control, draws[k : k + size], duration_s, settle_time_s,
                                network) for k in range(0, len(draws), size)]
         with tqdm(total=len(draws), desc=f"study {scenario}", unit="run", disable=not progress,

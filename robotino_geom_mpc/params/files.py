@@ -3,39 +3,40 @@
 A node started with ``--ros-args --params-file FILE ...`` and ``robotino-geom-mpc VERB --params FILE``
 refuse the same files with the same one-line `ParamError` naming the file and the key:
 
-* a file that cannot be read, is not YAML, or whose sections are not ``name: {ros__parameters: {...}}``
-  (a namespace may nest: ``ns: {node: {ros__parameters: ...}}`` is node ``ns/node``);
+* a file that cannot be read or that rcl refuses: it is read as rcl reads it (`params.rcl_yaml`: not YAML,
+  not ``name: {ros__parameters: {...}}``, an alias, a sequence of mixed types ...); what rcl accepts is
+  accepted (tags such as launch_ros's ``!!python/tuple``, anchors, flow style, nested namespaces
+  ``ns: {node: {ros__parameters: ...}}``, ``/**`` and ``*`` wildcards, node names with or without a
+  leading slash);
 * an **unknown key**: a key of a section that no node the section applies to declares (`NODE_PARAMETERS`)
   and that rclpy does not own (`RCLPY_PARAMETERS`, ``qos_overrides.*``); with "did you mean" the closest
-  name. A ``/**`` section applies to every node of the package, a node section (its last name component,
-  ``*`` wildcards allowed) to the nodes it names. A section naming none of them belongs to another
-  package and is not checked, unless its name is close to one of ours (a misspelt node name);
+  name. A section applies to the nodes of the package its last name names (``*`` and ``**``: all of them),
+  in any namespace. A section naming none of them belongs to another package and is not checked, unless
+  its name is close to one of ours (a misspelt node name);
+* a key of our nodes that rcl gives no value (an empty sequence has no type: the node could not declare it);
 * a **missing key**: a node that gets any robot/control parameter (`ALL_SPECS`) from the files must get
   every one of those it declares (``/**`` sections merged over the files in order, like rcl, plus its
   own sections); otherwise it would run on the preset's value for the rest without a word. Files that
   give no robot/control parameter at all (e.g. ``/**: {mode: lockstep}``) leave the preset in place;
-* a robot/control value of the wrong type or out of range (`validate_value`).
+* a robot/control or chain (``chain.*``) value of the wrong type or out of range (`validate_value`).
 
-Values are read as rcl reads them (``1e6`` is a number, which YAML 1.1 would read as a string).
+Values are typed as rcl types them (``1e6`` and ``nan`` are numbers, ``~`` and ``1_000`` strings, ``010`` is 8).
 """
 
 from __future__ import annotations
 
 import difflib
-import fnmatch
 import os
-import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from robotino_geom_mpc.params.presets import default_params_file
+from robotino_geom_mpc.params.rcl_yaml import NO_VALUE, RclFileError, rcl_parameters
 from robotino_geom_mpc.params.specs import (
     ALL_SPECS,
-    CONTROL_SPECS,
-    ROBOT_SPECS,
+    CHAIN_ACTIVE_SPEC,
+    CHAIN_SPECS,
     ControlParams,
     ParamError,
     RobotinoParams,
@@ -53,6 +54,7 @@ __all__ = [
 ]
 
 _ROBOT_CONTROL = tuple(s.name for s in ALL_SPECS)
+_CHAIN = (CHAIN_ACTIVE_SPEC.name,) + tuple(s.name for s in CHAIN_SPECS)
 
 RCLPY_PARAMETERS: tuple[str, ...] = ("use_sim_time", "start_type_description_service")
 """Parameters rclpy declares in every node (and ``qos_overrides.<topic>...`` for overridable QoS)."""
@@ -62,14 +64,14 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "mode", "odom_timeout_s", "reference_timeout_s", "future_tolerance_s", "quaternion_norm_tolerance",
         "tilt_tolerance_rad", "reference_jump_m", "reference_jump_rad", "blend_acceleration_mps2",
         "blend_acceleration_radps2", "frame_prefix", "command_interface",
-    ),
+    ) + _CHAIN,
     "robotino_plant": _ROBOT_CONTROL + (
         "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s",
         "lockstep_max_realtime_factor", "lockstep_settle_s", "odometry_noise.position_m", "odometry_noise.yaw_rad",
         "seed", "timing_report", "lockstep_wait_for",
         "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std",
         "command_interface", "wheel_pi.kp", "wheel_pi.ki", "wheel_pi.rate_hz", "publish_tf", "frame_prefix",
-    ),
+    ) + _CHAIN,
     "robotino_trajectory": _ROBOT_CONTROL + (
         "scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints", "goals.max_velocity_mps",
         "goals.max_acceleration_mps2", "goals.max_jerk_mps3", "goals.max_angular_velocity_radps",
@@ -86,16 +88,12 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
 """The parameters each node of the package declares (besides rclpy's), by node name; a test compares them
 with what the nodes declare."""
 
-_GLOBAL = ("/**", "**")
 _SECTION_CUTOFF = 0.85  # a section name this close to one of our node names is taken as a misspelling
 
 
 def _nodes_of(section: str) -> tuple[str, ...]:
-    """Our nodes a section applies to (by its last name component, wildcards allowed)."""
-    if section.strip("/") in ("**", ""):
-        return tuple(NODE_PARAMETERS)
-    last = section.rstrip("/").rsplit("/", 1)[-1]
-    return tuple(n for n in NODE_PARAMETERS if fnmatch.fnmatchcase(n, last) or last == "**")
+    """Our nodes a section applies to (`_applies`)."""
+    return tuple(n for n in NODE_PARAMETERS if _applies(section, n))
 
 
 def _suggestion(word: str, candidates: Iterable[str], cutoff: float = 0.6) -> str:
@@ -130,10 +128,16 @@ def check_parameter_files(paths: Sequence[str | os.PathLike]) -> None:
                 if hint:
                     raise ParamError(f"section '{section}' in {path} names no node of robotino_geom_mpc{hint}")
                 continue
-            for name in values:
+            for name, value in values.items():
                 if not _known(name, nodes):
                     hint = _suggestion(name, {p for n in nodes for p in NODE_PARAMETERS[n]} | set(RCLPY_PARAMETERS))
                     raise ParamError(f"unknown parameter '{name}' in {path} (section '{section}'){hint}")
+                if value is NO_VALUE:
+                    raise ParamError(f"parameter '{name}' in {path} (section '{section}') has no value "
+                                     "(rcl gives an empty list no type)")
+            for spec in (CHAIN_ACTIVE_SPEC, *CHAIN_SPECS):
+                if spec.name in values:
+                    validate_value(spec, values[spec.name], str(path))
             for spec in ALL_SPECS:
                 if spec.name in values:
                     validate_value(spec, values[spec.name], str(path))
@@ -151,81 +155,53 @@ def check_parameter_files(paths: Sequence[str | os.PathLike]) -> None:
             )
 
 
-class _RclLoader(yaml.SafeLoader):
-    """YAML as rcl reads parameter files: ``1e6`` and ``-2.5E-3`` are numbers (YAML 1.1 wants a dot)."""
-
-
-_RclLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9][0-9_]*)?\.?[0-9]*[eE][-+]?[0-9]+$"), list("-+0123456789.")
-)
-
-
-def _flatten(tree: dict, prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            out.update(_flatten(value, name + "."))
-        else:
-            out[name] = value
-    return out
-
-
-def _sections(path: Path, tree: dict, prefix: str = "") -> dict[str, dict[str, Any]]:
-    out: dict[str, dict[str, Any]] = {}
-    for key, body in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(body, dict) and "ros__parameters" in body and isinstance(body["ros__parameters"], dict):
-            out[name] = _flatten(body["ros__parameters"])
-        elif isinstance(body, dict) and body and "ros__parameters" not in body and all(
-            isinstance(v, dict) for v in body.values()
-        ):
-            out.update(_sections(path, body, name.rstrip("/") + "/"))  # a namespace level
-        else:
-            raise ParamError(f"{path}: section '{name}' must contain a 'ros__parameters' mapping")
-    return out
-
-
 def parse_parameter_file(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
-    """Every section of a ROS 2 parameter file: node name (namespaces joined by '/') -> flat dotted values.
+    """Every section of a ROS 2 parameter file as rcl reads it (`params.rcl_yaml.rcl_parameters`): node name
+    (as written; namespace levels joined by '/') -> flat dotted values.
 
     Raises
     ------
     ParamError
-        If the file cannot be read, is not YAML, or is not in the
-        ``node_name: ros__parameters:`` form.
+        If the file cannot be read, or rcl refuses it (not YAML, not in the ``node: ros__parameters:`` form,
+        an alias, a sequence of mixed types, an empty value, an invalid node name).
     """
     path = Path(path)
     try:
         text = path.read_text()
-    except OSError as exc:
-        raise ParamError(f"cannot read parameter file {path}: {exc.strerror or exc}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ParamError(f"cannot read parameter file {path}: {getattr(exc, 'strerror', None) or exc}") from None
     try:
-        doc = yaml.load(text, Loader=_RclLoader)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f" at line {mark.line + 1}" if mark is not None else ""
-        raise ParamError(f"{path}{line}: not valid YAML") from None
-    if not isinstance(doc, dict):
-        raise ParamError(f"{path}: expected a mapping of node names to 'ros__parameters'")
-    return _sections(path, doc)
+        return rcl_parameters(text)
+    except RclFileError as exc:
+        raise ParamError(f"{path}: {exc}") from None
+
+
+def _applies(section: str, node: str | None) -> bool:
+    """Whether a section applies to `node` (any namespace) as rclpy matches it: its last name is the node's or a
+    wildcard (``/**``, ``*``); with `node` None, only the sections of every node.
+    """
+    last = section.rstrip("/").rsplit("/", 1)[-1]
+    if node is None:
+        return section.strip("/") in ("**", "*")
+    return last in ("**", "*") or last == node
 
 
 def read_parameter_file(path: str | os.PathLike, node: str | None = None) -> dict[str, Any]:
     """Read a ROS 2 parameter file into flat dotted names.
 
-    The `/**` section applies to every node; the section named `node` (if
-    given and present) overrides it, as rcl does.
+    The sections that apply to `node` (`_applies`: ``/**`` and the ones naming it, with or without a
+    namespace) in the file's order, a later one overriding an earlier one, as rclpy merges them; with
+    `node` None, the sections of every node.
 
     Raises
     ------
     ParamError
-        As `parse_parameter_file`, or if neither section is there.
+        As `parse_parameter_file`, or if no section applies.
     """
-    sections = parse_parameter_file(path)
     values: dict[str, Any] = {}
-    for section in ("/**", node):
-        values.update(sections.get(section, {}) if section is not None else {})
+    for section, section_values in parse_parameter_file(path).items():
+        if _applies(section, node):
+            values.update(section_values)
     if not values:
         raise ParamError(f"{path}: no '/**' section with 'ros__parameters' found")
     return values

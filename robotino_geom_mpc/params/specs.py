@@ -21,6 +21,8 @@ __all__ = [
     "ROBOT_SPECS",
     "CONTROL_SPECS",
     "ALL_SPECS",
+    "CHAIN_ACTIVE_SPEC",
+    "CHAIN_SPECS",
     "RobotinoParams",
     "ControlParams",
     "params_from_values",
@@ -73,7 +75,8 @@ ROBOT_SPECS: tuple[ParamSpec, ...] = (
     _pos("robot.gear_ratio", "Motor-to-wheel gear ratio (erratum 4)", "", 1000.0),
     ParamSpec("robot.body_friction_x_n_s_per_m", float, "Body viscous friction k_x (eq. 3)", "N s/m", 0.0, 1e4, False),
     ParamSpec("robot.body_friction_y_n_s_per_m", float, "Body viscous friction k_y (eq. 3)", "N s/m", 0.0, 1e4, False),
-    ParamSpec("robot.body_friction_theta_n_m_s", float, "Body viscous friction k_theta (eq. 3)", "N m s", 0.0, 1e4, False),
+    ParamSpec("robot.body_friction_theta_n_m_s", float, "Body viscous friction k_theta (eq. 3)", "N m s", 0.0, 1e4,
+              False),
     _pos("motor.resistance_ohm", "Armature resistance R (eq. 10)", "ohm", 1e3),
     _pos("motor.inductance_h", "Armature inductance L (eq. 10)", "H", 10.0),
     _pos("motor.torque_constant_n_m_per_a", "Torque and back-EMF constant Km (eq. 10)", "N m/A", 10.0),
@@ -92,7 +95,8 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("control.q_theta", float, "Output weight Q_p of the theta MPC (eq. 54)", "1/rad^2", 0.0, 1e15, True),
     ParamSpec("control.r_x", float, "Input-increment weight R_p of the x MPC (eq. 54)", "s^4/m^2", 0.0, 1e15, True),
     ParamSpec("control.r_y", float, "Input-increment weight R_p of the y MPC (eq. 54)", "s^4/m^2", 0.0, 1e15, True),
-    ParamSpec("control.r_theta", float, "Input-increment weight R_p of the theta MPC (eq. 54)", "s^4/rad^2", 0.0, 1e15, True),
+    ParamSpec("control.r_theta", float, "Input-increment weight R_p of the theta MPC (eq. 54)", "s^4/rad^2", 0.0, 1e15,
+              True),
     ParamSpec(
         "control.mode",
         str,
@@ -168,6 +172,52 @@ CONTROL_SPECS: tuple[ParamSpec, ...] = (
 )
 
 ALL_SPECS: tuple[ParamSpec, ...] = ROBOT_SPECS + CONTROL_SPECS
+
+# The real robot's driver and firmware chain (model.driver_chain; sources: docs/howto/real_robotino.md)
+_LOGISTICS = "robocup-logistics/ros2-robotino"
+_CONTROLD = "Festo controld3 (shipped with the driver)"
+
+CHAIN_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("chain.odometry_rate_hz", float, f"rate at which the firmware integrates and sends odometry, "
+              f"without a stamp ({_CONTROLD})", "Hz", 1.0, 1000.0, False),
+    ParamSpec("chain.driver_rate_hz", float, f"rate of the driver node's loop: odometry dispatch and cmd_vel "
+              f"forwarding ({_LOGISTICS})", "Hz", 1.0, 1000.0, False),
+    ParamSpec("chain.driver_phase_s", float, "offset of the driver's loop after a firmware tick (unknown on a real "
+              "robot: any value in [0, 1 / driver_rate_hz))", "s", 0.0, 1.0, False),
+    ParamSpec("chain.odometry_dispatch", str, f"all: every odometry that arrived since the last pass is dispatched; "
+              f"latest: only the newest ({_LOGISTICS})", choices=("all", "latest")),
+    ParamSpec("chain.tick_s", float, f"firmware tick on which commands are applied and odometry sampled "
+              f"({_CONTROLD})", "s", 1e-3, 1.0, False),
+    ParamSpec("chain.ramp_translation_m_s2", float, f"acceleration ramp of the commanded translation "
+              f"(vector norm) ({_CONTROLD} configuration)", "m/s^2", 0.01, 100.0, False),
+    ParamSpec("chain.ramp_rotation_rad_s2", float, f"acceleration ramp of the commanded rotation ({_CONTROLD} "
+              f"configuration: 180 deg/s^2)", "rad/s^2", 0.01, 1000.0, False),
+    ParamSpec("chain.max_translation_m_s", float, f"largest commanded translation speed ({_CONTROLD} "
+              f"configuration)", "m/s", 0.01, 10.0, False),
+    ParamSpec("chain.max_rotation_rad_s", float, f"largest commanded rotation speed ({_CONTROLD} configuration: "
+              f"90 deg/s)", "rad/s", 0.01, 100.0, False),
+    ParamSpec("chain.motor_timeout_s", float, f"the firmware stops the motors this long after the last "
+              f"command ({_CONTROLD})", "s", 0.01, 60.0, False),
+    ParamSpec("chain.speed_floor", str, f"enabled: the driver raises any non-zero speed below the floor to it "
+              f"({_LOGISTICS}); disabled: forwarded as is", choices=("enabled", "disabled")),
+    ParamSpec("chain.speed_floor_translation_m_s", float, f"the driver's floor of a non-zero translation "
+              f"component ({_LOGISTICS})", "m/s", 0.0, 1.0, False),
+    ParamSpec("chain.speed_floor_rotation_rad_s", float, f"the driver's floor of a non-zero rotation "
+              f"({_LOGISTICS})", "rad/s", 0.0, 10.0, False),
+    ParamSpec("chain.speed_loop_time_constant_s", float, "time constant of the wheels' PI speed loops on the "
+              "base's microcontroller (model.speed_loop.tuned_gains; order of magnitude, not published)", "s",
+              1e-3, 1.0, False),
+    ParamSpec("chain.link.delay_s", float, "fixed one-way delay of the driver <-> robot link (WiFi when the "
+              "driver runs off-board; 0 on the robot's PC), each direction (network.link)", "s", 0.0, 1.0, False),
+    ParamSpec("chain.link.jitter_s", float, "plus a uniform draw in [0, jitter_s] per message, each direction",
+              "s", 0.0, 1.0, False),
+    ParamSpec("chain.link.loss", float, "probability that a message is lost, each direction", "", 0.0, 0.5, False),
+)
+
+CHAIN_ACTIVE_SPEC = ParamSpec(
+    "chain.active", str, "enabled: the plant node behaves as the driver + firmware chain chain.* (realtime, cmd_vel) "
+    "and the controller controls through it (control.chain_controller: reconstructed measurement times, the command "
+    "path predicted, ramp-respecting velocities); disabled: neither", choices=("disabled", "enabled"))
 
 
 def validate_value(spec: ParamSpec, value: Any, where: str = "") -> Any:
@@ -285,7 +335,8 @@ class RobotinoParams:
 @dataclass(frozen=True)
 class ControlParams:
     """Controller settings: period, horizon, per-axis weights, mode, odometry filter and twist, current limit, and
-    the plans of an off-board controller (length, lead bounds and quantile; unused without a link)."""
+    the plans of an off-board controller (length, lead bounds and quantile; unused without a link).
+    """
 
     period_s: float
     horizon: int

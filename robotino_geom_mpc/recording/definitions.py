@@ -46,7 +46,7 @@ def _register_installed(store: Typestore, type_name: str) -> None:
 
 
 def message_definition(type_name: str) -> str:
-    """The full ``ros2msg`` text of a type with its dependencies, as a rosbag2 schema holds it.
+    r"""The full ``ros2msg`` text of a type with its dependencies, as a rosbag2 schema holds it.
 
     rosbags' `Typestore.generate_msgdef` writes the type's fields, then each
     dependency after ``"=" * 80 + "\\nMSG: pkg/Type\\n"`` (the layout of

@@ -51,7 +51,9 @@ from robotino_geom_mpc.control.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_M
 from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController, step_interval
 from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
-from robotino_geom_mpc.recording.bag import BagError, BagReader
+from robotino_geom_mpc.recording.bag_reader import BagReader
+from robotino_geom_mpc.recording.bagfile import BagError
+from robotino_geom_mpc.recording.regress_plans import plan_topic, regress_plans
 from robotino_geom_mpc.recording.report import (
     by_publish_time,
     controller_diagnostics,
@@ -85,7 +87,8 @@ class RegressionResult:
     gap
         What is missing there (``"odom"`` or ``"reference_preview"``), or None.
     command
-        The compared command topic: ``wheel_voltages`` (deviations in V) or ``cmd_vel`` (in m/s and rad/s).
+        The compared command topic: ``wheel_voltages`` (deviations in V) or ``cmd_vel`` (in m/s and rad/s), or
+        the plans of a run with plans, ``wheel_voltage_plan`` (V) or ``cmd_vel_plan`` (`regress_plans`).
     """
 
     ticks: int
@@ -104,7 +107,7 @@ class RegressionResult:
     @property
     def unit(self) -> str:
         """The unit of the deviations and the tolerance: ``V``, or ``m/s, rad/s`` for a cmd_vel twist."""
-        return "V" if self.command == "wheel_voltages" else "m/s, rad/s"
+        return "V" if self.command.startswith("wheel_voltage") else "m/s, rad/s"
 
 
 def regress_bag(
@@ -126,6 +129,9 @@ def regress_bag(
     if not isinstance(bag, BagReader):
         bag = BagReader(bag)
     robot, control, _, _ = resolve_parameters(bag, params_file)
+    if plan_topic(bag) is not None:  # a run with plans (over a link): its plans recomputed (`regress_plans`)
+        ticks, compared, worst, worst_time, topic = regress_plans(bag, robot, control, tolerance_v)
+        return RegressionResult(ticks, compared, worst, worst_time, float(tolerance_v), command=topic)
     odom = by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry"))
     previews = by_publish_time(bag, find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory"))
     command = find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray", False)

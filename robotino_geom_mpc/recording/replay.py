@@ -26,7 +26,9 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from robotino_geom_mpc.recording.bag import BagError, BagReader, message_class
+from robotino_geom_mpc.recording.bag_reader import BagReader
+from robotino_geom_mpc.recording.bagfile import BagError
+from robotino_geom_mpc.recording.definitions import message_class
 
 if TYPE_CHECKING:  # rclpy is imported by `replay_bag` only: reading a bag needs no ROS
     from rclpy.node import Node

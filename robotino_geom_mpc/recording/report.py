@@ -46,21 +46,19 @@ import numpy as np
 from robotino_geom_mpc.params.specs import ParamError, params_from_values
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.offline.plots import write_plots
-from robotino_geom_mpc.recording.bag import RUN_METADATA, BagError, BagMessage, BagReader
-from robotino_geom_mpc.recording.cdr_values import (
-    diagnostics_with,
-    diagnostics_with_of_message,
-    odometry_pose,
-    odometry_pose_of_message,
-    preview_start,
-    preview_start_of_message,
-    three_values,
-    three_values_of_message,
-    values_of,
-)
+from robotino_geom_mpc.recording.bag_reader import BagReader
+from robotino_geom_mpc.recording.bagfile import BagError, BagMessage, RUN_METADATA
 from robotino_geom_mpc.recording.definitions import _typestore
 from robotino_geom_mpc.offline.results import RunData, compute_metrics, write_metrics
-from robotino_geom_mpc.ros.decode import stamp_ns, yaw_of
+from robotino_geom_mpc.ros.cdr import diagnostics_with, float64_array, odometry_pose, preview_start, values_of
+from robotino_geom_mpc.ros.decode import (
+    diagnostics_with_of_message,
+    float64_array_of_message,
+    odometry_pose_of_message,
+    preview_start_of_message,
+    stamp_ns,
+    yaw_of,
+)
 
 __all__ = [
     "find_topic",
@@ -141,7 +139,8 @@ def resolve_parameters(bag: BagReader, params_file: str | os.PathLike | None):
 
 def _by_publish_time(bag: BagReader, topic: str | None, convert: Callable[[BagMessage], Any]) -> list[tuple[int, Any]]:
     """(publish time [ns], `convert(message)`) of a topic, in publish-time order ([] for None); BagError if a
-    message does not decode."""
+    message does not decode.
+    """
     if topic is None:
         return []
     items = []
@@ -172,7 +171,8 @@ def by_publish_time(bag: BagReader, topic: str | None) -> list[tuple[int, Any]]:
 def _values_by_publish_time(bag: BagReader, topic: str | None, read: Callable[[bytes], Any],
                             of_message: Callable[[Any], Any]) -> list[tuple[int, Any]]:
     """`by_publish_time` of the values `read` takes from each message's bytes (`cdr_values`; rosbags' decoder
-    and `of_message` for bytes it does not walk): a tenth of the cost of decoding whole messages."""
+    and `of_message` for bytes it does not walk): a tenth of the cost of decoding whole messages.
+    """
     store = _typestore()
     return _by_publish_time(bag, topic, lambda m: values_of(
         m.data, read, of_message, lambda: store.deserialize_cdr(m.data, m.type)))
@@ -231,11 +231,11 @@ def run_data_from_bag(
     truth = sorted(_first_per_stamp(_values_by_publish_time(
         bag, truth_topic, odometry_pose, odometry_pose_of_message)).items())
     currents = _values_by_publish_time(bag, find_topic(bag, "wheel_currents", "std_msgs/msg/Float64MultiArray"),
-                                       three_values, three_values_of_message)
+                                       float64_array, float64_array_of_message)
     volt_topic = find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray", False)
     applied = volt_topic is None  # a cmd_vel run: the plant's PI voltages, paired with a tick as its currents
-    voltages = _values_by_publish_time(bag, volt_topic or _applied_voltages_topic(bag), three_values,
-                                       three_values_of_message)
+    voltages = _values_by_publish_time(bag, volt_topic or _applied_voltages_topic(bag), float64_array,
+                                       float64_array_of_message)
     odom = _first_per_stamp(_values_by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry", False),
                                                     odometry_pose, odometry_pose_of_message))
     previews = _first_per_stamp(_values_by_publish_time(
@@ -326,16 +326,25 @@ def report_bag(
     """Write ``out_dir/metrics.json`` and the figures of a recorded run; returns the metrics.
 
     Uses `results.compute_metrics` / `results.write_metrics` and
-    `plots.write_plots`, the same code as ``simulate`` and ``run``.
+    `plots.write_plots`, the same code as ``simulate`` and ``run``; a run with plans also gets ``link``, the
+    link's figures as the recording shows them (`link_report.link_figures`).
 
     Raises
     ------
     BagError
         If the bag cannot be read or lacks the topics of a run.
     """
+    from robotino_geom_mpc.recording.link_report import link_figures
+
+    if not isinstance(bag, BagReader):
+        bag = BagReader(bag)
     run = run_data_from_bag(bag, params_file)
     out = Path(out_dir)
     metrics = compute_metrics(run, settle_time_s=settle_time_s)
+    lockstep = find_topic(bag, "clock", "rosgraph_msgs/msg/Clock", False) is not None  # the lockstep plant's
+    link = link_figures(bag, run.control_period_s, lockstep)
+    if link is not None:  # a run with plans: the link it ran over, as the recording shows it
+        metrics["link"] = link
     write_metrics(metrics, out / "metrics.json")
     write_plots(run, out, settle_time_s=settle_time_s)
     return metrics

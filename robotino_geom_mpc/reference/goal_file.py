@@ -57,7 +57,8 @@ def motion_limits(values: dict[str, Any]) -> MotionLimits:
     """The `MotionLimits` of flat parameter values: the robot's (`params.specs.ROBOT_SPECS`) and `LIMIT_SPECS`."""
     robot, _ = params_from_values(values, "the trajectory node's parameters")
     rim = values["goals.max_rim_speed_mps"] or nominal_rim_speed(robot)
-    return MotionLimits(*(values[s.name] for s in LIMIT_SPECS[:6]), rim_speed_mps=rim, robot=robot)
+    v, a, j, w, dw, ddw = (values[s.name] for s in LIMIT_SPECS[:6])
+    return MotionLimits(v, a, j, w, dw, ddw, rim_speed_mps=rim, robot=robot)
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,7 @@ def _poses(value: object, where: str) -> tuple[tuple[float, float, float], ...]:
         raise GoalError(f"{where}: poses must be numbers [x, y, yaw], got {value!r}") from None
     if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) == 0 or not np.isfinite(arr).all():
         raise GoalError(f"{where}: need finite poses [x, y, yaw], got {value!r}")
-    return tuple(tuple(float(v) for v in row) for row in arr)
+    return tuple((float(x), float(y), float(yaw)) for x, y, yaw in arr)
 
 
 def load_goal_file(path: str | os.PathLike) -> list[GoalItem]:
@@ -115,7 +116,8 @@ def load_goal_file(path: str | os.PathLike) -> list[GoalItem]:
 
 def planned_end_s(items: list[GoalItem], limits: MotionLimits) -> float:
     """When the items' motions end if each is planned at its time (an estimate: items in another frame are
-    skipped, yaws are taken as given where the node unwraps them to the nearest turn)."""
+    skipped, yaws are taken as given where the node unwraps them to the nearest turn).
+    """
     ref = GoalReference(hold_s=0.0)
     for item in items:
         if item.frame != "odom":

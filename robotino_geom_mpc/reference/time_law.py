@@ -57,7 +57,7 @@ class _Vector:
         return np.minimum(np.maximum(x, lo), hi)
 
     @staticmethod
-    def heading(psi: np.ndarray) -> np.ndarray:
+    def heading(psi: np.ndarray | float) -> np.ndarray:
         return np.where(psi > 0.5 * math.pi, psi - 2.0 * math.pi, psi)
 
     @staticmethod

@@ -142,7 +142,8 @@ class _SteppedPhase:
 
     def __init__(self, rate: float, ramp_s: float, total: float, name: str) -> None:
         if total / rate < 0.5 * ramp_s:
-            raise TrajectoryError(f"{name}: ramp_s = {ramp_s:g} s is too long for the run (at most {2 * total / rate:g} s)")
+            raise TrajectoryError(f"{name}: ramp_s = {ramp_s:g} s is too long for the run "
+                                  f"(at most {2 * total / rate:g} s)")
         self.rate, self.ramp_s = rate, ramp_s
         self.duration_s = total / rate + 0.5 * ramp_s
 
@@ -310,10 +311,10 @@ class PointToPointReference(Reference):
         if not np.isfinite(wp).all():
             raise TrajectoryError("waypoints must be finite")
         p_start = checked_array(start, (3,), "start (x, y, theta)", TrajectoryError)
-        dwell = _array(dwell_s, "dwell_s")
-        if dwell.shape != () or not math.isfinite(dwell) or dwell < 0.0:
+        dwell_value = _array(dwell_s, "dwell_s")
+        if dwell_value.shape != () or not math.isfinite(dwell_value) or dwell_value < 0.0:
             raise TrajectoryError(f"dwell_s must be >= 0, got {dwell_s!r}")
-        dwell = float(dwell)
+        dwell = float(dwell_value)
         poses = np.vstack((p_start, wp))
         delta = np.diff(poses, axis=0)
         m = len(wp)
@@ -354,8 +355,8 @@ class PointToPointReference(Reference):
     def _kernel(self, t, xp: _Backend, derivatives: bool) -> list:  # noqa: ANN001
         columns = self._columns[xp]
         k = xp.segment(columns[0], t)
-        t0, T, p0, delta = columns[0][k], columns[1][k], columns[2:5], columns[5:8]
-        delta = [d[k] for d in delta]
+        t0, T, p0 = columns[0][k], columns[1][k], columns[2:5]
+        delta = [d[k] for d in columns[5:8]]
         s = _septic((t - t0) / T, xp)
         pos = [p[k] + d * s[0] for p, d in zip(p0, delta)]
         if not derivatives:

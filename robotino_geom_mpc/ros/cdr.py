@@ -1,12 +1,13 @@
-"""CDR bytes without rclpy's Python conversion: templates patched per sample, layouts read in place, a general decoder.
+"""CDR bytes without rclpy's Python conversion: the package's one reader and writer of the CDR rules.
 
-rclpy's conversions between Python messages and CDR cost far more than the
-control step, so the loop's messages travel as bytes: `CdrTemplate`
-serializes a fixed-layout message once and patches its numbers per sample
-(publishers), `CdrLayout` reads the numbers straight from bytes laid out like
-a template and returns None for any other layout, which then goes to the
-general decoder (`cdr_reader`, rclpy's). `bench --json` times both against rclpy's own
-(de)serialization (``cdr_*`` keys).
+The loop's messages travel as bytes (rclpy's conversions cost more than the control step): `CdrTemplate`
+patches a fixed-layout serialization per sample, `CdrLayout` reads numbers from bytes laid out like one
+(None otherwise: the general decoder `cdr_reader`, rclpy's, takes those). The report's readers
+(`odometry_pose`, `preview_start`, `float64_array`, `diagnostics_with`) walk recorded bytes to the values it
+needs; `values_of` falls back to a decoded message. Rules (plain CDR, XCDR1): a 4-byte encapsulation
+header (``00 01``: little-endian); a primitive aligned to its size counted from that header's end
+(`aligned`); a string a 4-aligned uint32 length, its bytes and a NUL; a sequence a 4-aligned uint32 count
+and its elements. rclpy is imported only where needed (templates, `cdr_reader`): the report runs without it.
 """
 
 from __future__ import annotations
@@ -19,11 +20,25 @@ from collections.abc import Callable, Iterable
 from operator import itemgetter
 from typing import Any
 
-from rclpy.serialization import deserialize_message, serialize_message
-
 from robotino_geom_mpc.errors import RobotinoError
+from robotino_geom_mpc.ros.decode import yaw_of
 
-__all__ = ["CdrLayout", "CdrTemplate", "CdrTemplateError", "MalformedMessage", "cdr_reader", "field_setter"]
+__all__ = [
+    "CdrLayout", "CdrTemplate", "CdrTemplateError", "ENCAPSULATION_SIZE", "MalformedMessage", "aligned", "cdr_reader",
+    "diagnostics_with", "float64_array", "odometry_pose", "preview_start", "values_of",
+]
+
+ENCAPSULATION_SIZE = 4
+_LITTLE_ENDIAN = (b"\x00\x01", b"\x00\x03")  # CDR_LE, PL_CDR_LE
+_STAMP = struct.Struct("<iI")
+_UINT32 = struct.Struct("<I")
+_POSE = struct.Struct("<7d")  # position x, y, z; orientation x, y, z, w (geometry_msgs/Pose, Transform)
+
+
+def aligned(position: int, size: int) -> int:
+    """`position` moved up to the next multiple of `size` counted from the end of the encapsulation header."""
+    return position + (ENCAPSULATION_SIZE - position) % size
+
 
 class MalformedMessage(RobotinoError, ValueError):
     """Serialized bytes that do not decode as the expected message type."""
@@ -32,10 +47,10 @@ class MalformedMessage(RobotinoError, ValueError):
 def cdr_reader(msg_type: type, type_name: str) -> Callable[[bytes], Any]:
     """A decoder of serialized `msg_type` messages (e.g. ``"nav_msgs/msg/Odometry"`` for `type_name`).
 
-    rclpy's `deserialize_message`: the nodes' fallback for a layout `CdrLayout` does not read, rare enough
-    that its speed does not matter, and free to import (rosbags' faster generated readers cost a node
-    0.3-0.5 s of import at start). Undecodable bytes raise `MalformedMessage`.
+    rclpy's `deserialize_message`, for layouts `CdrLayout` does not read: rare, and free to import (rosbags'
+    readers cost a node 0.3-0.5 s at start). Undecodable bytes raise `MalformedMessage`.
     """
+    from rclpy.serialization import deserialize_message
 
     def decode(data: bytes) -> Any:
         try:
@@ -97,21 +112,6 @@ def _assign(holder: Any, name: str, index: int | None, value: Any) -> None:
         getattr(holder, name)[index] = value
 
 
-def field_setter(msg: Any, paths: Iterable[str]) -> Callable[[Iterable[Any]], None]:
-    """A function setting the `paths` fields of `msg` (as in `CdrTemplate`) to given values, resolved once.
-
-    The peer of `CdrTemplate.pack` on a Python message (what the benchmark times it against).
-    Raises `CdrTemplateError` for a path that does not name a fixed-size primitive.
-    """
-    fields = [_resolve(msg, path)[:3] for path in paths]
-
-    def set_fields(values: Iterable[Any]) -> None:
-        for (holder, name, index), value in zip(fields, values):
-            _assign(holder, name, index, value)
-
-    return set_fields
-
-
 _ROUNDS = 3  # serializations with random field values (16 when a field is one byte: few values to tell apart)
 
 
@@ -136,6 +136,8 @@ def _locate(msg: Any, paths: tuple[str, ...]) -> tuple[bytes, str, list, list[in
         raise CdrTemplateError(f"field paths repeat: {paths}")
     if not paths:
         raise CdrTemplateError("no field paths to patch")
+    from rclpy.serialization import deserialize_message, serialize_message
+
     template = serialize_message(msg)
     probe = deserialize_message(template, type(msg))  # a copy; `msg` stays as it is
     fields = [_resolve(probe, path) for path in paths]
@@ -170,43 +172,29 @@ def _locate(msg: Any, paths: tuple[str, ...]) -> tuple[bytes, str, list, list[in
 class CdrTemplate:
     """Serialized bytes of a fixed-layout message, rebuilt per sample by patching a few fields in place.
 
-    rclpy's conversion of a Python message to C costs far more than the DDS
-    write itself; ``Publisher.publish`` also takes the serialized bytes. The
-    template serializes `msg` once (``rclpy.serialization.serialize_message``,
-    so the bytes are those the normal publish would send) and `pack` writes
-    new values of the `paths` fields at their offsets with one precompiled
-    `struct.Struct`.
+    The template serializes `msg` once (rclpy's ``serialize_message``: the bytes a normal publish sends)
+    and `pack` writes the `paths` fields at their offsets with one precompiled `struct.Struct`.
 
     Parameters
     ----------
     msg
-        A message with every constant field set (frame ids, names, covariances,
-        layout labels, sequence lengths). It is not modified.
+        A message with every constant field set (frame ids, names, covariances, labels, sequence lengths).
+        It is not modified.
     paths
-        The fields `pack` sets, dotted with element indices, e.g.
-        ``'header.stamp.sec'``, ``'pose.pose.position.x'``, ``'data[1]'``,
-        ``'points[3].transforms[0].rotation.w'``. Each must be a fixed-size
-        primitive (numbers, booleans).
+        The fields `pack` sets, dotted with element indices, e.g. ``'header.stamp.sec'``, ``'data[1]'``,
+        ``'points[3].transforms[0].rotation.w'``: each a fixed-size primitive (numbers, booleans).
 
     Raises
     ------
     CdrTemplateError
-        When a path does not name a fixed-size primitive (a string, a whole
-        sequence, a nested message, an element beyond the template's length),
-        when paths repeat, or when a field's byte offset cannot be determined
-        unambiguously.
+        When a path does not name a fixed-size primitive (a string, a sequence, a nested message, an element
+        beyond the template's length), when paths repeat, or when an offset is ambiguous.
 
     Notes
     -----
-    Only fixed-layout samples qualify: every string and sequence length is
-    frozen in the template, so a message whose variable-length fields change
-    from sample to sample cannot be templated. Each offset is found, not
-    computed: the patched fields are set to random sentinel values, and again
-    to others, and a field's offset is the one position holding its value in
-    each of these serializations. (A byte diff would
-    not do: the serializer leaves alignment padding uninitialised, so padding
-    bytes differ between calls; the template keeps those of its one call,
-    which no reader looks at.)
+    Every string and sequence length is frozen in the template. Each offset is found, not computed: the
+    fields are set to random sentinels, twice more, and a field's offset is the one position holding its
+    value in every serialization (a byte diff would not do: rmw leaves alignment padding uninitialised).
     """
 
     def __init__(self, msg: Any, paths: Iterable[str]) -> None:
@@ -229,7 +217,7 @@ class CdrTemplate:
         self._head, self._tail = template[:offsets[order[0]]], template[end:]
         self._gaps = tuple(gaps)
         self._struct = struct.Struct(fmt)
-        self._pick = itemgetter(*picks) if len(picks) > 1 else lambda values: (values[picks[0]],)
+        self._pick = _getter(picks)
         self.size = len(template)
 
     def pack(self, *values: Any) -> bytes:
@@ -248,29 +236,20 @@ class CdrTemplate:
 
 
 def _structure(msg: Any) -> tuple[int, list[tuple[int, int]]]:
-    """Serialized size and the byte ranges of the length prefixes and strings of `msg` (plain CDR, XCDR1).
+    """Serialized size and the byte ranges of the length prefixes and strings of `msg` (the module's rules).
 
-    Walks the fields as the serializer lays them out: after the 4-byte
-    encapsulation header, each primitive aligned to its size, a string as a
-    4-aligned uint32 length plus its bytes and a NUL, a sequence as a
-    4-aligned uint32 count plus its elements, an array as its elements.
     Raises `CdrTemplateError` for field types it does not know (wstring).
     """
     ranges: list[tuple[int, int]] = []
-    position = 4
-
-    def align(size: int) -> None:
-        nonlocal position
-        position += -(position - 4) % size
+    position = ENCAPSULATION_SIZE
 
     def item(kind: str, value: Any) -> None:
         nonlocal position
         if kind in _PRIMITIVES:
             size = struct.calcsize("<" + _PRIMITIVES[kind])
-            align(size)
-            position += size
+            position = aligned(position, size) + size
         elif kind == "string" or kind.startswith("string<"):
-            align(4)
+            position = aligned(position, 4)
             end = position + 4 + len(value.encode()) + 1
             ranges.append((position, end))
             position = end
@@ -288,7 +267,7 @@ def _structure(msg: Any) -> tuple[int, list[tuple[int, int]]]:
                 item(kind, value)
                 continue
             if container["seq"]:
-                align(4)
+                position = aligned(position, 4)
                 ranges.append((position, position + 4))
                 position += 4
             for element in value:
@@ -301,10 +280,8 @@ def _structure(msg: Any) -> tuple[int, list[tuple[int, int]]]:
 class CdrLayout:
     """Reads fields straight from serialized messages laid out like a template: the reverse of `CdrTemplate`.
 
-    Decoding a whole message into Python objects costs far more than the
-    few fields a node needs. `read` takes them with one precompiled
-    `struct.Struct` when the bytes have the template's layout, and returns
-    None otherwise, so that the caller falls back to a general decoder.
+    `read` takes the fields with one precompiled `struct.Struct` when the bytes have the template's layout,
+    and returns None otherwise (the caller falls back to a general decoder).
 
     Parameters
     ----------
@@ -322,11 +299,9 @@ class CdrLayout:
 
     Notes
     -----
-    The layout is the template's structure: its encapsulation header, every
-    string (length and bytes) and every sequence count (`_structure`).
-    Bytes of the same length that repeat it have every field at the
-    template's offset, whatever their numbers and alignment padding; any
-    other bytes are refused (None), never misread.
+    The layout is the template's encapsulation header, strings (length and bytes) and sequence counts
+    (`_structure`): bytes of the same length that repeat them have every field at the template's offset,
+    whatever their padding; any other bytes are refused (None), never misread.
     """
 
     def __init__(self, msg: Any, paths: Iterable[str]) -> None:
@@ -337,7 +312,8 @@ class CdrLayout:
             raise CdrTemplateError(f"computed layout of {type(msg).__name__} ({size} bytes) disagrees with its "
                                    f"serialization ({len(template)} bytes)")
         items = [(0, 4, "s")] + [(a, b, "s") for a, b in ranges]
-        items += [(off, off + struct.calcsize(endian + field[3]), i) for i, (off, field) in enumerate(zip(offsets, fields))]
+        items += [(off, off + struct.calcsize(endian + field[3]), i)
+                  for i, (off, field) in enumerate(zip(offsets, fields))]
         items.sort()
         fmt, position, structure, picks = endian, 0, [], [0] * len(fields)
         for index, (start, end, what) in enumerate(items):
@@ -374,3 +350,99 @@ def _getter(indices: list[int]) -> Callable[[tuple], tuple]:
         index = indices[0]
         return lambda values: (values[index],)
     return itemgetter(*indices)
+
+
+class _Unreadable(ValueError):
+    """Bytes the report's readers do not walk (not little-endian CDR, or truncated)."""
+
+
+def _count(data: bytes, pos: int) -> tuple[int, int]:
+    """(uint32 at `pos` aligned to 4, the position after it)."""
+    pos = aligned(pos, 4)
+    return _UINT32.unpack_from(data, pos)[0], pos + 4
+
+
+def _skip_string(data: bytes, pos: int) -> int:
+    return sum(_count(data, pos))
+
+
+def _string(data: bytes, pos: int) -> tuple[str, int]:
+    length, pos = _count(data, pos)
+    if length == 0 or pos + length > len(data):
+        raise _Unreadable("a string past the end of the message")
+    return data[pos : pos + length - 1].decode(), pos + length  # without the terminating NUL
+
+
+def _header(data: bytes) -> tuple[int, int]:
+    """(std_msgs/Header stamp [ns], the position after its frame_id)."""
+    if data[:2] not in _LITTLE_ENDIAN:
+        raise _Unreadable("not little-endian CDR")
+    sec, nanosec = _STAMP.unpack_from(data, ENCAPSULATION_SIZE)
+    return sec * 1_000_000_000 + nanosec, _skip_string(data, 12)
+
+
+def _pose_after(data: bytes, pos: int) -> tuple[float, float, float]:
+    x, y, _, qx, qy, qz, qw = _POSE.unpack_from(data, aligned(pos, 8))
+    return (x, y, yaw_of(qx, qy, qz, qw))
+
+
+def odometry_pose(data: bytes) -> tuple[int, tuple[float, float, float]]:
+    """nav_msgs/Odometry bytes -> (header stamp [ns], (x, y, yaw) of pose.pose)."""
+    stamp, pos = _header(data)
+    return stamp, _pose_after(data, _skip_string(data, pos))  # child_frame_id, then the pose
+
+
+def preview_start(data: bytes) -> tuple[int, tuple[float, float, float] | None]:
+    """MultiDOFJointTrajectory bytes -> (header stamp [ns], (x, y, yaw) of point 0's first transform or None)."""
+    stamp, pos = _header(data)
+    names, pos = _count(data, pos)
+    for _ in range(names):
+        pos = _skip_string(data, pos)
+    points, pos = _count(data, pos)
+    if points == 0:
+        return stamp, None
+    transforms, pos = _count(data, pos)
+    return stamp, (_pose_after(data, pos) if transforms else None)
+
+
+def float64_array(data: bytes) -> tuple[float, ...]:
+    """std_msgs/Float64MultiArray bytes -> its data (any count)."""
+    if data[:2] not in _LITTLE_ENDIAN:
+        raise _Unreadable("not little-endian CDR")
+    dims, pos = _count(data, ENCAPSULATION_SIZE)
+    for _ in range(dims):
+        pos = aligned(_skip_string(data, pos), 4) + 8  # label, then size and stride (uint32)
+    count, pos = _count(data, aligned(pos, 4) + 4)  # data_offset, then data's count
+    return struct.unpack_from(f"<{count}d", data, aligned(pos, 8)) if count else ()
+
+
+def diagnostics_with(key: str) -> Callable[[bytes], tuple[int, dict[str, str] | None]]:
+    """A reader of DiagnosticArray bytes -> (header stamp [ns], the first status's key-values that hold `key`)."""
+
+    def read(data: bytes) -> tuple[int, dict[str, str] | None]:
+        stamp, pos = _header(data)
+        statuses, pos = _count(data, pos)
+        for _ in range(statuses):
+            pos = _skip_string(data, _skip_string(data, _skip_string(data, pos + 1)))  # level; name, message, id
+            count, pos = _count(data, pos)
+            values = {}
+            for _ in range(count):
+                name, pos = _string(data, pos)
+                values[name], pos = _string(data, pos)
+            if key in values:
+                return stamp, values
+        return stamp, None
+
+    return read
+
+
+def values_of(data: bytes, read: Callable[[bytes], Any], of_message: Callable[[Any], Any],
+              decode: Callable[[], Any]) -> Any:
+    """`read(data)`, else `of_message(decode())` for bytes `read` does not walk (`decode` raises as it will).
+
+    `of_message` takes the same values from a decoded message (`ros.decode`'s ``*_of_message`` functions).
+    """
+    try:
+        return read(data)
+    except (_Unreadable, struct.error, IndexError, UnicodeDecodeError):
+        return of_message(decode())

@@ -2,6 +2,8 @@
 
 The functions take any object with the messages' field names: rclpy's
 message classes, rosbags' or mcap-ros2-support's decoded messages. The
+``*_of_message`` functions take from a decoded message what `ros.cdr`'s
+readers of the same name take from its bytes (the report's fallback). The
 checks the controller node makes on each input are here too, as plain
 float operations on the values already read (`check_yaw_quaternion`,
 `stamp_problem`); a refused input raises `InputRejected`, whose `reason`
@@ -11,6 +13,8 @@ is a short key the node counts and reports.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -19,8 +23,9 @@ from robotino_geom_mpc.errors import RobotinoError
 
 __all__ = [
     "InputRejected", "ODOM_FIELDS", "POINT_FIELDS", "QUATERNION_NORM_TOLERANCE", "STAMP_FIELDS", "TILT_TOLERANCE_RAD",
-    "check_yaw_quaternion", "odometry_state", "odometry_values", "preview_arrays", "preview_of_values",
-    "preview_point_values", "stamp_ns", "stamp_problem", "state_of_odometry", "time_ns", "unwrap_near", "yaw_of",
+    "check_yaw_quaternion", "diagnostics_with_of_message", "float64_array_of_message", "odometry_pose_of_message",
+    "odometry_state", "odometry_values", "preview_arrays", "preview_of_values", "preview_point_values",
+    "preview_start_of_message", "stamp_ns", "stamp_problem", "state_of_odometry", "time_ns", "unwrap_near", "yaw_of",
 ]
 
 STAMP_FIELDS = ("header.stamp.sec", "header.stamp.nanosec")
@@ -243,3 +248,37 @@ def preview_arrays(msg, horizon: int, theta_near: float, norm_tolerance: float =
         or a rotation that is not a yaw.
     """
     return preview_of_values(preview_point_values(msg, horizon), theta_near, norm_tolerance, tilt_tolerance_rad)
+
+
+def odometry_pose_of_message(msg: Any) -> tuple[int, tuple[float, float, float]]:
+    """`ros.cdr.odometry_pose` of a decoded message."""
+    pose = msg.pose.pose
+    q = pose.orientation
+    return stamp_ns(msg.header.stamp), (pose.position.x, pose.position.y, yaw_of(q.x, q.y, q.z, q.w))
+
+
+def preview_start_of_message(msg: Any) -> tuple[int, tuple[float, float, float] | None]:
+    """`ros.cdr.preview_start` of a decoded message."""
+    if not msg.points or not msg.points[0].transforms:
+        return stamp_ns(msg.header.stamp), None
+    tf = msg.points[0].transforms[0]
+    q = tf.rotation
+    return stamp_ns(msg.header.stamp), (tf.translation.x, tf.translation.y, yaw_of(q.x, q.y, q.z, q.w))
+
+
+def float64_array_of_message(msg: Any) -> tuple[float, ...]:
+    """`ros.cdr.float64_array` of a decoded message."""
+    return tuple(float(v) for v in msg.data)
+
+
+def diagnostics_with_of_message(key: str) -> Callable[[Any], tuple[int, dict[str, str] | None]]:
+    """`ros.cdr.diagnostics_with` of a decoded message."""
+
+    def of_message(msg: Any) -> tuple[int, dict[str, str] | None]:
+        for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if key in values:
+                return stamp_ns(msg.header.stamp), values
+        return stamp_ns(msg.header.stamp), None
+
+    return of_message

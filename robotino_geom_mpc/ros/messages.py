@@ -27,7 +27,8 @@ from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate
 from robotino_geom_mpc.ros.decode import ODOM_FIELDS, POINT_FIELDS, STAMP_FIELDS, yaw_of
 
 __all__ = [
-    "BASE_FRAME", "CURRENT_LABEL", "ODOM_FRAME", "VOLTAGE_LABEL", "ns_to_stamp", "odometry_layout", "odometry_message", "point_values",
+    "BASE_FRAME", "CURRENT_LABEL", "ODOM_FRAME", "VOLTAGE_LABEL", "ns_to_stamp", "odometry_layout", "odometry_message",
+    "point_values",
     "preview_layout", "preview_message", "preview_skeleton", "preview_template", "preview_values",
     "quaternion_to_yaw", "stamp_to_ns", "three_values", "three_values_layout", "three_values_template",
     "yaw_quaternion_zw", "yaw_to_quaternion",

@@ -101,8 +101,6 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """
     from rclpy.experimental import EventsExecutor
 
-    from robotino_geom_mpc.blas_threads import one_blas_thread
-
     status = start_rclpy(args)
     if status is not None:
         return status
@@ -111,7 +109,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         if STOP.is_set():  # a signal during rclpy.init
             return 0
         node = factory()
-        one_blas_thread()  # also under `ros2 run`: OpenBLAS threads only spin on a node's 3x3-9x9 matrices
+        _one_blas_thread()  # also under `ros2 run`: OpenBLAS threads only spin on a node's 3x3-9x9 matrices
         gc.collect()
         gc.freeze()
         executor = EventsExecutor()
@@ -159,3 +157,12 @@ def data_publishers(node: Node) -> list:
 def monotonic() -> float:
     """Steady time in seconds (watchdogs and latency; never the ROS clock)."""
     return time.monotonic()
+
+
+def _one_blas_thread() -> None:
+    """BLAS on one thread (threadpoolctl); without threadpoolctl (no rosdep key) the node runs as it is."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return
+    threadpool_limits(limits=1, user_api="blas")

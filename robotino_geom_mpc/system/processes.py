@@ -1,4 +1,4 @@
-"""Start the nodes as separate processes and stop them cleanly (what `ros2 launch` would do; used by `run`, bench, tests).
+"""Start the nodes as separate processes and stop them cleanly (as `ros2 launch` would; used by `run`, bench, tests).
 
 Each node runs as ``sys.executable -m MODULE --ros-args ...`` in its own
 process group with stdout/stderr in files, so a Ctrl-C of the caller does not
@@ -24,8 +24,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR",
-           "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup", "dds_environment",
+__all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "TIMING_REPORT",
+           "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
+           "dds_environment",
            "wait_for_exit",
            "frame_prefix", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
 
@@ -41,15 +42,22 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
                      "wheel_currents:1", "joint_states:1", "diagnostics:1")
 
 
-def recorder_wait_for(command_interface: str = "voltages") -> list[str]:
+def recorder_wait_for(command_interface: str = "voltages", plans: bool = False) -> list[str]:
     """`RECORDER_WAIT_FOR` for a run's nodes (a description publisher among them) and command interface: with
     ``cmd_vel`` the controller's twist (``cmd_vel:2``, the plant's and the recorder's readers) instead of
-    ``wheel_voltages``, and the recorder's reader of the plant's ``applied_voltages``."""
+    ``wheel_voltages``, and the recorder's reader of the plant's ``applied_voltages``. With `plans` the plant
+    reads the plan topic (``wheel_voltage_plan:2`` / ``cmd_vel_plan:2``; the plain command the recorder alone)
+    and the controller and the recorder the plant's ``command_applied``.
+    """
     # joint_states: the recorder's reader and the description publisher's (its wheel TF recorded from tick 0)
     waits = [w.replace("joint_states:1", "joint_states:2") for w in RECORDER_WAIT_FOR]
-    if command_interface == "voltages":
-        return waits
-    return [w.replace("wheel_voltages:", "cmd_vel:") for w in waits] + ["applied_voltages:1"]
+    if command_interface != "voltages":
+        waits = [w.replace("wheel_voltages:", "cmd_vel:") for w in waits] + ["applied_voltages:1"]
+    if plans:
+        command = "wheel_voltages" if command_interface == "voltages" else "cmd_vel"
+        waits = [f"{command}:1" if w == f"{command}:2" else w for w in waits]
+        waits += [f"{command.replace('wheel_voltages', 'wheel_voltage')}_plan:2", "command_applied:2"]
+    return waits
 
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/: the nodes' profile on one host (`dds_environment`)
@@ -60,6 +68,7 @@ FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/: the nodes' profile on o
 PROFILE_SETTLE_S = 0.1
 
 # the nodes that declare ``frame_prefix`` (their frame ids: odometry, /tf, paths)
+TIMING_REPORT = "plant_timing.json"  # in a run's log directory: the plant's timing report (loop_timing)
 FRAME_PREFIX_NODES = ("plant_node", "controller_node", "trajectory_node", "robot_description_publisher")
 _NAMESPACE_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
@@ -122,6 +131,8 @@ def node_arguments(
     goals_file: str | os.PathLike | None = None,
     command_interface: str = "voltages",
     environ: Mapping[str, str] | None = None,
+    link: Any = None,
+    plans: bool | None = None,
     live_view_port: int | None = None,
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`.
@@ -133,13 +144,19 @@ def node_arguments(
     `LOCKSTEP_WAIT_FOR`, or `recorder_wait_for(command_interface)` with a recorder);
     `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`)
     and gives the nodes of `FRAME_PREFIX_NODES` its `frame_prefix`.
-    A ``robot_description_publisher`` publishes the URDF and the wheels' TF (lossless in lockstep, its ``mode``). `command_interface`
+    A ``robot_description_publisher`` publishes the URDF and the wheels' TF (lossless in lockstep, its ``mode``).
+    `command_interface`
     cmd_vel goes to the controller and the plant (voltages, their default, is left to them).
     With `goals_file` (scenario ``goals``) a ``goal_sender`` sends the file's
     goals and paths; a lockstep plant waits for its odom subscription too, so its times count from tick 0.
     `environ` is the environment the nodes will run in (`os.environ` if None, as for a `NodeGroup` without
     ``env``): where `dds_environment` gives them the package's profile, a lockstep plant settles
     `PROFILE_SETTLE_S` before tick 0 instead of its default.
+    `link` (`network.link.LinkParams`, each way) puts the plant's emulated radio link between the robot and the
+    other nodes (over the scenario's own link, e.g. ``wifi``'s). `plans` (None: whenever there is a link) makes
+    the controller send delay-compensated plans and the plant take them (``plans`` of both; the trajectory's
+    ``preview_points`` the plans' `DelayCompensatingController.preview_length`); False over a link is the
+    uncompensated baseline (plain commands acting on arrival).
     With `live_view_port` a ``live_view_node`` serves every topic there (Foxglove WebSocket); a lockstep plant
     waits for its subscriptions too (one more on each topic it waits for) and runs at real time at most
     (``lockstep_max_realtime_factor`` 1), so the view shows the run from tick 0 at the pace it would have.
@@ -148,12 +165,24 @@ def node_arguments(
     from robotino_geom_mpc.scenarios import node_parameters
     from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST
 
-    robot, _ = load_params(params_file)
+    robot, control = load_params(params_file)
     mode = "lockstep" if lockstep else "realtime"
     scenario_overrides = node_parameters(scenario, robot)
+    if link is not None:
+        scenario_overrides["plant_node"].update(
+            {f"link.{way}.{name}": float(value) for way in ("up", "down") for name, value in vars(link).items()})
+    networked = any(name.startswith("link.") and name.rsplit(".", 1)[1] != "burst_length" and value
+                    for name, value in scenario_overrides["plant_node"].items())
+    plans = networked if plans is None else plans
+    if plans:
+        from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
+
+        scenario_overrides["plant_node"]["plans"] = scenario_overrides["controller_node"]["plans"] = True
+        scenario_overrides["trajectory_node"]["preview_points"] = DelayCompensatingController(
+            robot, control).preview_length
     extra = overrides or {}
     if wait_for is None:
-        wait_for = list(LOCKSTEP_WAIT_FOR) if bag is None else recorder_wait_for(command_interface)
+        wait_for = list(LOCKSTEP_WAIT_FOR) if bag is None else recorder_wait_for(command_interface, plans)
         if goals_file is not None:  # the goal sender's odom subscription (its clock) too
             wait_for = [f"odom:{int(w.split(':')[1]) + 1}" if w.startswith("odom:") else w for w in wait_for]
         if live_view_port is not None:  # the live view subscribes every topic
@@ -247,7 +276,8 @@ def ros_args(params_file: str | os.PathLike | None = None, overrides: dict[str, 
 
 def wait_for_exit(popens: list[subprocess.Popen], timeout_s: float) -> None:
     """Block until one of `popens` exits or `timeout_s` passes (Linux: on pidfds, woken at the exit itself;
-    elsewhere a 20 ms poll). Reaps nothing: `Popen.poll` then tells which one ended."""
+    elsewhere a 20 ms poll). Reaps nothing: `Popen.poll` then tells which one ended.
+    """
     running = [p for p in popens if p.poll() is None]
     if not running or timeout_s <= 0.0:
         return
@@ -360,7 +390,8 @@ class NodeGroup:
     def wait(self, node: NodeProcess, timeout_s: float | None = None, done: Callable[[], bool] | None = None,
              poll_s: float = 1.0) -> bool:
         """Wait until `node` exits or `done()` is true (True), or `timeout_s` passes (False); raise `NodeFailed`
-        if any node fails. Woken at once by an exit; `done` is looked at every `poll_s`."""
+        if any node fails. Woken at once by an exit; `done` is looked at every `poll_s`.
+        """
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             self.check()

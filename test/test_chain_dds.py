@@ -1,0 +1,58 @@
+"""The chain over DDS: the plant node as driver + firmware (``chain.active``), `identify --ros` against it, and
+the nodes' refusals. Realtime: a host too loaded to run the emulation at wall-clock speed fails these (the plant
+logs its late passes).
+"""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from robotino_geom_mpc.model.chain_emulation import ChainEmulator, EmulatedRobot
+from robotino_geom_mpc.control.chain_identification import fit_chain, run_excitation
+from robotino_geom_mpc.model.driver_chain import chain_params
+from robotino_geom_mpc.model.plant import RobotinoPlant
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.system.processes import NodeGroup, ros_args
+
+pytestmark = pytest.mark.ros
+
+CHAIN = {"mode": "realtime", "command_interface": "cmd_vel", "chain.active": "enabled", "wheel_pi.rate_hz": 200.0}
+
+
+@pytest.mark.parametrize("node, override, name", [
+    ("robotino_sim_node.plant_node", {"chain.active": "enabled"}, "command_interface"),  # voltages: refused
+    ("robotino_sim_node.plant_node", {**CHAIN, "chain.link.loss": 0.9}, "chain.link.loss"),
+    ("robotino_sim_node.plant_node", {**CHAIN, "chain.tick_s": 0.03}, "chain.odometry_rate_hz"),
+    ("robotino_geom_mpc.nodes.controller_node", {"chain.active": "enabled", "mode": "lockstep",
+                                                 "command_interface": "cmd_vel"}, "chain.active"),
+    ("robotino_geom_mpc.nodes.controller_node", {"chain.ramp_rotation_rad_s2": -1.0}, "chain.ramp_rotation_rad_s2"),
+])
+def test_nodes_refuse_bad_chain_settings_by_name(node, override, name):
+    proc = subprocess.run([sys.executable, "-m", node, *ros_args(None, override)], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert name in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_identify_over_ros_against_the_chain_plant(tmp_path):
+    """`identify --ros` against the plant node's chain over DDS finds what `identify` finds offline on the same
+    emulated chain (PI loops at 200 Hz there: their effective time constant is 21 ms, not the 25 ms of 1 kHz).
+    """
+    delay = 0.01
+    chain = chain_params({"chain.link.delay_s": delay})
+    robot = load_params()[0]
+    offline = fit_chain(run_excitation(EmulatedRobot(ChainEmulator(RobotinoPlant(robot), chain, seed=1,
+                                                                   speed_loop_rate_hz=200.0))), chain_params())
+    with NodeGroup(log_dir=tmp_path / "logs") as group:
+        plant = group.start("plant_node", ros_args(None, {**CHAIN, "chain.link.delay_s": delay, "duration_s": 40.0}))
+        out = tmp_path / "id"
+        proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "identify", "--ros", "--out", str(out)],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr + plant.stderr_tail(20)
+    fit = json.loads((out / "identify.json").read_text())
+    # over DDS the round trip adds the node-to-node hops and the plant's 5 ms poll to the WiFi's 2 x 10 ms
+    assert offline.round_trip_s - 0.005 <= fit["round_trip_s"] <= offline.round_trip_s + 0.010
+    for key in ("ramp_translation_m_s2", "ramp_rotation_rad_s2", "speed_loop_time_constant_s"):
+        assert fit[key] == pytest.approx(getattr(offline, key), rel=0.1), key

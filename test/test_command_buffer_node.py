@@ -1,0 +1,111 @@
+"""The robot-side command buffer node in front of a stand-in driver (an rclpy subscriber recording when each twist
+arrived), against the plans' times: newest plan first, late plans covered, older/duplicate ignored, bad plans
+refused, zero twist when the plans are used up, reports of what was applied and when each plan arrived.
+"""
+
+import math
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Twist
+from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
+
+from harness import Harness
+from robotino_geom_mpc.network.plan import CommandPlan
+from robotino_geom_mpc.ros.plans import plan_message, report_of_message
+from robotino_geom_mpc.ros.qos import PUBLISH_QOS
+from robotino_geom_mpc.system.processes import NodeGroup, ros_args
+
+pytestmark = pytest.mark.ros
+
+TS = 0.1  # a long period: each twist is checked against its own period, on a loaded machine too
+IDLE_S = 0.3
+
+
+def _plan(basis, first, values):
+    return CommandPlan(basis, tuple(first + i * TS for i in range(len(values))), tuple(values), TS)
+
+
+@pytest.fixture(scope="module")
+def buffer_run(tmp_path_factory):
+    """Plans sent to a buffer node; the twists with their arrival times (robot clock), the reports."""
+    with NodeGroup(log_dir=tmp_path_factory.mktemp("buffer")) as group, Harness("stand_in_driver") as h:
+        twists = []  # (arrival [s], (vx, vy, w))
+        reports = h.collect("command_applied", JointTrajectory)
+        diagnostics = h.collect("diagnostics", DiagnosticArray)
+        now = lambda: h.node.get_clock().now().nanoseconds * 1e-9  # noqa: E731 - the robot's clock (one host)
+        h.node.create_subscription(Twist, "cmd_vel", lambda m: twists.append(
+            (now(), (m.linear.x, m.linear.y, m.angular.z))), 100)
+        pub = h.node.create_publisher(MultiDOFJointTrajectory, "cmd_vel_plan", PUBLISH_QOS)
+        node = group.start("command_buffer_node", ros_args(None, {"control.period_s": TS, "idle_after_s": IDLE_S}))
+        assert h.spin_until(lambda: pub.get_subscription_count() >= 1 and h.node.count_publishers("cmd_vel") >= 1,
+                            30.0), node.stderr_tail()
+        h.spin_for(0.5)
+        t0 = now() + 0.3
+        first = _plan(t0 - 0.05, t0, [(0.1 * (i + 1), 0.0, 0.0) for i in range(6)])  # entries 0.1 .. 0.6
+        # a newer plan from entry 4 on (basis later), sent before the first one's entry 4
+        newer = _plan(t0 + 0.05, t0 + 4 * TS, [(0.0, 0.2 * (i + 1), 0.0) for i in range(4)])
+        bad = [
+            _plan(t0 + 0.06, t0 + 5 * TS, [(math.nan, 0.0, 0.0)] * 3),  # NaN
+            CommandPlan(t0 + 0.07, (t0 + 5 * TS, t0 + 5 * TS), ((9.0, 0, 0),) * 2, TS),  # non-increasing times
+            _plan(t0 + 30.0, t0 + 30.0, [(9.0, 0.0, 0.0)] * 3),  # far in the future
+            _plan(t0 - 30.0, t0 - 30.0, [(9.0, 0.0, 0.0)] * 3),  # far in the past
+        ]
+        pub.publish(plan_message(first, "cmd_vel"))
+        assert h.spin_until(lambda: now() >= t0 + 1.5 * TS, 5.0)
+        assert now() < t0 + 3.5 * TS, "the stand-in was too slow to send the newer plan in time"
+        wrong_length = plan_message(newer, "cmd_vel")
+        wrong_length.header.stamp.sec += 1
+        wrong_length.points[1].velocities = []
+        # the newer plan, then the first again (older than the newest: ignored), the newer again (duplicate)
+        for msg in [plan_message(p, "cmd_vel") for p in (newer, first, newer)] + [wrong_length] + [
+                plan_message(p, "cmd_vel") for p in bad]:
+            pub.publish(msg)
+            h.spin_for(0.002)  # apart: the buffer's subscription keeps the newest few
+        end = newer.end_s
+        assert h.spin_until(lambda: now() > end + IDLE_S + 4 * TS, 10.0)
+        sent = now()
+        assert h.spin_until(lambda: any(d.header.stamp.sec + d.header.stamp.nanosec * 1e-9 > sent
+                                        for d in diagnostics), 5.0)
+        group.stop(5.0)
+    counts = {kv.key: kv.value for kv in diagnostics[-1].status[0].values}
+    return t0, first, newer, twists, [report_of_message(m) for m in reports], counts
+
+
+def test_each_twist_goes_out_in_its_entry_period_from_the_newest_plan(buffer_run):
+    t0, first, newer, twists, _, counts = buffer_run
+    moving = [(t, v) for t, v in twists if v != (0.0, 0.0, 0.0)]
+    expected = [(first.times_s[i], first.entries[i]) for i in range(4)] + list(zip(newer.times_s, newer.entries))
+    assert [v for _, v in moving] == [pytest.approx(v) for _, v in expected]
+    for (arrived, _), (start, _) in zip(moving, expected):
+        assert start <= arrived < start + TS, (arrived - start, "each twist arrives within its own period")
+
+
+def test_the_robot_stops_when_the_plans_are_used_up_then_idles(buffer_run):
+    t0, _, newer, twists, _, _ = buffer_run
+    assert all(v == (0.0, 0.0, 0.0) for t, v in twists if t < t0)  # before the first entry: at rest
+    zeros = [t for t, v in twists if v == (0.0, 0.0, 0.0) and t > t0]
+    assert zeros and newer.end_s <= zeros[0] < newer.end_s + TS
+    assert all(t < newer.end_s + IDLE_S + 2 * TS for t in zeros)  # then nothing until the next plan
+
+
+def test_reports_say_what_was_applied_and_when_each_plan_arrived(buffer_run):
+    t0, first, newer, twists, reports, _ = buffer_run
+    receipts = [(r.basis_s, r.taken) for r in reports if r.values is None]
+    # the first, the newer, the first again (older), the newer again (duplicate), then the refused ones
+    assert [b for b, _ in receipts[:4]] == pytest.approx([first.basis_s, newer.basis_s, first.basis_s, newer.basis_s])
+    assert [taken for _, taken in receipts] == [True, True] + [False] * (len(receipts) - 2)
+    applied = [r for r in reports if r.values is not None and r.basis_s is not None]
+    assert all(r.values == (0.0, 0.0, 0.0) for r in reports if r.values is not None and r.basis_s is None)
+    assert [(r.index, r.values) for r in applied] == [(i, pytest.approx(first.entries[i])) for i in range(4)] + [
+        (i, pytest.approx(newer.entries[i])) for i in range(4)]
+    for r in applied:
+        plan = first if abs(r.basis_s - first.basis_s) < 1e-6 else newer
+        assert plan.times_s[r.index] <= r.time_s < plan.times_s[r.index] + TS
+
+
+def test_bad_plans_are_refused_and_counted_older_and_duplicates_ignored(buffer_run):
+    counts = buffer_run[-1]
+    assert {k: int(counts[f"refused_{k}"]) for k in ("nan", "times", "future", "past", "length")} == dict.fromkeys(
+        ("nan", "times", "future", "past", "length"), 1)
+    assert int(counts["refused"]) == 5 and int(counts["ignored_older_or_duplicate"]) == 2

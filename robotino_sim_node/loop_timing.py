@@ -136,7 +136,8 @@ class LoopTiming:
 
     def percentile_s(self, q: float, counts: np.ndarray | None = None) -> float:
         """The `q`-th percentile (0..100) of the latencies [s] (or of the histogram `counts`), to one bin (the upper
-        edge of its bin); NaN if none."""
+        edge of its bin); NaN if none.
+        """
         counts = self.counts if counts is None else counts
         total = int(counts.sum())
         if total == 0:

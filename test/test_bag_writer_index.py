@@ -1,6 +1,8 @@
 """`BagWriter`'s packed chunk indexes: the same MCAP bytes as mcap's own list of index objects, in a fraction of the
-memory (a recorder closes a chunk every flush period, 0.5 s: 1200 chunks in 10 minutes of a soak)."""
+memory (a recorder closes a chunk every flush period, 0.5 s: 1200 chunks in 10 minutes of a soak).
+"""
 
+import pytest
 import gc
 import tracemalloc
 
@@ -10,7 +12,9 @@ from rosbags.typesys import Stores, get_typestore
 from std_msgs.msg import Float64MultiArray
 
 from robotino_geom_mpc.recording import bag_writer
-from robotino_geom_mpc.recording.bag import BagWriter
+from robotino_geom_mpc.recording.bag_writer import BagWriter
+
+pytestmark = pytest.mark.unit
 
 TOPICS = 14  # a run's recorded topics
 HASH = get_typestore(Stores.ROS2_JAZZY).hash_rihs01("std_msgs/msg/Float64MultiArray")

@@ -8,6 +8,7 @@ CDR reader) and compared with the run's bag read by the mcap library: every live
 same stamps and values, byte for byte the same CDR; the advertised schema is the bag's.
 """
 
+import pytest
 import asyncio
 import json
 import os
@@ -20,6 +21,8 @@ import time
 import websockets
 from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_typestore
+
+pytestmark = pytest.mark.ros
 
 TOPICS = ("/odom", "/tf", "/robot_description")
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
@@ -133,7 +136,8 @@ def test_run_foxglove_serves_the_recorded_messages_live(tmp_path):
 
 def test_a_lockstep_run_with_the_live_view_waits_for_it_and_goes_at_real_time():
     """node_arguments: the live view's node and port; the lockstep plant waits for one more subscription on each
-    topic (the view subscribes every topic, so the recorder's still count) and is paced at real time at most."""
+    topic (the view subscribes every topic, so the recorder's still count) and is paced at real time at most.
+    """
     from robotino_geom_mpc.params.presets import default_params_file
     from robotino_geom_mpc.system.processes import node_arguments, recorder_wait_for
 

@@ -70,7 +70,8 @@ def test_lockstep_pace_spaces_ticks_by_the_factor_and_restarts_after_a_stall():
        st.sampled_from([0.05, 0.1, 0.37]))
 def test_windows_hold_the_figures_of_their_ticks(answers, window_s):
     """Ticks every 10 ms, answered after the given latency or not (None); each window's counts and percentiles are
-    those of the ticks between its opening odometry and the next window's, computed here from the list."""
+    those of the ticks between its opening odometry and the next window's, computed here from the list.
+    """
     timing = LoopTiming(bin_s=1e-6, max_s=0.1, window_s=window_s)
     for k, latency in enumerate(answers):
         timing.published(0.01 * k)

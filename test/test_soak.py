@@ -19,6 +19,8 @@ import pytest
 from robotino_geom_mpc.bench.restarts import restart_loop
 from robotino_geom_mpc.bench.soak import PLANT_TOPICS, SEQUENCED_TOPICS, soak
 
+pytestmark = pytest.mark.ros
+
 SOAK_S = 120.0
 RESTARTS = 20
 GROWTH_BOUND_MB_PER_10MIN = 10.0

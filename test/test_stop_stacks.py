@@ -1,10 +1,17 @@
-"""A node that does not stop is killed, but first prints where it is stuck: `NodeGroup` sends SIGUSR1 before
-SIGKILL and every node process (`ros.spin.start_rclpy`) answers it with all its threads' stacks on stderr."""
+"""A node that does not stop is killed, but first prints where it is stuck.
+
+`NodeGroup` sends SIGUSR1 before SIGKILL, and every node process (`ros.spin.start_rclpy`) answers it with all
+its threads' stacks on stderr.
+"""
 
 import signal
 import time
 
+import pytest
+
 from robotino_geom_mpc.system.processes import NodeGroup
+
+pytestmark = pytest.mark.ros
 
 STUCK_NODE = '''
 import time

@@ -34,9 +34,9 @@ from typing import Any
 
 from robotino_geom_mpc.bench.registry import BenchmarkError, BenchmarkSkipped, benchmark
 
-__all__ = ["PLANT_TOPICS", "SEQUENCED_TOPICS", "RESTARTS", "RUNS", "RUN_S", "SAMPLE_S", "SOAK_S", "WINDOW_S", "ProcessSampler",
-           "bag_counts", "bag_sequences", "bench_soak", "drift_over_spread", "growth_mb_per_10min", "process_rss_cpu", "run_loop",
-           "soak", "window_length"]
+__all__ = ["PLANT_TOPICS", "SEQUENCED_TOPICS", "RESTARTS", "RUNS", "RUN_S", "SAMPLE_S", "SOAK_S", "WINDOW_S",
+           "ProcessSampler", "bag_counts", "bag_sequences", "bench_soak", "drift_over_spread", "growth_mb_per_10min",
+           "process_rss_cpu", "run_loop", "soak", "window_length"]
 
 SOAK_S = 1800.0  # the soak's default length (quick: 60 s)
 WINDOW_S = 300.0  # its windows (`window_length`: at most a sixth of the run)
@@ -52,6 +52,8 @@ PLANT_TOPICS = {"/odom": 1, "/ground_truth/odom": 1, "/joint_states": 1, "/tf": 
 # 1, 2, ... over the ticks, so a gap is a lost message and the first one tells what went before the recording
 SEQUENCED_TOPICS = ("/odom", "/ground_truth/odom", "/joint_states")
 _END_MARGIN_S = 120.0  # the soak's plant must have ended this long after its duration
+# the stop's grace periods, `cli.run`'s: 5 s a node, the recorder 70 s (its drain limit and the bag's close)
+_GRACE_S, _RECORDER_GRACE_S = 5.0, 70.0
 
 
 def window_length(duration_s: float) -> float:
@@ -169,14 +171,12 @@ def _stop_like_run(group, nodes: dict) -> None:
     """Stop the nodes as `run` does: the loop's nodes first (SIGINT, escalating), then the recorder (its drain)."""
     import signal
 
-    from robotino_geom_mpc.cli.run import GRACE_S, RECORDER_GRACE_S
-
     others = [name for name in nodes if name not in ("plant_node", "recorder_node")]
     for name in others:
         nodes[name].popen.send_signal(signal.SIGINT)
-    statuses = {name: group.stop_node(nodes[name], GRACE_S) for name in [*others, "plant_node"]}
+    statuses = {name: group.stop_node(nodes[name], _GRACE_S) for name in [*others, "plant_node"]}
     nodes["recorder_node"].popen.send_signal(signal.SIGINT)
-    statuses["recorder_node"] = group.stop_node(nodes["recorder_node"], RECORDER_GRACE_S)
+    statuses["recorder_node"] = group.stop_node(nodes["recorder_node"], _RECORDER_GRACE_S)
     bad = {name: code for name, code in statuses.items() if code not in (0, -signal.SIGINT)}
     if bad:
         raise BenchmarkError(f"soak: nodes did not stop cleanly: {bad}:\n" + "\n".join(

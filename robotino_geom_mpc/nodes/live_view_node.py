@@ -29,7 +29,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
 
 from robotino_geom_mpc.params.specs import ParamSpec
-from robotino_geom_mpc.recording.bag import BagError, message_class, message_definition
+from robotino_geom_mpc.recording.bagfile import BagError
+from robotino_geom_mpc.recording.definitions import message_class, message_definition
 from robotino_geom_mpc.ros.bag_qos import adapt_request_to_offers
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters
 from robotino_geom_mpc.ros.spin import run_node

@@ -72,7 +72,7 @@ setup(
             "recorder_node = robotino_geom_mpc.recording.recorder_node:main",
             "robot_description_publisher = robotino_geom_mpc.nodes.robot_description_node:main",
             "command_buffer_node = robotino_geom_mpc.nodes.command_buffer_node:main",
-            "live_view_node = robotino_geom_mpc.nodes.live_view_node:main",
+            "live_view_node = robotino_geom_mpc.recording.live_view_node:main",
         ],
     },
 )

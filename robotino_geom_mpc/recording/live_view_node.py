@@ -127,7 +127,7 @@ class LiveViewNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``python -m robotino_geom_mpc.nodes.live_view_node``."""
+    """Entry point of ``python -m robotino_geom_mpc.recording.live_view_node``."""
     return run_node(LiveViewNode, args)
 
 

@@ -14,7 +14,7 @@ setup: $(STAMP)
 $(STAMP): setup.py setup.cfg package.xml Makefile tools/build_interfaces.sh
 	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install --quiet --upgrade "pip>=24"
-	$(VENV)/bin/python -m pip install --quiet --editable ".[ros,test,docs,cluster,tune]"
+	$(VENV)/bin/python -m pip install --quiet --editable ".[ros,test,docs,cluster,tune,viz]"
 	tools/build_interfaces.sh $(VENV)  # tf2_msgs where the wheels have none
 	touch $(STAMP)
 

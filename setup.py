@@ -42,8 +42,12 @@ setup(
         "tune": ["optuna>=5,<6"],  # the tune verb's sampler (TPE), pruning and trial storage
         "constrained": ["daqp>=0.11,<1"],  # control.mode constrained (imported when a constrained controller is built)
         "bench": ["osqp>=1.0,<2", "daqp>=0.11,<1", "quadprog>=0.1.11,<0.2"],  # the QP solvers compared side by side
+        "viz": [
+            "foxglove-sdk>=0.30,<0.31",  # run --foxglove: the live view's WebSocket server
+        ],
         "test": [
             "pytest>=8,<10",
+            "websockets>=15,<16",  # the live view test's Foxglove WebSocket client
             "hypothesis>=6.100,<7",
             "colcon-common-extensions==0.3.0",
             "mcap-ros2-support>=0.5,<1",  # an independent reader of the bags
@@ -70,6 +74,7 @@ setup(
             "recorder_node = robotino_geom_mpc.recording.recorder_node:main",
             "robot_description_publisher = robotino_geom_mpc.nodes.robot_description_node:main",
             "command_buffer_node = robotino_geom_mpc.nodes.command_buffer_node:main",
+            "live_view_node = robotino_geom_mpc.recording.live_view_node:main",
         ],
     },
 )

@@ -26,7 +26,13 @@ lockstep or without an answer); ``first_answer_steady_s`` steady time of
 the first answer; ``missed_ticks`` [[s after the first answer, s to the
 next odometry], ...] (the first `MISSES_KEPT`); ``clamped_commands``,
 ``refused_commands`` commands clamped to the supply and refused;
-``command_timeouts`` commands the drive watchdog stopped (realtime).
+``command_timeouts`` commands the drive watchdog stopped (realtime);
+``windows`` (realtime with a window length, `LoopTiming.window_s`) the
+same figures per consecutive window of the run: ``start_steady_s``,
+``end_steady_s`` (the odometry that opened it and the one that closed
+it, or the last one), ``ticks`` published in it, ``answered``,
+``missed``, ``latency_ms`` (``p50``, ``p99``, ``p99.9``, ``max``; null
+without an answer); the last window may be shorter.
 """
 
 from __future__ import annotations
@@ -71,13 +77,21 @@ class LoopTiming:
     max_s
         Latencies at or above this land in the last bin (percentiles there read as its upper edge;
         `max_latency_s` keeps the true largest).
+    window_s
+        If > 0, the figures are also kept per window of this length [s] (`windows`), a window closing at the
+        first odometry at least `window_s` after the one that opened it (a soak's drift over hours).
     """
 
-    def __init__(self, bin_s: float = 1e-6, max_s: float = 0.1) -> None:
+    def __init__(self, bin_s: float = 1e-6, max_s: float = 0.1, window_s: float = 0.0) -> None:
         if not 0.0 < bin_s < max_s:
             raise ValueError(f"need 0 < bin_s < max_s, got bin_s={bin_s}, max_s={max_s}")
+        if not window_s >= 0.0:
+            raise ValueError(f"need window_s >= 0, got {window_s}")
         self.bin_s = bin_s
         self.counts = np.zeros(int(np.ceil(max_s / bin_s)) + 1, dtype=np.int64)
+        self.window_s = window_s
+        self.windows: list[dict[str, Any]] = []  # the closed windows (`_window_figures`)
+        self._window = _Window(len(self.counts)) if window_s > 0.0 else None
         self.max_latency_s = 0.0
         self.answered = 0  # ticks with an answer (the first answered one included)
         self.missed = 0  # ticks after the first answered one without an answer
@@ -89,10 +103,20 @@ class LoopTiming:
 
     def published(self, t: float) -> None:
         """The odometry of a new tick went out at steady time `t` [s]."""
+        window = self._window
         if self._waiting and self.answered:
             self.missed += 1
+            if window is not None:
+                window.missed += 1
             if len(self.missed_at) < MISSES_KEPT:
                 self.missed_at.append((self._sent_at, t - self._sent_at))
+        if window is not None:
+            if window.start is None:
+                window.start = t
+            elif t - window.start >= self.window_s:
+                self.windows.append(self._window_figures(t))
+                window.reset(t)
+            window.ticks += 1
         self._sent_at, self._waiting = t, True
 
     def command(self, t: float) -> None:
@@ -105,16 +129,32 @@ class LoopTiming:
         self.answered += 1
         latency = t - self._sent_at
         self.max_latency_s = max(self.max_latency_s, latency)
-        self.counts[min(int(latency / self.bin_s), len(self.counts) - 1)] += 1
+        index = min(int(latency / self.bin_s), len(self.counts) - 1)
+        self.counts[index] += 1
+        if self._window is not None:
+            self._window.add(index, latency)
 
-    def percentile_s(self, q: float) -> float:
-        """The `q`-th percentile (0..100) of the latencies [s], to one bin (the upper edge of its bin); NaN if none."""
-        total = int(self.counts.sum())
+    def percentile_s(self, q: float, counts: np.ndarray | None = None) -> float:
+        """The `q`-th percentile (0..100) of the latencies [s] (or of the histogram `counts`), to one bin (the upper
+        edge of its bin); NaN if none.
+        """
+        counts = self.counts if counts is None else counts
+        total = int(counts.sum())
         if total == 0:
             return float("nan")
         rank = max(int(np.ceil(q / 100.0 * total)), 1)  # nearest-rank percentile
-        index = int(np.searchsorted(np.cumsum(self.counts), rank))
+        index = int(np.searchsorted(np.cumsum(counts), rank))
         return (index + 1) * self.bin_s
+
+    def _window_figures(self, end: float) -> dict[str, Any]:
+        """The figures of the open window, ending at steady time `end` [s] (see the module docstring)."""
+        window = self._window
+        latency = None
+        if window.answered:
+            latency = {f"p{q:g}": 1e3 * self.percentile_s(q, window.counts) for q in (50, 99, 99.9)}
+            latency["max"] = 1e3 * window.max_s
+        return {"start_steady_s": window.start, "end_steady_s": end, "ticks": window.ticks,
+                "answered": window.answered, "missed": window.missed, "latency_ms": latency}
 
     def summary(self) -> str:
         """One line: ticks answered and missed, latency median, p99 and max in ms, when the first misses were.
@@ -142,7 +182,26 @@ class LoopTiming:
                            "max": 1e3 * self.max_latency_s} if answered else None,
             "first_answer_steady_s": self.first_answer_at,
             "missed_ticks": [[t - self.first_answer_at, gap] for t, gap in self.missed_at],
+            **({} if self._window is None else {"windows": self.windows + (
+                [self._window_figures(self._sent_at)] if self._window.ticks else [])}),
         }
+
+
+class _Window:
+    """The histogram and counts of one window of `LoopTiming` (reset as the next opens)."""
+
+    def __init__(self, bins: int) -> None:
+        self.counts = np.zeros(bins, dtype=np.int64)
+        self.reset(None)
+
+    def reset(self, start: float | None) -> None:
+        self.counts.fill(0)
+        self.start, self.ticks, self.answered, self.missed, self.max_s = start, 0, 0, 0, 0.0
+
+    def add(self, index: int, latency: float) -> None:
+        self.counts[index] += 1
+        self.answered += 1
+        self.max_s = max(self.max_s, latency)
 
 
 def _ratio(numerator: float, denominator: float) -> float | None:

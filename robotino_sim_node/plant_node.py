@@ -120,13 +120,15 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
               "(its folder must exist); empty: none"),
     ParamSpec("plans", bool, "Take the plans (wheel_voltage_plan / cmd_vel_plan) instead of the plain commands "
               "and report what was applied on command_applied"),
+    ParamSpec("timing_window_s", float, "Realtime: report the figures per window this long too", "s", 0.0, 1e6, False),
 ) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS + LINK_SPECS + CHAIN_NODE_SPECS
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
-    "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0,
-    "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "seed": 0, "timing_report": "", "plans": False,
-    **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS, **LINK_DEFAULTS, **CHAIN_NODE_DEFAULTS,
+    "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0, "seed": 0,
+    "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "timing_report": "", "plans": False,
+    "timing_window_s": 0.0, **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS, **LINK_DEFAULTS,
+    **CHAIN_NODE_DEFAULTS,
 }
 
 _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray")  # other layouts than the controller's
@@ -222,7 +224,7 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
             self.clock_offset_s = self.get_clock().now().nanoseconds * 1e-9 - self.started_at  # robot - steady
             self.hold = CommandHold(self.started_at, 1.0 / self.params["physics_rate_hz"])  # a refused one: 0 V
             self.ticks = 0  # published
-            self.timing = LoopTiming()
+            self.timing = LoopTiming(window_s=self.params["timing_window_s"])
             self.publish_timer = self.create_timer(self.control.period_s, self._publish_realtime, clock=steady)
         self.chain = attach_chain(self)  # chain.active: the driver + firmware chain takes commands and odometry
         self.get_logger().info(f"plant simulator ready ({self.params['mode']}, Ts = {self.control.period_s:g} s)")

@@ -86,6 +86,20 @@ def test_unknown_benchmark_name(registry, capsys):
     assert "unknown benchmark nope" in err and "known" in err
 
 
+def test_a_soak_runs_only_by_name_and_takes_the_duration(registry, capsys):
+    benchmark("plain", "always")(lambda quick: {"x": 1.0})
+
+    @benchmark("long", "only by name", default=False, takes_duration=True)
+    def long(quick, duration_s=None):
+        return {"long_s": 30.0 if duration_s is None else duration_s}
+
+    assert run_benchmarks(log=lambda line: None) == {"x": 1.0}  # a plain bench leaves it out
+    assert run_benchmarks(names=["long"], log=lambda line: None) == {"long_s": 30.0}
+    assert run_benchmarks(names=["long", "plain"], duration_s=5.0, log=lambda line: None) == {"long_s": 5.0, "x": 1.0}
+    assert main(["bench", "--only", "controller_step", "--duration", "5"]) == 2  # none of these takes one
+    assert "--duration needs --only with a benchmark that takes one (soak)" in capsys.readouterr().err
+
+
 def test_failed_benchmark_exits_1_with_one_line(registry, capsys):
     def broken(quick):
         raise BenchmarkError("sides disagree")

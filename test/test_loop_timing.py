@@ -63,3 +63,48 @@ def test_lockstep_pace_spaces_ticks_by_the_factor_and_restarts_after_a_stall():
     assert pace.delay(10.5001) == pytest.approx(0.0049)
     unpaced = LockstepPace(0.0, 0.01)
     assert [unpaced.delay(t) for t in (1.0, 1.0, 1.0001)] == [0.0, 0.0, 0.0]
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.one_of(st.none(), st.floats(min_value=0.0, max_value=0.009)), min_size=1, max_size=200),
+       st.sampled_from([0.05, 0.1, 0.37]))
+def test_windows_hold_the_figures_of_their_ticks(answers, window_s):
+    """Ticks every 10 ms, answered after the given latency or not (None); each window's counts and percentiles are
+    those of the ticks between its opening odometry and the next window's, computed here from the list.
+    """
+    timing = LoopTiming(bin_s=1e-6, max_s=0.1, window_s=window_s)
+    for k, latency in enumerate(answers):
+        timing.published(0.01 * k)
+        if latency is not None:
+            timing.command(0.01 * k + latency)
+    windows = timing.figures()["windows"]
+    assert sum(w["ticks"] for w in windows) == len(answers)
+    assert sum(w["answered"] for w in windows) == timing.answered
+    # a miss is counted when the next tick goes out, in the window of the missed tick; the last is never one
+    assert sum(w["missed"] for w in windows) == timing.missed
+    first = next((k for k, a in enumerate(answers) if a is not None), len(answers))
+    start = 0
+    for w in windows:
+        ticks = answers[start:start + w["ticks"]]
+        assert w["start_steady_s"] == pytest.approx(0.01 * start)
+        assert w["start_steady_s"] + window_s >= w["end_steady_s"] - 0.01 - 1e-9 or w is windows[-1]
+        assert w["answered"] == sum(a is not None for a in ticks)
+        missed = sum(a is None and first < start + i < len(answers) - 1 for i, a in enumerate(ticks))
+        assert w["missed"] == missed
+        latencies = np.array([a for a in ticks if a is not None])
+        if latencies.size:
+            for q in (50, 99, 99.9):
+                expected = np.percentile(latencies, q, method="inverted_cdf")
+                got = w["latency_ms"][f"p{q:g}"] * 1e-3
+                assert expected <= got + 1e-9 and got <= expected + 1e-6 + 1e-9
+            assert w["latency_ms"]["max"] * 1e-3 == pytest.approx(latencies.max())
+        else:
+            assert w["latency_ms"] is None
+        start += w["ticks"]
+
+
+def test_no_windows_without_a_window_length():
+    timing = LoopTiming()
+    timing.published(0.0)
+    timing.command(0.001)
+    assert "windows" not in timing.figures()

@@ -23,6 +23,9 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
   beside bare rclpy readers (executor, wait set) of the same messages.
 * `networked`: the realtime loop with plans (over the wifi link, and on one host without a link) beside the
   uncompensated controller, RMS position error from the bags.
+* `soak` (only by name: ``bench --only soak [--duration S]``): the realtime
+  loop with the recorder for 30 minutes, per 5-minute window; the controller
+  killed and restarted 200 times (`restarts`); ``run`` 100 times in a row.
 * `host_steal` samples the hypervisor's steal beside the realtime run;
   `startup_stalls` is a script (``python -m robotino_geom_mpc.bench.startup_stalls``).
 """
@@ -35,6 +38,7 @@ from robotino_geom_mpc.bench import constrained  # noqa: F401
 from robotino_geom_mpc.bench import end_to_end  # noqa: F401
 from robotino_geom_mpc.bench import recorder_cpu  # noqa: F401
 from robotino_geom_mpc.bench import networked  # noqa: F401
+from robotino_geom_mpc.bench import soak  # noqa: F401
 from robotino_geom_mpc.bench.registry import REGISTRY, BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
 
 __all__ = ["REGISTRY", "BenchmarkError", "BenchmarkSkipped", "benchmark", "run_benchmarks"]

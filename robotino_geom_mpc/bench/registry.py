@@ -31,23 +31,34 @@ class BenchmarkSkipped(RobotinoError):
 
 @dataclass(frozen=True)
 class Benchmark:
-    """A registered benchmark: its name, a one-line description and the function."""
+    """A registered benchmark: its name, a one-line description and the function.
+
+    `default`: run by a plain ``bench`` (else only when named); `takes_duration`: ``func(quick, duration_s=S)``
+    gets the ``--duration`` of ``bench``.
+    """
 
     name: str
     description: str
-    func: Callable[[bool], dict[str, float]]
+    func: Callable[..., dict[str, float]]
+    default: bool = True
+    takes_duration: bool = False
 
 
 REGISTRY: dict[str, Benchmark] = {}
 
 
-def benchmark(name: str, description: str) -> Callable[[Callable[[bool], dict[str, float]]], Callable]:
-    """Decorator registering ``fn(quick) -> {key: value}`` under `name` (run in registration order)."""
+def benchmark(name: str, description: str, default: bool = True,
+              takes_duration: bool = False) -> Callable[[Callable[..., dict[str, float]]], Callable]:
+    """Decorator registering ``fn(quick) -> {key: value}`` under `name` (run in registration order).
 
-    def register(func: Callable[[bool], dict[str, float]]) -> Callable[[bool], dict[str, float]]:
+    `default` False: not run by a plain ``bench``, only by name (a soak); `takes_duration`: ``fn(quick,
+    duration_s=None)`` takes ``bench --duration``.
+    """
+
+    def register(func: Callable[..., dict[str, float]]) -> Callable[..., dict[str, float]]:
         if name in REGISTRY:
             raise ValueError(f"benchmark {name!r} registered twice")
-        REGISTRY[name] = Benchmark(name, description, func)
+        REGISTRY[name] = Benchmark(name, description, func, default, takes_duration)
         return func
 
     return register
@@ -78,7 +89,8 @@ def wait_for_run(group: NodeGroup, process: NodeProcess, timeout_s: float, what:
 
 
 def run_benchmarks(
-    quick: bool = False, names: list[str] | None = None, log: Callable[[str], None] | None = None
+    quick: bool = False, names: list[str] | None = None, log: Callable[[str], None] | None = None,
+    duration_s: float | None = None,
 ) -> dict[str, float]:
     """Run the registered benchmarks (all, or `names`) and merge their figures into one dict.
 
@@ -87,9 +99,11 @@ def run_benchmarks(
     quick
         Fewer steps and repeats (a smoke run; figures are noisier).
     names
-        Benchmarks to run, in registry order when None.
+        Benchmarks to run; when None, those registered with ``default`` (all but the soak), in registry order.
     log
         Receives one progress line per benchmark (default: stderr).
+    duration_s
+        The length of the benchmarks that take one (``takes_duration``: the soak); None: their default.
 
     Raises
     ------
@@ -98,7 +112,7 @@ def run_benchmarks(
         not a positive finite number.
     """
     log = log or (lambda line: print(line, file=sys.stderr, flush=True))
-    selected = list(REGISTRY) if names is None else list(names)
+    selected = [n for n, entry in REGISTRY.items() if entry.default] if names is None else list(names)
     unknown = [n for n in selected if n not in REGISTRY]
     if unknown:
         raise BenchmarkError(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(REGISTRY)}")
@@ -107,7 +121,7 @@ def run_benchmarks(
         entry = REGISTRY[name]
         log(f"bench {name}: {entry.description} ...")
         try:
-            figures = entry.func(quick)
+            figures = entry.func(quick, duration_s=duration_s) if entry.takes_duration else entry.func(quick)
         except BenchmarkSkipped as exc:
             log(f"bench {name}: skipped ({exc})")
             continue

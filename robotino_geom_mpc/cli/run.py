@@ -102,8 +102,22 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
                         "and paths a sender publishes on goal_pose and plan; the run lasts until they end + 3 s")
+    parser.add_argument("--foxglove", type=_port, nargs="?", const=8765, default=None, metavar="PORT",
+                        help="serve the run's topics live to Foxglove on ws://localhost:PORT (default 8765; needs "
+                        "the [viz] extra); a lockstep run then goes at real time")
     parser.set_defaults(func=run)
     return parser
+
+
+def _port(text: str) -> int:
+    """A TCP port (1..65535) for argparse."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"port {port} is not in 1..65535")
+    return port
 
 
 def _raise_interrupt(*_: object) -> None:
@@ -152,6 +166,15 @@ def _close_recording(group: NodeGroup, recorder: NodeProcess, bag: Path) -> None
     ended = group.wait(recorder, RECORDER_GRACE_S, done=(bag / "metadata.yaml").exists, poll_s=BAG_CLOSE_POLL_S)
     if not ended or recorder.popen.poll() is not None:  # exited: its status now; hung: SIGTERM, then SIGKILL
         _stopped_cleanly(group, recorder, GRACE_S)
+
+
+def _check_viz() -> None:
+    """`UsageError` naming the install line when the Foxglove SDK (the [viz] extra) is missing."""
+    import importlib.util
+
+    if importlib.util.find_spec("foxglove") is None:
+        raise UsageError("--foxglove needs the Foxglove SDK: pip install 'robotino_geom_mpc[viz]' "
+                         "(or pip install foxglove-sdk)")
 
 
 def _goals_duration(args: argparse.Namespace, params_file: Path) -> float:
@@ -208,9 +231,14 @@ def run(args: argparse.Namespace) -> int:
                                plans=False if args.no_compensation else (True if args.plans else None),
                                goals_file=None if args.goals is None else args.goals.resolve(),
                                overrides={**overrides, "plant_node": {**overrides.get("plant_node", {}),
-                                                                      "timing_report": str(report)}})
+                                                                      "timing_report": str(report)}},
+                               live_view_port=args.foxglove)
+    if args.foxglove is not None:
+        _check_viz()
     mode = "lockstep" if args.lockstep else "realtime"
     print(f"run {args.scenario} over DDS ({mode}, {duration:g} s, Ts = {control.period_s:g} s); logs in {out / 'logs'}")
+    if args.foxglove is not None:
+        print(f"  live view: connect Foxglove to ws://localhost:{args.foxglove}")
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     group = NodeGroup(log_dir=out / "logs")
     start = time.monotonic()

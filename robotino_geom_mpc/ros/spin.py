@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import faulthandler
 import gc
+import signal
 import sys
 import time
 from collections.abc import Callable
@@ -57,6 +59,9 @@ def start_rclpy(args: list[str] | None = None) -> int | None:
     from rclpy.signals import SignalHandlerOptions
 
     stop = stop_on_signals()
+    # SIGUSR1 prints every thread's Python stack on stderr, even with the main thread stuck in C++: what
+    # `NodeGroup` sends a node that did not stop before it kills it, so its report says where it hung
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
         check_parameter_files(params_files(sys.argv if args is None else args))
         if not stop.is_set():

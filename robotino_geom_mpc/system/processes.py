@@ -3,7 +3,9 @@
 Each node runs as ``sys.executable -m MODULE --ros-args ...`` in its own
 process group with stdout/stderr in files, so a Ctrl-C of the caller does not
 reach the nodes directly and every node is stopped in order: SIGINT, then
-SIGTERM and SIGKILL after grace periods, nothing left running.
+SIGTERM and SIGKILL after grace periods, nothing left running. Before the SIGKILL a node gets SIGUSR1, on which
+a node process prints every thread's stack on stderr (`ros.spin.start_rclpy`): the report of a node that did not
+stop says where it hung.
 """
 
 from __future__ import annotations
@@ -131,6 +133,7 @@ def node_arguments(
     environ: Mapping[str, str] | None = None,
     link: Any = None,
     plans: bool | None = None,
+    live_view_port: int | None = None,
 ) -> dict[str, list[str]]:
     """The ``--ros-args`` of each node of a run (executable name -> arguments), recorder first when `bag`.
 
@@ -154,6 +157,9 @@ def node_arguments(
     the controller send delay-compensated plans and the plant take them (``plans`` of both; the trajectory's
     ``preview_points`` the plans' `DelayCompensatingController.preview_length`); False over a link is the
     uncompensated baseline (plain commands acting on arrival).
+    With `live_view_port` a ``live_view_node`` serves every topic there (Foxglove WebSocket); a lockstep plant
+    waits for its subscriptions too (one more on each topic it waits for) and runs at real time at most
+    (``lockstep_max_realtime_factor`` 1), so the view shows the run from tick 0 at the pace it would have.
     """
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.scenarios import node_parameters
@@ -179,6 +185,8 @@ def node_arguments(
         wait_for = list(LOCKSTEP_WAIT_FOR) if bag is None else recorder_wait_for(command_interface, plans)
         if goals_file is not None:  # the goal sender's odom subscription (its clock) too
             wait_for = [f"odom:{int(w.split(':')[1]) + 1}" if w.startswith("odom:") else w for w in wait_for]
+        if live_view_port is not None:  # the live view subscribes every topic
+            wait_for = [f"{topic}:{int(count) + 1}" for topic, _, count in (w.rpartition(":") for w in wait_for)]
     remaps = namespace_remaps(namespace, lockstep)
     frames = {name: {"frame_prefix": frame_prefix(namespace)} for name in FRAME_PREFIX_NODES} if namespace else {}
     args = {}
@@ -197,6 +205,8 @@ def node_arguments(
                               remaps)
     own_profile = dds_environment(os.environ if environ is None else environ)
     settle = {"lockstep_settle_s": PROFILE_SETTLE_S} if lockstep and own_profile else {}
+    if lockstep and live_view_port is not None:
+        settle["lockstep_max_realtime_factor"] = 1.0
     args["plant_node"] = ros_args(params_file, {
         **scenario_overrides["plant_node"],
         "mode": mode,
@@ -215,6 +225,9 @@ def node_arguments(
         **extra.get("robot_description_publisher", {})}, remaps)
     if goals_file is not None:
         args["goal_sender"] = ros_args(None, {"goals_file": str(goals_file), "mode": mode}, remaps)
+    if live_view_port is not None:
+        args["live_view_node"] = ros_args(None, {"port": int(live_view_port), **extra.get("live_view_node", {})},
+                                          remaps)
     return args
 
 
@@ -277,6 +290,19 @@ def wait_for_exit(popens: list[subprocess.Popen], timeout_s: float) -> None:
     finally:
         for fd in fds:
             os.close(fd)
+
+
+STACKS_WAIT_S = 0.5  # how long a node that is about to be killed gets to print its stacks (SIGUSR1)
+
+
+def _print_stacks(nodes: list[NodeProcess]) -> None:
+    """SIGUSR1 to each of `nodes` (a node process prints its threads' stacks on stderr), then wait `STACKS_WAIT_S`."""
+    for node in nodes:
+        try:
+            os.killpg(node.popen.pid, signal.SIGUSR1)
+        except ProcessLookupError:
+            pass
+    time.sleep(STACKS_WAIT_S)
 
 
 @dataclass
@@ -382,6 +408,8 @@ class NodeGroup:
             running = [n for n in self.nodes if n.popen.poll() is None]
             if not running:
                 break
+            if sig == signal.SIGKILL:
+                _print_stacks(running)
             for node in running:
                 try:
                     os.killpg(node.popen.pid, sig)
@@ -400,6 +428,8 @@ class NodeGroup:
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
             if node.popen.poll() is not None:
                 break
+            if sig == signal.SIGKILL:
+                _print_stacks([node])
             try:
                 os.killpg(node.popen.pid, sig)
             except ProcessLookupError:

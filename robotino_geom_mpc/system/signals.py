@@ -35,6 +35,7 @@ NODE_MODULES: dict[str, str] = {
     "robot_description_publisher": "robotino_geom_mpc.nodes.robot_description_node",
     "goal_sender": "robotino_geom_mpc.nodes.goal_sender",
     "command_buffer_node": "robotino_geom_mpc.nodes.command_buffer_node",
+    "live_view_node": "robotino_geom_mpc.recording.live_view_node",
 }
 
 STOP = threading.Event()

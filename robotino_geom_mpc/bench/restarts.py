@@ -1,0 +1,165 @@
+"""The soak's restart loop: the realtime loop with its controller killed by SIGKILL and started again, many times.
+
+What a killed node can leave behind, counted before the first kill and after the last (once the survivors have
+dropped the dead participants: a Fast DDS lease, 20 s, after it):
+
+* shared memory: the Fast DDS segment a participant creates in /dev/shm (`system.shm`; a SIGKILL leaves it, the
+  supervisor removes it, `remove_zombie_segments`, as `NodeGroup.stop` does) and the shared-memory ports of the
+  run's domain (``fastrtps_port<N>``, N in the domain's range of RTPS ports);
+* network: the UDP ports bound in the domain's range (``/proc/net/udp``, ``udp6``);
+* descriptors: the open file descriptors of every surviving node and of this process.
+
+Each killed controller's own segment is found before the kill (the lock file it holds, ``/proc/locks``) and looked
+for after it: ``restart_segments_left_by_kill`` counts those a SIGKILL left (Fast DDS's doing, every time),
+``restart_segments_left`` those still there after the supervisor's clean.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from robotino_geom_mpc.bench.registry import BenchmarkError
+from robotino_geom_mpc.system.shm import SHM_DIR, remove_zombie_segments
+
+__all__ = ["LEASE_SETTLE_S", "domain_ports", "held_segments", "open_fds", "restart_loop", "shm_ports", "snapshot"]
+
+LEASE_SETTLE_S = 25.0  # after the last kill: Fast DDS's default participant lease (20 s) and a margin
+READY_TIMEOUT_S = 120.0  # a restarted controller must log "controller ready" within this
+MATCH_S = 0.5  # then runs this long (discovery, a few ticks) before it is killed
+_PORT_BASE, _DOMAIN_GAIN = 7400, 250  # RTPS well-known ports: PB + DG * domain + offsets (< DG)
+
+
+def _domain_range() -> range:
+    domain = int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+    return range(_PORT_BASE + _DOMAIN_GAIN * domain, _PORT_BASE + _DOMAIN_GAIN * (domain + 1))
+
+
+def domain_ports() -> set[int]:
+    """The UDP ports bound on this machine in the current ROS domain's range (``/proc/net/udp``, ``udp6``)."""
+    ports, wanted = set(), _domain_range()
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            lines = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            port = int(line.split()[1].rsplit(":", 1)[1], 16)
+            if port in wanted:
+                ports.add(port)
+    return ports
+
+
+def shm_ports(directory: Path = SHM_DIR) -> set[str]:
+    """The Fast DDS shared-memory port files of the current domain (``fastrtps_port<N>`` and their lock files)."""
+    wanted = _domain_range()
+    names = set()
+    for name in os.listdir(directory):
+        if name.startswith("fastrtps_port"):
+            digits = name[len("fastrtps_port"):].split("_", 1)[0]
+            if digits.isdigit() and int(digits) in wanted:
+                names.add(name)
+    return names
+
+
+def held_segments(pid: int, directory: Path = SHM_DIR) -> set[str]:
+    """The Fast DDS segments (``fastrtps_<16 hex>``) whose lock file process `pid` holds: its own."""
+    held = set()
+    for line in Path("/proc/locks").read_text().splitlines():
+        fields = line.split()
+        if len(fields) > 5 and fields[1] == "FLOCK" and fields[4] == str(pid):
+            held.add(int(fields[5].rsplit(":", 1)[1]))
+    segments = set()
+    for name in os.listdir(directory):
+        if name.startswith("fastrtps_") and name.endswith("_el") and not name.startswith("fastrtps_port"):
+            try:
+                if os.stat(directory / name).st_ino in held:
+                    segments.add(name[: -len("_el")])
+            except OSError:
+                continue
+    return segments
+
+
+def open_fds(pid: int) -> int:
+    """The number of open file descriptors of process `pid`."""
+    return len(os.listdir(f"/proc/{pid}/fd"))
+
+
+def snapshot(pids: dict[str, int]) -> dict[str, int]:
+    """Domain UDP ports, domain shared-memory port files and each process's descriptors (``fds_<name>``)."""
+    out = {"udp_ports": len(domain_ports()), "shm_port_files": len(shm_ports())}
+    out.update({f"fds_{name}": open_fds(pid) for name, pid in pids.items()})
+    return out
+
+
+def _wait_ready(node, timeout_s: float) -> None:
+    """Wait until `node` logged "controller ready"; `BenchmarkError` if it exits or the time runs out."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if node.popen.poll() is not None:
+            raise BenchmarkError(f"restart: the controller exited with {node.popen.returncode}:\n{node.stderr_tail()}")
+        if "controller ready" in node.stderr_tail(lines=1000):  # the log, on stderr
+            return
+        time.sleep(0.05)
+    raise BenchmarkError(f"restart: the controller was not ready within {timeout_s:g} s:\n{node.stderr_tail()}")
+
+
+def restart_loop(restarts: int, folder: Path, log: Callable[[str], None]) -> dict[str, float]:
+    """The realtime loop (paper-circle, no recorder) with its controller SIGKILLed and restarted `restarts` times.
+
+    Returns ``restart_count``, per figure of `snapshot` ``restart_<figure>_before`` and ``_after`` (the survivors:
+    plant, trajectory, description publisher, and ``bench`` for this process), ``restart_segments_left_by_kill``
+    and ``restart_segments_left`` (see the module docstring) and ``restart_loop_s``, the wall time per restart.
+
+    Raises
+    ------
+    BenchmarkError
+        If a node fails or a restarted controller does not come up.
+    """
+    from robotino_geom_mpc.params.presets import default_params_file
+    from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
+
+    since = time.time()
+    args = node_arguments("paper-circle", default_params_file(), 0.0, lockstep=False)
+    with NodeGroup(log_dir=folder / "logs") as group:
+        nodes = {name: group.start(name, argv) for name, argv in args.items()}
+        controller = nodes["controller_node"]
+        _wait_ready(controller, READY_TIMEOUT_S)
+        time.sleep(LEASE_SETTLE_S / 5)
+        survivors = {name: node.popen.pid for name, node in nodes.items() if name != "controller_node"}
+        pids = {**survivors, "bench": os.getpid()}
+        before = snapshot(pids)
+        killed: set[str] = set()  # the killed controllers' own segments
+        left_by_kill = 0
+        start = time.monotonic()
+        for k in range(restarts):
+            time.sleep(MATCH_S)
+            own = held_segments(controller.popen.pid)
+            os.killpg(controller.popen.pid, signal.SIGKILL)
+            controller.popen.wait()
+            left_by_kill += sum((SHM_DIR / name).exists() for name in own)
+            killed |= own
+            remove_zombie_segments(since)  # the supervisor's part: what the kill left
+            for name, node in nodes.items():
+                if name != "controller_node" and node.popen.poll() is not None:
+                    raise BenchmarkError(f"restart {k + 1}: {name} exited with {node.popen.returncode}:\n"
+                                         f"{node.stderr_tail()}")
+            group.nodes.remove(controller)  # reaped: its status is the kill's, not a failure
+            controller = group.start("controller_node", args["controller_node"])
+            _wait_ready(controller, READY_TIMEOUT_S)
+            if (k + 1) % 20 == 0:
+                log(f"restart: {k + 1} of {restarts} kills and restarts")
+        per_restart = (time.monotonic() - start) / max(restarts, 1)
+        time.sleep(LEASE_SETTLE_S)
+        after = snapshot(pids)
+        left = sum((SHM_DIR / name).exists() for name in killed)
+    out = {"restart_count": restarts, "restart_loop_s": per_restart,
+           "restart_segments_left_by_kill": left_by_kill, "restart_segments_left": left}
+    for key in before:
+        out[f"restart_{key}_before"], out[f"restart_{key}_after"] = before[key], after[key]
+    log(f"restart: {restarts} kills; before {before}; after {after}; segments left by the kills {left_by_kill}, "
+        f"after the clean {left}")
+    return out

@@ -1,0 +1,62 @@
+"""`BagWriter`'s packed chunk indexes: the same MCAP bytes as mcap's own list of index objects, in a fraction of the
+memory (a recorder closes a chunk every flush period, 0.5 s: 1200 chunks in 10 minutes of a soak).
+"""
+
+import pytest
+import gc
+import tracemalloc
+
+from rclpy.serialization import serialize_message
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+from std_msgs.msg import Float64MultiArray
+
+from robotino_geom_mpc.recording import bag_writer
+from robotino_geom_mpc.recording.bag_writer import BagWriter
+
+pytestmark = pytest.mark.unit
+
+TOPICS = 14  # a run's recorded topics
+HASH = get_typestore(Stores.ROS2_JAZZY).hash_rihs01("std_msgs/msg/Float64MultiArray")
+
+
+def _write(path, chunks: int, per_chunk: int = 5) -> BagWriter:
+    writer = BagWriter(path, compression="none")
+    channels = [writer.add_topic(f"/t{i}", "std_msgs/msg/Float64MultiArray", [], HASH) for i in range(TOPICS)]
+    for k in range(chunks * per_chunk):
+        for i, channel in enumerate(channels):
+            writer.write(channel, 1_000_000 * k + i, serialize_message(Float64MultiArray(data=[float(k), i])))
+        if k % per_chunk == per_chunk - 1:
+            writer.flush()
+    return writer
+
+
+def test_packed_indexes_write_the_same_file_and_every_reader_reads_it(tmp_path, monkeypatch):
+    (tmp_path / "packed").mkdir()
+    (tmp_path / "plain").mkdir()
+    _write(tmp_path / "packed" / "bag", 40).close()
+    monkeypatch.setattr(bag_writer, "_PackedChunkIndexes", list)  # mcap's own: a list of ChunkIndex objects
+    _write(tmp_path / "plain" / "bag", 40).close()
+    packed, plain = (next((tmp_path / name / "bag").glob("*.mcap")).read_bytes() for name in ("packed", "plain"))
+    assert packed == plain
+    with AnyReader([tmp_path / "packed" / "bag"]) as reader:  # rosbags: through the summary's chunk indexes
+        values = [reader.deserialize(raw, conn.msgtype).data.tolist() for conn, _, raw in reader.messages()]
+    assert len(values) == 40 * 5 * TOPICS and values[-1] == [199.0, TOPICS - 1]
+
+
+def test_chunk_indexes_take_a_few_hundred_bytes_a_chunk(tmp_path):
+    writer = _write(tmp_path / "warm", 20)
+    channels = list(range(1, TOPICS + 1))
+    data = serialize_message(Float64MultiArray(data=[1.0, 2.0]))
+    gc.collect()
+    tracemalloc.start()
+    before = tracemalloc.get_traced_memory()[0]
+    for k in range(1200):  # 10 minutes of a recorder's chunks
+        for channel in channels:
+            writer.write(channel, 10**12 + k, data)
+        writer.flush()
+    gc.collect()
+    grown = tracemalloc.get_traced_memory()[0] - before
+    tracemalloc.stop()
+    writer.close()
+    assert grown / 1200 < 400  # bytes a chunk; mcap's ChunkIndex objects took ~1450

@@ -56,8 +56,7 @@ meaning), written once every reader has acknowledged the run's samples.
 ``chain.active`` enabled (realtime, cmd_vel): the plant behind the real robot's driver + firmware (`chain_driver`).
 Networked (`plant_network`): ``link.up.*`` / ``link.down.*`` (`link_params`) put an emulated radio link between
 the robot and everything off-board; ``plans`` takes plans instead of plain commands, reports ``command_applied``
-(`plant_plans`). Parameters: the robot/control parameters of config/*.yaml (``/**`` section; a mismatch: the
-plant and the controller reading different files) plus those in `PLANT_SPECS`.
+(`plant_plans`). Parameters: the robot/control ones of config/*.yaml (``/**``) plus those in `PLANT_SPECS`.
 """
 
 from __future__ import annotations
@@ -127,8 +126,7 @@ _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1,
     "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0, "seed": 0,
     "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "timing_report": "", "plans": False,
-    "timing_window_s": 0.0, **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS, **LINK_DEFAULTS,
-    **CHAIN_NODE_DEFAULTS,
+    "timing_window_s": 0.0, **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS, **LINK_DEFAULTS, **CHAIN_NODE_DEFAULTS,
 }
 
 _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray")  # other layouts than the controller's

@@ -154,9 +154,10 @@ def test_the_registry_names_what_each_node_declares(tmp_path):
         from robotino_geom_mpc.nodes.goal_sender import GoalSender
         from robotino_geom_mpc.nodes.robot_description_node import RobotDescriptionNode
         from robotino_sim_node.plant_node import PlantNode
+        from robotino_geom_mpc.nodes.command_buffer_node import CommandBufferNode
         rclpy.init()
         out = {{}}
-        for make in (ControllerNode, TrajectoryNode, PlantNode, RobotDescriptionNode,
+        for make in (ControllerNode, TrajectoryNode, PlantNode, RobotDescriptionNode, CommandBufferNode,
                      lambda: RecorderNode(parameter_overrides=[Parameter("output", value={str(tmp_path / 'bag')!r})]),
                      lambda: GoalSender(parameter_overrides=[Parameter("goals_file", value={str(GOALS_EXAMPLE)!r})])):
             node = make()

@@ -60,6 +60,8 @@ __all__ = [
 
 _ROBOT_CONTROL = tuple(s.name for s in ALL_SPECS)
 _CHAIN = (CHAIN_ACTIVE_SPEC.name,) + tuple(s.name for s in CHAIN_SPECS)
+_LINK = tuple(f"link.{way}.{field}" for way in ("up", "down")
+              for field in ("delay_s", "jitter_s", "loss", "burst_length", "duplicate"))  # the plant's radio link
 
 RCLPY_PARAMETERS: tuple[str, ...] = ("use_sim_time", "start_type_description_service")
 """Parameters rclpy declares in every node (and ``qos_overrides.<topic>...`` for overridable QoS)."""
@@ -68,7 +70,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "robotino_controller": _ROBOT_CONTROL + (
         "mode", "odom_timeout_s", "reference_timeout_s", "future_tolerance_s", "quaternion_norm_tolerance",
         "tilt_tolerance_rad", "reference_jump_m", "reference_jump_rad", "blend_acceleration_mps2",
-        "blend_acceleration_radps2", "frame_prefix", "command_interface",
+        "blend_acceleration_radps2", "frame_prefix", "command_interface", "plans",
     ) + _CHAIN,
     "robotino_plant": _ROBOT_CONTROL + (
         "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s",
@@ -76,12 +78,13 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "seed", "timing_report", "lockstep_wait_for",
         "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std",
         "command_interface", "wheel_pi.kp", "wheel_pi.ki", "wheel_pi.rate_hz", "publish_tf", "frame_prefix",
-    ) + _CHAIN,
+        "plans", "timing_window_s",
+    ) + _CHAIN + _LINK,
     "robotino_trajectory": _ROBOT_CONTROL + (
         "scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints", "goals.max_velocity_mps",
         "goals.max_acceleration_mps2", "goals.max_jerk_mps3", "goals.max_angular_velocity_radps",
         "goals.max_angular_acceleration_radps2", "goals.max_angular_jerk_radps3", "goals.max_rim_speed_mps",
-        "frame_prefix",
+        "frame_prefix", "preview_points",
     ),
     "recorder": _ROBOT_CONTROL + (
         "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",
@@ -89,6 +92,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     ),
     "robot_description_publisher": _ROBOT_CONTROL + ("frame_prefix", "mode"),
     "robotino_goal_sender": ("goals_file", "mode"),
+    "robotino_command_buffer": ("control.period_s", "idle_after_s"),
 }
 """The parameters each node of the package declares (besides rclpy's), by node name; a test compares them
 with what the nodes declare."""

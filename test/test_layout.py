@@ -20,9 +20,10 @@ pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 450
 # the modules that may import rclpy when imported: the nodes, the recorder node and the ROS plumbing subpackage
+# (the plant node's mixins plant_lockstep / plant_network / plant_plans and its radio are ROS adapters too)
 ALLOWED_PREFIXES = ("robotino_geom_mpc.nodes.", "robotino_geom_mpc.ros.", "robotino_geom_mpc.recording.recorder_node",
-                    "robotino_sim_node.plant_node", "robotino_sim_node.lockstep_start",
-                    "robotino_sim_node.outputs", "robotino_sim_node.chain_driver")
+                    "robotino_geom_mpc.recording.live_view_node", "robotino_sim_node.plant_", "robotino_sim_node.radio",
+                    "robotino_sim_node.lockstep_start", "robotino_sim_node.outputs", "robotino_sim_node.chain_driver")
 # modules of ros/ that load no ROS at import (the report reads bags with them): the CDR readers, decoded values
 PLAIN_ROS_MODULES = ("robotino_geom_mpc.ros.cdr", "robotino_geom_mpc.ros.decode")
 

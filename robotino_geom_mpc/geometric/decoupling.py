@@ -123,6 +123,18 @@ def _toolbox_from_g(g: np.ndarray, p: RobotinoParams, rtol: float | None) -> np.
     return np.stack(columns, axis=-1)
 
 
+def _acceleration_block_of_full_rank(p: RobotinoParams, rtol: float = 1e-9) -> np.ndarray:
+    """G3(0) (eq. 9's acceleration rows at theta = 0), or DecouplingError when im g(0) has numerically a
+    dimension below 3 (relative to its largest entry): T(theta) cannot be built on such a model (e.g. a
+    wheel distance of 1e-12 m), as the toolbox's construction finds (`decoupling_field_toolbox`).
+    """
+    G3 = acceleration_block(0.0, p)
+    rank = int(np.linalg.matrix_rank(G3 / np.abs(G3).max(), tol=rtol))
+    if rank < 3:
+        raise DecouplingError(f"im g(0) has dimension {rank}, expected 3: T(theta) cannot be built on this model")
+    return G3
+
+
 class DecouplingField:
     """Fast T(theta) for the control loop: T(theta) = T(0) diag(R(theta)^T, 1).
 
@@ -146,7 +158,7 @@ class DecouplingField:
 
     def __init__(self, p: RobotinoParams) -> None:
         self.p = p
-        self.T0 = np.linalg.inv(acceleration_block(0.0, p))
+        self.T0 = np.linalg.inv(_acceleration_block_of_full_rank(p))
         self._T0_rows = tuple(map(tuple, self.T0.tolist()))
 
     def field(self, theta: object) -> np.ndarray:
@@ -163,7 +175,7 @@ class DecouplingField:
         """The fields of B robots at once: T(0) of shape (B, 3, 3), for the array forms (`field`, `forces`)."""
         stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
         stacked.p = tuple(robots)
-        stacked.T0 = np.linalg.inv(np.stack([acceleration_block(0.0, p) for p in stacked.p]))
+        stacked.T0 = np.linalg.inv(np.stack([_acceleration_block_of_full_rank(p) for p in stacked.p]))
         stacked._T0_rows = None  # no float path for a batch
         return stacked
 

@@ -23,7 +23,8 @@ import signal
 import sys
 import threading
 
-__all__ = ["NODE_MODULES", "STOP", "ignore_stop_signals", "node_process", "stop_on_signals", "stop_signals_early"]
+__all__ = ["NODE_MODULES", "STOP", "StopFlag", "ignore_stop_signals", "node_process", "stop_on_signals",
+           "stop_signals_early"]
 
 # executable name (setup.py console_scripts) -> module run with `python -m`; here, not in `processes`, because
 # `stop_signals_early` runs while the interpreter starts, where every import widens the window it closes
@@ -38,7 +39,28 @@ NODE_MODULES: dict[str, str] = {
     "live_view_node": "robotino_geom_mpc.recording.live_view_node",
 }
 
-STOP = threading.Event()
+class StopFlag:
+    """A flag a signal handler may set at any moment, with no lock.
+
+    `threading.Event.set` takes the event's non-reentrant lock; a second signal that arrives while the first
+    handler is inside it runs the handler again on the same (main) thread, which then waits for the lock it
+    holds itself: the node hangs in its stop (seen as "trajectory_node did not stop cleanly", its stack in
+    ``Event.set`` under the handler). Setting an attribute is one atomic store under the GIL.
+    """
+
+    def __init__(self) -> None:
+        self._set = False
+
+    def set(self) -> None:
+        """Raise the flag (safe in a signal handler, however nested)."""
+        self._set = True
+
+    def is_set(self) -> bool:
+        """Whether the flag is raised."""
+        return self._set
+
+
+STOP = StopFlag()
 """Set by SIGINT or SIGTERM once `stop_on_signals` has run."""
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -48,7 +70,7 @@ def _set_stop(_signum: int, _frame: object) -> None:
     STOP.set()
 
 
-def stop_on_signals() -> threading.Event:
+def stop_on_signals() -> StopFlag:
     """From now on SIGINT and SIGTERM set `STOP` (main thread only; elsewhere nothing changes); returns `STOP`."""
     if threading.current_thread() is threading.main_thread():
         for sig in _SIGNALS:

@@ -28,7 +28,7 @@ from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST, DEFAULT_COUNTS_PE
     EncoderOdometryBatch
 from robotino_geom_mpc.model.plant_batch import PlantBatch
 from robotino_geom_mpc.offline.results import RunData
-from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
+from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario, run_ticks
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.scenarios import get_scenario
 
@@ -109,11 +109,8 @@ def run_batch(
             raise SimulationError(f"odometry model must be one of {', '.join(ODOMETRY_MODELS)}, got {s.odometry!r}")
         noises.append(noise)
     reference = spec.make_reference()
-    duration = reference.duration_s if duration_s is None else float(duration_s)
-    if not (math.isfinite(duration) and duration > 0.0):
-        raise SimulationError(f"duration_s must be positive, got {duration_s!r}")
     Ts, N = control.period_s, control.horizon
-    n = max(1, int(round(duration / Ts)))
+    n = run_ticks(reference.duration_s if duration_s is None else duration_s, Ts)
 
     plant = PlantBatch([s.plant_robot if s.plant_robot is not None else s.robot for s in settings])
     encoders = np.array([s.odometry == "encoders" for s in settings])

@@ -57,11 +57,19 @@ from robotino_geom_mpc.offline.networked import NetworkedLoop, link_meta
 from robotino_geom_mpc.offline.results import RunData
 from robotino_geom_mpc.scenarios import get_scenario
 
-__all__ = ["SimulationError", "run_scenario"]
+__all__ = ["SimulationError", "run_scenario", "run_ticks"]
 
 
 class SimulationError(RobotinoError, ValueError):
     """A bad run setting, named in the message."""
+
+
+def run_ticks(duration_s: float, period_s: float) -> int:
+    """Ticks of a run of `duration_s` at `period_s`: round(duration / Ts), at least 1; SimulationError unless > 0."""
+    duration = float(duration_s)
+    if not (math.isfinite(duration) and duration > 0.0):
+        raise SimulationError(f"duration_s must be positive, got {duration_s!r}")
+    return max(1, int(round(duration / period_s)))
 
 
 def run_scenario(
@@ -164,11 +172,8 @@ def run_scenario(
     if len(noise) != 2 or not all(math.isfinite(v) and v >= 0.0 for v in noise):
         raise SimulationError(f"odometry_noise must be two non-negative numbers, got {odometry_noise!r}")
     reference = spec.make_reference()
-    duration = reference.duration_s if duration_s is None else float(duration_s)
-    if not (math.isfinite(duration) and duration > 0.0):
-        raise SimulationError(f"duration_s must be positive, got {duration_s!r}")
     Ts, N = control.period_s, control.horizon
-    n = max(1, int(round(duration / Ts)))
+    n = run_ticks(reference.duration_s if duration_s is None else duration_s, Ts)
 
     plant = RobotinoPlant(plant_robot if plant_robot is not None else robot)
     try:

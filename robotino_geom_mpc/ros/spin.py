@@ -29,6 +29,7 @@ __all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "data_publishers", "mono
 # signal (shorter than the grace before SIGTERM of `system.processes.NodeGroup.stop` and of `ros2 launch`)
 FINISHED_ACK_WAIT_S = 30.0
 STOPPED_ACK_WAIT_S = 3.0
+_EXECUTOR_SHUTDOWN_S = 1.0  # the loop has ended: nothing is spinning, so the executor's shutdown is immediate
 _RCLPY_TOPICS = ("/rosout", "/parameter_events")  # every node's own publishers of these, not its data
 
 
@@ -104,7 +105,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     status = start_rclpy(args)
     if status is not None:
         return status
-    node, status, stopped = None, 0, False
+    node, executor, status, stopped = None, None, 0, False
     try:
         if STOP.is_set():  # a signal during rclpy.init
             return 0
@@ -130,9 +131,14 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         pass
     finally:
         ignore_stop_signals()
+        if node is not None and not stopped:  # the loop ended by an exception (a failed callback)
+            _stopping(node)
+        if executor is not None:
+            # the executor lets go of the node's entities while they are still alive: left to its destructor
+            # (after destroy_node and rclpy's shutdown) it finalized QoS events of destroyed publishers, and
+            # hung there (CI: trajectory_node stuck in rclpy.event_handler's __exit__ as run_node returned)
+            executor.shutdown(timeout_sec=_EXECUTOR_SHUTDOWN_S)
         if node is not None:
-            if not stopped:  # the loop ended by an exception (a failed callback)
-                _stopping(node)
             node.destroy_node()
         rclpy.try_shutdown()
     return status

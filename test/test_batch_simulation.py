@@ -20,8 +20,8 @@ from robotino_geom_mpc.control.estimator import EstimatorError
 from robotino_geom_mpc.control.motion_batch import BatchControlError, MotionControllerBatch
 from robotino_geom_mpc.model.plant import PlantError
 from robotino_geom_mpc.model.plant_batch import PlantBatch
-from robotino_geom_mpc.offline.batch_simulation import RunSetting, run_batch
-from robotino_geom_mpc.offline.results import compute_metrics
+from robotino_geom_mpc.offline.batch_simulation import RunSetting, batch_metrics, run_batch, simulate_batch
+from robotino_geom_mpc.offline.results import RunDataError, compute_metrics
 from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
 from robotino_geom_mpc.params.files import load_params
 
@@ -132,3 +132,25 @@ def test_bad_settings_are_refused(params):
         MotionControllerBatch([robot], replace(control, mode="constrained"), ["instantaneous"], np.zeros((1, 3)))
     with pytest.raises(EstimatorError, match="twists"):
         MotionControllerBatch([robot], control, ["sometimes"], np.zeros((1, 3)))
+
+
+@pytest.mark.parametrize("settle_time_s", [0.4, 5.0])  # 5 s: no sample after the settle time, None metrics
+def test_batch_metrics_are_each_runs_compute_metrics(params, settle_time_s):
+    """`BatchSeries.metrics` (the study's path) against `compute_metrics` of each run's own `run_scenario`."""
+    robot, control = params
+    settings = _settings(robot, 6, 11)
+    got = batch_metrics("robustness", control, settings, duration_s=1.0, settle_time_s=settle_time_s)
+    for metrics, s in zip(got, settings, strict=True):
+        truth = run_scenario("robustness", s.robot, control, duration_s=1.0, seed=s.seed, plant_robot=s.plant_robot,
+                             odometry_noise=s.odometry_noise, odometry=s.odometry,
+                             encoder_counts_per_rev=s.encoder_counts_per_rev, wheel_slip_std=s.wheel_slip_std)
+        expected = {key: value for key, value in compute_metrics(truth, settle_time_s=settle_time_s).items()
+                    if not key.startswith("compute_time")}
+        assert list(metrics) == list(expected)  # the same keys in the same order
+        for key, value in expected.items():
+            if isinstance(value, float):
+                assert metrics[key] == pytest.approx(value, rel=0.0, abs=TOLERANCE), key
+            else:
+                assert metrics[key] == value and type(metrics[key]) is type(value), key
+    with pytest.raises(RunDataError, match="settle_time_s"):
+        simulate_batch("paper-circle", control, settings[:1], duration_s=0.1).metrics(-1.0)

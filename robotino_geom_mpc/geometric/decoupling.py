@@ -184,7 +184,11 @@ class DecouplingField:
 
         With a batch field (`batch`) theta and u carry its batch axis (B,) and (B, 3).
         """
-        return np.einsum("...ij,...j->...i", self.field(theta), u)
+        th = _thetas(theta)
+        u = np.asarray(u, dtype=float)
+        c, s = np.cos(th), np.sin(th)
+        ux, uy = u[..., 0], u[..., 1]  # T(theta) u = T(0) (R(theta)^T (u_x, u_y), u_theta), as `forces_floats`
+        return np.einsum("...ij,...j->...i", self.T0, np.stack((c * ux + s * uy, c * uy - s * ux, u[..., 2]), axis=-1))
 
     def forces_floats(self, theta: float, u: Sequence[float]) -> list[float]:
         """Wheel forces F = T(theta) u [N] (eqs. 36-37) on Python floats, the per-tick path of `field`.

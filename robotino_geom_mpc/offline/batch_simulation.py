@@ -12,6 +12,11 @@ per batch, not once per run.
 Routed per run (`run_scenario`): the constrained mode (its QP's active set is
 per run) and the cmd_vel command interface. The batch's runs have no compute
 times (their `RunData.compute_time_s` is None).
+
+`simulate_batch` keeps the series as arrays with the batch axis (`BatchSeries`),
+whose `BatchSeries.metrics` is `results.compute_metrics` of every run at once
+(the study's path: no per-run objects); `run_batch` cuts them into one
+`RunData` per run.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -27,12 +33,12 @@ from robotino_geom_mpc.control.motion_controller import state_from_odometry
 from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST, DEFAULT_COUNTS_PER_REV, ODOMETRY_MODELS, \
     EncoderOdometryBatch
 from robotino_geom_mpc.model.plant_batch import PlantBatch
-from robotino_geom_mpc.offline.results import RunData
+from robotino_geom_mpc.offline.results import RunData, RunDataError, compute_metrics, wrap_angle
 from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario, run_ticks
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.scenarios import get_scenario
 
-__all__ = ["RunSetting", "run_batch"]
+__all__ = ["RunSetting", "BatchSeries", "simulate_batch", "run_batch", "batch_metrics"]
 
 
 @dataclass(frozen=True)
@@ -66,6 +72,131 @@ def _per_run(scenario: str, control: ControlParams, settings: Sequence[RunSettin
                          command_interface=command_interface) for s in settings]
 
 
+@dataclass(frozen=True)
+class BatchSeries:
+    """The series of B runs stepped together, time first: per run what its `RunData` holds.
+
+    Attributes
+    ----------
+    scenario, control
+        What every run ran.
+    settings
+        The runs, in order.
+    noises
+        Each run's odometry noise (position [m], yaw [rad]).
+    t, reference
+        Sample times (n,) and the reference poses (n, 3), shared.
+    pose, odometry, currents, voltages
+        (n, B, 3): true and measured poses, peak currents, voltages (`RunData`).
+    saturated
+        (n, B) the saturated flags.
+    """
+
+    scenario: str
+    control: ControlParams
+    settings: tuple[RunSetting, ...]
+    noises: tuple[tuple[float, float], ...]
+    t: np.ndarray
+    reference: np.ndarray
+    pose: np.ndarray
+    odometry: np.ndarray
+    currents: np.ndarray
+    voltages: np.ndarray
+    saturated: np.ndarray
+
+    def run_data(self, b: int) -> RunData:
+        """Run b's `RunData` (copies of its series): what `run_scenario` returns for it, without compute times."""
+        s, n, control = self.settings[b], len(self.t), self.control
+        spec = get_scenario(self.scenario)
+        return RunData(
+            scenario=self.scenario, t=self.t, pose=self.pose[:, b], reference=self.reference,
+            odometry=self.odometry[:, b], currents=self.currents[:, b], voltages=self.voltages[:, b],
+            control_period_s=control.period_s, horizon=control.horizon, nominal_current_a=s.robot.nominal_current_a,
+            supply_voltage_v=s.robot.supply_voltage_v,
+            flags={"saturated": self.saturated[:, b].copy(), "infeasible": np.zeros(n, dtype=bool)},
+            meta={
+                "seed": int(s.seed), "mode": control.mode, "odometry_noise": list(self.noises[b]),
+                "odometry": s.odometry, "command_interface": "voltages",
+                **({"encoder_counts_per_rev": int(s.encoder_counts_per_rev), "wheel_slip_std": float(s.wheel_slip_std)}
+                   if s.odometry == "encoders" else {}),
+                "controller_mismatch": None if spec.mismatch is None else asdict(spec.mismatch),
+                "plant_params": "plant_robot" if s.plant_robot is not None else "robot",
+            },
+        )
+
+    def metrics(self, settle_time_s: float = 1.0) -> list[dict[str, Any]]:
+        """`results.compute_metrics` of every run (the same keys and order), computed on the arrays at once.
+
+        Equal to each run's `compute_metrics` to rounding (the means sum in another order).
+
+        Raises
+        ------
+        RunDataError
+            For a negative or non-finite settle time, or non-finite series (as `RunData` would).
+        """
+        settle = float(settle_time_s)
+        if not math.isfinite(settle) or settle < 0.0:
+            raise RunDataError(f"settle_time_s must be finite and >= 0, got {settle_time_s!r}")
+        for name in ("pose", "odometry", "currents", "voltages"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise RunDataError(f"{name} contains non-finite values")
+        t, n, B = self.t, len(self.t), self.pose.shape[1]
+        nominal = np.array([s.robot.nominal_current_a for s in self.settings])
+        supply = np.array([s.robot.supply_voltage_v for s in self.settings])
+        after = (t - t[0]) >= settle - 1e-12
+        count = int(after.sum())
+
+        def errors(pose: np.ndarray) -> np.ndarray:
+            err = pose - self.reference[:, None, :]
+            err[:, :, 2] = wrap_angle(err[:, :, 2])
+            return err
+
+        def rms(values: np.ndarray) -> list[float | None]:
+            return np.sqrt(np.mean(np.square(values[after]), axis=0)).tolist() if count else [None] * B
+
+        def peak(values: np.ndarray) -> list[float | None]:
+            return values[after].max(axis=0).tolist() if count else [None] * B
+
+        err = errors(self.pose)
+        position = np.hypot(err[:, :, 0], err[:, :, 1])
+        current = np.abs(self.currents)
+        peak_current = current.max(axis=(0, 2))
+        peak_voltage = np.abs(self.voltages).max(axis=(0, 2))
+        odometry = errors(self.odometry)
+        position_odometry = np.hypot(odometry[:, :, 0], odometry[:, :, 1])
+        drift = np.hypot(*np.moveaxis(self.odometry[:, :, :2] - self.pose[:, :, :2], 2, 0))
+        columns: dict[str, list[Any]] = {
+            "rms_position_error_m": rms(position), "max_position_error_m": peak(position),
+            "rms_x_error_m": rms(err[:, :, 0]), "rms_y_error_m": rms(err[:, :, 1]),
+            "rms_theta_error_rad": rms(err[:, :, 2]), "final_position_error_m": position[-1].tolist(),
+            "max_abs_theta_error_rad": np.abs(err[:, :, 2]).max(axis=0).tolist(),
+            "peak_current_a": peak_current.tolist(), "peak_current_after_settle_a": peak(current.max(axis=2)),
+            "samples_above_nominal_current": np.any(current > nominal[:, None], axis=2).sum(axis=0).tolist(),
+            "current_within_nominal": (peak_current <= nominal).tolist(), "peak_voltage_v": peak_voltage.tolist(),
+            "voltage_within_supply": (peak_voltage <= supply * (1.0 + 1e-9)).tolist(),
+            "nominal_current_a": nominal.tolist(), "supply_voltage_v": supply.tolist(),
+            "infeasible_steps": [0] * B, "saturated_steps": self.saturated.sum(axis=0).tolist(),
+            "rms_position_error_odom_m": rms(position_odometry), "max_position_error_odom_m": peak(position_odometry),
+            "rms_theta_error_odom_rad": rms(odometry[:, :, 2]), "odometry_drift_final_m": drift[-1].tolist(),
+            "odometry_drift_max_m": drift.max(axis=0).tolist(),
+        }
+        shared = {"scenario": self.scenario, "samples": n, "duration_s": float(t[-1] - t[0]), "settle_time_s": settle,
+                  "samples_after_settle": count, "control_period_s": float(self.control.period_s),
+                  "horizon": int(self.control.horizon)}
+        order = [key for key in _METRIC_ORDER if key in shared or key in columns]
+        return [{key: shared[key] if key in shared else columns[key][b] for key in order} for b in range(B)]
+
+
+_METRIC_ORDER = (  # `compute_metrics`'s keys in its order (METRIC_KEYS, the flags sorted, the odometry's)
+    "scenario", "samples", "duration_s", "settle_time_s", "samples_after_settle", "rms_position_error_m",
+    "max_position_error_m", "rms_x_error_m", "rms_y_error_m", "rms_theta_error_rad", "final_position_error_m",
+    "max_abs_theta_error_rad", "peak_current_a", "peak_current_after_settle_a", "samples_above_nominal_current",
+    "current_within_nominal", "peak_voltage_v", "voltage_within_supply", "nominal_current_a", "supply_voltage_v",
+    "control_period_s", "horizon", "infeasible_steps", "saturated_steps", "rms_position_error_odom_m",
+    "max_position_error_odom_m", "rms_theta_error_odom_rad", "odometry_drift_final_m", "odometry_drift_max_m",
+)
+
+
 def run_batch(
     scenario: str, control: ControlParams, settings: Sequence[RunSetting], *, duration_s: float | None = None,
     command_interface: str = "voltages",
@@ -93,11 +224,44 @@ def run_batch(
     scenarios.ScenarioError, SimulationError
         As `run_scenario` (a bad setting of any run fails the batch, before any step).
     """
+    if control.mode != "closed_form" or command_interface != "voltages":
+        get_scenario(scenario)
+        if not settings:
+            raise SimulationError("a batch needs at least one run")
+        return _per_run(scenario, control, settings, duration_s, command_interface)
+    series = simulate_batch(scenario, control, settings, duration_s=duration_s)
+    return [series.run_data(b) for b in range(len(settings))]
+
+
+def batch_metrics(
+    scenario: str, control: ControlParams, settings: Sequence[RunSetting], *, duration_s: float | None = None,
+    settle_time_s: float = 1.0,
+) -> list[dict[str, Any]]:
+    """`results.compute_metrics` of each run of `run_batch` (the study's rows): on the arrays when stepped together.
+
+    Raises what `run_batch` and `compute_metrics` raise.
+    """
+    if control.mode != "closed_form":
+        return [compute_metrics(data, settle_time_s=settle_time_s)
+                for data in run_batch(scenario, control, settings, duration_s=duration_s)]
+    return simulate_batch(scenario, control, settings, duration_s=duration_s).metrics(settle_time_s)
+
+
+def simulate_batch(
+    scenario: str, control: ControlParams, settings: Sequence[RunSetting], *, duration_s: float | None = None,
+) -> BatchSeries:
+    """The closed loop of the runs `settings`, stepped together, as arrays (closed-form mode, voltages).
+
+    Raises
+    ------
+    scenarios.ScenarioError, SimulationError
+        As `run_batch`; SimulationError also for a mode other than the closed form.
+    """
     spec = get_scenario(scenario)
     if not settings:
         raise SimulationError("a batch needs at least one run")
-    if control.mode != "closed_form" or command_interface != "voltages":
-        return _per_run(scenario, control, settings, duration_s, command_interface)
+    if control.mode != "closed_form":
+        raise SimulationError(f"the batched loop is closed-form only, got mode {control.mode!r} (use run_batch)")
     B = len(settings)
     noises = []
     for s in settings:
@@ -148,21 +312,5 @@ def run_batch(
         poses[k], measured[k], voltages[k] = true_pose, pose, volts
         currents[k] = plant.step(volts, Ts)
 
-    t = np.arange(n) * Ts
-    return [
-        RunData(
-            scenario=scenario, t=t, pose=poses[:, b], reference=targets[:n], odometry=measured[:, b],
-            currents=currents[:, b], voltages=voltages[:, b], control_period_s=Ts, horizon=N,
-            nominal_current_a=s.robot.nominal_current_a, supply_voltage_v=s.robot.supply_voltage_v,
-            flags={"saturated": saturated[:, b].copy(), "infeasible": np.zeros(n, dtype=bool)},
-            meta={
-                "seed": int(s.seed), "mode": control.mode, "odometry_noise": list(noises[b]), "odometry": s.odometry,
-                "command_interface": command_interface,
-                **({"encoder_counts_per_rev": int(s.encoder_counts_per_rev), "wheel_slip_std": float(s.wheel_slip_std)}
-                   if s.odometry == "encoders" else {}),
-                "controller_mismatch": None if spec.mismatch is None else asdict(spec.mismatch),
-                "plant_params": "plant_robot" if s.plant_robot is not None else "robot",
-            },
-        )
-        for b, s in enumerate(settings)
-    ]
+    return BatchSeries(scenario, control, tuple(settings), tuple(noises), np.arange(n) * Ts, targets[:n], poses,
+                       measured, currents, voltages, saturated)

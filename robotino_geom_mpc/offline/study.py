@@ -51,7 +51,7 @@ from robotino_geom_mpc.model.encoders import ODOMETRY_MODELS
 
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
-from robotino_geom_mpc.offline.batch_simulation import RunSetting, run_batch
+from robotino_geom_mpc.offline.batch_simulation import RunSetting, batch_metrics
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.scenarios import get_scenario
 from robotino_geom_mpc.offline.simulation import run_scenario
@@ -73,7 +73,7 @@ METRICS = (  # the keys of `results.compute_metrics` a row keeps
 )
 STATISTICS = ("rms_position_error_m", "peak_current_a")  # summarised as median, p95, worst
 BATCH_MAX = 16  # runs per pool task at most, run by run
-BATCHED_MAX = 500  # runs per task at most, stepped together (about 150 MB of a 22 s scenario's series)
+BATCHED_MAX = 1000  # runs per task at most, stepped together (about 0.5 GB with a 22 s scenario's series)
 
 
 class StudyError(RobotinoError, ValueError):
@@ -210,34 +210,26 @@ def run_rows(
         return [run_one(scenario, robot, control, draw, duration_s, settle_time_s, network) for draw in draws]
     start = time.perf_counter()
     try:
-        runs = run_batch(scenario, control, [_setting(robot, draw) for draw in draws], duration_s=duration_s)
+        metrics = batch_metrics(scenario, control, [_setting(robot, draw) for draw in draws], duration_s=duration_s,
+                                settle_time_s=settle_time_s)
     except Exception:  # noqa: BLE001  (the per-run path names each failing run)
         return run_rows(scenario, robot, control, draws, duration_s, settle_time_s, batched=False)
-    rows = []
-    for draw, data in zip(draws, runs):
-        row: dict[str, Any] = {**asdict(draw), "simulated_s": 0.0, **dict.fromkeys(METRICS), "error": ""}
-        try:
-            metrics = compute_metrics(data, settle_time_s=settle_time_s)
-        except Exception as exc:  # noqa: BLE001
-            row["error"] = f"{type(exc).__name__}: {exc}"
-        else:
-            row["simulated_s"] = data.n * data.control_period_s
-            row.update({key: metrics.get(key) for key in METRICS})
-        rows.append(row)
-    share = (time.perf_counter() - start) / len(rows)
-    return [{key: (share if key == "wall_s" else row[key]) for key in COLUMNS} for row in rows]
+    share = (time.perf_counter() - start) / len(draws)
+    simulated = metrics[0]["samples"] * control.period_s
+    return [{**asdict(draw), "simulated_s": simulated, "wall_s": share, **{key: m.get(key) for key in METRICS},
+             "error": ""} for draw, m in zip(draws, metrics)]
 
 
 def batch_size(runs: int, workers: int, batched: bool = True) -> int:
     """Runs per task.
 
-    Stepped together: a quarter of the runs (the per-tick cost is paid once a batch, so batches are large),
-    at most `BATCHED_MAX`, whatever the workers, so that the batches (and so every row, to the last bit) are
-    the same on any number of workers or machines. Run by run: at least 8 tasks a worker so the last ones
+    Stepped together: half the runs (the per-tick cost is paid once a batch, so batches are large: one per
+    worker of a 2-core machine), at most `BATCHED_MAX`, whatever the workers, so that the batches (and so
+    every row, to the last bit) are the same on any number of workers or machines. Run by run: at least 8 tasks a worker so the last ones
     balance, at most `BATCH_MAX`.
     """
     if batched:
-        return max(1, min(BATCHED_MAX, -(-runs // 4)))
+        return max(1, min(BATCHED_MAX, -(-runs // 2)))
     return max(1, min(BATCH_MAX, runs // (8 * workers)))
 
 

@@ -122,8 +122,7 @@ class PlantBatch:
         off fast (|C_j| about 4.5, 0.12, 2.3e-3, 3.0e-5, 3.2e-7, 2.7e-9, 2.2e-11 for the Robotino 3 at 2.5 ms
         substeps), so a batch turning at most at 0.01 rad/s (|e| 5e-4) needs the terms up to e^3, one at
         0.1 rad/s those up to e^4: what is dropped changes no entry by more than `_DROPPED` times the largest
-        |entry| of the loop vector and the held voltages, a sixteenth
-        of its rounding unit.
+        |entry| of the loop vector and the held voltages, a sixteenth of its rounding unit.
         """
         size = self._term_sizes[key]
         dropped = 0.0

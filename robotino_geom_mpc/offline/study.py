@@ -225,8 +225,8 @@ def batch_size(runs: int, workers: int, batched: bool = True) -> int:
 
     Stepped together: half the runs (the per-tick cost is paid once a batch, so batches are large: one per
     worker of a 2-core machine), at most `BATCHED_MAX`, whatever the workers, so that the batches (and so
-    every row, to the last bit) are the same on any number of workers or machines. Run by run: at least 8 tasks a worker so the last ones
-    balance, at most `BATCH_MAX`.
+    every row, to the last bit) are the same on any number of workers or machines. Run by run: at least 8
+    tasks a worker so the last ones balance, at most `BATCH_MAX`.
     """
     if batched:
         return max(1, min(BATCHED_MAX, -(-runs // 2)))

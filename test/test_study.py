@@ -169,3 +169,5 @@ def test_bench_study_figures():
     assert figures["study_aggregate_realtime_factor"] == pytest.approx(64 * 5.0 / figures["study_wall_s"], rel=1e-9)
     assert figures["study_batched_speedup_vs_per_run"] == pytest.approx(
         figures["study_aggregate_realtime_factor"] / figures["study_per_run_aggregate_realtime_factor"], rel=1e-12)
+    assert figures["batched_cpu_speedup_vs_per_run"] == pytest.approx(
+        figures["per_run_us_per_tick"] / figures["batched_us_per_run_tick"], rel=1e-12)

@@ -15,7 +15,8 @@ Trial 0 is the base weights (the search starts from them). A trial whose
 nominal closed loop is unstable (`mpc.check_closed_loop`) is pruned before
 any run; so is one whose first quarter of runs already has a p95 above the
 median of the earlier trials' at that stage (optuna's
-MedianPruner). The best feasible trial is then run again, with the base
+MedianPruner); a trial that goes on runs the other three quarters (each run
+once). The best feasible trial is then run again, with the base
 weights beside it, on a held-out study (draws from another seed): the
 certificate. Plain Python: no rclpy.
 """
@@ -131,10 +132,12 @@ def tune(
     draws = draw_runs(samples, seed)
     stage = max(1, samples // 4)
 
-    def study(control: ControlParams, chosen: list) -> StudyScore:
-        rows = run_study(scenario, robot, control, chosen, duration_s=duration_s, workers=workers,
+    def rows_of(control: ControlParams, chosen: list) -> list[dict[str, Any]]:
+        return run_study(scenario, robot, control, chosen, duration_s=duration_s, workers=workers,
                          scheduler=scheduler, progress=False).rows
-        return score_study(rows)
+
+    def study(control: ControlParams, chosen: list) -> StudyScore:
+        return score_study(rows_of(control, chosen))
 
     def objective(trial: optuna.Trial) -> float:
         params = {f"ratio_{a}": trial.suggest_float(f"ratio_{a}", *RATIO_RANGE, log=True) for a in AXES}
@@ -147,12 +150,13 @@ def tune(
         except UnstableClosedLoopError:
             raise optuna.TrialPruned() from None
         start = time.perf_counter()
-        if stage < samples:
-            first = study(control, draws[:stage])
-            trial.report(first.p95_rms_position_error_m, 0)
+        rows = rows_of(control, draws[:stage])
+        if stage < samples:  # the first quarter's figure, then the other runs (each run once)
+            trial.report(score_study(rows).p95_rms_position_error_m, 0)
             if trial.should_prune():
                 raise optuna.TrialPruned()
-        score = study(control, draws)
+            rows += rows_of(control, draws[stage:])
+        score = score_study(rows)
         trial.set_constraint("p99_peak_current_over_nominal_a", score.p99_peak_current_a - nominal)
         trial.set_user_attr("p99_peak_current_a", score.p99_peak_current_a)
         trial.set_user_attr("failed_runs", score.failed_runs)

@@ -26,7 +26,7 @@ pytest.importorskip("dask.distributed", reason="the cluster extra: pip install '
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 DASK = str(Path(sys.executable).with_name("dask"))
-SAMPLES, SEED, DURATION_S = 16, 5, 1.0  # 4 batches of 4 runs
+SAMPLES, SEED, DURATION_S = 16, 5, 1.0  # 2 batches of 8 runs
 
 
 def _without_wall(rows):

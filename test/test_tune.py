@@ -19,7 +19,8 @@ import pytest
 from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.offline.study import draw_runs, run_one
 from robotino_geom_mpc.offline.tune import HELD_OUT_SEED_OFFSET, score_study
-from robotino_geom_mpc.params.files import check_parameter_files, load_params
+from robotino_geom_mpc.params.files import NODE_PARAMETERS, check_parameter_files, load_params, read_parameter_file
+from robotino_geom_mpc.system.processes import node_arguments
 
 pytest.importorskip("optuna", reason="the tune extra: pip install '.[tune]'")
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -81,7 +82,19 @@ def test_certificate_is_the_held_out_study(tuned):
 
 
 def test_the_parameter_file_runs_unchanged(tuned, tmp_path):
+    """``run --params`` takes the file as it is: rcl's reading and the nodes' check pass, every node of the run
+    gets it as its ``--params-file`` and reads the tuned weights from it; ``simulate --params`` runs it."""
     out, _ = tuned
+    path = out / "params.yaml"
+    check_parameter_files([path])  # what `run` and each node check before starting (rcl's reading included)
+    _, control = load_params(path)
+    for executable, argv in node_arguments(SCENARIO, path, 1.0, lockstep=True).items():
+        assert argv[argv.index("--params-file") + 1] == str(path), executable
+    for node in ("robotino_controller",):
+        values = read_parameter_file(path, node)
+        assert [values[f"control.q_{a}"] for a in ("x", "y", "theta")] == list(control.q)
+        assert values["control.horizon"] == control.horizon and set(values) <= set(NODE_PARAMETERS[node]) | {
+            "use_sim_time"}
     assert main(["simulate", "--scenario", "paper-circle", "--duration", "1.5", "--params", str(out / "params.yaml"),
                  "--out", str(tmp_path / "sim")]) == 0
     metrics = json.loads((tmp_path / "sim" / "metrics.json").read_text())

@@ -141,17 +141,12 @@ def prediction_matrices(A_d: np.ndarray, B_d: np.ndarray, horizon: int) -> tuple
     if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
         raise MPCError(f"horizon must be an integer >= 1, got {horizon!r}")
     N = int(horizon)
-    G_p = np.empty((N, n))
-    S = np.empty(N)
-    power = np.eye(n)  # A^(j-1)
-    partial = np.zeros(n)  # (I + ... + A^(j-1)) B
+    G_p, S, F_1p = np.empty((N, n)), np.empty(N), np.zeros((N, N))
+    power, partial = np.eye(n), np.zeros(n)  # A^(j-1) and (I + ... + A^(j-1)) B
     for j in range(N):
         partial = partial + power @ B_d
         power = power @ A_d
-        G_p[j] = power[0]
-        S[j] = partial[0]
-    F_1p = np.zeros((N, N))
-    for j in range(N):
+        G_p[j], S[j] = power[0], partial[0]
         F_1p[j, : j + 1] = S[j::-1]
     return G_p, F_1p, S.copy()
 
@@ -194,21 +189,15 @@ class DecoupledMPC:
     """
 
     def __init__(self, robot: RobotinoParams, control: ControlParams) -> None:
-        self.period_s = float(control.period_s)
-        self.horizon = int(control.horizon)
-        q = np.asarray(control.q, dtype=float)
-        r = np.asarray(control.r, dtype=float)
+        self.period_s, self.horizon = float(control.period_s), int(control.horizon)
+        q, r = np.asarray(control.q, dtype=float), np.asarray(control.r, dtype=float)
         if not (np.all(np.isfinite(q)) and np.all(q > 0) and np.all(np.isfinite(r)) and np.all(r > 0)):
             raise MPCError(f"weights q and r must be finite and > 0, got q={tuple(q)}, r={tuple(r)}")
         self.q, self.r = q, r
         N = self.horizon
-        self.A_d = np.empty((3, 2, 2))
-        self.B_d = np.empty((3, 2))
-        self.G_p = np.empty((3, N, 2))
-        self.F_1p = np.empty((3, N, N))
-        self.F_2p = np.empty((3, N))
-        self.hessian = np.empty((3, N, N))
-        self.gain = np.empty((3, N, N))
+        self.A_d, self.B_d, self.G_p = np.empty((3, 2, 2)), np.empty((3, 2)), np.empty((3, N, 2))
+        self.F_1p, self.F_2p = np.empty((3, N, N)), np.empty((3, N))
+        self.hessian, self.gain = np.empty((3, N, N)), np.empty((3, N, N))
         for a, damping in enumerate(axis_dampings(robot)):
             self.A_d[a], self.B_d[a] = discretize_axis(damping, self.period_s)
             self.G_p[a], self.F_1p[a], self.F_2p[a] = prediction_matrices(self.A_d[a], self.B_d[a], N)
@@ -295,16 +284,36 @@ class DecoupledMPC:
     def batch(cls, robots: Sequence[RobotinoParams], control: ControlParams) -> DecoupledMPC:
         """The MPCs of B controller models at once: every array attribute gains a leading batch axis (B, ...).
 
-        The array forms (`delta_u`) then give each run its own gain; the float forms serve one run only.
+        The relations of `__init__` and `prediction_matrices` on the stacked axes (B, 3), equal to each run's own
+        to rounding; the array forms (`delta_u`) then give each run its own gain, the float forms serve one run.
         """
-        runs = [cls(robot, control) for robot in robots]
-        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
-        stacked.period_s, stacked.horizon = runs[0].period_s, runs[0].horizon
-        for name in ("q", "r", "A_d", "B_d", "G_p", "F_1p", "F_2p", "hessian", "gain", "stacked_gain",
-                     "prediction_map"):
-            setattr(stacked, name, np.stack([getattr(run, name) for run in runs]))
-        stacked._reference_gains = stacked._state_gains = None  # no float path for a batch
-        return stacked
+        first = cls(robots[0], control)  # checks the weights (every run's)
+        N, B, eye, T = first.horizon, len(robots), np.eye(first.horizon), first.period_s
+        m: Any = cls.__new__(cls)  # the same attributes with a batch axis
+        m.period_s, m.horizon, m.q, m.r = T, N, np.tile(first.q, (B, 1)), np.tile(first.r, (B, 1))
+        models = [discretize_axis(damping, T) for p in robots for damping in axis_dampings(p)]
+        m.A_d, m.B_d = np.reshape([a for a, _ in models], (B, 3, 2, 2)), np.reshape([b for _, b in models], (B, 3, 2))
+        m.G_p, m.F_1p, m.F_2p = np.empty((B, 3, N, 2)), np.zeros((B, 3, N, N)), np.empty((B, 3, N))
+        power, partial = np.tile(np.eye(2), (B, 3, 1, 1)), 0.0
+        for j in range(N):  # `prediction_matrices`, every axis of every run at once
+            partial = partial + np.einsum("...ij,...j->...i", power, m.B_d)
+            power = power @ m.A_d
+            m.G_p[..., j, :], m.F_2p[..., j] = power[..., 0, :], partial[..., 0]
+            m.F_1p[..., j, : j + 1] = m.F_2p[..., j::-1]
+        q, r, F1T = first.q[:, None, None], first.r[:, None, None], m.F_1p.swapaxes(-1, -2)
+        m.hessian = q * F1T @ m.F_1p + r * eye
+        m.gain = np.linalg.solve(m.hessian, q * F1T)
+        k, M = m.gain[..., 0, :], m.F_1p @ m.gain  # (B, 3, N), (B, 3, N, N)
+        m.stacked_gain, m.prediction_map = np.zeros((B, 3, 3 * N + 9)), np.zeros((B, 3 * N, 3 * N + 9))
+        for a in range(3):
+            m.stacked_gain[:, a, a : 3 * N : 3] = k[:, a]
+            m.stacked_gain[:, a, 3 * N + 2 * a : 3 * N + 2 * a + 2] = -np.einsum("bn,bnm->bm", k[:, a], m.G_p[:, a])
+            m.stacked_gain[:, a, 3 * N + 6 + a] = -np.einsum("bn,bn->b", k[:, a], m.F_2p[:, a])
+            m.prediction_map[:, a::3, a : 3 * N : 3] = M[:, a]
+            m.prediction_map[:, a::3, 3 * N + 2 * a : 3 * N + 2 * a + 2] = (eye - M[:, a]) @ m.G_p[:, a]
+            m.prediction_map[:, a::3, 3 * N + 6 + a] = np.einsum("bij,bj->bi", eye - M[:, a], m.F_2p[:, a])
+        m._reference_gains = m._state_gains = None  # no float path for a batch
+        return m
 
     def predicted_floats(
         self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]]

@@ -19,7 +19,7 @@ import numpy as np
 
 from robotino_geom_mpc.geometric import subspaces as geo
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.model.dynamics import A_matrix, C_matrix, VELOCITY_INDEX, acceleration_block, g_theta
+from robotino_geom_mpc.model.dynamics import A_matrix, C_matrix, VELOCITY_INDEX, g_theta, wheel_directions
 from robotino_geom_mpc.params.specs import RobotinoParams
 
 __all__ = [
@@ -123,15 +123,19 @@ def _toolbox_from_g(g: np.ndarray, p: RobotinoParams, rtol: float | None) -> np.
     return np.stack(columns, axis=-1)
 
 
-def _acceleration_block_of_full_rank(p: RobotinoParams, rtol: float = 1e-9) -> np.ndarray:
-    """G3(0) (eq. 9's acceleration rows at theta = 0), or DecouplingError when im g(0) has numerically a
-    dimension below 3 (relative to its largest entry): T(theta) cannot be built on such a model (e.g. a
-    wheel distance of 1e-12 m), as the toolbox's construction finds (`decoupling_field_toolbox`).
+def _acceleration_blocks_of_full_rank(robots: Sequence[RobotinoParams], rtol: float = 1e-9) -> np.ndarray:
+    """G3(0) of each robot, (B, 3, 3) (eq. 9's acceleration rows at theta = 0, `model.dynamics.acceleration_block`), or
+    DecouplingError when an im g(0) has numerically a dimension below 3 (relative to its largest entry):
+    T(theta) cannot be built on such a model (e.g. a wheel distance of 1e-12 m), as the toolbox's
+    construction finds (`decoupling_field_toolbox`).
     """
-    G3 = acceleration_block(0.0, p)
-    rank = int(np.linalg.matrix_rank(G3 / np.abs(G3).max(), tol=rtol))
-    if rank < 3:
-        raise DecouplingError(f"im g(0) has dimension {rank}, expected 3: T(theta) cannot be built on this model")
+    d = wheel_directions(0.0)
+    mass = np.array([p.M for p in robots])[:, None]
+    G3 = np.stack((d[:, 0] / mass, d[:, 1] / mass, np.repeat([[p.l / p.J] for p in robots], 3, axis=1)), axis=1)
+    ranks = np.linalg.matrix_rank(G3 / np.abs(G3).max(axis=(1, 2))[:, None, None], tol=rtol)
+    if np.any(ranks < 3):
+        raise DecouplingError(f"im g(0) has dimension {int(ranks.min())}, expected 3: T(theta) cannot be built on "
+                              "this model")
     return G3
 
 
@@ -158,7 +162,7 @@ class DecouplingField:
 
     def __init__(self, p: RobotinoParams) -> None:
         self.p = p
-        self.T0 = np.linalg.inv(_acceleration_block_of_full_rank(p))
+        self.T0 = np.linalg.inv(_acceleration_blocks_of_full_rank([p])[0])
         self._T0_rows = tuple(map(tuple, self.T0.tolist()))
 
     def field(self, theta: object) -> np.ndarray:
@@ -175,7 +179,7 @@ class DecouplingField:
         """The fields of B robots at once: T(0) of shape (B, 3, 3), for the array forms (`field`, `forces`)."""
         stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
         stacked.p = tuple(robots)
-        stacked.T0 = np.linalg.inv(np.stack([_acceleration_block_of_full_rank(p) for p in stacked.p]))
+        stacked.T0 = np.linalg.inv(_acceleration_blocks_of_full_rank(stacked.p))
         stacked._T0_rows = None  # no float path for a batch
         return stacked
 

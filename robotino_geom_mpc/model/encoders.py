@@ -234,6 +234,8 @@ class EncoderOdometryBatch:
     slip_normals
         The standard normal draws of the slip, shape (updates, B, 3), row k for the k-th update (a run
         without slip: any finite values); None: no run slips.
+    runs
+        The plant's runs these encoders read (B of them, indices); None: all, in order.
 
     Notes
     -----
@@ -243,21 +245,23 @@ class EncoderOdometryBatch:
     """
 
     def __init__(self, plant: PlantBatch, counts_per_rev: np.ndarray, slip_std: np.ndarray,
-                 slip_normals: np.ndarray | None = None) -> None:
+                 slip_normals: np.ndarray | None = None, runs: np.ndarray | None = None) -> None:
         counts_per_rev = np.asarray(counts_per_rev)
         slip_std = np.asarray(slip_std, dtype=float)
-        B = len(plant.params)
+        self._runs = slice(None) if runs is None else np.asarray(runs)
+        params = plant.params if runs is None else [plant.params[r] for r in self._runs]
+        B = len(params)
         if counts_per_rev.shape != (B,) or np.any(counts_per_rev < 1):
             raise EncoderError(f"counts_per_rev must be {B} positive integers")
         if slip_std.shape != (B,) or not np.all((slip_std >= 0.0) & (slip_std <= 1.0)):
             raise EncoderError(f"slip_std must be {B} numbers in [0, 1]")
         self.plant, self._slip, self._normals, self._updates = plant, slip_std[:, None], slip_normals, 0
-        self._twist_rows = np.stack([_twist_of_wheel_speeds(p) for p in plant.params])  # r K^-1 per run
-        self._gear = np.array([p.gear_ratio for p in plant.params])[:, None]
+        self._twist_rows = np.stack([_twist_of_wheel_speeds(p) for p in params])  # r K^-1 per run
+        self._gear = np.array([p.gear_ratio for p in params])[:, None]
         self._counts_per_rev = counts_per_rev[:, None]
-        self.pose = plant.pose.copy()
+        self.pose = plant.pose[self._runs].copy()
         self.twist = np.zeros((B, 3))
-        self._angles = plant.wheel_angles.copy()
+        self._angles = plant.wheel_angles[self._runs].copy()
         self._seen = self._angles.copy()
         self._counts = encoder_counts(self._seen, self._gear, self._counts_per_rev)
         self._time_s = plant.time_s
@@ -266,7 +270,7 @@ class EncoderOdometryBatch:
         """Read the encoders and integrate the poses over the time since the last update; (poses, twists) (B, 3)."""
         dt = self.plant.time_s - self._time_s
         if dt > 0.0:
-            angles = self.plant.wheel_angles.copy()
+            angles = self.plant.wheel_angles[self._runs].copy()
             d = angles - self._angles
             if self._normals is not None:
                 d = d * (1.0 + self._slip * self._normals[self._updates])

@@ -279,13 +279,15 @@ def simulate_batch(
     plant = PlantBatch([s.plant_robot if s.plant_robot is not None else s.robot for s in settings])
     encoders = np.array([s.odometry == "encoders" for s in settings])
     slips = np.array([s.wheel_slip_std if s.odometry == "encoders" else 0.0 for s in settings])
+    reading = np.flatnonzero(encoders)  # the runs whose odometry the encoders give
     normals = None
     if slips.any():  # the slip's own stream per run, default_rng((seed, 1)), drawn ahead: three per update
-        normals = np.zeros((n, B, 3))
-        for b in np.flatnonzero(slips):
-            normals[:, b] = np.random.default_rng((int(settings[b].seed), 1)).standard_normal((n, 3))
-    source = EncoderOdometryBatch(plant, np.array([s.encoder_counts_per_rev for s in settings]), slips, normals) \
-        if encoders.any() else None
+        normals = np.zeros((n, len(reading), 3))
+        for column, b in enumerate(reading):
+            if slips[b]:
+                normals[:, column] = np.random.default_rng((int(settings[b].seed), 1)).standard_normal((n, 3))
+    source = EncoderOdometryBatch(plant, np.array([settings[b].encoder_counts_per_rev for b in reading]),
+                                  slips[reading], normals, reading) if len(reading) else None
     twists = [CONTROLLER_TWIST.get(s.odometry, control.odometry_twist) for s in settings]
     start = reference.position(np.zeros(1))[0]
     controller = MotionControllerBatch([spec.controller_model(s.robot) for s in settings], control, twists,
@@ -299,17 +301,14 @@ def simulate_batch(
     targets = reference.position(np.arange(n + N + 1) * Ts)
     poses, measured, voltages, currents = (np.empty((n, B, 3)) for _ in range(4))
     saturated = np.empty((n, B), dtype=bool)
-    rows = encoders[:, None]
     for k in range(n):
-        true_pose, twist = plant.odometry()
-        pose = true_pose
+        poses[k], twist = plant.odometry()
+        pose = np.add(poses[k], draws[k], out=measured[k])
         if source is not None:
-            pose_encoders, twist_encoders = source.update()
-            pose, twist = np.where(rows, pose_encoders, pose), np.where(rows, twist_encoders, twist)
-        pose = pose + draws[k]
-        X = state_from_odometry(pose, twist)
-        volts, saturated[k] = controller.step(X, targets[k + 1 : k + N + 1])
-        poses[k], measured[k], voltages[k] = true_pose, pose, volts
+            pose_encoders, twist[reading] = source.update()
+            pose[reading] = pose_encoders + draws[k, reading]
+        volts, saturated[k] = controller.step(state_from_odometry(pose, twist), targets[k + 1 : k + N + 1])
+        voltages[k] = volts
         currents[k] = plant.step(volts, Ts)
 
     return BatchSeries(scenario, control, tuple(settings), tuple(noises), np.arange(n) * Ts, targets[:n], poses,

@@ -20,6 +20,7 @@ from robotino_geom_mpc.control.estimator import EstimatorError
 from robotino_geom_mpc.control.motion_batch import BatchControlError, MotionControllerBatch
 from robotino_geom_mpc.model.plant import PlantError
 from robotino_geom_mpc.model.plant_batch import PlantBatch
+from robotino_geom_mpc.offline import batch_simulation
 from robotino_geom_mpc.offline.batch_simulation import RunSetting, batch_metrics, run_batch, simulate_batch
 from robotino_geom_mpc.offline.results import RunDataError, compute_metrics
 from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
@@ -135,8 +136,9 @@ def test_bad_settings_are_refused(params):
 
 
 @pytest.mark.parametrize("settle_time_s", [0.4, 5.0])  # 5 s: no sample after the settle time, None metrics
-def test_batch_metrics_are_each_runs_compute_metrics(params, settle_time_s):
+def test_batch_metrics_are_each_runs_compute_metrics(params, settle_time_s, monkeypatch):
     """`BatchSeries.metrics` (the study's path) against `compute_metrics` of each run's own `run_scenario`."""
+    monkeypatch.setattr(batch_simulation, "_METRIC_CHUNK", 4)  # two chunks of runs
     robot, control = params
     settings = _settings(robot, 6, 11)
     got = batch_metrics("robustness", control, settings, duration_s=1.0, settle_time_s=settle_time_s)

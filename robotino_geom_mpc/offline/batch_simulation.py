@@ -141,10 +141,24 @@ class BatchSeries:
             if not np.all(np.isfinite(getattr(self, name))):
                 raise RunDataError(f"{name} contains non-finite values")
         t, n, B = self.t, len(self.t), self.pose.shape[1]
-        nominal = np.array([s.robot.nominal_current_a for s in self.settings])
-        supply = np.array([s.robot.supply_voltage_v for s in self.settings])
         after = (t - t[0]) >= settle - 1e-12
-        count = int(after.sum())
+        shared = {"scenario": self.scenario, "samples": n, "duration_s": float(t[-1] - t[0]), "settle_time_s": settle,
+                  "samples_after_settle": int(after.sum()), "control_period_s": float(self.control.period_s),
+                  "horizon": int(self.control.horizon)}
+        rows = []
+        for start in range(0, B, _METRIC_CHUNK):  # a few runs at a time: the temporaries stay small
+            columns = self._metric_columns(slice(start, start + _METRIC_CHUNK), after)
+            order = [key for key in _METRIC_ORDER if key in shared or key in columns]
+            rows += [{key: shared[key] if key in shared else columns[key][b] for key in order}
+                     for b in range(len(columns["peak_current_a"]))]
+        return rows
+
+    def _metric_columns(self, runs: slice, after: np.ndarray) -> dict[str, list[Any]]:
+        """The per-run metrics of the runs `runs`, key by key (`metrics`; position errors after `after`)."""
+        settings = self.settings[runs]
+        nominal = np.array([s.robot.nominal_current_a for s in settings])
+        supply = np.array([s.robot.supply_voltage_v for s in settings])
+        pose, measured, B, count = self.pose[:, runs], self.odometry[:, runs], len(settings), int(after.sum())
 
         def errors(pose: np.ndarray) -> np.ndarray:
             err = pose - self.reference[:, None, :]
@@ -157,15 +171,15 @@ class BatchSeries:
         def peak(values: np.ndarray) -> list[float | None]:
             return values[after].max(axis=0).tolist() if count else [None] * B
 
-        err = errors(self.pose)
+        err = errors(pose)
         position = np.hypot(err[:, :, 0], err[:, :, 1])
-        current = np.abs(self.currents)
+        current = np.abs(self.currents[:, runs])
         peak_current = current.max(axis=(0, 2))
-        peak_voltage = np.abs(self.voltages).max(axis=(0, 2))
-        odometry = errors(self.odometry)
+        peak_voltage = np.abs(self.voltages[:, runs]).max(axis=(0, 2))
+        odometry = errors(measured)
         position_odometry = np.hypot(odometry[:, :, 0], odometry[:, :, 1])
-        drift = np.hypot(*np.moveaxis(self.odometry[:, :, :2] - self.pose[:, :, :2], 2, 0))
-        columns: dict[str, list[Any]] = {
+        drift = np.hypot(*np.moveaxis(measured[:, :, :2] - pose[:, :, :2], 2, 0))
+        return {
             "rms_position_error_m": rms(position), "max_position_error_m": peak(position),
             "rms_x_error_m": rms(err[:, :, 0]), "rms_y_error_m": rms(err[:, :, 1]),
             "rms_theta_error_rad": rms(err[:, :, 2]), "final_position_error_m": position[-1].tolist(),
@@ -175,18 +189,14 @@ class BatchSeries:
             "current_within_nominal": (peak_current <= nominal).tolist(), "peak_voltage_v": peak_voltage.tolist(),
             "voltage_within_supply": (peak_voltage <= supply * (1.0 + 1e-9)).tolist(),
             "nominal_current_a": nominal.tolist(), "supply_voltage_v": supply.tolist(),
-            "infeasible_steps": [0] * B, "saturated_steps": self.saturated.sum(axis=0).tolist(),
+            "infeasible_steps": [0] * B, "saturated_steps": self.saturated[:, runs].sum(axis=0).tolist(),
             "rms_position_error_odom_m": rms(position_odometry), "max_position_error_odom_m": peak(position_odometry),
             "rms_theta_error_odom_rad": rms(odometry[:, :, 2]), "odometry_drift_final_m": drift[-1].tolist(),
             "odometry_drift_max_m": drift.max(axis=0).tolist(),
         }
-        shared = {"scenario": self.scenario, "samples": n, "duration_s": float(t[-1] - t[0]), "settle_time_s": settle,
-                  "samples_after_settle": count, "control_period_s": float(self.control.period_s),
-                  "horizon": int(self.control.horizon)}
-        order = [key for key in _METRIC_ORDER if key in shared or key in columns]
-        return [{key: shared[key] if key in shared else columns[key][b] for key in order} for b in range(B)]
 
 
+_METRIC_CHUNK = 100  # runs whose metrics `BatchSeries.metrics` computes together
 _METRIC_ORDER = (  # `compute_metrics`'s keys in its order (METRIC_KEYS, the flags sorted, the odometry's)
     "scenario", "samples", "duration_s", "settle_time_s", "samples_after_settle", "rms_position_error_m",
     "max_position_error_m", "rms_x_error_m", "rms_y_error_m", "rms_theta_error_rad", "final_position_error_m",

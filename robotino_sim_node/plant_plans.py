@@ -22,6 +22,7 @@ from trajectory_msgs.msg import JointTrajectory
 from robotino_geom_mpc.network.plan import AppliedCommand, PlanBuffer
 from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, applied_message, plan_of_message, \
     plan_type, received_message
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["PlantPlans"]
 
@@ -65,9 +66,8 @@ class PlantPlans:
             return False
         if reason is not None:
             self.counts["refused_plans"] += 1
-            self.node.get_logger().warn(
-                f"refused {self.topic} ({reason}: {detail}); the plans held stay "
-                f"({self.counts['refused_plans']} refused so far)", throttle_duration_sec=1.0)
+            warn_throttled(self.node.get_logger(), f"refused {self.topic} ({reason}: {detail}); the plans held stay "
+                f"({self.counts['refused_plans']} refused so far)", 1.0)
             return False
         return True
 

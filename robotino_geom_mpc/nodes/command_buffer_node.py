@@ -43,6 +43,7 @@ from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.plans import PlanMessageError, applied_message, plan_of_message, received_message
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import run_node
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["BUFFER_SPECS", "CommandBufferNode", "STATUS_NAME", "main"]
 
@@ -100,8 +101,8 @@ class CommandBufferNode(Node):
             return
         if reason is not None:
             self.refused[reason] = self.refused.get(reason, 0) + 1
-            self.get_logger().warn(f"refused a plan ({reason}: {detail}); the previous plan (or zero) stays "
-                                   f"({sum(self.refused.values())} refused so far)", throttle_duration_sec=1.0)
+            warn_throttled(self.get_logger(), f"refused a plan ({reason}: {detail}); the previous plan (or zero) stays "
+                                   f"({sum(self.refused.values())} refused so far)", 1.0)
             return
         self.round_trip_s = now - plan.basis_s
         self.active = True

@@ -96,6 +96,7 @@ from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spe
 from robotino_geom_mpc.ros.qos import CLOCK_SUB_QOS, LATCHED_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_geom_mpc.scenarios import SCENARIOS, get_scenario
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "main"]
 
@@ -286,7 +287,7 @@ class TrajectoryNode(Node):
     def _on_clock(self, data: bytes) -> None:
         values = self.clock_layout.read(data)
         if values is None:  # every well-formed Clock has the layout
-            self.get_logger().warn(f"undecodable /clock ({len(data)} bytes) ignored", throttle_duration_sec=1.0)
+            warn_throttled(self.get_logger(), f"undecodable /clock ({len(data)} bytes) ignored", 1.0)
             return
         self.clock_heard_at = monotonic()
         now = values[0] * 1_000_000_000 + values[1]
@@ -302,10 +303,11 @@ class TrajectoryNode(Node):
             return
         topic = self.clock_sub.topic_name
         last = "none" if self.last_clock_ns is None else f"{self.last_clock_ns * 1e-9:g} s"
-        self.get_logger().warn(
+        warn_throttled(
+            self.get_logger(),
             f"lockstep: no clock on {topic} for {waited:.1f} s (last tick: {last}): waiting for the plant's next "
             f"tick ({self.count_publishers(topic)} publisher(s) of {topic}); previews follow each clock",
-            throttle_duration_sec=max(timeout, _WAIT_LOG_PERIOD_S),
+            max(timeout, _WAIT_LOG_PERIOD_S),
         )
 
     def _on_preview_matched(self, info: QoSPublisherMatchedInfo) -> None:

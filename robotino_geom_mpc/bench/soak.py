@@ -5,12 +5,13 @@ Three parts, each on the current ROS_DOMAIN_ID:
 
 * `soak`: the nodes of ``robotino-geom-mpc run --realtime`` (paper-circle, recorded) for `SOAK_S` (``--duration``),
   reported per window (`window_length`: 5 minutes, shorter for short runs): each process's resident memory (the
-  mean of samples every `SAMPLE_S` from ``/proc``; all, anonymous and shared) and CPU, and the plant's missed ticks and odometry-to-command
-  latency p50, p99, p99.9 in that window (its timing report's ``windows``, `loop_timing`); the bag's messages of
-  the plant's topics against the ticks it published (the MCAP summary's counts). Memory growth is judged after
-  the first (warm-up) window by a least-squares slope over the windows (`growth_mb_per_10min`, against
-  `GROWTH_BOUND_MB_PER_10MIN`); latency drift by the last window against the first, over the steps between
-  successive windows, with a permutation test of the windows' order (`latency_drift`).
+  mean of samples every `SAMPLE_S` from ``/proc``; all, anonymous and shared) and CPU, and the plant's missed
+  ticks and odometry-to-command latency p50, p99, p99.9 in that window (its timing report's ``windows``,
+  `loop_timing`); the bag's messages of the plant's topics against the ticks it published (the MCAP summary's
+  counts). Memory growth is judged after the first (warm-up) window by a least-squares slope over the windows
+  (`growth_mb_per_10min`, against `GROWTH_BOUND_MB_PER_10MIN`); latency drift by the last window against the
+  first, over the steps between successive windows, with a permutation test of the windows' order
+  (`latency_drift`).
 * `restart_loop` (`bench.restarts`): the realtime loop with the controller killed by SIGKILL and started again
   `RESTARTS` times; Fast DDS's shared-memory segments and port files, the domain's UDP ports and the survivors'
   and the supervisor's descriptors before, after every restart (a slope per restart) and after the last.

@@ -89,8 +89,8 @@ WIFI_TOPICS = ("odom", "ground_truth/odom", "wheel_currents", "wheel_voltages", 
 WIFI_RMS_LIMIT_M = 1e-3  # tracking, not the realtime figures (those are the `networked` benchmark's)
 # with plans the plant counts a tick missed when no plan was taken between its odometry and the next: the
 # link's loss (5 % each way, in bursts) and jitter (plans bunching, up to 15 ms each way) miss some on an idle
-# host, so the load guard skips when most ticks are missed (a plan's CPU time beyond the period: 250 of 327
-# at load 9 on 2 cores)
+# host, so the load guard skips when most ticks are missed (a plan's CPU time beyond the period on a loaded
+# host: 240 of 351 missed, 15.7 mm, at load 12 on 2 cores; 589 of about 1200 gave 60 um)
 WIFI_MISSED_LIMIT = 0.5
 
 
@@ -105,15 +105,25 @@ def test_wifi_with_plans_across_two_network_namespaces_tracks_paper_circle(hosts
     bag = BagReader(done.bag)
     missing = [t for t in WIFI_TOPICS if "/" + t not in bag.topics or not bag.topics["/" + t].message_count]
     assert not missing, f"not recorded: {missing} (recorded: {bag.contents()})"
-    # the plans reached the plant across the veth and its reports came back: each sample crossed with its
-    # serialized bytes at least (the plain commands stay on the controller's host, read by the recorder alone)
+    # the plans reached the plant across the veth and its reports came back: the robot reports the receipt of
+    # most plans the controller sent (its downlink loses some, DDS keeps the newest when the plant falls behind),
+    # and of none it did not send; each sample crossed with its serialized bytes at least (the plain commands
+    # stay on the controller's host, read by the recorder alone)
+    sent = np.array(sorted(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                           for _, msg in bag.decoded(["/wheel_voltage_plan"])))
+    reports = [report_of_message(msg) for _, msg in bag.decoded(["/command_applied"])]
+    received = np.unique([round(r.basis_s * 1e9) for r in reports if r.values is None])
+    # a report's basis in float seconds holds a stamp of about 1.8e9 s to 256 ns
+    nearest = np.abs(received[:, None] - sent[None, :]).min(axis=1)
+    assert nearest.max() < 1000 and len(received) > 0.5 * len(sent), (nearest.max(), len(received), len(sent))
     assert done.plant_received_bytes > _payload_bytes(bag, "wheel_voltage_plan")
     assert done.controller_received_bytes > sum(_payload_bytes(bag, t) for t in (
         "command_applied", "odom", "ground_truth/odom", "wheel_currents"))
-    applied = [report_of_message(msg) for _, msg in bag.decoded(["/command_applied"])]
-    assert sum(r.values is not None and r.index >= 0 for r in applied) > done.run.n // 2  # periods run on plans
     dds = done.run
     assert dds.n >= round(1.0 / dds.control_period_s)
     _load_guard(done.timing, WIFI_MISSED_LIMIT)
+    # the robot ran on the plans: its reports of the periods applied name a plan's entry (index -1: none held)
+    periods = [r for r in reports if r.values is not None]
+    assert sum(r.index >= 0 for r in periods) > 0.9 * len(periods) > 0
     rms = compute_metrics(dds)["rms_position_error_m"]
     assert rms < WIFI_RMS_LIMIT_M, rms

@@ -83,18 +83,18 @@ def test_certificate_is_the_held_out_study(tuned):
 
 def test_the_parameter_file_runs_unchanged(tuned, tmp_path):
     """``run --params`` takes the file as it is: rcl's reading and the nodes' check pass, every node of the run
-    gets it as its ``--params-file`` and reads the tuned weights from it; ``simulate --params`` runs it."""
+    gets it as its ``--params-file``, the controller reads the tuned weights from it; ``simulate --params`` runs it.
+    """
     out, _ = tuned
     path = out / "params.yaml"
     check_parameter_files([path])  # what `run` and each node check before starting (rcl's reading included)
     _, control = load_params(path)
     for executable, argv in node_arguments(SCENARIO, path, 1.0, lockstep=True).items():
         assert argv[argv.index("--params-file") + 1] == str(path), executable
-    for node in ("robotino_controller",):
-        values = read_parameter_file(path, node)
-        assert [values[f"control.q_{a}"] for a in ("x", "y", "theta")] == list(control.q)
-        assert values["control.horizon"] == control.horizon and set(values) <= set(NODE_PARAMETERS[node]) | {
-            "use_sim_time"}
+    values = read_parameter_file(path, "robotino_controller")
+    assert [values[f"control.q_{a}"] for a in ("x", "y", "theta")] == list(control.q)
+    assert values["control.horizon"] == control.horizon
+    assert set(values) <= set(NODE_PARAMETERS["robotino_controller"]) | {"use_sim_time"}
     assert main(["simulate", "--scenario", "paper-circle", "--duration", "1.5", "--params", str(out / "params.yaml"),
                  "--out", str(tmp_path / "sim")]) == 0
     metrics = json.loads((tmp_path / "sim" / "metrics.json").read_text())

@@ -248,8 +248,8 @@ class EncoderOdometryBatch:
                  slip_normals: np.ndarray | None = None, runs: np.ndarray | None = None) -> None:
         counts_per_rev = np.asarray(counts_per_rev)
         slip_std = np.asarray(slip_std, dtype=float)
-        self._runs = slice(None) if runs is None else np.asarray(runs)
-        params = plant.params if runs is None else [plant.params[r] for r in self._runs]
+        self._runs: slice | np.ndarray = slice(None) if runs is None else np.asarray(runs)
+        params = plant.params if runs is None else [plant.params[int(r)] for r in np.asarray(runs)]
         B = len(params)
         if counts_per_rev.shape != (B,) or np.any(counts_per_rev < 1):
             raise EncoderError(f"counts_per_rev must be {B} positive integers")

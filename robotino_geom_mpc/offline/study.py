@@ -16,7 +16,7 @@ Each run is `simulation.run_scenario` with
 
 `draw_runs` makes the draws from one seed (same seed, same draws), `run_study`
 cuts them into batches and runs each batch as one task: by default stepped
-together (`batch_simulation.run_batch`, each run equal to its own
+together (`batch_simulation.batch_metrics`, each run equal to its own
 `run_scenario`), or run by run (``batched=False``). The tasks go to the local
 cores (`concurrent.futures.ProcessPoolExecutor`, forked after the imports) or,
 with ``scheduler``, to a Dask cluster (`dask.distributed`; the ``cluster``
@@ -313,7 +313,7 @@ def run_study(
     progress
         Show a tqdm progress bar on stderr.
     batched
-        Step each batch's runs together (`batch_simulation.run_batch`); False: one after another (`run_one`).
+        Step each batch's runs together (`batch_simulation.batch_metrics`); False: one after another (`run_one`).
     scheduler
         Address of a Dask scheduler (e.g. ``tcp://10.0.0.5:8786``); None: the local cores.
     network

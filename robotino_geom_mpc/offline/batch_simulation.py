@@ -165,11 +165,13 @@ class BatchSeries:
             err[:, :, 2] = wrap_angle(err[:, :, 2])
             return err
 
+        settled = slice(len(after) - count, None)  # `after` (t increasing): the last `count` samples, a view
+
         def rms(values: np.ndarray) -> list[float | None]:
-            return np.sqrt(np.mean(np.square(values[after]), axis=0)).tolist() if count else [None] * B
+            return np.sqrt(np.mean(np.square(values[settled]), axis=0)).tolist() if count else [None] * B
 
         def peak(values: np.ndarray) -> list[float | None]:
-            return values[after].max(axis=0).tolist() if count else [None] * B
+            return values[settled].max(axis=0).tolist() if count else [None] * B
 
         err = errors(pose)
         position = np.hypot(err[:, :, 0], err[:, :, 1])

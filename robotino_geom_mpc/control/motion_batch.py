@@ -109,5 +109,7 @@ class MotionControllerBatch:
             u = scale[:, None] * u
         else:
             voltages, saturated, mean = self.drive.step_batch(currents, omega, omega_rate, rate_of_current)
-        self.u_prev = np.where(saturated[:, None], self._acceleration_of_current(theta_m, mean), u)
+        # a clipped run keeps the acceleration its mean current gives (anti-windup); the others their u
+        self.u_prev = np.where(saturated[:, None], self._acceleration_of_current(theta_m, mean), u) \
+            if saturated.any() else u
         return voltages, saturated

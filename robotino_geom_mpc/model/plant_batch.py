@@ -159,7 +159,8 @@ class PlantBatch:
             heading = c.heading_rows @ w
             start, end, theta_end = heading[n * _BASIS : n * _BASIS + 3]
             raw = heading[: n * _BASIS].reshape(n, _BASIS, b)
-            fast = np.abs(raw[:, 1]).max(axis=0) <= 1.0 if c.coefficients is not None else np.zeros(b, bool)
+            turn = np.abs(raw[:, 1]).max(axis=0)  # each run's largest |eps / eps_max| of the step
+            fast = turn <= 1.0 if c.coefficients is not None else np.zeros(b, bool)
             # Into each run's start frame: the loop vector (rotated planar pairs, then w[5:])
             x, vx, y, vy = w[:4]
             cos, sin = np.cos(start), np.sin(start)  # cos(-start) = cos, sin(-start) = -sin
@@ -170,7 +171,7 @@ class PlantBatch:
             if fast.any():
                 # the basis (1, e, .., e^J, beta) of each substep, e = eps / eps_max (`_EXPONENTS`): (n, J + 2, b)
                 maps = self._stacked_maps(group, plant, dt)
-                degree = self._degree((group, dt), float(np.abs(raw[:, 1, fast]).max()))
+                degree = self._degree((group, dt), float(turn.max() if fast.all() else turn[fast].max()))
                 moving, driving = maps[degree]
                 basis = np.empty((n, degree + 2, b))
                 basis[:, 0] = 1.0

@@ -20,8 +20,7 @@ from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
 from robotino_geom_mpc.network.plan import AppliedCommand, PlanBuffer
-from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, applied_message, plan_of_message, \
-    plan_type, received_message
+from robotino_geom_mpc.ros.plans import IGNORED, PLAN_TOPICS, applied_message, offer_plan, plan_type
 
 __all__ = ["PlantPlans"]
 
@@ -52,15 +51,10 @@ class PlantPlans:
 
     def take(self, msg: Any, now_s: float) -> bool:
         """Offer a plan message received at robot time `now_s`; True when taken (its receipt is reported)."""
-        try:
-            plan = plan_of_message(msg, self.period_s)
-            reason = self.buffer.offer(plan, now_s)
-        except PlanMessageError as exc:
-            reason, detail = exc.reason, str(exc)
-        else:
-            detail = f"basis {plan.basis_s:.6f} s, {len(plan.times_s)} entries"
-            self.reports.append(received_message(now_s, plan.basis_s, self.interface, reason is None))
-        if reason in ("older", "duplicate"):
+        reason, detail, _, receipt = offer_plan(self.buffer, msg, self.period_s, now_s, self.interface)
+        if receipt is not None:
+            self.reports.append(receipt)
+        if reason in IGNORED:
             self.counts["ignored_plans"] += 1
             return False
         if reason is not None:
@@ -76,7 +70,7 @@ class PlantPlans:
         (and, without `report`, only when it differs from the last one reported).
         """
         applied = self.buffer.command_at(t_s)
-        key = None if applied is None else (applied.basis_s, applied.index)
+        key = None if applied is None else (applied.basis_s, applied.entry_index)
         if applied is None and self.buffer.accepted:
             self.counts["exhausted_periods"] += 1
         if report or key != self.applied:
@@ -87,12 +81,8 @@ class PlantPlans:
         return applied, (ZERO if applied is None else applied.values)
 
     def entry_end(self, applied: AppliedCommand) -> float:
-        """When `applied`'s entry stops applying unless a newer plan arrives: its successor's start or the end."""
-        for plan in self.buffer.plans:
-            if plan.basis_s == applied.basis_s:
-                following = applied.index + 1
-                return plan.times_s[following] if following < len(plan.times_s) else plan.end_s
-        return applied.time_s + self.period_s
+        """When `applied`'s entry stops applying unless a newer plan arrives (`PlanBuffer.entry_end`)."""
+        return self.buffer.entry_end(applied, self.period_s)
 
     def pop_reports(self) -> list[JointTrajectory]:
         """The reports since the last call, oldest first."""

@@ -23,7 +23,7 @@ def plan(basis_k, lead, m=4, value=None):
 def applied(buffer, k):
     """(basis tick, index) of what the buffer applies at tick k, None for nothing."""
     cmd = buffer.command_at(k * TS)
-    return None if cmd is None else (round(cmd.basis_s / TS), cmd.index)
+    return None if cmd is None else (round(cmd.basis_s / TS), cmd.entry_index)
 
 
 def test_in_order_plans_each_applied_from_its_first_entry():
@@ -82,8 +82,8 @@ def test_entry_boundaries_tolerate_rounding():
     buffer.offer(p, 0.08)
     t = 0.03 + 0.05  # the same instant by another sum: 0.08000000000000002
     assert applied(buffer, 0) is None
-    assert buffer.command_at(t).index == 0 and buffer.command_at(0.08 - 1e-12).index == 0
-    assert buffer.command_at(0.09 - 1e-12).index == 1
+    assert buffer.command_at(t).entry_index == 0 and buffer.command_at(0.08 - 1e-12).entry_index == 0
+    assert buffer.command_at(0.09 - 1e-12).entry_index == 1
 
 
 @pytest.mark.parametrize("bad, reason", [

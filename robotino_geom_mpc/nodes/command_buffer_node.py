@@ -40,7 +40,7 @@ from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 from robotino_geom_mpc.network.plan import PlanBuffer
 from robotino_geom_mpc.params.specs import CONTROL_SPECS, ParamSpec
 from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.plans import PlanMessageError, applied_message, plan_of_message, received_message
+from robotino_geom_mpc.ros.plans import IGNORED, applied_message, offer_plan
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import run_node
 
@@ -87,18 +87,13 @@ class CommandBufferNode(Node):
 
     def _on_plan(self, msg: MultiDOFJointTrajectory) -> None:
         now = self._now_s()
-        try:
-            plan = plan_of_message(msg, self.period_s)
-            reason = self.buffer.offer(plan, now)
-        except PlanMessageError as exc:
-            reason, detail = exc.reason, str(exc)
-        else:
-            detail = f"stamp {plan.basis_s:.6f} s, {len(plan.times_s)} entries"
-            self.report_pub.publish(received_message(now, plan.basis_s, "cmd_vel", reason is None))
-        if reason in ("older", "duplicate"):
+        reason, detail, plan, receipt = offer_plan(self.buffer, msg, self.period_s, now, "cmd_vel")
+        if receipt is not None:
+            self.report_pub.publish(receipt)
+        if reason in IGNORED:
             self.ignored += 1
             return
-        if reason is not None:
+        if reason is not None or plan is None:  # (plan is None only with a reason)
             self.refused[reason] = self.refused.get(reason, 0) + 1
             self.get_logger().warn(f"refused a plan ({reason}: {detail}); the previous plan (or zero) stays "
                                    f"({sum(self.refused.values())} refused so far)", throttle_duration_sec=1.0)
@@ -125,17 +120,9 @@ class CommandBufferNode(Node):
             self._arm(self.period_s)
             return
         self.exhausted_since = None
-        if self.last_sent != (applied.basis_s, applied.index):
-            self._send(now, applied.basis_s, applied.index, applied.values)
-        self._arm(self._entry_end(applied) - now + _LATE_S)
-
-    def _entry_end(self, applied) -> float:
-        """When the entry `applied` ends: the next entry's start in its plan, or the plan's end."""
-        for plan in self.buffer.plans:
-            if plan.basis_s == applied.basis_s:
-                following = applied.index + 1
-                return plan.times_s[following] if following < len(plan.times_s) else plan.end_s
-        return applied.time_s + self.period_s
+        if self.last_sent != (applied.basis_s, applied.entry_index):
+            self._send(now, applied.basis_s, applied.entry_index, applied.values)
+        self._arm(self.buffer.entry_end(applied, self.period_s) - now + _LATE_S)
 
     def _send(self, time_s: float, basis_s: float | None, index: int, values) -> None:
         twist = Twist()

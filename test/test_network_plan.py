@@ -122,3 +122,14 @@ def test_a_plan_overtaken_by_one_not_started_yet_still_runs_until_that_one_start
     assert [applied(buffer, k) for k in (3, 4, 5, 6)] == [(0, 1), (1, 0), (2, 0), (2, 1)]
     assert buffer.offer(plan(1, 3), 6 * TS) == "duplicate"
     assert buffer.offer(CommandPlan(0.5 * TS, plan(1, 3).times_s, plan(1, 3).entries, TS), 6 * TS) == "older"
+
+
+def test_an_entry_ends_where_the_next_starts_or_with_its_plan():
+    buffer = PlanBuffer()
+    buffer.offer(plan(0, 2), 2 * TS)  # entries at ticks 2 .. 5, the last one lasting one period
+    entries = [buffer.command_at(k * TS) for k in (2, 3, 5)]
+    assert [buffer.entry_end(e, TS) for e in entries] == [pytest.approx(3 * TS), pytest.approx(4 * TS),
+                                                          pytest.approx(6 * TS)]
+    gone = buffer.command_at(5 * TS)
+    buffer.offer(plan(5, 2), 7 * TS)  # the first plan is used up and dropped: an entry of it ends a period on
+    assert buffer.entry_end(gone, 0.5 * TS) == pytest.approx(5.5 * TS)

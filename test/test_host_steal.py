@@ -6,10 +6,12 @@ import time
 import pytest
 
 from robotino_geom_mpc.bench.host_steal import PROC_STAT, StealSampler, read_steal_s
+from recording_helpers import wait_for
 
 pytestmark = pytest.mark.unit
 
 HZ = os.sysconf("SC_CLK_TCK")
+HANG_S = 60.0  # waits on the sampler's thread end at this only if it hangs
 
 
 def stat_file(path, steal_jiffies: int) -> None:
@@ -57,16 +59,6 @@ class SteppedClock:
         return self.now
 
 
-def wait_for(predicate, timeout_s: float = 60.0) -> bool:
-    """Poll `predicate` until true; the timeout only stops a hang (a loaded machine slows the thread, nothing more)."""
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.002)
-    return True
-
-
 def test_steal_is_placed_in_the_window_where_it_happened(tmp_path):
     path = tmp_path / "stat"
     stat_file(path, 1000)
@@ -99,10 +91,10 @@ def test_the_thread_samples_until_the_exit(tmp_path):
     path = tmp_path / "stat"
     stat_file(path, 1000)
     with StealSampler(interval_s=0.005, path=path) as sampler:
-        assert wait_for(lambda: len(sampler.samples) >= 5)  # the entry's sample and four of the thread's
+        wait_for(lambda: len(sampler.samples) >= 5, HANG_S, "the entry's sample and four of the thread's")
         stat_file(path, 1000 + HZ)
         count = len(sampler.samples)
-        assert wait_for(lambda: len(sampler.samples) > count)
+        wait_for(lambda: len(sampler.samples) > count, HANG_S, "a sample of the new steal")
     times = [t for t, _ in sampler.samples]
     assert times == sorted(times) and sampler.total_s() == pytest.approx(1.0)
     assert not sampler._thread.is_alive()
@@ -112,9 +104,9 @@ def test_a_file_that_turns_bad_while_sampled_ends_sampling_with_the_reason(tmp_p
     path = tmp_path / "stat"
     stat_file(path, 1000)
     with StealSampler(interval_s=0.005, path=path) as sampler:
-        assert wait_for(lambda: len(sampler.samples) >= 2)
+        wait_for(lambda: len(sampler.samples) >= 2, HANG_S, "two samples")
         path.write_text("garbage\n")
-        assert wait_for(lambda: not sampler._thread.is_alive())  # the thread itself stops on the bad file
+        wait_for(lambda: not sampler._thread.is_alive(), HANG_S, "the thread to stop on the bad file by itself")
         kept = len(sampler.samples)
     assert not sampler.available and "aggregate cpu line" in str(sampler.error)
     assert len(sampler.samples) == kept >= 2 and sampler.total_s() == 0.0  # what came before is kept

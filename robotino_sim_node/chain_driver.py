@@ -32,6 +32,7 @@ from robotino_geom_mpc.ros.parameters import NodeStartError
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged
 from robotino_geom_mpc.ros.spin import monotonic
 from robotino_sim_node.outputs import odometry_values
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["CHAIN_NODE_DEFAULTS", "CHAIN_NODE_SPECS", "ChainDriver", "attach_chain"]  # the specs for the node
 
@@ -88,7 +89,7 @@ class ChainDriver:
         values = (msg.linear.x, msg.linear.y, msg.angular.z)
         if not math.isfinite(sum(values)):
             self.node.counts["refused_commands"] += 1
-            self.node.get_logger().warn(f"refused cmd_vel {values}: not forwarded", throttle_duration_sec=1.0)
+            warn_throttled(self.node.get_logger(), f"refused cmd_vel {values}: not forwarded", 1.0)
             return
         if self.started_at is None:
             return  # before the chain's first instant: nothing to forward it to yet
@@ -109,9 +110,8 @@ class ChainDriver:
             t_pass = emulator.next_pass_s()
             if now - t_pass > _LATE_S:
                 self.late += 1
-                node.get_logger().warn(f"the emulated chain runs {now - t_pass:.3f} s behind the wall clock "
-                                       f"({self.late} late passes): the host is too slow for wheel_pi.rate_hz",
-                                       throttle_duration_sec=1.0)
+                warn_throttled(node.get_logger(), f"the emulated chain runs {now - t_pass:.3f} s behind the wall clock "
+                                       f"({self.late} late passes): the host is too slow for wheel_pi.rate_hz", 1.0)
             for message in emulator.run_until(t_pass):
                 publish_acknowledged(node, node.odom_pub, node.odom_cdr.pack(*self._stamp(message.stamp_s),
                                                                               *odometry_values(message.pose,

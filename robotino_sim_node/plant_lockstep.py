@@ -9,6 +9,7 @@ from __future__ import annotations
 from robotino_geom_mpc.ros.qos import publish_acknowledged, wait_acknowledged
 from robotino_geom_mpc.ros.spin import FINISHED_ACK_WAIT_S, data_publishers, monotonic
 from robotino_sim_node.loop_timing import lockstep_line, lockstep_report, write_report
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["PlantLockstep"]
 
@@ -29,10 +30,8 @@ class PlantLockstep:
         if self.started and not self.done.done() and self.pace_timer.is_canceled() \
                 and now - self.published_at > self.params["lockstep_resend_s"]:
             self.resent += 1
-            self.get_logger().warn(
-                f"no command for tick {self.tick} (t = {self._time_ns() * 1e-9:.3f} s) for "
-                f"{now - self.tick_sent_at:.1f} s: resending ({self.resent} resends so far)",
-                throttle_duration_sec=2.0)
+            warn_throttled(self.get_logger(), f"no command for tick {self.tick} (t = {self._time_ns() * 1e-9:.3f} s) "
+                           f"for {now - self.tick_sent_at:.1f} s: resending ({self.resent} resends so far)", 2.0)
             self._publish_tick(fresh=False)
 
     def _lockstep_period(self, values: tuple[float, ...]) -> bool:

@@ -125,21 +125,25 @@ class PlantNetwork:
 
     def _take_plan(self, msg) -> None:
         begin = monotonic()
-        self._advance(begin, ceil=True)  # the plans held so far up to now
+        self._advance(begin)  # the periods ended so far with the plans held so far, ...
+        self.plans.period_command(self.clock_offset_s + self.started_at + self.hold.grid * self.hold.dt)
+        # ... and the command of the period running now chosen before the plan is taken: it acts from the next
         if self.plans.take(msg, self.clock_offset_s + begin):
             self.timing.command(begin)
         self.busy_s += monotonic() - begin
 
     def _advance_plans(self, target: int) -> None:
-        """Drive the grid up to `target` with the plans' entries, each from its time (on the grid; robot clock =
-        steady + `clock_offset_s`), zero where no plan covers it.
+        """Drive the grid up to the last control period's start at or before `target`, each period with the command
+        the plans held at its start gave (`PlantPlans.period_command`; robot clock = steady + `clock_offset_s`),
+        zero where no plan covers it. The measurements are thus taken, and stamped, on the control grid, where
+        the controller's plans place their entries.
         """
         hold, origin = self.hold, self.clock_offset_s + self.started_at
+        per_period = round(self.plans.period_s / hold.dt)  # grid steps per control period (stamps at multiples)
+        target -= target % per_period  # whole periods: the odometry is measured at a period's start
         while hold.grid < target:
-            applied, values = self.plans.command_at(origin + hold.grid * hold.dt, report=False)
-            end = target
-            if applied is not None:  # the entry's end on the grid (at least one step on)
-                end = max(hold.grid + 1, min(target, round((self.plans.entry_end(applied) - origin) / hold.dt)))
-            end = min(end, hold.grid + MAX_CHUNK)
+            start = hold.grid - hold.grid % per_period
+            values = self.plans.period_command(origin + start * hold.dt)
+            end = min(target, start + per_period, hold.grid + MAX_CHUNK)
             self._drive_for_peak(np.array(values), (end - hold.grid) * hold.dt)
             hold.grid = end

@@ -96,6 +96,7 @@ from robotino_sim_node.plant_network import PlantNetwork
 from robotino_sim_node.plant_plans import PlantPlans
 from robotino_sim_node.radio import Radio
 from robotino_sim_node.sim_link import SimLink
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
 
@@ -284,7 +285,7 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
         valid = math.isfinite(sum(values))
         if not valid:
             self.counts["refused_commands"] += 1
-            self.get_logger().warn(f"refused cmd_vel {values}: zero twist from now", throttle_duration_sec=1.0)
+            warn_throttled(self.get_logger(), f"refused cmd_vel {values}: zero twist from now", 1.0)
             values = (0.0, 0.0, 0.0)
         self._apply(values, valid)
 
@@ -298,9 +299,8 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
         valid = len(values) == 3 and math.isfinite(sum(values))
         if not valid:
             self.counts["refused_commands"] += 1
-            self.get_logger().warn(
-                f"refused wheel_voltages with {len(values)} values (need 3 finite values): zero volts from now "
-                f"({self.counts['refused_commands']} refused so far)", throttle_duration_sec=1.0)
+            warn_throttled(self.get_logger(), f"refused wheel_voltages with {len(values)} values (need 3 finite "
+                           f"values): zero volts from now ({self.counts['refused_commands']} refused so far)", 1.0)
             values = (0.0, 0.0, 0.0)
         elif max(values) > self.robot.supply_voltage_v or min(values) < -self.robot.supply_voltage_v:
             values = self._clamp(values)
@@ -338,10 +338,9 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
         supply = self.robot.supply_voltage_v
         applied = tuple(min(max(v, -supply), supply) for v in values)
         self.counts["clamped_commands"] += 1
-        self.get_logger().warn(
-            f"wheel_voltages {', '.join(f'{v:g}' for v in values)} V beyond the supply +-{supply:g} V: applied "
-            f"{', '.join(f'{v:g}' for v in applied)} V ({self.counts['clamped_commands']} commands clamped so far)",
-            throttle_duration_sec=1.0)
+        warn_throttled(self.get_logger(), f"wheel_voltages {', '.join(f'{v:g}' for v in values)} V beyond the supply "
+                       f"+-{supply:g} V: applied {', '.join(f'{v:g}' for v in applied)} V "
+                       f"({self.counts['clamped_commands']} commands clamped so far)", 1.0)
         return applied
 
     # realtime -----------------------------------------------------------------------------------
@@ -351,8 +350,7 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
         position = (now - self.started_at) / hold.dt
         target = math.ceil(position) if ceil else math.floor(position)
         if target - hold.grid > _MAX_BEHIND_S / hold.dt:  # the process stalled: skip rather than catch up
-            self.get_logger().warn(f"plant {((target - hold.grid) * hold.dt):.2f} s behind: skipping ahead",
-                                   throttle_duration_sec=1.0)
+            warn_throttled(self.get_logger(), f"plant {(target - hold.grid) * hold.dt:.2f} s behind: skipping ahead")
             hold.grid = target
         if self.plans is not None:
             self._advance_plans(target)
@@ -360,8 +358,8 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
         timeout = self.params["command_timeout_s"]
         if hold.advance(target, timeout, self._drive_for_peak):
             self.counts["command_timeouts"] += 1
-            self.get_logger().warn(f"no command for {timeout:g} s: zero volts (drive watchdog; "
-                                   f"{self.counts['command_timeouts']} so far)", throttle_duration_sec=1.0)
+            warn_throttled(self.get_logger(), f"no command for {timeout:g} s: zero volts (drive watchdog; "
+                                   f"{self.counts['command_timeouts']} so far)", 1.0)
         return self.started_at + hold.grid * hold.dt
 
     def _drive_for_peak(self, voltages: np.ndarray, dt: float) -> None:

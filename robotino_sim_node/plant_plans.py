@@ -21,6 +21,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from robotino_geom_mpc.network.plan import AppliedCommand, PlanBuffer
 from robotino_geom_mpc.ros.plans import IGNORED, PLAN_TOPICS, applied_message, offer_plan, plan_type
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["PlantPlans"]
 
@@ -48,6 +49,8 @@ class PlantPlans:
         self.counts = {"refused_plans": 0, "ignored_plans": 0, "exhausted_periods": 0}
         self.reports: list[JointTrajectory] = []  # for the next up-link bundle, in order
         self.applied: tuple[float | None, int] | None = None  # (basis, index) of the last report
+        self._period_start_s: float | None = None  # the control period being driven and its command
+        self._period_values: tuple[float, ...] = ZERO
 
     def take(self, msg: Any, now_s: float) -> bool:
         """Offer a plan message received at robot time `now_s`; True when taken (its receipt is reported)."""
@@ -59,9 +62,8 @@ class PlantPlans:
             return False
         if reason is not None:
             self.counts["refused_plans"] += 1
-            self.node.get_logger().warn(
-                f"refused {self.topic} ({reason}: {detail}); the plans held stay "
-                f"({self.counts['refused_plans']} refused so far)", throttle_duration_sec=1.0)
+            warn_throttled(self.node.get_logger(), f"refused {self.topic} ({reason}: {detail}); the plans held stay "
+                f"({self.counts['refused_plans']} refused so far)", 1.0)
             return False
         return True
 
@@ -80,9 +82,15 @@ class PlantPlans:
                                                 self.interface))
         return applied, (ZERO if applied is None else applied.values)
 
-    def entry_end(self, applied: AppliedCommand) -> float:
-        """When `applied`'s entry stops applying unless a newer plan arrives (`PlanBuffer.entry_end`)."""
-        return self.buffer.entry_end(applied, self.period_s)
+    def period_command(self, start_s: float) -> tuple[float, ...]:
+        """The command of the control period starting at `start_s`: chosen at its start (`command_at`) and held
+        to its end, as the robot's command loop picks one entry per period (and `offline.networked` applies
+        them): a plan taken within the period acts from the next one.
+        """
+        if start_s != self._period_start_s:
+            self._period_start_s = start_s
+            self._period_values = self.command_at(start_s, report=False)[1]
+        return self._period_values
 
     def pop_reports(self) -> list[JointTrajectory]:
         """The reports since the last call, oldest first."""

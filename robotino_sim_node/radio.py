@@ -3,8 +3,13 @@
 A `Radio` holds one `network.link.Link` per direction and a queue of deliveries ordered by time (robot clock,
 the node's clock in seconds). `Radio.send` asks the direction's link when a message sent now is delivered (never,
 once or twice) and queues the action (publish these bytes, or hand this command to the plant) for each delivery;
-one steady timer, re-armed to the earliest delivery, runs them when due. With both directions off the plant does
-not create a radio: its messages go out as before.
+a steady timer polls the queue every `POLL_S` and runs what is due (within a poll of its time). A direction that
+is off (`LinkParams.enabled` false) runs its actions at once. With both directions off and no plans the plant
+does not create a radio: its messages go out as before.
+
+Why a poll, not one timer re-armed to the earliest delivery: rclpy's events executor (Jazzy) loses timers that
+are cancelled and reset a hundred times a second, including the plant's own tick timer (seen: the plant
+"2 s behind: skipping ahead", half the odometries missing); a periodic timer is never reset.
 """
 
 from __future__ import annotations
@@ -20,7 +25,8 @@ from robotino_geom_mpc.network.link import Link, LinkParams
 
 __all__ = ["Radio"]
 
-_IDLE_NS = 3_600_000_000_000  # the timer's period while nothing is queued (it is re-armed on the next send)
+POLL_S = 0.001
+"""How often the queue is polled [s]: a delivery runs within this of its time (the links' delays are 1-100 ms)."""
 
 
 class Radio:
@@ -41,29 +47,30 @@ class Radio:
         self.links = {"up": Link(up, seed + 1), "down": Link(down, seed + 2)}
         self.queue: list[tuple[float, int, Callable[[], None]]] = []
         self._order = itertools.count()
-        self.timer = node.create_timer(_IDLE_NS * 1e-9, self._deliver, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.timer = node.create_timer(POLL_S, self._deliver, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def now_s(self) -> float:
         """The robot clock [s] (the node's clock)."""
         return self.node.get_clock().now().nanoseconds * 1e-9
 
     def send(self, way: str, action: Callable[[], None], now_s: float | None = None) -> int:
-        """Queue `action` for each delivery of a message sent at `now_s` (default: now) on `way`; the count."""
+        """Queue `action` for each delivery of a message sent at `now_s` (default: now) on `way`; the count.
+
+        On a direction that is off the action runs now (count 1).
+        """
+        link = self.links[way]
+        if not link.params.enabled:
+            action()
+            return 1
         now_s = self.now_s() if now_s is None else now_s
-        times = self.links[way].transmit(now_s)
+        times = link.transmit(now_s)
         for t in times:
             heapq.heappush(self.queue, (t, next(self._order), action))
-        self._arm(now_s)
         return len(times)
 
-    def _arm(self, now_s: float) -> None:
-        period_ns = _IDLE_NS if not self.queue else max(1, int((self.queue[0][0] - now_s) * 1e9))
-        self.timer.cancel()  # (the events executor takes a new period only from a cancelled timer)
-        self.timer.timer_period_ns = period_ns
-        self.timer.reset()
-
     def _deliver(self) -> None:
+        if not self.queue:
+            return
         now_s = self.now_s()
         while self.queue and self.queue[0][0] <= now_s:
             heapq.heappop(self.queue)[2]()
-        self._arm(now_s)

@@ -232,3 +232,32 @@ def test_layout_of_a_sequence_length_is_checked():
     data = template.pack(*range(len(template.paths)))
     assert long.read(data) is not None and short.read(data) is None
     assert short.read(data[: short.size]) is None  # right length, wrong point count
+
+
+@pytest.mark.parametrize("frame", ["", "odom", "robot1/odom", "abc"])  # every alignment of the doubles
+@pytest.mark.parametrize("n", [0, 1, 2, 7])
+def test_path_written_straight_to_cdr_reads_as_the_path_rclpy_builds(frame, n):
+    """`messages.path_cdr` against a Path built field by field: rclpy's and rosbags' deserializers agree."""
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+
+    rng = np.random.default_rng(n)
+    poses = rng.normal(size=(n, 3))
+    stamps = [int(s) for s in rng.integers(0, 2**31 * 10**9, size=n)]  # any time a stamp holds
+    expected = Path()
+    expected.header.frame_id = frame
+    expected.header.stamp = messages.ns_to_stamp(123_456_789_012)
+    for ns, (x, y, theta) in zip(stamps, poses.tolist()):
+        pose = PoseStamped()
+        pose.header.frame_id, pose.header.stamp = frame, messages.ns_to_stamp(ns)
+        pose.pose.position.x, pose.pose.position.y = x, y
+        pose.pose.orientation = messages.yaw_to_quaternion(theta)
+        expected.poses.append(pose)
+    data = messages.path_cdr(frame, 123_456_789_012, stamps, poses)
+    assert deserialize_message(data, Path) == expected
+    assert len(data) == len(serialize_message(expected))
+    decoded = TYPESTORE.deserialize_cdr(data, "nav_msgs/msg/Path")
+    assert [p.header.stamp.sec * 10**9 + p.header.stamp.nanosec for p in decoded.poses] == stamps
+    assert [(p.pose.position.x, p.pose.position.y, p.pose.orientation.z, p.pose.orientation.w)
+            for p in decoded.poses] == [(p.pose.position.x, p.pose.position.y, p.pose.orientation.z,
+                                         p.pose.orientation.w) for p in expected.poses]

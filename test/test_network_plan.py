@@ -124,12 +124,13 @@ def test_a_plan_overtaken_by_one_not_started_yet_still_runs_until_that_one_start
     assert buffer.offer(CommandPlan(0.5 * TS, plan(1, 3).times_s, plan(1, 3).entries, TS), 6 * TS) == "older"
 
 
-def test_an_entry_ends_where_the_next_starts_or_with_its_plan():
+def test_an_entry_spans_from_its_start_to_the_next_or_the_plans_end():
     buffer = PlanBuffer()
     buffer.offer(plan(0, 2), 2 * TS)  # entries at ticks 2 .. 5, the last one lasting one period
-    entries = [buffer.command_at(k * TS) for k in (2, 3, 5)]
-    assert [buffer.entry_end(e, TS) for e in entries] == [pytest.approx(3 * TS), pytest.approx(4 * TS),
-                                                          pytest.approx(6 * TS)]
+    entries = [buffer.command_at(k * TS) for k in (2, 3.5, 5)]
+    assert [buffer.entry_span(e, TS) for e in entries] == [
+        (pytest.approx(2 * TS), pytest.approx(3 * TS)), (pytest.approx(3 * TS), pytest.approx(4 * TS)),
+        (pytest.approx(5 * TS), pytest.approx(6 * TS))]
     gone = buffer.command_at(5 * TS)
-    buffer.offer(plan(5, 2), 7 * TS)  # the first plan is used up and dropped: an entry of it ends a period on
-    assert buffer.entry_end(gone, 0.5 * TS) == pytest.approx(5.5 * TS)
+    buffer.offer(plan(5, 2), 7 * TS)  # the first plan is used up and dropped: an entry of it spans a period
+    assert buffer.entry_span(gone, 0.5 * TS) == (pytest.approx(5 * TS), pytest.approx(5.5 * TS))

@@ -101,3 +101,72 @@ def test_a_link_parameter_set_out_of_range_is_refused_by_name(tmp_path):
         assert h.spin_until(lambda: h.node.count_publishers("/odom") > 0, 30.0)
         result = h.set_parameters("robotino_plant", {"link.up.jitter_s": -1.0})
     assert not result[0].successful and "link.up.jitter_s" in result[0].reason
+
+
+@pytest.fixture(scope="module")
+def realtime_plan_run(tmp_path_factory):
+    """A realtime plant with plans, no link: per odometry a plan, every third one late (its first entry in the
+    period already running when it arrives); the ground truth and the reports.
+    """
+    robot, control = load_params()
+    Ts = control.period_s
+    rng = np.random.default_rng(7)
+    with NodeGroup(log_dir=tmp_path_factory.mktemp("plant_plans_rt")) as group, Harness("plant_plans_rt") as h:
+        truth = h.collect("ground_truth/odom", Odometry)
+        odom = h.collect("odom", Odometry)
+        reports = h.collect("command_applied", JointTrajectory)
+        pub = h.node.create_publisher(JointTrajectory, "wheel_voltage_plan", PUBLISH_QOS)
+        plant = group.start("plant_node", ros_args(None, {"mode": "realtime", "plans": True, "duration_s": 3.0}))
+        answered, late = 0, set()
+        while plant.popen.poll() is None and h.spin_until(lambda: len(odom) > answered, 10.0):
+            stamp = odom[-1].header.stamp
+            basis = (stamp.sec * 1_000_000_000 + stamp.nanosec) * 1e-9  # as `ros.plans` reads stamps
+            answered = len(odom)
+            lead = 0 if answered % 3 == 0 else 1  # lead 0: the first entry's period has begun at its arrival
+            if lead == 0:
+                late.add(basis)
+            pub.publish(plan_message(_plan(basis, basis + lead * Ts, [tuple(rng.uniform(-3.0, 3.0, 3))
+                                                                        for _ in range(4)], Ts), "voltages"))
+        assert plant.popen.wait(30.0) == 0, plant.stderr_tail()
+        h.spin_for(0.5)
+    stamps_ns = [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in odom]
+    return robot, Ts, stamps_ns, truth, [report_of_message(m) for m in reports], late
+
+
+def test_realtime_odometry_is_measured_on_the_control_grid(realtime_plan_run):
+    robot, Ts, stamps_ns, _, reports, _ = realtime_plan_run
+    assert len(stamps_ns) > 100
+    period_ns = round(Ts * 1e9)
+    off_grid = lambda ns: min((ns - stamps_ns[0]) % period_ns, -(ns - stamps_ns[0]) % period_ns)  # noqa: E731
+    # on the grid to the float rounding of stamps near 1.8e9 s (a few hundred ns): where the plans place entries
+    assert max(map(off_grid, stamps_ns)) < 1000
+    assert max(off_grid(round(r.time_s * 1e9)) for r in reports if r.values is not None) < 1000
+
+
+def test_realtime_plan_taken_within_a_period_acts_from_the_next(realtime_plan_run):
+    robot, Ts, _, _, reports, late = realtime_plan_run
+    receipts = {r.basis_s: r.time_s for r in reports if r.values is None and r.taken}
+    applied = [r for r in reports if r.values is not None and r.basis_s is not None]
+    early = [r for r in applied if receipts[r.basis_s] > r.time_s + 1e-6]
+    assert not early, "an entry ran in a period that began before its plan arrived"
+    assert late & set(receipts), "no late plan was taken"
+    assert all(r.entry_index >= 1 for r in applied if r.basis_s in late)  # entry 0's period had begun
+
+
+def test_realtime_reported_commands_drove_the_plant(realtime_plan_run):
+    """Step by step: the reported command of every period, from rest, gives the ground truth at each stamp."""
+    robot, Ts, _, truth, reports, _ = realtime_plan_run
+    by_period = {}
+    for r in sorted((r for r in reports if r.values is not None), key=lambda r: r.time_s):
+        by_period[round(r.time_s / Ts)] = r.values
+    first, last = min(by_period), max(by_period)
+    poses = {round((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9) / Ts): m.pose.pose.position for m in truth}
+    plant, values = RobotinoPlant(robot), (0.0, 0.0, 0.0)
+    start = poses[max(k for k in poses if k <= first)]  # at rest until the first plan's entry
+    for k in range(first, last):
+        values = by_period.get(k, values if values == (0.0, 0.0, 0.0) else None)  # an unreported period: no plan
+        assert values is not None, f"period {k} ran an entry that was not reported"
+        plant.step(np.array(values), Ts)
+        if k + 1 in poses:
+            p = poses[k + 1]
+            np.testing.assert_allclose((p.x - start.x, p.y - start.y), plant.pose_floats()[:2], rtol=1e-9, atol=1e-9)

@@ -50,6 +50,7 @@ rounded up, within [``control.lead_min_periods``, ``control.lead_max_periods``].
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -76,6 +77,7 @@ GAIN_BOUNDS = (0.5, 2.0)
 """The input gain estimate stays within these (a model off by more is not this controller's to rescue)."""
 
 _ZERO = (0.0, 0.0, 0.0)
+_REPORT_WAIT_PERIODS = 5  # a period between two odometries waits this long for its report before it is skipped
 
 PLAN_CURRENT_MARGIN = 0.93
 """The plans' current limit over ``control.current_limit_a``: a plan's voltages are made for predicted states,
@@ -174,6 +176,7 @@ class DelayCompensatingController:
         self.history = PlanHistory(self.period_s, self.control.lead_quantile, memory_s)
         self._last_stamp: float | None = None
         self._previous: list[float] | None = None  # the last odometry taken
+        self._unobserved: deque[tuple[list[float], list[float], int]] = deque()  # periods awaiting their report
         self._gains = [(1.0, 0.0)] * 3  # per axis (g, c): the robot's acceleration is g u - c v
         self._fit_sums = [[0.0] * 5, [0.0] * 5]  # the weighted sums of the fit, translation and rotation
         self._odometry = self._missing = self._stale = 0
@@ -258,8 +261,9 @@ class DelayCompensatingController:
                                                                               newest_first)
                 self.estimator.shift(*shift.tolist())
                 state[0], state[2], state[4] = (np.array(state)[[0, 2, 4]] + shift).tolist()
-        if self._previous is not None:
-            self._observe(self._previous, x.tolist(), period0 - gap, gap, newest_first)
+        if self._previous is not None and gap == 1 and not self._cmd_vel:
+            self._unobserved.append((self._previous, x.tolist(), period0 - 1))
+        self._observe_reported(period0, newest_first)
         self._previous = x.tolist()
         lead = self._plan_lead = self._choose_lead()
         u_last, currents = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
@@ -331,7 +335,22 @@ class DelayCompensatingController:
         interpolated = 0.5 * self.period_s * (v[:-1] + v[1:]).sum(axis=0)
         return interpolated - 0.5 * gap * self.period_s * (v[0] + v[-1])
 
-    def _observe(self, previous: list[float], measured: list[float], period: int, gap: int,
+    def _observe_reported(self, period0: int, newest_first: list[SentPlan]) -> None:
+        """`_observe` the periods between two odometries whose command the robot has reported, oldest first.
+
+        A period waits for its report (the report and the next odometry travel together, but a receiver may take
+        them in either order) up to `_REPORT_WAIT_PERIODS`; one whose report was lost is skipped: an assumed
+        command (a plan in flight taken as arrived) that did not run would bias the fit.
+        """
+        while self._unobserved:
+            previous, measured, period = self._unobserved[0]
+            if self.history.reported(period):
+                self._observe(previous, measured, period, newest_first)
+            elif period >= period0 - _REPORT_WAIT_PERIODS:
+                return
+            self._unobserved.popleft()
+
+    def _observe(self, previous: list[float], measured: list[float], period: int,
                  newest_first: list[SentPlan]) -> None:
         """Update the input gain g and extra damping c from one period between two odometries.
 
@@ -339,9 +358,9 @@ class DelayCompensatingController:
         and its velocity v(k); (g, c) of each group (translation: x and y together, mass and body friction;
         rotation: yaw inertia and friction) is the least-squares fit y = g u - c v over the periods weighted by
         exp(-age / `GAIN_TIME_CONSTANT_S`), with a prior of weight `GAIN_PRIOR_WEIGHT` at (1, 0); g within
-        `GAIN_BOUNDS`. Only a single period (gap 1) whose command is known counts.
+        `GAIN_BOUNDS`. Only a single period (gap 1) whose command was reported counts.
         """
-        command = self.history.command(period, newest_first) if gap == 1 and not self._cmd_vel else None
+        command = self.history.command(period, newest_first)
         if command is None:
             return
         u = command[0]

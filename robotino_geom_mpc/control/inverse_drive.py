@@ -320,7 +320,7 @@ class InverseDrive:
         omega_rate: Sequence[float],
         rate_at_rest: Callable[[], Sequence[float]],
         current_limit: float,
-        rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
+        rate_of_current: Callable[[np.ndarray], Sequence[float] | np.ndarray] | None = None,
     ) -> tuple[Sequence[float], bool, Sequence[float], float]:
         """`step` with the commanded currents scaled by one factor s in (0, 1] to keep the limits.
 
@@ -386,7 +386,7 @@ class InverseDrive:
         i_cmd: Sequence[float],
         omega: Sequence[float],
         omega_rate: Sequence[float],
-        rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
+        rate_of_current: Callable[[np.ndarray], Sequence[float] | np.ndarray] | None = None,
     ) -> tuple[Sequence[float], bool, Sequence[float]]:
         """Voltages for one period and the current they give.
 

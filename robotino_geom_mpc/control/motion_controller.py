@@ -124,6 +124,9 @@ class MotionController:
         self.drive = InverseDrive(robot, self.period_s)
         self._damping = axis_dampings(robot)
         self._damping_rates = tuple(self._damping.tolist())
+        # rows 2, 4, 6 of g(0) times gear Km / r: (x'', y'', theta'') in base_link per ampere of each wheel
+        per_ampere = acceleration_block(0.0, robot) * wheel_forces(np.ones(3), robot)
+        self._per_ampere = tuple(map(tuple, per_ampere.tolist()))
         tau = float(control.odometry_filter_time_constant_s)
         self.estimator = OdometryFilter(self.period_s, tau, control.odometry_twist) if tau > 0.0 else None
         self.constrained = ConstrainedMPC(robot, control, self.mpc) if control.mode == "constrained" else None
@@ -158,14 +161,24 @@ class MotionController:
         if self.estimator is not None:
             self.estimator.start_at(x, y, theta)
 
-    def _acceleration_of_current(self, theta_m: float, current: Sequence[float] | np.ndarray) -> np.ndarray:
-        """Body acceleration (x'', y'', theta'') the wheel currents give (friction aside), eq. (9)."""
-        return acceleration_block(theta_m, self.robot) @ wheel_forces(current, self.robot)
+    def _acceleration_of_current(self, theta_m: float, current: Sequence[float]) -> list[float]:
+        """Body acceleration (x'', y'', theta'') the wheel currents give (friction aside), eq. (9).
 
-    def _rate_of_current(self, theta: float, theta_m: float, velocity: np.ndarray, current: np.ndarray) -> np.ndarray:
+        g(theta) F with F = gear Km i / r, as R(theta) applied to the heading-free sums of `_per_ampere`
+        (d_i(theta) = R(theta) d_i(0)): floats, since it runs several times per saturated period.
+        """
+        (x0, x1, x2), (y0, y1, y2), (w0, w1, w2) = self._per_ampere
+        i0, i1, i2 = float(current[0]), float(current[1]), float(current[2])
+        bx, by = x0 * i0 + x1 * i1 + x2 * i2, y0 * i0 + y1 * i1 + y2 * i2
+        c, s = math.cos(theta_m), math.sin(theta_m)
+        return [c * bx - s * by, s * bx + c * by, w0 * i0 + w1 * i1 + w2 * i2]
+
+    def _rate_of_current(self, theta: float, theta_m: float, velocity: tuple[float, float, float],
+                         current: Sequence[float]) -> list[float]:
         """Motor-speed rate under the acceleration the currents give (used when the voltage saturates)."""
-        acc = self._acceleration_of_current(theta_m, current) - self._damping * velocity
-        return np.array(self.kinematics.speeds_and_rates_floats(theta, velocity.tolist(), acc.tolist())[1])
+        ax, ay, aw = self._acceleration_of_current(theta_m, current)
+        (vx, vy, w), (dx, dy, dw) = velocity, self._damping_rates
+        return self.kinematics.speeds_and_rates_floats(theta, velocity, (ax - dx * vx, ay - dy * vy, aw - dw * w))[1]
 
     def _check(self, X: object, preview: object) -> tuple[list[float], list[list[float]]]:
         """X and the preview as Python floats, or ControllerInputError naming the bad one.
@@ -274,7 +287,7 @@ class MotionController:
         dx, dy, dw = self._damping_rates
         omega, omega_rate = self.kinematics.speeds_and_rates_floats(
             theta, (vx, vy, w), (ux - dx * vx, uy - dy * vy, uw - dw * w))
-        rate_of_current = lambda i: self._rate_of_current(theta, theta_m, np.array((vx, vy, w)), i)  # noqa: E731
+        rate_of_current = lambda i: self._rate_of_current(theta, theta_m, (vx, vy, w), i)  # noqa: E731
         if self.current_limit_a > 0.0:
             rest = (-dx * vx, -dy * vy, -dw * w)
             voltages, saturated, mean_current, scale = self.drive.limited_step(
@@ -290,7 +303,7 @@ class MotionController:
                 currents = [scale * i for i in currents]
         else:
             voltages, saturated, mean_current = self.drive.step(currents, omega, omega_rate, rate_of_current)
-        self._u_prev = self._acceleration_of_current(theta_m, mean_current).tolist() if saturated else u
+        self._u_prev = self._acceleration_of_current(theta_m, mean_current) if saturated else u
         return ControlOutput(
             tuple(voltages), tuple(currents), tuple(u), saturated, infeasible, time.perf_counter() - start
         )

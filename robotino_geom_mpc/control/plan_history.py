@@ -124,6 +124,10 @@ class PlanHistory:
                 self.lost += sent.missed_by_s == -math.inf
                 sent.missed_by_s = max(sent.missed_by_s, time_s)
 
+    def reported(self, period: int) -> bool:
+        """Whether the robot has reported what it applied in `period`."""
+        return period in self._applied
+
     def round_trip_quantile(self) -> float:
         """`quantile` of the recent round trips (nearest rank: the smallest value that covers that share of them),
         computed again only after new ones; NaN before any.

@@ -9,8 +9,8 @@ Topics (relative names)
 -----------------------
 subscribes ``cmd_vel_plan``     trajectory_msgs/MultiDOFJointTrajectory (`ros.plans`), times in the robot's clock
 publishes  ``cmd_vel``          geometry_msgs/Twist in base_link, to the driver: from the first plan on, at each
-                                entry's start time (a steady timer re-armed to the next entry, so the twist
-                                changes when the plan says, at the control rate); zero twist once every plan is
+                                entry's start time (within `POLL_S`; the entry of a period is the one the plans
+                                held at its start, held to its end); zero twist once every plan is
                                 used up (the robot stops) for ``idle_after_s``, then nothing until the next plan
                                 (the driver's own timeout holds it, and a joystick may take over)
            ``command_applied``  trajectory_msgs/JointTrajectory (`ros.plans`): each period sent (its start time,
@@ -37,14 +37,15 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
-from robotino_geom_mpc.network.plan import PlanBuffer
+from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S, PlanBuffer
 from robotino_geom_mpc.params.specs import CONTROL_SPECS, ParamSpec
 from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.plans import IGNORED, applied_message, offer_plan
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import run_node
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
-__all__ = ["BUFFER_SPECS", "CommandBufferNode", "STATUS_NAME", "main"]
+__all__ = ["BUFFER_SPECS", "CommandBufferNode", "POLL_S", "STATUS_NAME", "main"]
 
 STATUS_NAME = "robotino_geom_mpc: command_buffer"
 BUFFER_SPECS: tuple[ParamSpec, ...] = (
@@ -52,7 +53,8 @@ BUFFER_SPECS: tuple[ParamSpec, ...] = (
               "stop publishing cmd_vel until the next plan", "s", 0.0, 3600.0, False),
 )
 _DEFAULTS = {"idle_after_s": 1.0}
-_LATE_S = 2e-4  # the timer wakes this much after an entry's start, so the entry is the current one
+POLL_S = 0.001  # a steady timer polls the plans this often: an entry goes out within it of its start time (a
+# timer re-armed to each entry's start is what rclpy's events executor loses, see robotino_sim_node.radio)
 _ERRORS = ("nan", "length", "times", "future", "past", "stamp")
 
 
@@ -69,7 +71,8 @@ class CommandBufferNode(Node):
         self.refused = dict.fromkeys(_ERRORS, 0)
         self.ignored = 0  # older or duplicate plans
         self.exhausted_periods = 0
-        self.last_sent: tuple[float | None, int] | None = None  # (basis, index) of the last twist sent
+        self.period_end_s = -math.inf  # when the entry sent last stops running
+        self.next_zero_s = -math.inf  # every plan used up: when the next zero twist goes out
         self.exhausted_since: float | None = None
         self.round_trip_s = math.nan
         self.active = False  # a plan was taken and the idle time has not run out
@@ -78,7 +81,7 @@ class CommandBufferNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", PUBLISH_QOS)
         self.plan_sub = self.create_subscription(MultiDOFJointTrajectory, "cmd_vel_plan", self._on_plan, CONTROL_QOS)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.timer = self.create_timer(self.period_s, self._tick, clock=steady)
+        self.timer = self.create_timer(POLL_S, self._tick, clock=steady)
         self.diag_timer = self.create_timer(1.0, self._diagnose, clock=steady)
         self.get_logger().info(f"command buffer ready (Ts = {self.period_s:g} s): cmd_vel_plan -> cmd_vel")
 
@@ -95,46 +98,45 @@ class CommandBufferNode(Node):
             return
         if reason is not None or plan is None:  # (plan is None only with a reason)
             self.refused[reason] = self.refused.get(reason, 0) + 1
-            self.get_logger().warn(f"refused a plan ({reason}: {detail}); the previous plan (or zero) stays "
-                                   f"({sum(self.refused.values())} refused so far)", throttle_duration_sec=1.0)
+            warn_throttled(self.get_logger(), f"refused a plan ({reason}: {detail}); the previous plan (or zero) stays "
+                                   f"({sum(self.refused.values())} refused so far)", 1.0)
             return
         self.round_trip_s = now - plan.basis_s
-        self.active = True
-        self._tick()  # the newest plan's entry of this period, now; the timer re-armed to its next entry
+        self.active = True  # the next poll sends what runs now (zero before the plan's first entry)
 
     def _tick(self) -> None:
-        now = self._now_s()
+        """Each poll: at a period's start, the entry the plans held then give, held to the period's end.
+
+        A plan taken within a period acts from the next one, as the plant's `PlantPlans.period_command` and the
+        controller's `control.plan_history` have it. Every plan used up: a zero twist once a period, for
+        ``idle_after_s``.
+        """
         if not self.active:
-            self._arm(self.period_s)
+            return
+        now = self._now_s()
+        if now < self.period_end_s - TIME_TOLERANCE_S:  # the entry sent last still runs
             return
         applied = self.buffer.command_at(now)
         if applied is None:
             start = now if self.exhausted_since is None else self.exhausted_since
-            self.exhausted_since = start
-            self.exhausted_periods += 1
+            self.exhausted_since, self.period_end_s = start, -math.inf  # a plan may start at any poll
             if now - start >= self.params["idle_after_s"]:
                 self.active = False
                 self.get_logger().info("every plan used up: robot stopped, cmd_vel idle until the next plan")
-            else:
+            elif now >= self.next_zero_s:
+                self.exhausted_periods += 1
+                self.next_zero_s = now + self.period_s
                 self._send(now, None, -1, (0.0, 0.0, 0.0))
-            self._arm(self.period_s)
             return
-        self.exhausted_since = None
-        if self.last_sent != (applied.basis_s, applied.entry_index):
-            self._send(now, applied.basis_s, applied.entry_index, applied.values)
-        self._arm(self.buffer.entry_end(applied, self.period_s) - now + _LATE_S)
+        self.exhausted_since, self.next_zero_s = None, -math.inf
+        begin, self.period_end_s = self.buffer.entry_span(applied, self.period_s)
+        self._send(begin, applied.basis_s, applied.entry_index, applied.values)
 
     def _send(self, time_s: float, basis_s: float | None, index: int, values) -> None:
         twist = Twist()
         twist.linear.x, twist.linear.y, twist.angular.z = (float(v) for v in values)
         self.cmd_pub.publish(twist)
-        self.last_sent = (basis_s, index)
         self.report_pub.publish(applied_message(time_s, basis_s, index, values, "cmd_vel"))
-
-    def _arm(self, delay_s: float) -> None:
-        self.timer.cancel()  # (the events executor takes a new period only from a cancelled timer)
-        self.timer.timer_period_ns = max(1, int(min(max(delay_s, 0.0), self.period_s + _LATE_S) * 1e9))
-        self.timer.reset()
 
     def _diagnose(self) -> None:
         refused = sum(self.refused.values())

@@ -93,6 +93,7 @@ from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, preview_
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, LOCKSTEP_PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import monotonic, run_node
+from robotino_geom_mpc.ros.throttle import error_throttled, warn_throttled
 
 __all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
 
@@ -215,14 +216,14 @@ class ControllerNode(ControllerWatchdog, Node):
     def _reject(self, stamp: int | None, what: str, reason: str, message: str) -> None:
         """A refused input: counted, logged, zero volts, an ERROR diagnostic naming the reason."""
         self.counters.refuse(reason)
-        self.get_logger().warn(f"refused {what}: {message}; zero volts", throttle_duration_sec=1.0)
+        warn_throttled(self.get_logger(), f"refused {what}: {message}; zero volts", 1.0)
         self.outputs.send_zero()
         self.outputs.diagnose(stamp, DiagnosticStatus.ERROR, f"refused {what} ({reason}): {message}")
 
     def _drop(self, stamp: int, what: str, reason: str) -> None:
         """A dropped input (duplicate or older stamp than the last used): counted, logged, a WARN diagnostic."""
         self.counters.drop(reason)
-        self.get_logger().warn(f"dropped {what} of stamp {stamp} ns: {reason}", throttle_duration_sec=1.0)
+        warn_throttled(self.get_logger(), f"dropped {what} of stamp {stamp} ns: {reason}", 1.0)
         self.outputs.diagnose(stamp, DiagnosticStatus.WARN, f"dropped {what} ({reason})")
 
     def _now_ns(self) -> int | None:
@@ -263,7 +264,7 @@ class ControllerNode(ControllerWatchdog, Node):
             jump = reference_jump(latest, stamp, arrays[0][0], *self.jump_limits)
             if jump is not None:
                 self.blend.jump_ns = stamp
-                self.get_logger().warn(f"{jump}: bumpless restart", throttle_duration_sec=1.0)
+                warn_throttled(self.get_logger(), f"{jump}: bumpless restart", 1.0)
             self.latest_preview = (stamp, *arrays)
         if not self.lockstep:
             return
@@ -300,7 +301,7 @@ class ControllerNode(ControllerWatchdog, Node):
             self._reject(stamp, "reference_preview", reason, message)
             return
         self.counters.refuse(reason)
-        self.get_logger().warn(f"refused reference_preview: {message}", throttle_duration_sec=1.0)
+        warn_throttled(self.get_logger(), f"refused reference_preview: {message}", 1.0)
         if stamp is None:
             return
         self.previews[stamp] = InputRejected(message, reason)
@@ -387,8 +388,7 @@ class ControllerNode(ControllerWatchdog, Node):
             self._reject(stamp, "input", "controller", str(exc))
             return
         except Exception as exc:  # a bug must not leave the drives at the last voltages: zero, and start over
-            self.get_logger().error(f"control step failed: {exc!r}\n{traceback.format_exc()}",
-                                    throttle_duration_sec=1.0)
+            error_throttled(self.get_logger(), f"control step failed: {exc!r}\n{traceback.format_exc()}", 1.0)
             self.blend.request("error")
             self._reject(stamp, "input", "internal_error", repr(exc))
             return

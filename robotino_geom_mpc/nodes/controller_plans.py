@@ -32,6 +32,7 @@ from robotino_geom_mpc.network.plan import CommandPlan
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, plan_message, plan_type, report_of_message
 from robotino_geom_mpc.ros.qos import publish_acknowledged, publish_qos
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["ControllerPlans", "LINK_KEYS"]
 
@@ -99,8 +100,8 @@ class ControllerPlans:
                                        f"{which} of the newest odometry ({newest:.6f} s)", which)
         except PlanMessageError as exc:
             self.refused_reports += 1
-            self.node.get_logger().warn(f"refused command_applied ({exc.reason}: {exc}); "
-                                        f"{self.refused_reports} refused so far", throttle_duration_sec=1.0)
+            warn_throttled(self.node.get_logger(), f"refused command_applied ({exc.reason}: {exc}); "
+                                        f"{self.refused_reports} refused so far", 1.0)
             return
         if report.values is None:
             self.controller.report_receipt(report.basis_s, report.time_s, report.taken)

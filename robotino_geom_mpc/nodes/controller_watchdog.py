@@ -7,6 +7,7 @@ steady-clock timer runs at half the shorter timeout and says, throttled, what th
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from robotino_geom_mpc.ros.throttle import info_throttled, warn_throttled
 
 __all__ = ["ControllerWatchdog"]
 
@@ -31,7 +32,7 @@ class ControllerWatchdog:
                     f"({self.count_publishers(self.preview_sub.topic_name)} publishers)")
         else:
             return
-        self.get_logger().info(f"waiting: {what}", throttle_duration_sec=_WAIT_LOG_PERIOD_S)
+        info_throttled(self.get_logger(), f"waiting: {what}", _WAIT_LOG_PERIOD_S)
 
     def _check_watchdog(self) -> None:
         now = self._watch_now()  # the node clock under use_sim_time, else steady time
@@ -51,6 +52,6 @@ class ControllerWatchdog:
         self.blend.request("watchdog")  # data that return restart the tracking bumplessly
         # and are taken on any fresh stamp, also one before the last used (a sim clock reset, a bag replayed in a loop)
         self.last_odom_ns, self.latest_preview = None, None
-        self.get_logger().warn(f"watchdog: {state.replace('_', ' ')}; zero volts", throttle_duration_sec=1.0)
+        warn_throttled(self.get_logger(), f"watchdog: {state.replace('_', ' ')}; zero volts", 1.0)
         self.outputs.send_zero()
         self.outputs.diagnose(None, DiagnosticStatus.WARN, f"watchdog: {state}")

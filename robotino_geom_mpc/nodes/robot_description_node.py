@@ -49,6 +49,7 @@ from robotino_geom_mpc.ros.decode import STAMP_FIELDS
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import LATCHED_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import run_node
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["DESCRIPTION_SPECS", "RobotDescriptionNode", "main"]
 
@@ -142,8 +143,8 @@ class RobotDescriptionNode(Node):
                 msg = self._read_joints(data)
             except MalformedMessage as exc:
                 self.skipped += 1
-                self.get_logger().warn(f"undecodable joint_states: skipped ({self.skipped} so far): {exc}",
-                                       throttle_duration_sec=2.0)
+                warn_throttled(self.get_logger(),
+                               f"undecodable joint_states: skipped ({self.skipped} so far): {exc}", 2.0)
                 return
             self._on_joints(msg)
             return
@@ -157,9 +158,8 @@ class RobotDescriptionNode(Node):
 
     def _skip(self, names: int, positions: int) -> None:
         self.skipped += 1
-        self.get_logger().warn(
-            f"joint_states with {names} names, {positions} positions or a non-finite "
-            f"position: skipped ({self.skipped} so far)", throttle_duration_sec=2.0)
+        warn_throttled(self.get_logger(), f"joint_states with {names} names, {positions} positions or a non-finite "
+            f"position: skipped ({self.skipped} so far)", 2.0)
 
     def _on_joints(self, msg: JointState) -> None:
         """A decoded joint_states (any names, order, length): the transforms of the moving joints it names."""

@@ -75,7 +75,6 @@ noise are the controller's and the plant's parameters).
 from __future__ import annotations
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
@@ -90,12 +89,12 @@ from robotino_geom_mpc.params.specs import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.nodes.goal_inputs import GOAL_DEFAULTS, GOAL_SPECS, GoalInputs, goal_params_problem
 from robotino_geom_mpc.reference.trajectories import Reference, TrajectoryError
 from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate
-from robotino_geom_mpc.ros.messages import ODOM_FRAME, ns_to_stamp, point_values, preview_template, preview_values, \
-    yaw_to_quaternion
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, path_cdr, point_values, preview_template, preview_values
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CLOCK_SUB_QOS, LATCHED_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_geom_mpc.scenarios import SCENARIOS, get_scenario
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "main"]
 
@@ -286,7 +285,7 @@ class TrajectoryNode(Node):
     def _on_clock(self, data: bytes) -> None:
         values = self.clock_layout.read(data)
         if values is None:  # every well-formed Clock has the layout
-            self.get_logger().warn(f"undecodable /clock ({len(data)} bytes) ignored", throttle_duration_sec=1.0)
+            warn_throttled(self.get_logger(), f"undecodable /clock ({len(data)} bytes) ignored", 1.0)
             return
         self.clock_heard_at = monotonic()
         now = values[0] * 1_000_000_000 + values[1]
@@ -302,10 +301,11 @@ class TrajectoryNode(Node):
             return
         topic = self.clock_sub.topic_name
         last = "none" if self.last_clock_ns is None else f"{self.last_clock_ns * 1e-9:g} s"
-        self.get_logger().warn(
+        warn_throttled(
+            self.get_logger(),
             f"lockstep: no clock on {topic} for {waited:.1f} s (last tick: {last}): waiting for the plant's next "
             f"tick ({self.count_publishers(topic)} publisher(s) of {topic}); previews follow each clock",
-            throttle_duration_sec=max(timeout, _WAIT_LOG_PERIOD_S),
+            max(timeout, _WAIT_LOG_PERIOD_S),
         )
 
     def _on_preview_matched(self, info: QoSPublisherMatchedInfo) -> None:
@@ -334,25 +334,17 @@ class TrajectoryNode(Node):
             if now - self.subscribed_since < int(self.params["start_settle_s"] * 1e9):
                 return  # ... and has for the settle time
             self.start_ns = now
+            self._publish_preview(now, 0)  # the loop's data first: the path is for the tools
             self._publish_path()
+            return
         self._publish_preview(now, now - self.start_ns)
 
     def _publish_path(self, from_s: float = 0.0, step: int = 1) -> None:
         period = self.params["control.period_s"] * step
         times = np.arange(from_s, self.reference.duration_s + 0.5 * period, period)
-        pos = self.reference.position(times)
-        path = Path()
-        path.header.frame_id = odom = self.params["frame_prefix"] + ODOM_FRAME
-        path.header.stamp = ns_to_stamp(self.start_ns)
-        for t, (x, y, theta) in zip(times, pos):
-            pose = PoseStamped()
-            pose.header.frame_id = odom
-            pose.header.stamp = ns_to_stamp(self.start_ns + int(round(t * 1e9)))
-            pose.pose.position.x, pose.pose.position.y = float(x), float(y)
-            pose.pose.orientation = yaw_to_quaternion(float(theta))
-            path.poses.append(pose)
-        self.path_pub.publish(path)
-
+        stamps = [self.start_ns + int(round(t * 1e9)) for t in times.tolist()]
+        odom = self.params["frame_prefix"] + ODOM_FRAME
+        publish_acknowledged(self, self.path_pub, path_cdr(odom, self.start_ns, stamps, self.reference.position(times)))
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run robotino_geom_mpc trajectory_node``."""

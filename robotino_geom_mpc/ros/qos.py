@@ -42,6 +42,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["CONTROL_QOS", "PUBLISH_QOS", "LOCKSTEP_PUBLISH_QOS", "LATCHED_QOS", "CLOCK_SUB_QOS", "publish_qos",
            "publish_acknowledged", "wait_acknowledged"]
@@ -93,10 +94,11 @@ def publish_acknowledged(node: Node, publisher: Publisher, message: Any) -> None
         if publisher.qos_profile.history != HistoryPolicy.KEEP_ALL:
             raise
     while node.context.ok():
-        node.get_logger().warn(
+        warn_throttled(
+            node.get_logger(),
             f"{publisher.topic_name}: a subscriber has not acknowledged the writer's history for "
             f"{time.monotonic() - since:.1f} s (a slow reader, e.g. the recorder): waiting",
-            throttle_duration_sec=2.0,
+            2.0,
         )
         try:
             publisher.publish(message)

@@ -206,13 +206,14 @@ class PlanBuffer:
             self.exhausted += 1
         return None
 
-    def entry_end(self, applied: AppliedCommand, period_s: float) -> float:
-        """When `applied`'s entry stops applying unless a newer plan arrives: the next entry's start in its plan,
-        or the plan's end; `period_s` after `applied.time_s` if its plan is no longer held.
+    def entry_span(self, applied: AppliedCommand, period_s: float) -> tuple[float, float]:
+        """When `applied`'s entry starts and stops applying unless a newer plan arrives: its start in its plan and
+        the next entry's start, or the plan's end; from `applied.time_s` for `period_s` if its plan is no longer held.
         """
         for plan in self._plans:
             if plan.basis_s == applied.basis_s:
                 following = applied.entry_index + 1
-                return plan.times_s[following] if following < len(plan.times_s) else plan.end_s
-        return applied.time_s + period_s
+                end = plan.times_s[following] if following < len(plan.times_s) else plan.end_s
+                return plan.times_s[applied.entry_index], end
+        return applied.time_s, applied.time_s + period_s
 

@@ -261,3 +261,25 @@ def test_path_written_straight_to_cdr_reads_as_the_path_rclpy_builds(frame, n):
     assert [(p.pose.position.x, p.pose.position.y, p.pose.orientation.z, p.pose.orientation.w)
             for p in decoded.poses] == [(p.pose.position.x, p.pose.position.y, p.pose.orientation.z,
                                          p.pose.orientation.w) for p in expected.poses]
+
+
+@pytest.mark.parametrize("interface", ["voltages", "cmd_vel"])
+@pytest.mark.parametrize("length", [1, 25])
+def test_plan_writer_gives_the_plan_message_bytes(interface, length):
+    """`ros.plans.PlanWriter` against `plan_message` as rclpy serializes it, read back by rclpy and by rosbags."""
+    from robotino_geom_mpc.network.plan import CommandPlan
+    from robotino_geom_mpc.ros.plans import PlanWriter, plan_message, plan_of_message, plan_type
+
+    rng = np.random.default_rng(length)
+    basis = 1_795_768_289.0894086
+    plan = CommandPlan(basis, tuple(basis + 0.07 + 0.01 * i for i in range(length)),
+                       tuple(tuple(rng.normal(scale=5.0, size=3)) for _ in range(length)), 0.01)
+    data = PlanWriter(interface, length).encode(plan)
+    msg = deserialize_message(data, plan_type(interface))
+    assert msg == plan_message(plan, interface)
+    assert plan_of_message(msg, 0.01) == plan_of_message(plan_message(plan, interface), 0.01)
+    name = "trajectory_msgs/msg/" + plan_type(interface).__name__
+    decoded = TYPESTORE.deserialize_cdr(data, name)
+    values = [p.effort.tolist() if interface == "voltages" else
+              [p.velocities[0].linear.x, p.velocities[0].linear.y, p.velocities[0].angular.z] for p in decoded.points]
+    np.testing.assert_array_equal(values, np.array(plan.entries))

@@ -7,7 +7,13 @@ dropped the dead participants: a Fast DDS lease, 20 s, after it):
   supervisor removes it, `remove_zombie_segments`, as `NodeGroup.stop` does) and the shared-memory ports of the
   run's domain (``fastrtps_port<N>``, N in the domain's range of RTPS ports);
 * network: the UDP ports bound in the domain's range (``/proc/net/udp``, ``udp6``);
-* descriptors: the open file descriptors of every surviving node and of this process.
+* descriptors: the open file descriptors of every surviving node and of this process (the supervisor);
+* and, host-wide, the entries of /dev/shm (other sessions' runs on the machine move this one; the run's own are
+  its domain's port files and its segments).
+
+Each figure is also taken after every restart (once the new controller is ready): its least-squares slope over
+the restarts (``restart_<figure>_per_restart``) is what a restart leaves behind, with the dead participants'
+entries still in the survivors' discovery until their lease ends (a bounded lag, not a leak).
 
 Each killed controller's own segment is found before the kill (the lock file it holds, ``/proc/locks``) and looked
 for after it: ``restart_segments_left_by_kill`` counts those a SIGKILL left (Fast DDS's doing, every time),
@@ -18,6 +24,7 @@ from __future__ import annotations
 
 import os
 import signal
+import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -25,7 +32,8 @@ from pathlib import Path
 from robotino_geom_mpc.bench.registry import BenchmarkError
 from robotino_geom_mpc.system.shm import SHM_DIR, remove_zombie_segments
 
-__all__ = ["LEASE_SETTLE_S", "domain_ports", "held_segments", "open_fds", "restart_loop", "shm_ports", "snapshot"]
+__all__ = ["LEASE_SETTLE_S", "domain_ports", "held_segments", "open_fds", "per_restart", "restart_loop", "shm_ports",
+           "snapshot"]
 
 LEASE_SETTLE_S = 25.0  # after the last kill: Fast DDS's default participant lease (20 s) and a margin
 READY_TIMEOUT_S = 120.0  # a restarted controller must log "controller ready" within this
@@ -54,12 +62,14 @@ def domain_ports() -> set[int]:
 
 
 def shm_ports(directory: Path = SHM_DIR) -> set[str]:
-    """The Fast DDS shared-memory port files of the current domain (``fastrtps_port<N>`` and their lock files)."""
+    """The Fast DDS shared-memory port files of the current domain (``fastrtps_port<N>``, their lock files and
+    their mutexes, ``sem.fastrtps_port<N>_mutex``).
+    """
     wanted = _domain_range()
     names = set()
     for name in os.listdir(directory):
-        if name.startswith("fastrtps_port"):
-            digits = name[len("fastrtps_port"):].split("_", 1)[0]
+        if name.startswith(("fastrtps_port", "sem.fastrtps_port")):
+            digits = name.split("fastrtps_port", 1)[1].split("_", 1)[0]
             if digits.isdigit() and int(digits) in wanted:
                 names.add(name)
     return names
@@ -88,9 +98,15 @@ def open_fds(pid: int) -> int:
     return len(os.listdir(f"/proc/{pid}/fd"))
 
 
-def snapshot(pids: dict[str, int]) -> dict[str, int]:
-    """Domain UDP ports, domain shared-memory port files and each process's descriptors (``fds_<name>``)."""
-    out = {"udp_ports": len(domain_ports()), "shm_port_files": len(shm_ports())}
+def snapshot(pids: dict[str, int], segment_pids: list[int], killed: set[str]) -> dict[str, int]:
+    """Domain UDP ports, domain shared-memory port files (`shm_ports`), the Fast DDS segments of the run
+    (``shm_segments``: those `segment_pids` hold and those of `killed` still in /dev/shm), /dev/shm's entries
+    (``shm_entries_host``, host-wide) and each process's descriptors (``fds_<name>``, `pids`).
+    """
+    held = set().union(*(held_segments(pid) for pid in segment_pids))
+    held |= {name for name in killed if (SHM_DIR / name).exists()}
+    out = {"udp_ports": len(domain_ports()), "shm_port_files": len(shm_ports()), "shm_segments": len(held),
+           "shm_entries_host": len(os.listdir(SHM_DIR))}
     out.update({f"fds_{name}": open_fds(pid) for name, pid in pids.items()})
     return out
 
@@ -107,11 +123,20 @@ def _wait_ready(node, timeout_s: float) -> None:
     raise BenchmarkError(f"restart: the controller was not ready within {timeout_s:g} s:\n{node.stderr_tail()}")
 
 
+def per_restart(series: list[dict[str, int]]) -> dict[str, float]:
+    """Per figure of `series` (one `snapshot` after each restart): its least-squares slope over the restarts."""
+    if len(series) < 2:
+        return {}
+    return {key: statistics.linear_regression(range(len(series)), [row[key] for row in series]).slope
+            for key in series[0]}
+
+
 def restart_loop(restarts: int, folder: Path, log: Callable[[str], None]) -> dict[str, float]:
     """The realtime loop (paper-circle, no recorder) with its controller SIGKILLed and restarted `restarts` times.
 
-    Returns ``restart_count``, per figure of `snapshot` ``restart_<figure>_before`` and ``_after`` (the survivors:
-    plant, trajectory, description publisher, and ``bench`` for this process), ``restart_segments_left_by_kill``
+    Returns ``restart_count``, per figure of `snapshot` ``restart_<figure>_before``, ``_after`` (the survivors:
+    plant, trajectory, description publisher, and ``bench`` for this process) and ``_per_restart``
+    (`per_restart`), ``restart_segments_left_by_kill``
     and ``restart_segments_left`` (see the module docstring) and ``restart_loop_s``, the wall time per restart.
 
     Raises
@@ -131,9 +156,9 @@ def restart_loop(restarts: int, folder: Path, log: Callable[[str], None]) -> dic
         time.sleep(LEASE_SETTLE_S / 5)
         survivors = {name: node.popen.pid for name, node in nodes.items() if name != "controller_node"}
         pids = {**survivors, "bench": os.getpid()}
-        before = snapshot(pids)
         killed: set[str] = set()  # the killed controllers' own segments
-        left_by_kill = 0
+        before = snapshot(pids, [*survivors.values(), controller.popen.pid], killed)
+        left_by_kill, series = 0, []
         start = time.monotonic()
         for k in range(restarts):
             time.sleep(MATCH_S)
@@ -150,16 +175,22 @@ def restart_loop(restarts: int, folder: Path, log: Callable[[str], None]) -> dic
             group.nodes.remove(controller)  # reaped: its status is the kill's, not a failure
             controller = group.start("controller_node", args["controller_node"])
             _wait_ready(controller, READY_TIMEOUT_S)
+            series.append(snapshot(pids, [*survivors.values(), controller.popen.pid], killed))
             if (k + 1) % 20 == 0:
-                log(f"restart: {k + 1} of {restarts} kills and restarts")
-        per_restart = (time.monotonic() - start) / max(restarts, 1)
+                log(f"restart: {k + 1} of {restarts} kills and restarts; now {series[-1]}")
+        wall_s = (time.monotonic() - start) / max(restarts, 1)
         time.sleep(LEASE_SETTLE_S)
-        after = snapshot(pids)
+        after = snapshot(pids, [*survivors.values(), controller.popen.pid], killed)
         left = sum((SHM_DIR / name).exists() for name in killed)
-    out = {"restart_count": restarts, "restart_loop_s": per_restart,
+    out = {"restart_count": restarts, "restart_loop_s": wall_s,
            "restart_segments_left_by_kill": left_by_kill, "restart_segments_left": left}
+    slopes = per_restart(series)
     for key in before:
         out[f"restart_{key}_before"], out[f"restart_{key}_after"] = before[key], after[key]
+        if key in slopes:
+            out[f"restart_{key}_per_restart"] = slopes[key]
     log(f"restart: {restarts} kills; before {before}; after {after}; segments left by the kills {left_by_kill}, "
         f"after the clean {left}")
+    log("restart: left per restart (slope over the restarts): " + ", ".join(
+        f"{key} {value:+.4f}" for key, value in slopes.items()))
     return out

@@ -5,14 +5,16 @@ Three parts, each on the current ROS_DOMAIN_ID:
 
 * `soak`: the nodes of ``robotino-geom-mpc run --realtime`` (paper-circle, recorded) for `SOAK_S` (``--duration``),
   reported per window (`window_length`: 5 minutes, shorter for short runs): each process's resident memory (the
-  mean of samples every `SAMPLE_S` from ``/proc``) and CPU, and the plant's missed ticks and odometry-to-command
-  latency p50, p99, p99.9 in that window (its timing report's ``windows``, `loop_timing`); the bag's messages of
-  the plant's topics against the ticks it published (the MCAP summary's counts). Memory growth is judged after
-  the first (warm-up) window by a least-squares slope over the windows (`growth_mb_per_10min`); latency drift by
-  the last window against the first, over the spread between windows (`drift_over_spread`).
+  mean of samples every `SAMPLE_S` from ``/proc``; all, anonymous and shared) and CPU, and the plant's missed
+  ticks and odometry-to-command latency p50, p99, p99.9 in that window (its timing report's ``windows``,
+  `loop_timing`); the bag's messages of the plant's topics against the ticks it published (the MCAP summary's
+  counts). Memory growth is judged after the first (warm-up) window by a least-squares slope over the windows
+  (`growth_mb_per_10min`, against `GROWTH_BOUND_MB_PER_10MIN`); latency drift by the last window against the
+  first, over the steps between successive windows, with a permutation test of the windows' order
+  (`latency_drift`).
 * `restart_loop` (`bench.restarts`): the realtime loop with the controller killed by SIGKILL and started again
-  `RESTARTS` times; Fast DDS's shared-memory segments, the domain's UDP ports and the survivors' descriptors before
-  and after.
+  `RESTARTS` times; Fast DDS's shared-memory segments and port files, the domain's UDP ports and the survivors'
+  and the supervisor's descriptors before, after every restart (a slope per restart) and after the last.
 * `run_loop`: ``robotino-geom-mpc run`` (lockstep, recorded, `RUN_S`) `RUNS` times in a row; every one must end
   with status 0 and its metrics.
 
@@ -34,9 +36,10 @@ from typing import Any
 
 from robotino_geom_mpc.bench.registry import BenchmarkError, BenchmarkSkipped, benchmark
 
-__all__ = ["PLANT_TOPICS", "SEQUENCED_TOPICS", "RESTARTS", "RUNS", "RUN_S", "SAMPLE_S", "SOAK_S", "WINDOW_S",
-           "ProcessSampler", "bag_counts", "bag_sequences", "bench_soak", "drift_over_spread", "growth_mb_per_10min",
-           "process_rss_cpu", "run_loop", "soak", "window_length"]
+__all__ = ["DRIFT_ALPHA", "GROWTH_BOUND_MB_PER_10MIN", "PLANT_TOPICS", "SEQUENCED_TOPICS", "RESTARTS", "RUNS", "RUN_S",
+           "SAMPLE_S", "SOAK_S", "WINDOW_S", "ProcessSampler", "bag_counts", "bag_sequences", "bench_soak",
+           "growth_mb_per_10min", "latency_drift", "process_memory_cpu", "run_loop", "soak", "soak_table",
+           "window_length"]
 
 SOAK_S = 1800.0  # the soak's default length (quick: 60 s)
 WINDOW_S = 300.0  # its windows (`window_length`: at most a sixth of the run)
@@ -51,6 +54,8 @@ PLANT_TOPICS = {"/odom": 1, "/ground_truth/odom": 1, "/joint_states": 1, "/tf": 
 # the plant's topics with one writer: their messages' DDS publication sequence numbers (the bag keeps them) run
 # 1, 2, ... over the ticks, so a gap is a lost message and the first one tells what went before the recording
 SEQUENCED_TOPICS = ("/odom", "/ground_truth/odom", "/joint_states")
+GROWTH_BOUND_MB_PER_10MIN = 1.0  # issue 27: no node's resident memory grows more after warm-up
+DRIFT_ALPHA = 0.01  # a latency quantile drifted when `latency_drift`'s p-value is below this
 _END_MARGIN_S = 120.0  # the soak's plant must have ended this long after its duration
 # the stop's grace periods, `cli.run`'s: 5 s a node, the recorder 70 s (its drain limit and the bag's close)
 _GRACE_S, _RECORDER_GRACE_S = 5.0, 70.0
@@ -61,25 +66,31 @@ def window_length(duration_s: float) -> float:
     return min(WINDOW_S, duration_s / 6.0)
 
 
-def process_rss_cpu(pid: int) -> tuple[float, float]:
-    """Resident memory [bytes] (VmRSS) and user + system CPU time [s] of process `pid`; OSError once it is gone."""
+def process_memory_cpu(pid: int) -> tuple[float, float, float, float]:
+    """Resident memory [bytes] of process `pid`: all (VmRSS), anonymous (RssAnon: its heaps) and shared
+    (RssShmem: the pages it touched of shared-memory segments, Fast DDS's own and its peers'), and its user +
+    system CPU time [s]; OSError once it is gone.
+    """
     with open(f"/proc/{pid}/status", encoding="ascii") as f:
-        rss = next((int(line.split()[1]) * 1024 for line in f if line.startswith("VmRSS:")), 0)
+        kb = {key: int(rest.split()[0]) for key, _, rest in (line.partition(":") for line in f)
+              if key in ("VmRSS", "RssAnon", "RssShmem")}
     with open(f"/proc/{pid}/stat", encoding="ascii") as f:
         fields = f.read().rsplit(")", 1)[1].split()
-    return float(rss), (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return (1024.0 * kb["VmRSS"], 1024.0 * kb["RssAnon"], 1024.0 * kb["RssShmem"],
+            (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK"))
 
 
 class ProcessSampler:
     """Samples the memory and CPU time of named processes every `interval_s` in a thread (a context manager).
 
-    `samples[name]` is a list of (steady time [s], RSS [bytes], CPU time [s]); `load` of (steady time [s], the
+    `samples[name]` is a list of (steady time [s], RSS, anonymous, shared [bytes], CPU time [s],
+    `process_memory_cpu`); `load` of (steady time [s], the
     machine's 1-minute load average).
     """
 
     def __init__(self, pids: dict[str, int], interval_s: float = SAMPLE_S) -> None:
         self.pids, self.interval_s = dict(pids), interval_s
-        self.samples: dict[str, list[tuple[float, float, float]]] = {name: [] for name in pids}
+        self.samples: dict[str, list[tuple[float, ...]]] = {name: [] for name in pids}
         self.load: list[tuple[float, float]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="soak-sampler", daemon=True)
@@ -94,19 +105,22 @@ class ProcessSampler:
         self.load.append((time.monotonic(), os.getloadavg()[0]))
         for name, pid in self.pids.items():
             try:
-                rss, cpu = process_rss_cpu(pid)
-            except (OSError, StopIteration, IndexError, ValueError):
+                figures = process_memory_cpu(pid)
+            except (OSError, KeyError, IndexError, ValueError):
                 continue
-            self.samples[name].append((time.monotonic(), rss, cpu))
+            self.samples[name].append((time.monotonic(), *figures))
 
-    def window(self, name: str, start: float, end: float) -> tuple[float, float] | None:
-        """The mean RSS [MB] and the CPU use [% of one core] of `name` between steady times `start` and `end`."""
+    def window(self, name: str, start: float, end: float) -> dict[str, float] | None:
+        """`name`'s mean ``rss_mb``, ``anon_mb``, ``shmem_mb`` and its ``cpu_pct`` (% of one core) between
+        steady times `start` and `end` (None: fewer than 2 samples).
+        """
         inside = [s for s in self.samples[name] if start <= s[0] <= end]
         if len(inside) < 2:
             return None
-        rss = statistics.fmean(s[1] for s in inside) / 1e6
-        cpu = 100.0 * (inside[-1][2] - inside[0][2]) / (inside[-1][0] - inside[0][0])
-        return rss, cpu
+        out = {key: statistics.fmean(s[k] for s in inside) / 1e6
+               for k, key in enumerate(("rss_mb", "anon_mb", "shmem_mb"), start=1)}
+        out["cpu_pct"] = 100.0 * (inside[-1][4] - inside[0][4]) / (inside[-1][0] - inside[0][0])
+        return out
 
     def window_load(self, start: float, end: float) -> float:
         """The mean 1-minute load average of the machine between steady times `start` and `end` (NaN: none)."""
@@ -129,12 +143,47 @@ def growth_mb_per_10min(times_s: list[float], values_mb: list[float]) -> float:
     return 600.0 * statistics.linear_regression(times_s, values_mb).slope
 
 
-def drift_over_spread(values: list[float]) -> float:
-    """|last - first| over the standard deviation of `values` (windows): above ~2, a drift beyond the noise."""
-    if len(values) < 3:
-        return float("nan")
-    spread = statistics.stdev(values)
-    return abs(values[-1] - values[0]) / spread if spread > 0 else 0.0
+def latency_drift(values: list[float], alpha: float = DRIFT_ALPHA) -> dict[str, Any]:
+    """Whether a latency quantile drifted between the first and the last window, beyond the windows' noise.
+
+    The statistic is ``ratio`` = |last - first| over the root mean square of the steps between successive
+    windows (the noise a window's figure has; unlike the spread around the mean, a trend does not inflate it:
+    a steady trend of d per window makes the change (n - 1) d and every step d, the ratio its maximum n - 1).
+    Its p-value is exact for windows that are exchangeable (no drift): the fraction of the orderings of the
+    windows (all of them up to 8 windows, else 20000 drawn, seeded) whose ratio is at least the observed one.
+    A window's sample of some 10^4 latencies makes a two-sample test of the first and last window (Mann-Whitney,
+    Kolmogorov-Smirnov) find any difference of load between them significant; this one asks whether the change
+    stands out from how much the windows move anyway.
+
+    Returns ``first``, ``last``, ``change`` (last - first), ``step`` (RMS of successive differences), ``ratio``,
+    ``p`` and ``drift`` (p < `alpha`); NaN and no verdict (``drift`` None) with fewer than 3 windows.
+    """
+    import itertools
+
+    import numpy as np
+
+    v = np.asarray(values, dtype=float)
+    out: dict[str, Any] = {"first": float("nan"), "last": float("nan"), "change": float("nan"),
+                           "step": float("nan"), "ratio": float("nan"), "p": float("nan"), "drift": None}
+    if len(v) < 3:
+        return out
+
+    def ratios(orders: np.ndarray) -> np.ndarray:
+        steps = np.sqrt(np.mean(np.diff(orders, axis=1) ** 2, axis=1))
+        change = np.abs(orders[:, -1] - orders[:, 0])
+        return np.divide(change, steps, out=np.zeros_like(change), where=steps > 0)
+
+    if len(v) <= 8:
+        orders = v[np.array(list(itertools.permutations(range(len(v)))))]
+    else:
+        rng = np.random.default_rng(0)
+        orders = np.array([v[rng.permutation(len(v))] for _ in range(20000)])
+    observed = float(ratios(v[None, :])[0])
+    p = float(np.mean(ratios(orders) >= observed * (1.0 - 1e-12)))
+    step = float(np.sqrt(np.mean(np.diff(v) ** 2)))
+    out.update(first=float(v[0]), last=float(v[-1]), change=float(v[-1] - v[0]), step=step, ratio=observed, p=p,
+               drift=p < alpha)
+    return out
 
 
 def bag_counts(bag: str | os.PathLike) -> dict[str, int]:
@@ -192,7 +241,7 @@ def soak(duration_s: float, folder: Path, log: Callable[[str], None]) -> dict[st
     recorded message), ``before`` (-> messages published before its first recorded one: a realtime loop does not
     wait for the recorder, as with ``ros2 bag record``), ``after`` (-> published after its last recorded one),
     ``growth`` (process -> MB per 10 min after the first window) and ``drift`` (p50, p99, p99.9 ->
-    `drift_over_spread`).
+    `latency_drift` of the windows').
 
     Raises
     ------
@@ -230,17 +279,23 @@ def soak(duration_s: float, folder: Path, log: Callable[[str], None]) -> dict[st
         for name in nodes:
             figures = sampler.window(name, w["start_steady_s"], w["end_steady_s"])
             if figures is not None:
-                row["processes"][name] = {"rss_mb": figures[0], "cpu_pct": figures[1]}
+                row["processes"][name] = figures
         rows.append(row)
     counts = bag_counts(bag)
     sequences = bag_sequences(bag, SEQUENCED_TOPICS)
     later = rows[1:]  # after the warm-up window
-    growth = {name: growth_mb_per_10min([0.5 * (r["start_s"] + r["end_s"]) for r in later if name in r["processes"]],
-                                        [r["processes"][name]["rss_mb"] for r in later if name in r["processes"]])
-              for name in nodes}
+
+    def slope(name: str, key: str) -> float:
+        inside = [r for r in later if name in r["processes"]]
+        return growth_mb_per_10min([0.5 * (r["start_s"] + r["end_s"]) for r in inside],
+                                   [r["processes"][name][key] for r in inside])
+
+    growth = {name: slope(name, "rss_mb") for name in nodes}
+    parts = {name: {"anon": slope(name, "anon_mb"), "shmem": slope(name, "shmem_mb")} for name in nodes}
     answered = [r for r in rows if r["latency_ms"] is not None]
-    drift = {q: drift_over_spread([r["latency_ms"][q] for r in answered]) for q in ("p50", "p99", "p99.9")}
-    result = {"windows": rows, "ticks": timing["ticks"], "bag": counts, "growth": growth, "drift": drift,
+    drift = {q: latency_drift([r["latency_ms"][q] for r in answered]) for q in ("p50", "p99", "p99.9")}
+    result = {"windows": rows, "ticks": timing["ticks"], "bag": counts, "growth": growth, "growth_parts": parts,
+              "drift": drift,
               "short": {topic: per * timing["ticks"] - counts.get(topic, 0) for topic, per in PLANT_TOPICS.items()},
               "lost": {topic: last - first + 1 - n for topic, (n, first, last) in sequences.items()},
               "before": {topic: first - 1 for topic, (_, first, _) in sequences.items()},
@@ -263,10 +318,21 @@ def soak_table(result: dict[str, Any]) -> list[str]:
         lines.append(f"{row['start_s']:6.0f}-{row['end_s']:<6.0f} {row['load']:5.1f} {row['ticks']:6d} "
                      f"{row['missed']:6d}  {lat.get('p50', float('nan')):5.2f}/{lat.get('p99', float('nan')):5.2f}/"
                      f"{lat.get('p99.9', float('nan')):5.2f}     " + "  ".join(f"{c:>16}" for c in cells))
+    over = [n for n, g in result["growth"].items() if g > GROWTH_BOUND_MB_PER_10MIN]
     lines.append("growth after the first window [MB/10 min]: " + ", ".join(
-        f"{n} {g:+.3f}" for n, g in result["growth"].items()))
-    lines.append("latency drift |last - first| / stdev over windows: " + ", ".join(
-        f"{q} {v:.2f}" for q, v in result["drift"].items()))
+        f"{n} {g:+.3f}" for n, g in result["growth"].items()) + (
+        f": above {GROWTH_BOUND_MB_PER_10MIN:g} for {', '.join(over)}" if over else
+        f": all within {GROWTH_BOUND_MB_PER_10MIN:g}"))
+    if "growth_parts" in result:
+        lines.append("  of which anonymous (heaps) / shared memory (DDS segments touched): " + ", ".join(
+            f"{n} {p['anon']:+.3f} / {p['shmem']:+.3f}" for n, p in result["growth_parts"].items()))
+    for q, d in result["drift"].items():
+        verdict = {None: "no verdict (< 3 windows)", True: "DRIFT", False: "no drift"}[d["drift"]]
+        lines.append(f"latency {q}: first {d['first']:.2f} ms, last {d['last']:.2f} ms, change {d['change']:+.2f} ms; "
+                     f"step between windows (RMS) {d['step']:.2f} ms; ratio {d['ratio']:.2f}, permutation p "
+                     f"{d['p']:.3f}: {verdict} (alpha {DRIFT_ALPHA:g})")
+    loads = [row["load"] for row in result["windows"]]
+    lines.append(f"machine load (1-min average) in the first and last window: {loads[0]:.1f}, {loads[-1]:.1f}")
     lines.append(f"ticks {result['ticks']}, bag: " + ", ".join(f"{t} {c}" for t, c in sorted(result["bag"].items())))
     lines.append("lost between the first and last recorded (sequence numbers): " + ", ".join(
         f"{t} {n}" for t, n in result["lost"].items()) + "; published before the recording: " + ", ".join(
@@ -310,8 +376,12 @@ def _flat(result: dict[str, Any]) -> dict[str, float]:
             out[f"soak_w{k}_cpu_pct_{name}"] = figures["cpu_pct"]
     for name, slope in result["growth"].items():
         out[f"soak_rss_growth_abs_mb_per_10min_{name}"] = abs(slope)
-    for q, ratio in result["drift"].items():
-        out[f"soak_latency_{q.replace('.', '_')}_drift_over_spread"] = ratio
+    for name, parts in result.get("growth_parts", {}).items():
+        for part, slope in parts.items():
+            out[f"soak_{part}_growth_abs_mb_per_10min_{name}"] = abs(slope)
+    for q, d in result["drift"].items():
+        for key in ("change", "ratio", "p"):
+            out[f"soak_latency_{q.replace('.', '_')}_drift_{key}"] = abs(d[key]) if key == "change" else d[key]
     for topic, count in result["bag"].items():
         out[f"soak_bag_count_{topic.strip('/').replace('/', '_')}"] = count
     for key in ("lost", "before", "after", "short"):

@@ -30,7 +30,7 @@ from trajectory_msgs.msg import JointTrajectory
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.network.plan import CommandPlan
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
-from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, plan_message, plan_type, report_of_message
+from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, PlanWriter, plan_type, report_of_message
 from robotino_geom_mpc.ros.qos import publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.throttle import warn_throttled
 
@@ -69,7 +69,7 @@ class ControllerPlans:
                                             publish_qos(lockstep))  # every report (keep-all in lockstep)
         self.newest_stamp_s: float | None = None
         self.refused_reports = 0
-        self.last: tuple[CommandPlan, object] | None = None  # the last plan and its message
+        self.writer = PlanWriter(interface, control.plan_length)
 
     @property
     def preview_length(self) -> int:
@@ -85,9 +85,7 @@ class ControllerPlans:
         self.newest_stamp_s = stamp_ns * 1e-9
         plan = self.controller.plan(stamp_ns * 1e-9, X, preview)
         if plan is not None:
-            msg = plan_message(plan, self.interface)
-            self.last = (plan, msg)
-            publish_acknowledged(self.node, self.pub, msg)
+            publish_acknowledged(self.node, self.pub, self.writer.encode(plan))
         return plan
 
     def _on_report(self, msg: JointTrajectory) -> None:

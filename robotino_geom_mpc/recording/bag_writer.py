@@ -16,6 +16,7 @@ no lz4, names the file ``NAME.mcap`` and writes ``ros_distro: rosbags``.
 from __future__ import annotations
 
 import os
+import tempfile
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -30,28 +31,34 @@ from robotino_geom_mpc.recording.definitions import message_definition
 __all__ = ["BagWriter", "default_compression", "default_bag_name", "write_metadata_yaml"]
 
 
-class _PackedChunkIndexes:
-    """The chunk indexes an `mcap.writer.Writer` keeps for the summary, held as their serialized records.
+class _SpooledChunkIndexes:
+    """The chunk indexes an `mcap.writer.Writer` keeps for the summary, spooled as their serialized records to an
+    unnamed temporary file in the bag's directory until `write` puts them into the summary.
 
-    As objects they take ~1.4 kB a chunk (a dict of message index offsets per channel); a recorder that closes a
-    chunk every flush period (0.5 s) grew by 1.7 MB per 10 minutes that way (bench/README.md, the soak). The
-    records are ~220 B a chunk, and the file is byte for byte the same: `Writer.finish` only iterates them and
-    calls ``write`` on each, `Writer` only appends.
+    mcap keeps them as objects, ~1.4 kB a chunk (a dict of message index offsets per channel): a recorder that
+    closes a chunk every flush period (0.5 s) grew by 1.7 MB per 10 minutes that way; as records in memory they
+    still take 160-220 B a chunk, 0.2-0.3 MB per 10 minutes (bench/README.md, the soak). Spooled, the writer's
+    memory stays flat however long it records, and the file is byte for byte the same: `Writer.finish` only
+    iterates them and calls ``write`` on each, `Writer` only appends.
     """
 
-    def __init__(self) -> None:
-        self._records = bytearray()
+    def __init__(self, directory: Path) -> None:
+        self._file = tempfile.TemporaryFile(dir=directory)
 
     def append(self, index: Any) -> None:
         builder = RecordBuilder()
         index.write(builder)
-        self._records += builder.end()
+        self._file.write(builder.end())
 
     def __iter__(self):
         yield self  # all at once: ``write`` puts every record into the summary, in order
 
     def write(self, builder: RecordBuilder) -> None:
-        builder.write(bytes(self._records))
+        self._file.seek(0)
+        builder.write(self._file.read())
+
+    def close(self) -> None:
+        self._file.close()
 
 
 def default_compression() -> str:
@@ -126,8 +133,9 @@ class BagWriter:
         except OSError as exc:
             raise BagError(f"cannot create {self.path / self.file_name}: {exc.strerror or exc}") from None
         self._writer = Writer(self._stream, chunk_size=chunk_size, compression=kinds[compression])
-        if hasattr(self._writer, "_Writer__chunk_indices"):  # mcap 1.x: the summary's chunk indexes, packed
-            self._writer._Writer__chunk_indices = _PackedChunkIndexes()
+        self._spool = None
+        if hasattr(self._writer, "_Writer__chunk_indices"):  # mcap 1.x: the summary's chunk indexes, spooled
+            self._spool = self._writer._Writer__chunk_indices = _SpooledChunkIndexes(self.path)
         self._writer.start(profile="ros2", library="robotino_geom_mpc (python mcap)")
         self._schemas: dict[str, int] = {}
         self._topics: dict[int, dict[str, Any]] = {}
@@ -213,12 +221,18 @@ class BagWriter:
         self._writer.add_metadata("rosbag2", {"serialized_metadata": text, "ros_distro": ROS_DISTRO})
         self._writer.finish()
         self._stream.close()
+        self._close_spool()
         write_metadata_yaml(self.path, self.metadata())
 
     def abort(self) -> None:
         """Close the file as it is (no summary, no metadata.yaml), e.g. before removing it."""
         self._closed = True
         self._stream.close()
+        self._close_spool()
+
+    def _close_spool(self) -> None:
+        if self._spool is not None:
+            self._spool.close()
 
     def __enter__(self) -> BagWriter:
         return self

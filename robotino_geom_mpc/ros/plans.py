@@ -24,6 +24,9 @@ Messages (standard types; every time is the ROBOT's clock)
                         rosbags) reads it, and an ament_python package cannot build a message of its own.
 
 The plan's period (how long its last entry lasts) is not in the message: it is the receiver's control period.
+
+The controller sends its plans as CDR bytes (`PlanWriter`: a `cdr.CdrTemplate` per length; rclpy's building
+and conversion of a 25-point message cost 0.4 ms a tick).
 """
 
 from __future__ import annotations
@@ -38,9 +41,12 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJ
 
 from robotino_geom_mpc.description.urdf import BASE_LINK, JOINT_NAMES
 from robotino_geom_mpc.network.plan import CommandPlan, PlanBuffer
+from robotino_geom_mpc.ros.cdr import CdrTemplate
+from robotino_geom_mpc.ros.decode import STAMP_FIELDS
 
-__all__ = ["AppliedReport", "IGNORED", "PLAN_TOPICS", "PlanMessageError", "PlanOffer", "TWIST_AXES", "applied_message",
-           "offer_plan", "plan_message", "plan_of_message", "plan_type", "received_message", "report_of_message"]
+__all__ = ["AppliedReport", "IGNORED", "PLAN_TOPICS", "PlanMessageError", "PlanOffer", "PlanWriter", "TWIST_AXES",
+           "applied_message", "offer_plan", "plan_message", "plan_of_message", "plan_type", "received_message",
+           "report_of_message"]
 
 PLAN_TOPICS = {"voltages": "wheel_voltage_plan", "cmd_vel": "cmd_vel_plan"}
 TWIST_AXES = ("base_link_x", "base_link_y", "base_link_yaw")  # command_applied's names of a twist's values
@@ -222,3 +228,39 @@ def report_of_message(msg: JointTrajectory) -> AppliedReport:
         raise PlanMessageError("an applied report has three finite values and its index", "length")
     index = int(point.positions[0])
     return AppliedReport(time_s, base if index >= 0 else None, max(index, -1), tuple(float(v) for v in values))
+
+
+
+class PlanWriter:
+    """Plan messages of `interface` as CDR bytes, without rclpy's message conversions (a tenth of the time).
+
+    `encode` patches the stamps and entries into a `cdr.CdrTemplate` of the plan's length (made on first use,
+    or here for `length`: about 0.1 s); the bytes are those of `plan_message`, and a publisher of the plan
+    type sends them as they are.
+    """
+
+    def __init__(self, interface: str, length: int | None = None) -> None:
+        self.interface = interface
+        self._templates: dict[int, CdrTemplate] = {}
+        if length is not None:
+            self._templates[length] = self._template(length)
+
+    def _template(self, length: int) -> CdrTemplate:
+        values = (("velocities[0].linear.x", "velocities[0].linear.y", "velocities[0].angular.z")
+                  if self.interface == "cmd_vel" else ("effort[0]", "effort[1]", "effort[2]"))
+        fields = STAMP_FIELDS + tuple(f"points[{i}].{f}" for i in range(length)
+                                      for f in ("time_from_start.sec", "time_from_start.nanosec", *values))
+        zero = (0.0, 0.0, 0.0)
+        skeleton = CommandPlan(0.0, tuple(float(i) for i in range(length)), (zero,) * length, 1.0)
+        return CdrTemplate(plan_message(skeleton, self.interface), fields)
+
+    def encode(self, plan: CommandPlan) -> bytes:
+        """The serialized `plan_message(plan)`."""
+        length = len(plan.times_s)
+        template = self._templates.get(length)
+        if template is None:
+            template = self._templates[length] = self._template(length)
+        values: list[float | int] = [*_stamp(plan.basis_s)]
+        for t, entry in zip(plan.times_s, plan.entries):
+            values += (*_stamp(t - plan.basis_s), *map(float, entry))
+        return template.pack(*values)

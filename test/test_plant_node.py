@@ -249,8 +249,9 @@ def _paired_samples(truth, joints, effort_per_a):
                   key=lambda sample: sample[0])
 
 
-def _hold_windows(samples, timeout_s, grid_s):
-    """The samples certainly under the held command and certainly after the watchdog, from the plant's own stamps.
+def _hold_windows(samples, timeout_s, grid_s, span_s=0.4):
+    """The samples certainly under the held command and certainly after the watchdog, from the plant's own stamps
+    (each window at most `span_s` long: the offline plant is compared over spans of that order).
 
     A command received at steady time a holds from grid point g_a = ceil(a / dt) to the stale point
     floor((a + timeout) / dt) + 1 (`CommandHold`), so the last sample at rest t0 <= g_a < the first moved one t1:
@@ -261,8 +262,9 @@ def _hold_windows(samples, timeout_s, grid_s):
     if not moved:
         return None, [], []
     t0, t1 = samples[moved - 1][0], samples[moved][0]
-    during = [(t, s) for t, s in samples if t1 <= t <= t0 + (timeout_s - 2 * grid_s) * 1e9]
-    after = [(t, s) for t, s in samples if t >= t1 + (timeout_s + 2 * grid_s) * 1e9]
+    during = [(t, s) for t, s in samples if t1 <= t <= min(t0 + (timeout_s - 2 * grid_s) * 1e9, t1 + span_s * 1e9)]
+    zero = t1 + (timeout_s + 2 * grid_s) * 1e9
+    after = [(t, s) for t, s in samples if zero <= t <= zero + span_s * 1e9]
     return moved, during, after
 
 

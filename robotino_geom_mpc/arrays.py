@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import SupportsFloat
+
 import numpy as np
 
 from robotino_geom_mpc.errors import RobotinoError
 
-__all__ = ["checked_array"]
+__all__ = ["checked_array", "float_triple"]
 
 
 def checked_array(
@@ -41,3 +44,15 @@ def checked_array(
     if finite and not np.isfinite(arr).all():
         raise error(f"{name} must be finite, got {arr.tolist()}")
     return arr
+
+
+def float_triple(values: Iterable[SupportsFloat]) -> tuple[float, float, float]:
+    """Three values (a twist, three wheel voltages, a pose) as a tuple of three Python floats.
+
+    Raises
+    ------
+    ValueError
+        For more or fewer than three values (callers check lengths first where the input is outside data).
+    """
+    x, y, z = values
+    return float(x), float(y), float(z)

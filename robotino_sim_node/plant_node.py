@@ -86,7 +86,7 @@ from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
 from robotino_geom_mpc.model.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source, twist_covariance
 from robotino_sim_node.link_params import LINK_DEFAULTS, LINK_SPECS, link_params, link_problem
 from robotino_sim_node.lockstep_start import StartHandshake
-from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, realtime_report
+from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, clock_minus_steady_ns, realtime_report
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
 from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, AppliedVoltages, StateOutputs, odometry_template, \
@@ -220,7 +220,7 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
             self.resend_timer = self.create_timer(self.params["lockstep_resend_s"] / 2, self._resend, clock=steady)
         else:
             self.started_at = monotonic()
-            self.clock_offset_s = self.get_clock().now().nanoseconds * 1e-9 - self.started_at  # robot - steady
+            self.clock_offset_s = clock_minus_steady_ns(self) * 1e-9  # robot - steady
             self.hold = CommandHold(self.started_at, 1.0 / self.params["physics_rate_hz"])  # a refused one: 0 V
             self.ticks = 0  # published
             self.timing = LoopTiming(window_s=self.params["timing_window_s"])
@@ -366,7 +366,7 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
         self.peak_currents = np.maximum(self.peak_currents, self._drive(voltages, dt))
 
     def _publish_realtime(self) -> None:
-        clock_ns, now = self.get_clock().now().nanoseconds, monotonic()
+        now = monotonic()
         if self.last_tick is not None and now - self.started_at >= self.params["duration_s"]:
             self.get_logger().info(f"realtime run over: {self.timing.summary()}; {self.counts['clamped_commands']} "
                                    f"commands clamped, {self.counts['refused_commands']} refused, "
@@ -383,7 +383,7 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
             bundle = self._measure_bundle(divmod(stamp_ns, 1_000_000_000))
             self.radio.send("up", lambda: self._publish_bundle(bundle), stamp_ns * 1e-9)
         else:
-            stamp_ns = clock_ns - int((now - grid_time) * 1e9)
+            stamp_ns = clock_minus_steady_ns(self) + round(grid_time * 1e9)  # the node clock at the grid time
             self._publish_measurements(divmod(stamp_ns, 1_000_000_000), fresh=True)
         self.have_period = True
         self.ticks += 1

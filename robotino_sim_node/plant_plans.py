@@ -20,8 +20,7 @@ from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
 from robotino_geom_mpc.network.plan import AppliedCommand, PlanBuffer
-from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, applied_message, plan_of_message, \
-    plan_type, received_message
+from robotino_geom_mpc.ros.plans import IGNORED, PLAN_TOPICS, applied_message, offer_plan, plan_type
 from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["PlantPlans"]
@@ -55,15 +54,10 @@ class PlantPlans:
 
     def take(self, msg: Any, now_s: float) -> bool:
         """Offer a plan message received at robot time `now_s`; True when taken (its receipt is reported)."""
-        try:
-            plan = plan_of_message(msg, self.period_s)
-            reason = self.buffer.offer(plan, now_s)
-        except PlanMessageError as exc:
-            reason, detail = exc.reason, str(exc)
-        else:
-            detail = f"basis {plan.basis_s:.6f} s, {len(plan.times_s)} entries"
-            self.reports.append(received_message(now_s, plan.basis_s, self.interface, reason is None))
-        if reason in ("older", "duplicate"):
+        reason, detail, _, receipt = offer_plan(self.buffer, msg, self.period_s, now_s, self.interface)
+        if receipt is not None:
+            self.reports.append(receipt)
+        if reason in IGNORED:
             self.counts["ignored_plans"] += 1
             return False
         if reason is not None:
@@ -78,7 +72,7 @@ class PlantPlans:
         (and, without `report`, only when it differs from the last one reported).
         """
         applied = self.buffer.command_at(t_s)
-        key = None if applied is None else (applied.basis_s, applied.index)
+        key = None if applied is None else (applied.basis_s, applied.entry_index)
         if applied is None and self.buffer.accepted:
             self.counts["exhausted_periods"] += 1
         if report or key != self.applied:

@@ -60,3 +60,20 @@ def procs(tmp_path):
     processes = Processes(tmp_path)
     yield processes
     processes.close()
+
+
+PAPER_CIRCLE_RUN_S = 3.0  # `paper_circle_run`'s --duration
+
+
+@pytest.fixture(scope="session")
+def paper_circle_run(tmp_path_factory):
+    """One ``robotino-geom-mpc run --scenario paper-circle --duration 3`` (lockstep, recorded) for the tests that
+    read what a run leaves (its metrics, figures, logs, bag): its output folder, the finished process, --duration.
+    """
+    import subprocess
+
+    out = tmp_path_factory.mktemp("paper_circle_run") / "run"
+    proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "run", "--scenario", "paper-circle",
+                           "--duration", f"{PAPER_CIRCLE_RUN_S:g}", "--out", str(out)],
+                          capture_output=True, text=True, timeout=600, env=os.environ.copy())
+    return out, proc, PAPER_CIRCLE_RUN_S

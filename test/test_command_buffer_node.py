@@ -97,11 +97,11 @@ def test_reports_say_what_was_applied_and_when_each_plan_arrived(buffer_run):
     assert [taken for _, taken in receipts] == [True, True] + [False] * (len(receipts) - 2)
     applied = [r for r in reports if r.values is not None and r.basis_s is not None]
     assert all(r.values == (0.0, 0.0, 0.0) for r in reports if r.values is not None and r.basis_s is None)
-    assert [(r.index, r.values) for r in applied] == [(i, pytest.approx(first.entries[i])) for i in range(4)] + [
+    assert [(r.entry_index, r.values) for r in applied] == [(i, pytest.approx(first.entries[i])) for i in range(4)] + [
         (i, pytest.approx(newer.entries[i])) for i in range(4)]
     for r in applied:
         plan = first if abs(r.basis_s - first.basis_s) < 1e-6 else newer
-        assert plan.times_s[r.index] <= r.time_s < plan.times_s[r.index] + TS
+        assert plan.times_s[r.entry_index] <= r.time_s < plan.times_s[r.entry_index] + TS
 
 
 def test_bad_plans_are_refused_and_counted_older_and_duplicates_ignored(buffer_run):

@@ -1,6 +1,6 @@
 """~/enable (std_srvs/SetBool) on the controller: disabled = zero volts and holding, enabled again = bumpless.
 
-A lockstep paper-circle (22 s) of the real plant and controller processes, in which the test itself is the
+A lockstep paper-circle (its first 10 s) of the real plant and controller processes, in which the test itself is the
 trajectory: it publishes each tick's preview when the plant's /clock for that tick arrives. The lockstep
 controller answers a tick only with its preview, so the loop waits on the test, and the test disables the
 controller before the preview of tick `DISABLE_TICK` and enables it again before that of `ENABLE_TICK`: the
@@ -29,7 +29,7 @@ from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
 
 pytestmark = pytest.mark.ros
 
-DURATION_S = 22.0  # the whole circle
+DURATION_S = 10.0  # 7.5 s after re-enabling: the error is back at ~2 um (1e-5 checked) long before
 DISABLE_TICK = 150  # mid-circle (1.5 s)
 ENABLE_TICK = 250  # held 1 s
 

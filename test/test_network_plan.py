@@ -23,7 +23,7 @@ def plan(basis_k, lead, m=4, value=None):
 def applied(buffer, k):
     """(basis tick, index) of what the buffer applies at tick k, None for nothing."""
     cmd = buffer.command_at(k * TS)
-    return None if cmd is None else (round(cmd.basis_s / TS), cmd.index)
+    return None if cmd is None else (round(cmd.basis_s / TS), cmd.entry_index)
 
 
 def test_in_order_plans_each_applied_from_its_first_entry():
@@ -82,8 +82,8 @@ def test_entry_boundaries_tolerate_rounding():
     buffer.offer(p, 0.08)
     t = 0.03 + 0.05  # the same instant by another sum: 0.08000000000000002
     assert applied(buffer, 0) is None
-    assert buffer.command_at(t).index == 0 and buffer.command_at(0.08 - 1e-12).index == 0
-    assert buffer.command_at(0.09 - 1e-12).index == 1
+    assert buffer.command_at(t).entry_index == 0 and buffer.command_at(0.08 - 1e-12).entry_index == 0
+    assert buffer.command_at(0.09 - 1e-12).entry_index == 1
 
 
 @pytest.mark.parametrize("bad, reason", [
@@ -122,3 +122,15 @@ def test_a_plan_overtaken_by_one_not_started_yet_still_runs_until_that_one_start
     assert [applied(buffer, k) for k in (3, 4, 5, 6)] == [(0, 1), (1, 0), (2, 0), (2, 1)]
     assert buffer.offer(plan(1, 3), 6 * TS) == "duplicate"
     assert buffer.offer(CommandPlan(0.5 * TS, plan(1, 3).times_s, plan(1, 3).entries, TS), 6 * TS) == "older"
+
+
+def test_an_entry_spans_from_its_start_to_the_next_or_the_plans_end():
+    buffer = PlanBuffer()
+    buffer.offer(plan(0, 2), 2 * TS)  # entries at ticks 2 .. 5, the last one lasting one period
+    entries = [buffer.command_at(k * TS) for k in (2, 3.5, 5)]
+    assert [buffer.entry_span(e, TS) for e in entries] == [
+        (pytest.approx(2 * TS), pytest.approx(3 * TS)), (pytest.approx(3 * TS), pytest.approx(4 * TS)),
+        (pytest.approx(5 * TS), pytest.approx(6 * TS))]
+    gone = buffer.command_at(5 * TS)
+    buffer.offer(plan(5, 2), 7 * TS)  # the first plan is used up and dropped: an entry of it spans a period
+    assert buffer.entry_span(gone, 0.5 * TS) == (pytest.approx(5 * TS), pytest.approx(5.5 * TS))

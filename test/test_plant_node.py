@@ -241,32 +241,55 @@ def _full_state(truth: Odometry, joints: JointState, effort_per_a: float) -> np.
     return np.array([x, vx, y, vy, theta, tw.angular.z, *(np.array(joints.effort) / effort_per_a)])
 
 
+def _paired_samples(truth, joints, effort_per_a):
+    """(stamp [ns], full state) of every ground truth with the joint states of its stamp, in stamp order."""
+    joint_by_stamp = {stamp_to_ns(m.header.stamp): m for m in joints}
+    stamps = [(stamp_to_ns(m.header.stamp), m) for m in list(truth)]
+    return sorted(((t, _full_state(m, joint_by_stamp[t], effort_per_a)) for t, m in stamps if t in joint_by_stamp),
+                  key=lambda sample: sample[0])
+
+
+def _hold_windows(samples, timeout_s, grid_s, span_s=0.4):
+    """The samples certainly under the held command and certainly after the watchdog, from the plant's own stamps
+    (each window at most `span_s` long: the offline plant is compared over spans of that order).
+
+    A command received at steady time a holds from grid point g_a = ceil(a / dt) to the stale point
+    floor((a + timeout) / dt) + 1 (`CommandHold`), so the last sample at rest t0 <= g_a < the first moved one t1:
+    the command holds over [t1, t0 + timeout - dt] and zero volts from t1 + timeout + dt on (each a grid step more
+    for the stamps' rounding). No assumption on when the command arrived: load cannot move the windows.
+    """
+    moved = next((i for i, (_, s) in enumerate(samples) if s.any()), None)
+    if not moved:
+        return None, [], []
+    t0, t1 = samples[moved - 1][0], samples[moved][0]
+    during = [(t, s) for t, s in samples if t1 <= t <= min(t0 + (timeout_s - 2 * grid_s) * 1e9, t1 + span_s * 1e9)]
+    zero = t1 + (timeout_s + 2 * grid_s) * 1e9
+    after = [(t, s) for t, s in samples if zero <= t <= zero + span_s * 1e9]
+    return moved, during, after
+
+
 @pytest.fixture(scope="module")
 def realtime_run(tmp_path_factory):
-    """A realtime plant: the harness sends a constant command at 100 Hz for 0.4 s, then stops."""
+    """A realtime plant: the harness sends one command, then waits for the plant's samples well past its timeout."""
     robot, control = load_params()
     command = [6.0, -2.0, 1.0]
-    timeout = 0.1
+    timeout, grid = 0.5, 1e-3
+    effort = robot.gear_ratio * robot.torque_constant_n_m_per_a
     with NodeGroup(log_dir=tmp_path_factory.mktemp("plant_rt")) as group, Harness("plant_rt_test") as h:
         truth = h.collect("ground_truth/odom", Odometry)
         joints = h.collect("joint_states", JointState)
         pub = h.node.create_publisher(Float64MultiArray, "wheel_voltages", PUBLISH_QOS)
         plant = group.start("plant_node", ros_args(None, {
-            "mode": "realtime", "command_timeout_s": timeout, "physics_rate_hz": 1000.0}))
+            "mode": "realtime", "command_timeout_s": timeout, "physics_rate_hz": 1.0 / grid}))
         assert h.spin_until(lambda: len(truth) >= 3 and pub.get_subscription_count() >= 1, 30.0), plant.stderr_tail()
-        sent = []
-        for _ in range(40):
-            pub.publish(Float64MultiArray(data=command))
-            sent.append(h.node.get_clock().now().nanoseconds)
-            h.spin_for(0.01)
-        h.spin_for(0.6)
+        pub.publish(Float64MultiArray(data=command))
+        # the test waits on the loop: until the plant's samples reach 25 past the watchdog, however long that takes
+        assert h.spin_until(lambda: len(_hold_windows(_paired_samples(truth, joints, effort), timeout, grid)[2]) >= 25,
+                            120.0), plant.stderr_tail()
         (rate_set,) = h.set_parameters("robotino_plant", {"physics_rate_hz": 500.0})
         group.stop_node(plant)
-    effort = robot.gear_ratio * robot.torque_constant_n_m_per_a
-    joint_by_stamp = {stamp_to_ns(m.header.stamp): m for m in joints}
-    samples = [(stamp_to_ns(m.header.stamp), _full_state(m, joint_by_stamp[stamp_to_ns(m.header.stamp)], effort))
-               for m in truth if stamp_to_ns(m.header.stamp) in joint_by_stamp]
-    return dict(robot=robot, command=command, timeout=timeout, sent=sent, samples=samples, rate_set=rate_set)
+    return dict(robot=robot, command=command, timeout=timeout, grid=grid,
+                samples=_paired_samples(truth, joints, effort), rate_set=rate_set)
 
 
 def _offline(robot, state, voltages, seconds, grid=1e-3):
@@ -279,19 +302,15 @@ def _offline(robot, state, voltages, seconds, grid=1e-3):
 
 def test_realtime_holds_the_command_and_zero_volts_after_the_timeout(realtime_run):
     run = realtime_run
-    first, last = run["sent"][0], run["sent"][-1]
     samples = run["samples"]
-    # the plant times commands from their receipt, which a loaded host can delay by tens of ms after the send
-    margin = 0.05
-    # while commands arrive (from `margin` after the first to the last): the offline plant under the command
-    during = [(t, s) for t, s in samples if first + margin * 1e9 < t < last]
+    moved, during, after = _hold_windows(samples, run["timeout"], run["grid"])
+    assert moved and not any(s.any() for _, s in samples[:moved])  # at rest, zero volts, until the command
+    # under the command: the offline plant under the command from the first sample of the window to its last
     assert len(during) >= 20
     (t_a, s_a), (t_b, s_b) = during[0], during[-1]
     np.testing.assert_allclose(_offline(run["robot"], s_a, run["command"], (t_b - t_a) * 1e-9), s_b, atol=2e-9)
     assert math.hypot(s_b[1], s_b[3]) > 0.1  # the command really drives the robot
-    # from `margin` after the timeout on: the offline plant under zero volts (the currents decay)
-    after = [(t, s) for t, s in samples if t > last + (run["timeout"] + margin) * 1e9]
-    assert len(after) >= 20
+    # after the timeout: the offline plant under zero volts (the currents decay)
     (t_a, s_a), (t_b, s_b) = after[0], after[-1]
     np.testing.assert_allclose(_offline(run["robot"], s_a, [0.0, 0.0, 0.0], (t_b - t_a) * 1e-9), s_b, atol=2e-9)
     assert np.abs(s_b[6:9]).max() < 0.5 * np.abs(s_a[6:9]).max()

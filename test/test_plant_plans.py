@@ -150,7 +150,7 @@ def test_realtime_plan_taken_within_a_period_acts_from_the_next(realtime_plan_ru
     early = [r for r in applied if receipts[r.basis_s] > r.time_s + 1e-6]
     assert not early, "an entry ran in a period that began before its plan arrived"
     assert late & set(receipts), "no late plan was taken"
-    assert all(r.index >= 1 for r in applied if r.basis_s in late)  # entry 0's period had begun
+    assert all(r.entry_index >= 1 for r in applied if r.basis_s in late)  # entry 0's period had begun
 
 
 def test_realtime_reported_commands_drove_the_plant(realtime_plan_run):

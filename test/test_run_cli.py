@@ -18,7 +18,7 @@ from robotino_geom_mpc.offline.simulation import run_scenario
 
 pytestmark = pytest.mark.ros
 
-DURATION_S = 3.0
+DURATION_S = 3.0  # `paper_circle_run`'s (conftest)
 
 
 def _cli(*args, timeout=300):
@@ -32,9 +32,9 @@ def _no_node_left(out_dir):
     return str(out_dir) not in ps
 
 
-def test_run_lockstep_records_and_reports_the_metrics_of_simulate(tmp_path):
-    out = tmp_path / "run"
-    proc = _cli("run", "--scenario", "paper-circle", "--duration", str(DURATION_S), "--out", str(out))
+def test_run_lockstep_records_and_reports_the_metrics_of_simulate(paper_circle_run):
+    out, proc, duration_s = paper_circle_run
+    assert duration_s == DURATION_S
     assert proc.returncode == 0, proc.stderr + proc.stdout
     assert _no_node_left(out)
     assert sorted(p.name for p in out.glob("*.png"))  # the same figures as simulate

@@ -124,6 +124,6 @@ def test_wifi_with_plans_across_two_network_namespaces_tracks_paper_circle(hosts
     _load_guard(done.timing, WIFI_MISSED_LIMIT)
     # the robot ran on the plans: its reports of the periods applied name a plan's entry (index -1: none held)
     periods = [r for r in reports if r.values is not None]
-    assert sum(r.index >= 0 for r in periods) > 0.9 * len(periods) > 0
+    assert sum(r.entry_index >= 0 for r in periods) > 0.9 * len(periods) > 0
     rms = compute_metrics(dds)["rms_position_error_m"]
     assert rms < WIFI_RMS_LIMIT_M, rms

@@ -30,7 +30,7 @@ from pathlib import Path
 
 from robotino_geom_mpc.bench.registry import BenchmarkError, BenchmarkSkipped, benchmark
 
-__all__ = ["END_TO_END_RUNS", "RUN_DURATION_S", "bench_end_to_end", "run_command", "timed_run"]
+__all__ = ["END_TO_END_RUNS", "RUN_DURATION_S", "bench_end_to_end", "run_command", "run_verb", "timed_run"]
 
 END_TO_END_RUNS = 3  # quick: 1
 RUN_DURATION_S = 20.0
@@ -45,6 +45,24 @@ def run_command() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "robotino_geom_mpc"]
 
 
+def run_verb(out: Path, arguments: list[str], duration_s: float) -> str:
+    """``robotino-geom-mpc run ARGUMENTS --duration D --out OUT`` in a subprocess; its standard output.
+
+    Raises
+    ------
+    BenchmarkError
+        If the run fails, takes over `TIMEOUT_S` or writes no metrics.json.
+    """
+    command = [*run_command(), "run", *arguments, "--duration", f"{duration_s:g}", "--out", str(out)]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT_S, stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired:
+        raise BenchmarkError(f"`{' '.join(command)}` did not end within {TIMEOUT_S:g} s") from None
+    if done.returncode != 0 or not (out / "metrics.json").is_file():
+        raise BenchmarkError(f"`{' '.join(command)}` failed (status {done.returncode}):\n{done.stderr[-2000:]}")
+    return done.stdout
+
+
 def timed_run(out: Path, scenario: str = "paper-circle", duration_s: float = RUN_DURATION_S) -> dict[str, float]:
     """One ``run`` in a subprocess: its wall time, its loop's real-time factor and its printed phases.
 
@@ -56,20 +74,14 @@ def timed_run(out: Path, scenario: str = "paper-circle", duration_s: float = RUN
     from robotino_geom_mpc.bench.dds import read_timing_report
     from robotino_geom_mpc.system.processes import TIMING_REPORT
 
-    command = [*run_command(), "run", "--scenario", scenario, "--duration", f"{duration_s:g}", "--out", str(out)]
     start = time.perf_counter()
-    try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT_S, stdin=subprocess.DEVNULL)
-    except subprocess.TimeoutExpired:
-        raise BenchmarkError(f"`{' '.join(command)}` did not end within {TIMEOUT_S:g} s") from None
+    stdout = run_verb(out, ["--scenario", scenario], duration_s)
     wall = time.perf_counter() - start
-    if done.returncode != 0 or not (out / "metrics.json").is_file():
-        raise BenchmarkError(f"`{' '.join(command)}` failed (status {done.returncode}):\n{done.stderr[-2000:]}")
     loop = read_timing_report(out / "logs" / TIMING_REPORT, "lockstep")
     if loop["realtime_factor"] is None:
         raise BenchmarkError(f"the run in {out} had no loop to time ({loop['ticks']} ticks)")
     figures = {"run_end_to_end_s": wall, "lockstep_with_recorder_realtime_factor": loop["realtime_factor"]}
-    phases, report = _PHASES.search(done.stdout), _REPORT.search(done.stdout)
+    phases, report = _PHASES.search(stdout), _REPORT.search(stdout)
     if phases and report:
         figures.update(run_until_plant_end_s=float(phases[1]), run_stop_s=float(phases[2]),
                        run_report_s=float(report[1]))

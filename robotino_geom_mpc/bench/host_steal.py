@@ -15,6 +15,7 @@ import os
 import threading
 import time
 from bisect import bisect_left, bisect_right
+from collections.abc import Callable
 from pathlib import Path
 
 __all__ = ["PROC_STAT", "StealSampler", "read_steal_s"]
@@ -46,16 +47,19 @@ def read_steal_s(path: str | os.PathLike = PROC_STAT) -> float | None:
 class StealSampler:
     """Samples the machine's steal time every `interval_s` in a thread while used as a context manager.
 
-    `samples` holds ``(steady time [s], steal so far [s])``; without /proc/stat it stays empty and
-    `available` is False. If the file turns unreadable while sampled, sampling stops, `error` holds
-    the reason and `available` turns False on exit (the samples so far are kept).
+    `samples` holds ``(steady time [s], steal so far [s])``, the time from `clock`; without /proc/stat it
+    stays empty and `available` is False. If the file turns unreadable while sampled, sampling stops, `error`
+    holds the reason and `available` turns False on exit (the samples so far are kept). `sample` takes one
+    sample at once (the thread's step).
     """
 
-    def __init__(self, interval_s: float = 0.01, path: str | os.PathLike = PROC_STAT) -> None:
+    def __init__(self, interval_s: float = 0.01, path: str | os.PathLike = PROC_STAT,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         if not interval_s > 0.0:
             raise ValueError(f"interval_s must be > 0, got {interval_s}")
         self.interval_s = interval_s
         self.path = path
+        self.clock = clock
         self.samples: list[tuple[float, float]] = []
         self.available = read_steal_s(path) is not None
         self.error: ValueError | None = None
@@ -64,7 +68,7 @@ class StealSampler:
 
     def __enter__(self) -> StealSampler:
         if self.available:
-            self._sample()
+            self.sample()
             self._thread.start()
         return self
 
@@ -73,10 +77,13 @@ class StealSampler:
             self._stop.set()
             self._thread.join()
         if self.error is None and self.available:
-            self._sample()
+            self.sample()
         self.available = self.available and self.error is None
 
-    def _sample(self) -> None:
+    def sample(self) -> None:
+        """Read the steal now and append it with the clock's time (nothing once `error` is set)."""
+        if self.error is not None:
+            return
         try:
             steal = read_steal_s(self.path)
         except ValueError as exc:
@@ -85,11 +92,11 @@ class StealSampler:
         if steal is None:
             self.error = ValueError(f"{self.path} disappeared while sampled")
             return
-        self.samples.append((time.monotonic(), steal))
+        self.samples.append((self.clock(), steal))
 
     def _run(self) -> None:
         while self.error is None and not self._stop.wait(self.interval_s):
-            self._sample()
+            self.sample()
 
     def total_s(self) -> float:
         """Steal from the first sample to the last [s] (0 without samples)."""

@@ -25,13 +25,12 @@ from __future__ import annotations
 
 import json
 import statistics
-import subprocess
 import sys
 import tempfile
 from contextlib import ExitStack
 from pathlib import Path
 
-from robotino_geom_mpc.bench.end_to_end import TIMEOUT_S, run_command
+from robotino_geom_mpc.bench.end_to_end import run_verb
 from robotino_geom_mpc.bench.registry import BenchmarkError, BenchmarkSkipped, benchmark
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.system.netns import Hosts, NetnsUnavailable, two_hosts
@@ -56,13 +55,7 @@ def realtime_run(out: Path, arguments: list[str], duration_s: float = RUN_DURATI
     """One ``run --realtime`` with `arguments` in a subprocess: its RMS position error [m] and missed ticks."""
     from robotino_geom_mpc.system.processes import TIMING_REPORT
 
-    command = [*run_command(), "run", *arguments, "--realtime", "--duration", f"{duration_s:g}", "--out", str(out)]
-    try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT_S, stdin=subprocess.DEVNULL)
-    except subprocess.TimeoutExpired:
-        raise BenchmarkError(f"`{' '.join(command)}` did not end within {TIMEOUT_S:g} s") from None
-    if done.returncode != 0 or not (out / "metrics.json").is_file():
-        raise BenchmarkError(f"`{' '.join(command)}` failed (status {done.returncode}):\n{done.stderr[-2000:]}")
+    run_verb(out, [*arguments, "--realtime"], duration_s)
     metrics = json.loads((out / "metrics.json").read_text())
     timing = json.loads((out / "logs" / TIMING_REPORT).read_text())
     return {"rms_m": metrics["rms_position_error_m"], "missed": timing.get("missed", 0)}

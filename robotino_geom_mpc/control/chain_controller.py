@@ -42,10 +42,11 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from robotino_geom_mpc.arrays import float_triple
 from robotino_geom_mpc.control.measurement_times import MeasurementClock
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.model.driver_chain import ChainParams, Firmware
@@ -127,6 +128,8 @@ class ChainController:
 
     def _settle(self, before: int) -> None:
         """Fold the commands applied before tick `before` into the replay's starting firmware state."""
+        if self._base is None:
+            return  # nothing replayed yet
         start, firmware = self._base
         if before <= start:
             return
@@ -177,7 +180,7 @@ class ChainController:
         measured = self.clock.update(stamp_s, self._chooser(values[:3]))
         h = self.h
         t0 = self.clock.tick_time(0)
-        n_m = measured.index * self.ticks_per_sample
+        n_m = measured.grid_index * self.ticks_per_sample
         n_a = max(self._apply_tick(now), n_m + 1)
         c, s = math.cos(values[2]), math.sin(values[2])
         v_odom = [c * values[3] - s * values[4], s * values[3] + c * values[4], values[5]]
@@ -234,7 +237,7 @@ class ChainController:
         if self.clock.index < 0:
             return
         n_a = self._apply_tick(now_s)
-        self.commands = [cmd for cmd in self.commands if cmd[0] < n_a] + [(n_a, tuple(float(v) for v in twist))]
+        self.commands = [cmd for cmd in self.commands if cmd[0] < n_a] + [(n_a, float_triple(twist))]
 
     def _feasible(self, body: tuple[float, float, float], setpoint: tuple[float, float, float]) -> tuple:
         """`body` within the ramps' reach of `setpoint` until the next command, the maxima and the floor's gaps."""
@@ -264,13 +267,13 @@ class ChainController:
             p, v = self._propagate(p, v, [sp])
             self._trajectory[n_m + k + 1] = tuple(p)
 
-    def _chooser(self, pose: list[float]) -> Callable[[list[float]], int] | None:
+    def _chooser(self, pose: list[float]) -> Callable[[Sequence[float]], int] | None:
         """Between candidate measurement times, the one whose predicted pose is clearly nearest `pose`."""
         if not self._trajectory:
             return None
         t0 = self.clock.tick_time(0)
 
-        def choose(times: list[float]) -> int:
+        def choose(times: Sequence[float]) -> int:
             costs = []
             for t in times:
                 predicted = self._trajectory.get(round((t - t0) / self.h))

@@ -28,6 +28,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 from scipy.optimize import least_squares
 
+from robotino_geom_mpc.arrays import float_triple
 from robotino_geom_mpc.control.measurement_times import MeasurementClock
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.model.driver_chain import ChainParams, Firmware, speed_floor
@@ -89,7 +90,7 @@ class Excitation:
             for i, limit in enumerate((self.acceleration_m_s2,) * 2 + (self.acceleration_rad_s2,)):
                 step = target[i] - current[i]
                 current[i] += math.copysign(min(abs(step), limit * span), step)
-        return tuple(current)
+        return float_triple(current)
 
 
 class Recording(NamedTuple):
@@ -200,7 +201,7 @@ class _Model:
         clock = MeasurementClock(p.odometry_period_s, p.driver_period_s, 0.5 * round_trip_s, p.link_jitter_s,
                                  p.odometry_dispatch == "latest")
         ticks = round(p.odometry_period_s / p.tick_s)
-        index = np.array([clock.update(float(s)).index for s in rec.stamps]) * ticks
+        index = np.array([clock.update(float(s)).grid_index for s in rec.stamps]) * ticks
         t0 = clock.tick_time(0)
         T = p.driver_period_s
         phase = float(np.median(np.mod(rec.stamps, T)))

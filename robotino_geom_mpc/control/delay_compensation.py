@@ -51,10 +51,12 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from robotino_geom_mpc.arrays import float_triple
 from robotino_geom_mpc.control.estimator import OdometryFilter, filter_gain
 from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController
 from robotino_geom_mpc.model.speed_loop import SPEED_LOOP_TIME_CONSTANT_S
@@ -255,7 +257,8 @@ class DelayCompensatingController:
             px, vx, py, vy, theta, w = state
             state[0], state[2], state[4] = self.estimator.update(px, vx, py, vy, theta, w, dt)
             if dt is not None and self._previous is not None and not self._period_mean:
-                shift = self._interpolation_gain(dt) * self._trapezoid_error(self._previous, state, gap, newest_first)
+                shift = self._interpolation_gain(dt) * self._trapezoid_error(self._previous, state, period0 - gap, gap,
+                                                                              newest_first)
                 self.estimator.shift(*shift.tolist())
                 state[0], state[2], state[4] = (np.array(state)[[0, 2, 4]] + shift).tolist()
         if self._previous is not None and gap == 1 and not self._cmd_vel:
@@ -266,7 +269,7 @@ class DelayCompensatingController:
         u_last, currents = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
         for j in range(lead):  # step 2: through the commands applied over [t_m, t_a)
             command = self.history.command(period0 + j, newest_first)
-            u_last, currents, entry = command if command is not None else (_ZERO, _ZERO, _ZERO)
+            u_last, currents, entry = command if command is not None else ([0.0] * 3, [0.0] * 3, _ZERO)
             state = self._advance(state, u_last, entry)
         if lead == 0:
             command = self.history.command(period0 - 1, newest_first)
@@ -274,10 +277,12 @@ class DelayCompensatingController:
                 u_last, currents, _ = command
         self.prediction = (stamp_s + lead * Ts, tuple(state))
         self.inner.restart_from(u_last, currents)
-        entries, us, ends = [], [], []
+        entries: list[tuple[float, float, float]] = []
+        us, ends = [], []
         for j in range(M):  # step 3: the rollout from the predicted state
             out = self.inner.step(tuple(state), Y[lead + j: lead + j + N])
-            entries.append(out.voltages if self.command_interface == "voltages" else self.inner.next_velocity())
+            entries.append(float_triple(out.voltages) if self.command_interface == "voltages"
+                           else self.inner.next_velocity())
             u = self.inner.u_prev.tolist()
             us.append(u)
             ends.append(self.inner.drive.current_estimate_floats)
@@ -311,22 +316,21 @@ class DelayCompensatingController:
         """1 - L(dt): the share of the predicted pose the filter keeps over an interval dt."""
         return 1.0 - filter_gain(dt, self.control.odometry_filter_time_constant_s)
 
-    def _trapezoid_error(self, previous: list[float], state: list[float], gap: int,
+    def _trapezoid_error(self, previous: list[float], state: list[float], period: int, gap: int,
                          newest_first: list[SentPlan]) -> np.ndarray:
         """What the filter's trapezoid (one over the whole gap) misses of the displacement (x, y, theta) over
-        `gap` periods: the velocities at each period boundary from eq. (49) under the commands applied,
-        corrected linearly to end at the measured one (so only their shape is the model's).
+        `gap` periods from robot period `period` on: the velocities at each period boundary from eq. (49) under
+        the commands applied, corrected linearly to end at the measured one (so only their shape is the model's).
         """
         if gap < 2:
             return np.zeros(3)
-        period = self.history.period(self._last_stamp) - gap
-        v = [[previous[1], previous[3], previous[5]]]
+        velocities = [[previous[1], previous[3], previous[5]]]
         s = list(previous)
         for j in range(gap):
             command = self.history.command(period + j, newest_first)
             s = self._advance(s, *(command[0::2] if command is not None else (_ZERO, _ZERO)))
-            v.append([s[1], s[3], s[5]])
-        v = np.array(v)
+            velocities.append([s[1], s[3], s[5]])
+        v = np.array(velocities)
         v += np.outer(np.arange(gap + 1) / gap, np.array(state)[[1, 3, 5]] - v[-1])
         interpolated = 0.5 * self.period_s * (v[:-1] + v[1:]).sum(axis=0)
         return interpolated - 0.5 * gap * self.period_s * (v[0] + v[-1])
@@ -379,7 +383,7 @@ class DelayCompensatingController:
             for a in axes:
                 self._gains[a] = (min(max(g, GAIN_BOUNDS[0]), GAIN_BOUNDS[1]), c)
 
-    def _advance(self, state: list[float], u: list[float], entry: tuple[float, ...]) -> list[float]:
+    def _advance(self, state: list[float], u: Sequence[float], entry: Sequence[float]) -> list[float]:
         """One period of eq. (49) per axis: (p, v) <- A_d (p, v) + B_d (g u - c v), g and c the estimates.
 
         With the cmd_vel interface the robot's wheel-speed loops, not u, set the motion: the velocity goes to

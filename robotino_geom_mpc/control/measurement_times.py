@@ -40,7 +40,7 @@ class MeasurementTime(NamedTuple):
 
     time_s: float
     uncertainty_s: float
-    index: int
+    grid_index: int
 
 
 class MeasurementClock:

@@ -21,7 +21,7 @@ from robotino_geom_mpc.control.inverse_drive import InverseDrive
 from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.geometric.decoupling import DecouplingField
-from robotino_geom_mpc.model.dynamics import WHEEL_ANGLES_RAD
+from robotino_geom_mpc.model.dynamics import acceleration_blocks, force_per_current
 from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 
@@ -61,20 +61,17 @@ class MotionControllerBatch:
         self.drive = InverseDrive.batch(robots, self.period_s)
         self.current_limit_a = float(control.current_limit_a)
         self._damping = np.stack([axis_dampings(p) for p in robots])
-        # eq. (9)'s acceleration rows per unit current: gear Km / r times (d_i(theta) / M, d_i(theta) / M, l / J)
-        force = np.array([p.gear_ratio * p.torque_constant_n_m_per_a / p.r for p in robots])
-        self._force_per_mass = (force / np.array([p.M for p in robots]))[:, None]
-        self._torque_per_inertia = (force * np.array([p.l / p.J for p in robots]))[:, None]
+        # eq. (9) per run: wheel forces per unit current and the M, l / J of the acceleration rows
+        self._force_per_current = np.array([force_per_current(p) for p in robots])[:, None]
+        self._mass, self._lever_per_inertia = np.array([p.M for p in robots]), np.array([p.l / p.J for p in robots])
         tau = float(control.odometry_filter_time_constant_s)
         self.estimator = OdometryFilter.batch(self.period_s, tau, twists, start) if tau > 0.0 else None
         self.u_prev = np.zeros((len(robots), 3))
 
     def _acceleration_of_current(self, theta: np.ndarray, current: np.ndarray) -> np.ndarray:
         """(x'', y'', theta'') the wheel currents (B, 3) give at headings theta (B,), friction aside (eq. 9)."""
-        angles = WHEEL_ANGLES_RAD - theta[:, None]
-        return np.column_stack((self._force_per_mass[:, 0] * (np.sin(angles) * current).sum(axis=1),
-                                self._force_per_mass[:, 0] * (np.cos(angles) * current).sum(axis=1),
-                                self._torque_per_inertia[:, 0] * current.sum(axis=1)))
+        blocks = acceleration_blocks(theta, self._mass, self._lever_per_inertia)
+        return (blocks @ (self._force_per_current * current)[:, :, None])[:, :, 0]
 
     def step(self, X: np.ndarray, preview: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One control period of every run: voltages (B, 3) and the saturated flags (B,).

@@ -140,17 +140,22 @@ class PlanHistory:
             self._quantile = (self._samples, trips[rank - 1])
         return self._quantile[1]
 
-    def command(self, period: int, newest_first: list[SentPlan]) -> tuple[list[float], list[float], tuple] | None:
+    def command(self, period: int, newest_first: list[SentPlan]
+                ) -> tuple[list[float], list[float], tuple[float, float, float]] | None:
         """(u, end currents, entry) of what the robot applies in `period`: reported, else as its buffer chooses
         among `newest_first` (`newest_first()`); None for no plan (zero command).
         """
         if period in self._applied:
             applied = self._applied[period]
-            sent = None if applied is None else self._plans.get(applied[0])
-            if sent is None or applied[1] >= len(sent.u):
+            if applied is None:
                 return None
-            index = applied[1]
+            basis, index = applied
+            sent = self._plans.get(basis)
+            if sent is None or index >= len(sent.u):
+                return None
             return sent.u[index], sent.end_currents[index], sent.plan.entries[index]
+        if self._origin is None:
+            return None  # no period seen yet: no plan can be due
         t = self._origin + period * self.period_s
         for sent in newest_first:
             times = sent.plan.times_s

@@ -25,7 +25,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from robotino_geom_mpc.arrays import float_triple
 from robotino_geom_mpc.model.driver_chain import ChainError, ChainParams, Firmware, speed_floor
+from robotino_geom_mpc.model.encoders import EncoderOdometry
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import DEFAULT_RATE_HZ, WheelSpeedLoop, tuned_gains
 from robotino_geom_mpc.network.link import Link, LinkParams
@@ -78,7 +80,8 @@ class ChainEmulator:
     """
 
     def __init__(self, plant: RobotinoPlant, params: ChainParams, seed: int = 0,
-                 odometry_noise: tuple[float, float] = (0.0, 0.0), source: object | None = None,
+                 odometry_noise: tuple[float, float] = (0.0, 0.0),
+                 source: RobotinoPlant | EncoderOdometry | None = None,
                  speed_loop_rate_hz: float = DEFAULT_RATE_HZ) -> None:
         self.plant, self.params = plant, params
         self.firmware = Firmware(params)
@@ -122,7 +125,7 @@ class ChainEmulator:
             raise ChainError(f"cmd_vel must be three finite numbers, got {twist!r}")
         if time_s < self._now - 1e-12:
             raise ChainError(f"cmd_vel at {time_s!r} s is before the emulation's time {self._now!r} s")
-        self._received.append((float(time_s), tuple(float(v) for v in twist)))
+        self._received.append((float(time_s), float_triple(twist)))
 
     def run_until(self, end_s: float) -> list[OdometryMessage]:
         """Run every event up to `end_s` (inclusive; a tick before a pass at the same time).
@@ -155,11 +158,11 @@ class ChainEmulator:
             draw = self._rng.normal(0.0, (self._noise[0], self._noise[0], self._noise[1])).tolist() \
                 if any(self._noise) else None
             pose, twist = self._source.noisy_odometry_floats(draw)
-            message = OdometryMessage(math.nan, t, tuple(pose), tuple(twist))
+            message = OdometryMessage(math.nan, t, pose, twist)
             for arrival in self.up.transmit(t):
                 self._odometry.append((arrival, self._sample, message))
             self._sample += 1
-        pose = tuple(self.plant.pose_floats())
+        pose = float_triple(self.plant.pose_floats())
         voltages, currents = self.speed_loop.run(self.plant, setpoint, self.params.tick_s)
         peak = np.copysign(np.abs(currents).max(axis=0), currents[-1])
         self.trace.append(TickRecord(t, pose, setpoint, tuple(voltages.mean(axis=0).tolist()), tuple(peak.tolist())))

@@ -137,11 +137,15 @@ def speed_floor(twist: tuple[float, float, float], params: ChainParams) -> tuple
 
     With ``speed_floor`` disabled the twist is returned as it is.
     """
+    vx, vy, w = twist
     if params.speed_floor == "disabled":
-        return tuple(twist)
-    floors = (params.speed_floor_translation_m_s, params.speed_floor_translation_m_s,
-              params.speed_floor_rotation_rad_s)
-    return tuple(math.copysign(floor, v) if 0.0 < abs(v) < floor else v for v, floor in zip(twist, floors))
+        return vx, vy, w
+
+    def floored(v: float, floor: float) -> float:
+        return math.copysign(floor, v) if 0.0 < abs(v) < floor else v
+
+    translation, rotation = params.speed_floor_translation_m_s, params.speed_floor_rotation_rad_s
+    return floored(vx, translation), floored(vy, translation), floored(w, rotation)
 
 
 class Firmware:

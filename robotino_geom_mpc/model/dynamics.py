@@ -25,6 +25,7 @@ Conventions and corrections (../shared/ROBOTINO_NOTES.md):
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.arrays import checked_array
@@ -47,6 +48,8 @@ __all__ = [
     "wheel_positions",
     "g_theta",
     "acceleration_block",
+    "acceleration_blocks",
+    "force_per_current",
     "wheel_rim_speeds",
     "motor_speeds",
     "wheel_forces",
@@ -128,8 +131,24 @@ def wheel_positions(p: RobotinoParams) -> np.ndarray:
 
 def acceleration_block(theta: float, p: RobotinoParams) -> np.ndarray:
     """Rows 2, 4, 6 of g(theta): (x'', y'', theta'') per unit wheel force, shape (3, 3)."""
-    d = wheel_directions(theta)
-    return np.vstack((d[:, 0] / p.M, d[:, 1] / p.M, np.full(3, p.l / p.J)))
+    return acceleration_blocks(np.array([theta]), np.array([p.M]), np.array([p.l / p.J]))[0]
+
+
+def acceleration_blocks(theta: NDArray[np.float64], mass: NDArray[np.float64],
+                        lever_per_inertia: NDArray[np.float64]) -> NDArray[np.float64]:
+    """`acceleration_block` of B runs at once, shape (B, 3, 3): rows d_i(theta) / M (`wheel_directions`) and l / J.
+
+    Parameters
+    ----------
+    theta
+        The headings (B,) [rad].
+    mass, lever_per_inertia
+        Each run's M [kg] and l / J [1/(kg m)], shape (B,).
+    """
+    angles = WHEEL_ANGLES_RAD - theta[:, None]
+    per_mass = mass[:, None]
+    return np.stack((np.sin(angles) / per_mass, np.cos(angles) / per_mass,
+                     np.broadcast_to(lever_per_inertia[:, None], angles.shape)), axis=1)
 
 
 def g_theta(theta: float, p: RobotinoParams) -> np.ndarray:
@@ -158,7 +177,12 @@ def motor_speeds(theta: float, velocity: np.ndarray, p: RobotinoParams) -> np.nd
 
 def wheel_forces(currents: np.typing.ArrayLike, p: RobotinoParams) -> np.ndarray:
     """Wheel forces F = gear Km i / r [N] (text after eq. 9, erratum 4)."""
-    return p.gear_ratio * p.torque_constant_n_m_per_a / p.r * _vector(currents, 3, "currents")
+    return force_per_current(p) * _vector(currents, 3, "currents")
+
+
+def force_per_current(p: RobotinoParams) -> float:
+    """gear Km / r [N/A]: a wheel's force per unit motor current (text after eq. 9, erratum 4)."""
+    return p.gear_ratio * p.torque_constant_n_m_per_a / p.r
 
 
 def currents_from_forces(forces: np.ndarray, p: RobotinoParams) -> np.ndarray:

@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from robotino_geom_mpc.arrays import float_triple
 from robotino_geom_mpc.errors import RobotinoError
 
 __all__ = ["AppliedCommand", "CommandPlan", "PlanBuffer", "PlanError", "REFUSALS", "TIME_TOLERANCE_S"]
@@ -89,7 +90,7 @@ class CommandPlan:
 
 
 class AppliedCommand(NamedTuple):
-    """What the robot applies from `time_s` on: entry `index` of the plan of basis `basis_s`.
+    """What the robot applies from `time_s` on: entry `entry_index` of the plan of basis `basis_s`.
 
     Attributes
     ----------
@@ -97,7 +98,7 @@ class AppliedCommand(NamedTuple):
         The robot time of the query: the start of the period it is applied for [s].
     basis_s
         The basis of the plan it comes from [s].
-    index
+    entry_index
         The entry's index in that plan.
     values
         The entry: three voltages [V] or a body twist.
@@ -105,7 +106,7 @@ class AppliedCommand(NamedTuple):
 
     time_s: float
     basis_s: float
-    index: int
+    entry_index: int
     values: tuple[float, float, float]
 
 
@@ -200,8 +201,19 @@ class PlanBuffer:
             times = plan.times_s
             if times[0] <= t_s + TIME_TOLERANCE_S and t_s < plan.end_s - TIME_TOLERANCE_S:
                 index = bisect.bisect_right(times, t_s + TIME_TOLERANCE_S) - 1
-                return AppliedCommand(t_s, plan.basis_s, index, tuple(plan.entries[index]))
+                return AppliedCommand(t_s, plan.basis_s, index, float_triple(plan.entries[index]))
         if self.accepted:
             self.exhausted += 1
         return None
+
+    def entry_span(self, applied: AppliedCommand, period_s: float) -> tuple[float, float]:
+        """When `applied`'s entry starts and stops applying unless a newer plan arrives: its start in its plan and
+        the next entry's start, or the plan's end; from `applied.time_s` for `period_s` if its plan is no longer held.
+        """
+        for plan in self._plans:
+            if plan.basis_s == applied.basis_s:
+                following = applied.entry_index + 1
+                end = plan.times_s[following] if following < len(plan.times_s) else plan.end_s
+                return plan.times_s[applied.entry_index], end
+        return applied.time_s, applied.time_s + period_s
 

@@ -37,10 +37,10 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
-from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S, AppliedCommand, PlanBuffer
+from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S, PlanBuffer
 from robotino_geom_mpc.params.specs import CONTROL_SPECS, ParamSpec
 from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.plans import PlanMessageError, applied_message, plan_of_message, received_message
+from robotino_geom_mpc.ros.plans import IGNORED, applied_message, offer_plan
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import run_node
 from robotino_geom_mpc.ros.throttle import warn_throttled
@@ -90,18 +90,13 @@ class CommandBufferNode(Node):
 
     def _on_plan(self, msg: MultiDOFJointTrajectory) -> None:
         now = self._now_s()
-        try:
-            plan = plan_of_message(msg, self.period_s)
-            reason = self.buffer.offer(plan, now)
-        except PlanMessageError as exc:
-            reason, detail = exc.reason, str(exc)
-        else:
-            detail = f"stamp {plan.basis_s:.6f} s, {len(plan.times_s)} entries"
-            self.report_pub.publish(received_message(now, plan.basis_s, "cmd_vel", reason is None))
-        if reason in ("older", "duplicate"):
+        reason, detail, plan, receipt = offer_plan(self.buffer, msg, self.period_s, now, "cmd_vel")
+        if receipt is not None:
+            self.report_pub.publish(receipt)
+        if reason in IGNORED:
             self.ignored += 1
             return
-        if reason is not None:
+        if reason is not None or plan is None:  # (plan is None only with a reason)
             self.refused[reason] = self.refused.get(reason, 0) + 1
             warn_throttled(self.get_logger(), f"refused a plan ({reason}: {detail}); the previous plan (or zero) stays "
                                    f"({sum(self.refused.values())} refused so far)", 1.0)
@@ -134,17 +129,8 @@ class CommandBufferNode(Node):
                 self._send(now, None, -1, (0.0, 0.0, 0.0))
             return
         self.exhausted_since, self.next_zero_s = None, -math.inf
-        begin, self.period_end_s = self._entry_span(applied)
-        self._send(begin, applied.basis_s, applied.index, applied.values)
-
-    def _entry_span(self, applied: AppliedCommand) -> tuple[float, float]:
-        """When the entry `applied` starts and ends (the next entry's start in its plan, or the plan's end)."""
-        for plan in self.buffer.plans:
-            if plan.basis_s == applied.basis_s:
-                following = applied.index + 1
-                end = plan.times_s[following] if following < len(plan.times_s) else plan.end_s
-                return plan.times_s[applied.index], end
-        return applied.time_s, applied.time_s + self.period_s
+        begin, self.period_end_s = self.buffer.entry_span(applied, self.period_s)
+        self._send(begin, applied.basis_s, applied.entry_index, applied.values)
 
     def _send(self, time_s: float, basis_s: float | None, index: int, values) -> None:
         twist = Twist()

@@ -104,7 +104,7 @@ class ControllerPlans:
         if report.values is None:
             self.controller.report_receipt(report.basis_s, report.time_s, report.taken)
         else:
-            self.controller.report_applied(report.time_s, report.basis_s, max(report.index, 0))
+            self.controller.report_applied(report.time_s, report.basis_s, max(report.entry_index, 0))
 
     def values(self) -> list[str]:
         """The diagnostic values of `LINK_KEYS`."""

@@ -122,7 +122,7 @@ class NetworkedLoop:
                 reason = self.buffer.offer(plan, t)  # a refusal is counted by the buffer; the plans held stay
                 self._receipts.append((plan.basis_s, t, reason is None))
             applied = self.buffer.command_at(t)
-            self._applied = (t, None, 0) if applied is None else (t, applied.basis_s, applied.index)
+            self._applied = (t, None, 0) if applied is None else (t, applied.basis_s, applied.entry_index)
             return _ZERO if applied is None else applied.values
         for command in self.down.due(t):
             self._held = (t, command)

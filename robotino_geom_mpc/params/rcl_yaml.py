@@ -83,15 +83,15 @@ def rcl_scalar(text: str, quoted: bool = False, str_tag: bool = False) -> bool |
         return text in _TRUE
     match = _STRTOLL.fullmatch(text)
     if match is not None:
-        value = int(match[2], 0) if not re.fullmatch("0[0-7]+", match[2]) else int(match[2], 8)
-        value = -value if match[1] == "-" else value
-        if _INT64[0] <= value <= _INT64[1]:
-            return value
+        magnitude = int(match[2], 0) if not re.fullmatch("0[0-7]+", match[2]) else int(match[2], 8)
+        integer = -magnitude if match[1] == "-" else magnitude
+        if _INT64[0] <= integer <= _INT64[1]:
+            return integer
     if text in _YAML_INF_NAN:
-        value = math.nan if "nan" in text.lower() else math.inf
-        return -value if text.startswith("-") else value
-    value = _strtod(text)
-    return text if value is None else value
+        special = math.nan if "nan" in text.lower() else math.inf
+        return -special if text.startswith("-") else special
+    real = _strtod(text)
+    return text if real is None else real
 
 
 def _check_name(name: str) -> str | None:
@@ -143,12 +143,18 @@ class _Walk:
     def remove_node_name(self) -> None:
         """rcl's ``rem_name_from_ns``: the namespace up to its last '/' (none after the first name)."""
         if self.node_ns_count > 0:
+            assert self.node_ns is not None  # a count above zero means names were added
             self.node_ns_count -= 1
             self.node_ns = None if self.node_ns_count == 0 else self.node_ns.rsplit("/", 1)[0]
 
+    def node_params(self) -> list[list[Any]]:
+        """The [parameter name, _Variant] list of the node whose ``ros__parameters`` are being read."""
+        assert self.node is not None  # set when the walk enters a node's parameters (_PARAMS_LEVEL)
+        return self.nodes[self.node]
+
     def find_parameter(self, name: str) -> int:
         """The index of the node's first parameter called `name`, added if there is none."""
-        params = self.nodes[self.node]
+        params = self.node_params()
         found = next((i for i, (known, _) in enumerate(params) if known == name), None)
         if found is None:
             params.append([name, _Variant()])
@@ -164,35 +170,35 @@ class _Walk:
                 self.node_ns = value if self.node_ns is None else f"{self.node_ns}{sep}{value}"
                 self.node_ns_count += 1
                 return
-            if self.node_ns_count == 0:
+            if self.node_ns_count == 0 or self.node_ns is None:
                 raise RclFileError(f"There are no node names before {PARAMS_KEY} at line {line}")
             why = _check_name(self.node_ns)
             if why:
                 raise RclFileError(why)
             self.node = self.node_ns
-            self.nodes.setdefault(self.node, [])
+            self.nodes.setdefault(self.node_ns, [])
             self.remove_node_name()  # the last name was the node's, not a namespace
             self.map_level = _PARAMS_LEVEL
             return
         if self.is_new_map:  # the previous key was a parameter namespace
-            self.param_ns = self.nodes[self.node][self.index][0]
+            self.param_ns = self.node_params()[self.index][0]
             self.param_ns_count += 1
             self.is_new_map = False
         if self.param_ns is None:
             self.index = self.find_parameter(value)
         else:  # the parameter called like the namespace (a new one if none) is renamed to namespace.key
             self.index = self.find_parameter(self.param_ns)
-            self.nodes[self.node][self.index][0] = f"{self.param_ns}.{value}"
+            self.node_params()[self.index][0] = f"{self.param_ns}.{value}"
 
     def value(self, event: yaml.ScalarEvent, line: int) -> None:
-        if self.map_level < _PARAMS_LEVEL or not self.nodes.get(self.node):
+        if self.map_level < _PARAMS_LEVEL or self.node is None or not self.nodes[self.node]:
             raise RclFileError(f"Cannot have a value before {PARAMS_KEY} at line {line}")
         quoted = event.style in ("'", '"')
         if not quoted and event.value == "":
             raise RclFileError(f"No value at line {line}")
         value = rcl_scalar(event.value, quoted, event.tag == _STR_TAG)
         kind = {bool: bool, int: int, float: float, str: str}[type(value)]
-        variant = self.nodes[self.node][self.index][1]
+        variant = self.node_params()[self.index][1]
         if not self.is_seq:
             variant.fields[kind] = value
             self.is_key = True
@@ -208,6 +214,7 @@ class _Walk:
     def mapping_end(self) -> None:
         if self.map_level == _PARAMS_LEVEL:
             if self.param_ns_count > 0:
+                assert self.param_ns is not None  # a count above zero means a namespace was entered
                 self.param_ns_count -= 1
                 self.param_ns = self.param_ns.rsplit(".", 1)[0] if self.param_ns_count else None
             else:

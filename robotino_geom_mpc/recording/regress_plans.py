@@ -78,7 +78,7 @@ def regress_plans(bag: BagReader, robot: RobotinoParams, control: ControlParams,
             if report.values is None:
                 controller.report_receipt(report.basis_s, report.time_s, report.taken)
             else:
-                controller.report_applied(report.time_s, report.basis_s, max(report.index, 0))
+                controller.report_applied(report.time_s, report.basis_s, max(report.entry_index, 0))
             continue
         stamp = stamp_ns(msg.header.stamp)
         if last is not None and stamp <= last:

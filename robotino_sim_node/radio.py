@@ -47,7 +47,9 @@ class Radio:
         self.links = {"up": Link(up, seed + 1), "down": Link(down, seed + 2)}
         self.queue: list[tuple[float, int, Callable[[], None]]] = []
         self._order = itertools.count()
-        self.timer = node.create_timer(POLL_S, self._deliver, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.timer = None  # both directions off (plans without a link): nothing is ever queued, nothing to poll
+        if up.enabled or down.enabled:
+            self.timer = node.create_timer(POLL_S, self._deliver, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def now_s(self) -> float:
         """The robot clock [s] (the node's clock)."""

@@ -145,7 +145,7 @@ class StateOutputs:
 
     def publish(self, stamp: tuple[int, int], pose: tuple[float, float, float], wheel_angles: list[float],
                 wheel_speeds: list[float], wheel_torques: list[float]) -> None:
-        """Publish /tf (`pose` x, y, yaw of the odometry) and the joints, stamped `stamp` (sec, nanosec)."""
+        """Publish /tf (``pose`` x, y, yaw of the odometry) and the joints, stamped `stamp` (sec, nanosec)."""
         if self.tf_pub is not None and self.tf_pub.get_subscription_count():
             x, y, theta = pose
             self.send(self.tf_pub, self.tf_cdr.pack(*stamp, x, y, *yaw_quaternion_zw(theta)))

@@ -308,11 +308,14 @@ def test_realtime_holds_the_command_and_zero_volts_after_the_timeout(realtime_ru
     # under the command: the offline plant under the command from the first sample of the window to its last
     assert len(during) >= 20
     (t_a, s_a), (t_b, s_b) = during[0], during[-1]
-    np.testing.assert_allclose(_offline(run["robot"], s_a, run["command"], (t_b - t_a) * 1e-9), s_b, atol=2e-9)
+    # (rtol: the grid's chunks against one step over the window round differently, ~1e-7 of a decayed current)
+    np.testing.assert_allclose(_offline(run["robot"], s_a, run["command"], (t_b - t_a) * 1e-9), s_b, rtol=1e-6,
+                               atol=2e-9)
     assert math.hypot(s_b[1], s_b[3]) > 0.1  # the command really drives the robot
     # after the timeout: the offline plant under zero volts (the currents decay)
     (t_a, s_a), (t_b, s_b) = after[0], after[-1]
-    np.testing.assert_allclose(_offline(run["robot"], s_a, [0.0, 0.0, 0.0], (t_b - t_a) * 1e-9), s_b, atol=2e-9)
+    np.testing.assert_allclose(_offline(run["robot"], s_a, [0.0, 0.0, 0.0], (t_b - t_a) * 1e-9), s_b, rtol=1e-6,
+                               atol=2e-9)
     assert np.abs(s_b[6:9]).max() < 0.5 * np.abs(s_a[6:9]).max()
 
 

@@ -54,6 +54,9 @@ PLANT_TOPICS = {"/odom": 1, "/ground_truth/odom": 1, "/joint_states": 1, "/tf": 
 # the plant's topics with one writer: their messages' DDS publication sequence numbers (the bag keeps them) run
 # 1, 2, ... over the ticks, so a gap is a lost message and the first one tells what went before the recording
 SEQUENCED_TOPICS = ("/odom", "/ground_truth/odom", "/joint_states")
+# of these, published every tick whoever listens (its sequence number counts the ticks); the plant builds the
+# others only while a subscription is matched, so their numbers start at the recorder's match, not at tick 1
+EVERY_TICK_TOPICS = ("/odom",)
 GROWTH_BOUND_MB_PER_10MIN = 1.0  # issue 27: no node's resident memory grows more after warm-up
 DRIFT_ALPHA = 0.01  # a latency quantile drifted when `latency_drift`'s p-value is below this
 _END_MARGIN_S = 120.0  # the soak's plant must have ended this long after its duration
@@ -239,7 +242,8 @@ def soak(duration_s: float, folder: Path, log: Callable[[str], None]) -> dict[st
     ``rss_mb`` and ``cpu_pct``), ``ticks``, ``bag`` (topic -> count), ``short`` (topic of `PLANT_TOPICS` -> ticks
     less its count), ``lost`` (topic of `SEQUENCED_TOPICS` -> sequence numbers missing between its first and last
     recorded message), ``before`` (-> messages published before its first recorded one: a realtime loop does not
-    wait for the recorder, as with ``ros2 bag record``), ``after`` (-> published after its last recorded one),
+    wait for the recorder, as with ``ros2 bag record``), ``after`` (topic of `EVERY_TICK_TOPICS` -> ticks
+    published after its last recorded one),
     ``growth`` (process -> MB per 10 min after the first window) and ``drift`` (p50, p99, p99.9 ->
     `latency_drift` of the windows').
 
@@ -299,7 +303,8 @@ def soak(duration_s: float, folder: Path, log: Callable[[str], None]) -> dict[st
               "short": {topic: per * timing["ticks"] - counts.get(topic, 0) for topic, per in PLANT_TOPICS.items()},
               "lost": {topic: last - first + 1 - n for topic, (n, first, last) in sequences.items()},
               "before": {topic: first - 1 for topic, (_, first, _) in sequences.items()},
-              "after": {topic: timing["ticks"] - last for topic, (_, _, last) in sequences.items()},
+              "after": {topic: timing["ticks"] - last for topic, (_, _, last) in sequences.items()
+                        if topic in EVERY_TICK_TOPICS},
               "missed": timing["missed"], "window_s": window_s}
     for line in soak_table(result):
         log(line)

@@ -268,7 +268,7 @@ class ChainController:
             self._trajectory[n_m + k + 1] = tuple(p)
 
     def _chooser(self, pose: list[float]) -> Callable[[Sequence[float]], int] | None:
-        """Between candidate measurement times, the one whose predicted pose is clearly nearest `pose`."""
+        """Between candidate measurement times, the one whose predicted pose is clearly nearest ``pose``."""
         if not self._trajectory:
             return None
         t0 = self.clock.tick_time(0)

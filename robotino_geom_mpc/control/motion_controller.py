@@ -145,7 +145,7 @@ class MotionController:
 
     def restart_from(self, u_prev: list[float], currents: list[float]) -> None:
         """Continue as if the accelerations `u_prev` had been applied in the last period and the drives' currents
-        were `currents` [A] now (the delay-compensating controller's rollout starts from its prediction).
+        were ``currents`` [A] now (the delay-compensating controller's rollout starts from its prediction).
 
         The pose filter and the constrained mode's warm start are left as they are.
         """

@@ -348,7 +348,7 @@ class RobotinoPlant:
         return np.array(self.pose_floats())
 
     def pose_floats(self) -> list[float]:
-        """`pose` as a new list of three Python floats (the offline loop's per-tick record)."""
+        """`RobotinoPlant.pose` as a new list of three Python floats (the offline loop's per-tick record)."""
         return self._w[0:5:2]
 
     @property

@@ -72,24 +72,15 @@ def _per_run(scenario: str, control: ControlParams, settings: Sequence[RunSettin
                          command_interface=command_interface) for s in settings]
 
 
+# its fields in prose, not an Attributes section: the docs would link `pose` and `currents` to four classes'
 @dataclass(frozen=True)
 class BatchSeries:
     """The series of B runs stepped together, time first: per run what its `RunData` holds.
 
-    Attributes
-    ----------
-    scenario, control
-        What every run ran.
-    settings
-        The runs, in order.
-    noises
-        Each run's odometry noise (position [m], yaw [rad]).
-    t, reference
-        Sample times (n,) and the reference poses (n, 3), shared.
-    pose, odometry, currents, voltages
-        (n, B, 3): true and measured poses, peak currents, voltages (`RunData`).
-    saturated
-        (n, B) the saturated flags.
+    Fields: ``scenario`` and ``control``, what every run ran; ``settings``, the runs in order; ``noises``, each
+    run's odometry noise (position [m], yaw [rad]); ``t`` and ``reference``, the sample times (n,) and the
+    reference poses (n, 3), shared; ``pose``, ``odometry``, ``currents`` and ``voltages``, (n, B, 3) the true
+    and measured poses, peak currents and voltages (as in `RunData`); ``saturated``, (n, B) the saturated flags.
     """
 
     scenario: str

@@ -188,7 +188,7 @@ class RunData:
         return int(self.t.shape[0])
 
     def errors(self, pose: np.ndarray | None = None) -> np.ndarray:
-        """Tracking errors pose - reference, shape (n, 3), theta wrapped to [-pi, pi); `pose`: the true one if None."""
+        """Tracking errors pose - reference, shape (n, 3), theta wrapped to [-pi, pi); ``pose``: the true if None."""
         err = (self.pose if pose is None else pose) - self.reference
         err[:, 2] = wrap_angle(err[:, 2])
         return err

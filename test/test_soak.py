@@ -6,8 +6,10 @@
   `GROWTH_BOUND_MB_PER_10MIN` (least-squares slope over the windows). One minute cannot resolve the bound of the
   long soak (1 MB per 10 minutes, bench/README.md): the windows are 10 s, a Python process's RSS moves by some
   100 kB between them (allocator, lazily touched pages), and a 50 s fit turns that into about 1.2 MB per 10
-  minutes; the bound here catches a leak of a few kB per tick (a list that grows with every message: some 100 MB
-  per 10 minutes), not a slow drift, and a minute shows it as well as two did.
+  minutes; on a loaded CI host the recorder's warm-up (its heap settling under the MCAP writer's chunks) reached
+  8.8 MB per 10 minutes in the first minute against 0.09 over the long soak. The bound here catches a leak of
+  some 350 bytes per tick or more (a list that grows with every message: some 100 MB per 10 minutes), not a slow
+  drift, and a minute shows it as well as two did.
 * Nothing left per restart: after 10 SIGKILLs and restarts of the controller (and the survivors' lease), the
   domain's UDP ports, its shared-memory port files and every survivor's and the supervisor's file descriptors
   are as before (a leak of one a restart would be 10 more); the segments the kills left are removed by the
@@ -19,13 +21,13 @@ import sys
 import pytest
 
 from robotino_geom_mpc.bench.restarts import restart_loop
-from robotino_geom_mpc.bench.soak import PLANT_TOPICS, SEQUENCED_TOPICS, soak
+from robotino_geom_mpc.bench.soak import EVERY_TICK_TOPICS, PLANT_TOPICS, SEQUENCED_TOPICS, soak
 
 pytestmark = pytest.mark.ros
 
 SOAK_S = 60.0
 RESTARTS = 10  # a descriptor, port or segment left per restart shows after 10 as after 20
-GROWTH_BOUND_MB_PER_10MIN = 10.0
+GROWTH_BOUND_MB_PER_10MIN = 20.0  # 350 bytes a tick at 100 Hz
 
 
 def _log(line: str) -> None:
@@ -44,7 +46,9 @@ def test_a_minute_of_the_realtime_loop_loses_nothing_and_does_not_grow(tmp_path)
     assert all(value == 0 for value in result["lost"].values()), result["lost"]
     assert all(value == 0 for value in result["after"].values()), result["after"]
     for topic in SEQUENCED_TOPICS:
-        assert result["bag"][topic] + result["before"][topic] == result["ticks"], topic
+        # a topic published only while subscribed skipped the ticks before any match: neither in the bag nor before
+        published = result["bag"][topic] + result["before"][topic]
+        assert published == result["ticks"] if topic in EVERY_TICK_TOPICS else published <= result["ticks"], topic
     assert result["bag"]["/tf"] <= PLANT_TOPICS["/tf"] * result["ticks"]
     # the controller answered the run: a missed tick is a late answer, not a lost one (load), but most are answered
     assert result["bag"]["/wheel_voltages"] >= 0.9 * result["ticks"]

@@ -6,6 +6,7 @@ VENV := .venv
 STAMP := $(VENV)/.installed
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)
 DEMO_OUT ?= out/demo
+TEST_WORKERS ?= 2  # make test's pytest-xdist workers: one a core of the 2-core machines it is sized for
 
 .PHONY: setup demo test unit check docs bench clean
 
@@ -22,7 +23,7 @@ demo: setup
 	$(VENV)/bin/robotino-geom-mpc run --scenario paper-circle --out $(DEMO_OUT)
 
 test: setup
-	$(VENV)/bin/python -m pytest -q test
+	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal test
 
 unit: setup
 	$(VENV)/bin/python -m pytest -q -m "unit and not slow" test

@@ -47,6 +47,7 @@ setup(
         ],
         "test": [
             "pytest>=8,<10",
+            "pytest-xdist>=3.6,<4",  # make test: two workers (the ROS tests mostly wait on their processes)
             "websockets>=15,<16",  # the live view test's Foxglove WebSocket client
             "hypothesis>=6.100,<7",
             "colcon-common-extensions==0.3.0",

@@ -1,7 +1,8 @@
 """Test session setup: an isolated DDS domain, the ament index of the venv, the tiers, Hypothesis in CI.
 
 Set before anything imports rclpy: each session gets its own random
-ROS_DOMAIN_ID, discovery stays on localhost, and every participant (the
+ROS_DOMAIN_ID (each pytest-xdist worker of a run its own, neighbours of a
+base drawn from the run's id), discovery stays on localhost, and every participant (the
 tests' own and the nodes') gets the Fast DDS profile `run` gives its nodes
 (`processes.dds_environment`). At the end, the Fast DDS segments that the
 session's killed processes left in /dev/shm are removed.
@@ -23,7 +24,19 @@ settings.register_profile("ci", derandomize=True, print_blob=True)
 if os.environ.get("CI", "").lower() == "true":
     settings.load_profile("ci")
 
-os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 101))
+
+
+def _domain_id() -> int:
+    """A random domain in 1..101; under pytest-xdist, the run's base plus the worker's number (no two alike)."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker is None:
+        return random.SystemRandom().randint(1, 101)
+    count = int(os.environ["PYTEST_XDIST_WORKER_COUNT"])
+    base = int(os.environ["PYTEST_XDIST_TESTRUNUID"], 16) % (101 // count) * count + 1
+    return base + int(worker.removeprefix("gw"))
+
+
+os.environ["ROS_DOMAIN_ID"] = str(_domain_id())
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")

@@ -1,7 +1,7 @@
 """Recorder node over real DDS: nothing lost, independent readers agree, clean and unclean stops.
 
 The recorder and a test publisher run as separate processes (domain of the session, see conftest).
-The long test records 100 Hz for 60 s and 1 kHz for 10 s at the same time (about 65 s of wall time).
+The long test records 100 Hz and 1 kHz for 10 s at the same time; `test_soak` records the whole loop for a minute.
 """
 
 from __future__ import annotations
@@ -32,16 +32,16 @@ def _wait_recording(proc, topics: list[str]) -> None:
              f"the recorder to subscribe {topics}")
 
 
-def test_nothing_lost_at_100hz_for_60s_and_1khz_for_10s(procs, tmp_path):
+def test_nothing_lost_at_100hz_and_1khz_for_10s(procs, tmp_path):
     out = tmp_path / "bag"
     rec = procs.recorder(out)
     spec = [
-        {"topic": "slow", "kind": "float64_array", "rate_hz": 100.0, "count": 6000},
+        {"topic": "slow", "kind": "float64_array", "rate_hz": 100.0, "count": 1000},
         {"topic": "fast", "kind": "float64_array", "rate_hz": 1000.0, "count": 10000},
         {"topic": "reference_path", "kind": "path", "latched": True},
     ]
     pub = procs.publisher(spec)
-    published = procs.published(pub, timeout=150.0)
+    published = procs.published(pub, timeout=60.0)
     assert procs.stop(rec) == 0
     bag = BagReader(out)
     assert bag.problems == []
@@ -56,7 +56,7 @@ def test_nothing_lost_at_100hz_for_60s_and_1khz_for_10s(procs, tmp_path):
     assert _recording(bag, "/reference_path", "path") == [expected_values("path", 0)]
     meta = yaml.safe_load((out / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     counts = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
-    assert counts["/slow"] == 6000 and counts["/fast"] == 10000 and counts["/reference_path"] == 1
+    assert counts["/slow"] == 1000 and counts["/fast"] == 10000 and counts["/reference_path"] == 1
 
 
 def test_independent_readers_decode_the_published_values(procs, tmp_path):

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from robotino_geom_mpc.offline import study
 from robotino_geom_mpc.offline.study import StudyError, draw_runs, run_study
 from robotino_geom_mpc.params.files import load_params
 
@@ -143,8 +144,9 @@ def test_a_worker_killed_mid_study_loses_no_run(cluster, local):
     assert victim.poll() is not None
 
 
-def test_an_unreachable_scheduler_is_a_clear_error(local):
+def test_an_unreachable_scheduler_is_a_clear_error(local, monkeypatch):
     robot, control, draws, _ = local
+    monkeypatch.setattr(study, "SCHEDULER_TIMEOUT_S", 2.0)  # the error, not the wait, is under test
     with pytest.raises(StudyError, match="Dask scheduler"):
         run_study("robustness", robot, control, draws[:1], duration_s=DURATION_S, scheduler="tcp://127.0.0.1:9",
                   progress=False)

@@ -74,6 +74,7 @@ METRICS = (  # the keys of `results.compute_metrics` a row keeps
 STATISTICS = ("rms_position_error_m", "peak_current_a")  # summarised as median, p95, worst
 BATCH_MAX = 16  # runs per pool task at most, run by run
 BATCHED_MAX = 1000  # runs per task at most, stepped together (about 0.5 GB with a 22 s scenario's series)
+SCHEDULER_TIMEOUT_S = 20.0  # how long `run_study` tries to reach a Dask scheduler
 
 
 class StudyError(RobotinoError, ValueError):
@@ -263,7 +264,7 @@ def _cluster_rows(tasks: list[tuple], scheduler: str, bar: tqdm) -> list[dict[st
         raise StudyError("--scheduler needs dask.distributed: pip install 'robotino_geom_mpc[cluster]'") from None
     rows: list[dict[str, Any]] = []
     try:
-        client = Client(scheduler, timeout=20)
+        client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
     except (OSError, TimeoutError) as exc:
         raise StudyError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
     with client:

@@ -91,6 +91,7 @@ from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview
     stamp_problem, state_of_odometry, time_ns
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, preview_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
+from robotino_geom_mpc.ros.plans import REPORT_WINDOW_S
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, LOCKSTEP_PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_geom_mpc.ros.throttle import error_throttled, warn_throttled
@@ -103,7 +104,6 @@ _read_preview = cdr_reader(MultiDOFJointTrajectory, "trajectory_msgs/msg/MultiDO
 
 _EVENT_KEYS = ("watchdog", *InputCounters.KEYS, "blend_remaining_s", "blend_engagements")
 _ROBOT_CONTROL = frozenset(s.name for s in ALL_SPECS)
-REPORT_WINDOW_S = 2.0  # plans: a command_applied report further from the newest odometry stamp is refused
 
 
 class ControllerNode(ControllerWatchdog, Node):

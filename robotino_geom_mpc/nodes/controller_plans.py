@@ -17,7 +17,9 @@ Diagnostics (`LINK_KEYS`, on every status): the round trip (robot's receipt of a
 the up-link's delay, the controller's time and the down-link's delay, one clock) mean, jitter (standard
 deviation) and the lead's quantile [s], the lead [periods], plans sent / received / lost, odometries received /
 missing (lost on the up-link) / stale (reordered or duplicated), periods the robot had no plan
-(``exhausted_periods``), refused reports.
+(``exhausted_periods``), refused reports, and every report received so far (``reports_received``: with each
+odometry's status, the replay (`recording.regress_plans`) hands the controller the reports in the order it got
+them against its odometry).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from trajectory_msgs.msg import JointTrajectory
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.network.plan import CommandPlan
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
-from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, PlanWriter, plan_type, report_of_message
+from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, PlanWriter, plan_type, report_near
 from robotino_geom_mpc.ros.qos import publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.throttle import warn_throttled
 
@@ -38,8 +40,8 @@ __all__ = ["ControllerPlans", "LINK_KEYS"]
 
 LINK_KEYS = ("round_trip_mean_s", "round_trip_jitter_s", "round_trip_quantile_s", "lead_periods", "plans_sent",
              "plans_received", "plans_lost", "odometry_received", "odometry_missing", "odometry_stale",
-             "exhausted_periods", "refused_reports")
-_STAT_FIELDS = LINK_KEYS[:-1]
+             "exhausted_periods", "refused_reports", "reports_received")
+_STAT_FIELDS = LINK_KEYS[:-2]
 
 
 class ControllerPlans:
@@ -69,6 +71,7 @@ class ControllerPlans:
                                             publish_qos(lockstep))  # every report (keep-all in lockstep)
         self.newest_stamp_s: float | None = None
         self.refused_reports = 0
+        self.reports_received = 0  # every command_applied message, taken or refused (regress replays in this order)
         self.writer = PlanWriter(interface, control.plan_length)
 
     @property
@@ -89,13 +92,9 @@ class ControllerPlans:
         return plan
 
     def _on_report(self, msg: JointTrajectory) -> None:
+        self.reports_received += 1
         try:
-            report = report_of_message(msg)
-            newest = self.newest_stamp_s
-            if newest is not None and abs(report.time_s - newest) > self.window_s:
-                which = "future" if report.time_s > newest else "past"
-                raise PlanMessageError(f"time {report.time_s:.6f} s is {abs(report.time_s - newest):.3f} s in the "
-                                       f"{which} of the newest odometry ({newest:.6f} s)", which)
+            report = report_near(msg, self.newest_stamp_s, self.window_s)
         except PlanMessageError as exc:
             self.refused_reports += 1
             warn_throttled(self.node.get_logger(), f"refused command_applied ({exc.reason}: {exc}); "
@@ -114,4 +113,4 @@ class ControllerPlans:
             value = getattr(stats, name)
             out.append("nan" if isinstance(value, float) and math.isnan(value) else
                        f"{value:.6f}" if isinstance(value, float) else str(value))
-        return out + [str(self.refused_reports)]
+        return out + [str(self.refused_reports), str(self.reports_received)]

@@ -2,8 +2,11 @@
 
 A fresh `control.delay_compensation.DelayCompensatingController` (the run parameters the recording stores, or a
 parameter file) is given what the controller node got, in the order it got it: the plant's ``odom`` and
-``command_applied`` messages merged by publish time (the plant writes a radio packet's reports before its
-odometry, and the link's delivery order is the order the recorder saw), the receipts (`report_receipt`) and the
+``command_applied`` messages, each topic in the order the recorder got it (one writer each: the node's order
+too), interleaved as the node took them: before each odometry, the reports up to the count the node's status of
+that odometry gives (``reports_received``; a recording without it: merged by publish time, the plant writing a
+radio packet's reports before its odometry), each refused as the node refuses it (`ros.plans.report_near`), the
+receipts (`report_receipt`) and the
 applied periods (`report_applied`) from the reports, and for each odometry newer than the last used the
 ``reference_preview`` of its stamp (lockstep) or the one its diagnostics name, moved to its stamp as the node
 does (realtime), with the node's bumpless restarts where its diagnostics count one. Each plan it makes is compared
@@ -13,7 +16,9 @@ code on the same inputs, the same floats (tolerance 1e-12). Plans the recorder l
 
 from __future__ import annotations
 
+import bisect
 import heapq
+import itertools
 
 import numpy as np
 
@@ -26,10 +31,11 @@ from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.report import by_publish_time, controller_diagnostics, find_topic, stamp_ns
 from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
-from robotino_geom_mpc.ros.plans import PlanMessageError, plan_of_message, report_of_message
+from robotino_geom_mpc.ros.plans import PlanMessageError, plan_of_message, report_near
 
 __all__ = ["plan_topic", "regress_plans"]
 
+_BASIS_TOLERANCE_NS = 1000
 _PLAN_TYPES = {"wheel_voltage_plan": "trajectory_msgs/msg/JointTrajectory",
                "cmd_vel_plan": "trajectory_msgs/msg/MultiDOFJointTrajectory"}
 
@@ -55,32 +61,47 @@ def regress_plans(bag: BagReader, robot: RobotinoParams, control: ControlParams,
     recorded = {}
     for _, msg in by_publish_time(bag, topic):
         recorded.setdefault(stamp_ns(msg.header.stamp), msg)
+    # a plan's header holds its basis (odometry stamp ns * 1e-9) back in ns: at epoch times (1.8e9 s: 238 ns a
+    # float's step) a few hundred ns off the odometry's stamp; the plan of an odometry is the one within 1 us
+    bases = sorted(recorded)
     odom = by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry"))
     reports = by_publish_time(bag, find_topic(bag, "command_applied", "trajectory_msgs/msg/JointTrajectory", False))
     previews: dict[int, object] = {}
     for _, msg in by_publish_time(bag, find_topic(bag, "reference_preview",
                                                   "trajectory_msgs/msg/MultiDOFJointTrajectory")):
         previews.setdefault(stamp_ns(msg.header.stamp), msg)
-    used, engagements = _diagnosed(bag)
+    used, engagements, received = _diagnosed(bag)
     controller = DelayCompensatingController(robot, control, interface)
     points = controller.preview_length
     blend = BlendEngagement(control.period_s, points)
-    engaged, last, theta, first = 0, None, 0.0, None
-    ticks = compared = 0
+    engaged, last, theta, first, newest = 0, None, 0.0, None, None
+    ticks = compared = taken = 0
     worst, worst_stamp = 0.0, None
-    events = heapq.merge(((p, 0, m) for p, m in reports), ((p, 1, m) for p, m in odom), key=lambda e: e[:2])
+
+    def take(msg: object) -> None:  # the node's `ControllerPlans._on_report`
+        try:
+            report = report_near(msg, newest)
+        except PlanMessageError:
+            return
+        if report.values is None:
+            controller.report_receipt(report.basis_s, report.time_s, report.taken)
+        else:
+            controller.report_applied(report.time_s, report.basis_s, max(report.entry_index, 0))
+
+    if received:  # the node counted the reports it had got by each odometry: that order, whatever the recorder's
+        events = ((p, 1, m) for p, m in odom)
+    else:  # a recording without the count: the recorder's order of the two topics
+        events = heapq.merge(((p, 0, m) for p, m in reports), ((p, 1, m) for p, m in odom), key=lambda e: e[:2])
+    pending = iter(reports)
     for _, kind, msg in events:
         if kind == 0:
-            try:
-                report = report_of_message(msg)
-            except PlanMessageError:
-                continue
-            if report.values is None:
-                controller.report_receipt(report.basis_s, report.time_s, report.taken)
-            else:
-                controller.report_applied(report.time_s, report.basis_s, max(report.entry_index, 0))
+            take(msg)
             continue
         stamp = stamp_ns(msg.header.stamp)
+        if stamp in received:
+            for _, report_msg in itertools.islice(pending, max(received[stamp] - taken, 0)):
+                take(report_msg)
+                taken += 1
         if last is not None and stamp <= last:
             continue  # a duplicate or an older odometry: the node drops it
         preview = previews.get(used.get(stamp, stamp))
@@ -104,16 +125,18 @@ def regress_plans(bag: BagReader, robot: RobotinoParams, control: ControlParams,
             blend.engage(stamp, X, positions[0], velocities[0] + dt * accelerations[0], accelerations[0],
                          LINEAR_LIMIT_MPS2, ANGULAR_LIMIT_RADPS2)
         offsets = blend.offsets(stamp)
+        newest = stamp * 1e-9
         try:
-            plan = controller.plan(stamp * 1e-9, X, positions[1:] if offsets is None else positions[1:] + offsets)
+            plan = controller.plan(newest, X, positions[1:] if offsets is None else positions[1:] + offsets)
         except ControllerInputError:
             continue
         last = stamp
         ticks += 1
-        if plan is None or stamp not in recorded:
+        near = bisect.bisect_left(bases, stamp - _BASIS_TOLERANCE_NS)
+        if plan is None or near == len(bases) or bases[near] > stamp + _BASIS_TOLERANCE_NS:
             continue
         try:
-            mine = plan_of_message(recorded[stamp], plan.period_s)
+            mine = plan_of_message(recorded[bases[near]], plan.period_s)
         except PlanMessageError:
             continue
         compared += 1
@@ -126,9 +149,11 @@ def regress_plans(bag: BagReader, robot: RobotinoParams, control: ControlParams,
     return ticks, compared, worst, None if worst_stamp is None else (worst_stamp - first) * 1e-9, topic.lstrip("/")
 
 
-def _diagnosed(bag: BagReader) -> tuple[dict[int, int], dict[int, int]]:
-    """Per odometry stamp, from the controller's diagnostics: the preview stamp it used, its restarts so far."""
-    used, engagements = {}, {}
+def _diagnosed(bag: BagReader) -> tuple[dict[int, int], dict[int, int], dict[int, int]]:
+    """Per odometry stamp, from the controller's diagnostics: the preview stamp it used, its restarts so far and
+    the reports it had received.
+    """
+    used, engagements, received = {}, {}, {}
     for _, msg in by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False)):
         values = controller_diagnostics(msg)
         if values is None:
@@ -138,4 +163,6 @@ def _diagnosed(bag: BagReader) -> tuple[dict[int, int], dict[int, int]]:
             used.setdefault(stamp, int(values["preview_stamp_ns"]))
         if values.get("blend_engagements", "").isdigit():
             engagements.setdefault(stamp, int(values["blend_engagements"]))
-    return used, engagements
+        if values.get("reports_received", "").isdigit():
+            received.setdefault(stamp, int(values["reports_received"]))
+    return used, engagements, received

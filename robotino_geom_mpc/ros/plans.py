@@ -46,9 +46,11 @@ from robotino_geom_mpc.ros.decode import STAMP_FIELDS
 
 __all__ = ["AppliedReport", "IGNORED", "PLAN_TOPICS", "PlanMessageError", "PlanOffer", "PlanWriter", "TWIST_AXES",
            "applied_message", "offer_plan", "plan_message", "plan_of_message", "plan_type", "received_message",
-           "report_of_message"]
+           "REPORT_WINDOW_S", "report_near", "report_of_message"]
 
 PLAN_TOPICS = {"voltages": "wheel_voltage_plan", "cmd_vel": "cmd_vel_plan"}
+REPORT_WINDOW_S = 2.0
+"""A ``command_applied`` report further than this from the newest odometry stamp is refused [s]."""
 TWIST_AXES = ("base_link_x", "base_link_y", "base_link_yaw")  # command_applied's names of a twist's values
 IGNORED = ("older", "duplicate")  # `PlanBuffer.offer`'s refusals that are no fault: counted, not logged
 
@@ -229,6 +231,17 @@ def report_of_message(msg: JointTrajectory) -> AppliedReport:
     index = int(point.positions[0])
     return AppliedReport(time_s, base if index >= 0 else None, max(index, -1), tuple(float(v) for v in values))
 
+
+def report_near(msg: JointTrajectory, newest_s: float | None, window_s: float = REPORT_WINDOW_S) -> AppliedReport:
+    """`report_of_message`, refused (`PlanMessageError`, reason ``future`` or ``past``) when its time is more than
+    `window_s` from the newest odometry stamp `newest_s` (a stamp far off; None: no odometry yet, any time).
+    """
+    report = report_of_message(msg)
+    if newest_s is not None and abs(report.time_s - newest_s) > window_s:
+        which = "future" if report.time_s > newest_s else "past"
+        raise PlanMessageError(f"time {report.time_s:.6f} s is {abs(report.time_s - newest_s):.3f} s in the "
+                               f"{which} of the newest odometry ({newest_s:.6f} s)", which)
+    return report
 
 
 class PlanWriter:

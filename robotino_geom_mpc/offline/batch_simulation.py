@@ -312,7 +312,7 @@ def simulate_batch(
             pose[reading] = pose_encoders + draws[k, reading]
         volts, saturated[k] = controller.step(state_from_odometry(pose, twist), targets[k + 1 : k + N + 1])
         voltages[k] = volts
-        currents[k] = plant.step(volts, Ts)
+        plant.advance(volts, Ts, currents[k])
 
     return BatchSeries(scenario, control, tuple(settings), tuple(noises), np.arange(n) * Ts, targets[:n], poses,
                        measured, currents, voltages, saturated)

@@ -286,24 +286,30 @@ class OdometryFilter:
         The same predictor per run (its twist model), correction and heading wrap as `update`, as arrays;
         the measurements are the caller's own (unchecked).
         """
-        x, vx, y, vy, theta, w = X.T
+        measured, velocity = X[:, 0::2], X[:, 1::2]
+        vx, vy, w = velocity.T
         last: Any = self._last  # (B, 6) in a batch
-        px, vx0, py, vy0, pt, w0 = last.T
         h, L = self._half_period, self.gain
         dt = 2.0 * h
-        a = w * dt
-        small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
-        with np.errstate(divide="ignore", invalid="ignore"):
-            sdt = np.where(small, (1.0 - a * a / 6.0) * dt, np.sin(a) / w)
-            cdt = np.where(small, 0.5 * a * dt, (1.0 - np.cos(a)) / w)
-        mean = self._period_mean
-        px = np.where(mean, px + (sdt * vx + cdt * vy), px + h * (vx0 + vx))
-        py = np.where(mean, py + (sdt * vy - cdt * vx), py + h * (vy0 + vy))
-        pt = np.where(mean, pt + a, pt + h * (w0 + w))
-        px = px + L * (x - px)
-        py = py + L * (y - py)
-        innovation = theta - pt
-        pt = pt + L * (innovation - _TWO_PI * np.round(innovation / _TWO_PI))  # math.remainder's wrap
-        last = np.column_stack((px, vx, py, vy, pt, w))
-        self._last = last
-        return last[:, 0::2]
+        step = h * (last[:, 1::2] + velocity)  # the trapezoid's increments of (x, y, theta)
+        mean: Any = self._period_mean  # (B,) in a batch
+        if mean.any():  # the period mean's: the SE(2) exponential of the twist
+            a = w * dt
+            small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
+            if small.any():
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    sdt = np.where(small, (1.0 - a * a / 6.0) * dt, np.sin(a) / w)
+                    cdt = np.where(small, 0.5 * a * dt, (1.0 - np.cos(a)) / w)
+            else:
+                sdt, cdt = np.sin(a) / w, (1.0 - np.cos(a)) / w
+            turned = np.empty_like(step)
+            turned[:, 0], turned[:, 1], turned[:, 2] = sdt * vx + cdt * vy, sdt * vy - cdt * vx, a
+            step = turned if mean.all() else np.where(mean[:, None], turned, step)
+        predicted = last[:, 0::2] + step
+        new = np.empty_like(last)
+        new[:, 1::2] = velocity
+        np.add(predicted[:, :2], L * (measured[:, :2] - predicted[:, :2]), out=new[:, 0:4:2])
+        innovation = measured[:, 2] - predicted[:, 2]  # math.remainder's wrap:
+        np.add(predicted[:, 2], L * (innovation - _TWO_PI * np.round(innovation / _TWO_PI)), out=new[:, 4])
+        self._last = new
+        return new[:, 0::2]

@@ -277,7 +277,12 @@ class DecoupledMPC:
         inputs once). `delta_u_floats` is the same law on Python floats.
         """
         Y_d = np.asarray(Y_d, dtype=float)
-        z = np.concatenate((Y_d.reshape(*Y_d.shape[:-2], -1), X, u_prev), axis=-1)
+        X = np.asarray(X, dtype=float)
+        references = Y_d.shape[-2] * 3
+        z = np.empty((*X.shape[:-1], references + 9))  # (Y_d.ravel(), X, u(k-1)); Y_d may be shared, (N, 3)
+        z[..., :references] = Y_d.reshape(*Y_d.shape[:-2], references)
+        z[..., references : references + 6] = X
+        z[..., references + 6 :] = u_prev
         return np.einsum("...ak,...k->...a", self.stacked_gain, z)
 
     @classmethod

@@ -192,7 +192,11 @@ class DecouplingField:
         u = np.asarray(u, dtype=float)
         c, s = np.cos(th), np.sin(th)
         ux, uy = u[..., 0], u[..., 1]  # T(theta) u = T(0) (R(theta)^T (u_x, u_y), u_theta), as `forces_floats`
-        return np.einsum("...ij,...j->...i", self.T0, np.stack((c * ux + s * uy, c * uy - s * ux, u[..., 2]), axis=-1))
+        turned = np.empty(np.broadcast_shapes(c.shape, ux.shape) + (3,))  # R(theta)^T (u_x, u_y), u_theta
+        np.add(c * ux, s * uy, out=turned[..., 0])
+        np.subtract(c * uy, s * ux, out=turned[..., 1])
+        turned[..., 2] = u[..., 2]
+        return np.einsum("...ij,...j->...i", self.T0, turned)
 
     def forces_floats(self, theta: float, u: Sequence[float]) -> list[float]:
         """Wheel forces F = T(theta) u [N] (eqs. 36-37) on Python floats, the per-tick path of `field`.

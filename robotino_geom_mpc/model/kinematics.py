@@ -73,10 +73,15 @@ class MotorKinematics:
         c, s = np.cos(theta), np.sin(theta)
         vx, vy, w = v[..., 0], v[..., 1], v[..., 2]
         bx, by = a[..., 0] + w * vy, a[..., 1] - w * vx
-        body_velocity = np.stack((c * vx + s * vy, c * vy - s * vx, w), axis=-1)
-        body_rate = np.stack((c * bx + s * by, c * by - s * bx, a[..., 2]), axis=-1)
-        return (np.einsum("...ij,...j->...i", self.W0, body_velocity),
-                np.einsum("...ij,...j->...i", self.W0, body_rate))
+        velocity_body, rate_body = np.empty((2, *c.shape, 3))  # R(theta)^T of the velocity and of the rate
+        np.add(c * vx, s * vy, out=velocity_body[..., 0])
+        np.subtract(c * vy, s * vx, out=velocity_body[..., 1])
+        velocity_body[..., 2] = w
+        np.add(c * bx, s * by, out=rate_body[..., 0])
+        np.subtract(c * by, s * bx, out=rate_body[..., 1])
+        rate_body[..., 2] = a[..., 2]
+        return (np.einsum("...ij,...j->...i", self.W0, velocity_body),
+                np.einsum("...ij,...j->...i", self.W0, rate_body))
 
     def speeds_and_rates_floats(
         self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]

@@ -88,7 +88,11 @@ class PlantBatch:
         """
         x, vx, y, vy, theta, w = self._columns[:6]
         c, s = np.cos(theta), np.sin(theta)
-        return self.state[:, 0:5:2].copy(), np.column_stack((c * vx + s * vy, -s * vx + c * vy, w))
+        twist = np.empty((len(theta), 3))
+        np.add(c * vx, s * vy, out=twist[:, 0])
+        np.add(-s * vx, c * vy, out=twist[:, 1])
+        twist[:, 2] = w
+        return self.state[:, 0:5:2].copy(), twist
 
     @property
     def wheel_angles(self) -> np.ndarray:

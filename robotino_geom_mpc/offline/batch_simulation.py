@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from robotino_geom_mpc.arrays import largest_abs
 from robotino_geom_mpc.control.motion_batch import MotionControllerBatch
 from robotino_geom_mpc.control.motion_controller import state_from_odometry
 from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST, DEFAULT_COUNTS_PER_REV, ODOMETRY_MODELS, \
@@ -166,19 +167,19 @@ class BatchSeries:
 
         err = errors(pose)
         position = np.hypot(err[:, :, 0], err[:, :, 1])
-        current = np.abs(self.currents[:, runs])
-        peak_current = current.max(axis=(0, 2))
-        peak_voltage = np.abs(self.voltages[:, runs]).max(axis=(0, 2))
+        current = largest_abs(self.currents[:, runs])  # each sample's largest |current| (n, runs)
+        peak_current = current.max(axis=0)
+        peak_voltage = largest_abs(self.voltages[:, runs]).max(axis=0)
         odometry = errors(measured)
         position_odometry = np.hypot(odometry[:, :, 0], odometry[:, :, 1])
-        drift = np.hypot(*np.moveaxis(measured[:, :, :2] - pose[:, :, :2], 2, 0))
+        drift = np.hypot(measured[:, :, 0] - pose[:, :, 0], measured[:, :, 1] - pose[:, :, 1])
         return {
             "rms_position_error_m": rms(position), "max_position_error_m": peak(position),
             "rms_x_error_m": rms(err[:, :, 0]), "rms_y_error_m": rms(err[:, :, 1]),
             "rms_theta_error_rad": rms(err[:, :, 2]), "final_position_error_m": position[-1].tolist(),
             "max_abs_theta_error_rad": np.abs(err[:, :, 2]).max(axis=0).tolist(),
-            "peak_current_a": peak_current.tolist(), "peak_current_after_settle_a": peak(current.max(axis=2)),
-            "samples_above_nominal_current": np.any(current > nominal[:, None], axis=2).sum(axis=0).tolist(),
+            "peak_current_a": peak_current.tolist(), "peak_current_after_settle_a": peak(current),
+            "samples_above_nominal_current": (current > nominal).sum(axis=0).tolist(),
             "current_within_nominal": (peak_current <= nominal).tolist(), "peak_voltage_v": peak_voltage.tolist(),
             "voltage_within_supply": (peak_voltage <= supply * (1.0 + 1e-9)).tolist(),
             "nominal_current_a": nominal.tolist(), "supply_voltage_v": supply.tolist(),

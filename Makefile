@@ -6,7 +6,7 @@ VENV := .venv
 STAMP := $(VENV)/.installed
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)
 DEMO_OUT ?= out/demo
-TEST_WORKERS ?= 2  # make test's pytest-xdist workers: one a core of the 2-core machines it is sized for
+TEST_WORKERS ?= 2  # pytest-xdist workers of make test, unit and check: one a core of the 2-core machines
 
 .PHONY: setup demo test unit check docs bench clean
 
@@ -26,13 +26,13 @@ test: setup
 	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal test
 
 unit: setup
-	$(VENV)/bin/python -m pytest -q -m "unit and not slow" test
+	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) -m "unit and not slow" test
 
 check: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy
 	$(VENV)/bin/lint-imports
-	$(VENV)/bin/python -m pytest -q -m "unit and not slow" test
+	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) -m "unit and not slow" test
 
 docs: setup
 	$(VENV)/bin/sphinx-build -W --keep-going -q -b html docs docs/_build/html

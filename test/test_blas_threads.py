@@ -18,6 +18,7 @@ import json
 from concurrent.futures import ProcessPoolExecutor
 from threadpoolctl import threadpool_info
 import numpy, scipy.linalg
+from robotino_geom_mpc.blas import one_blas_thread
 from robotino_geom_mpc.offline import study
 
 def blas_threads():
@@ -27,7 +28,7 @@ def blas_threads():
 if __name__ == "__main__":
     with ProcessPoolExecutor(1, mp_context=study._context()) as plain:
         before = plain.submit(blas_threads).result()
-    with ProcessPoolExecutor(1, mp_context=study._context(), initializer=study._one_blas_thread) as pool:
+    with ProcessPoolExecutor(1, mp_context=study._context(), initializer=one_blas_thread) as pool:
         after = pool.submit(blas_threads).result()
     print(json.dumps([before, after]))
 """

@@ -1,18 +1,21 @@
-"""`MotionController.step` of this tree against another source tree's, interleaved in one process.
+"""`MotionController.step` of this tree against another source tree's, interleaved pass by pass.
 
 ``python -m robotino_geom_mpc.bench.compare_step SOURCE_ROOT`` (e.g. a checkout
 of an earlier commit) prints the median time per step of both controllers on
 the inputs of the ``controller_step`` benchmark, their ratio and the largest
-difference of their voltages. Nothing is imported from another tree unless asked.
+difference of their voltages. The other tree's controller runs in a process of
+its own (its package imports itself by name, so two trees cannot share one
+process), started with the other tree first on the path; the two processes'
+passes alternate, so both see the same machine load.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
-import importlib.util
+import os
+import subprocess
 import sys
-from collections.abc import Callable
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -21,41 +24,50 @@ from robotino_geom_mpc.bench.controller_step import step_inputs
 from robotino_geom_mpc.bench.registry import BenchmarkError, median_per_call
 from robotino_geom_mpc.control.motion_controller import MotionController
 
-__all__ = ["compare_step", "load_controller_class", "main"]
+__all__ = ["compare_step", "main"]
 
-_OTHER_PACKAGE = "_compared_robotino_geom_mpc"
+# the other tree's side: its own controller on the inputs in argv[1], the voltages to argv[2], then one pass per
+# line read ("done" after each); either layout (the folders by concept, or core/ before 84c93d4)
+_OTHER = """
+import sys
+from pathlib import Path
+import numpy as np
+try:
+    from robotino_geom_mpc.control.motion_controller import MotionController
+    from robotino_geom_mpc.params.files import load_params
+except ImportError:
+    from robotino_geom_mpc.core.controller import MotionController
+    from robotino_geom_mpc.core.params import load_params
+import robotino_geom_mpc as package
+assert Path(package.__file__).resolve().is_relative_to(Path(sys.argv[3]).resolve()), package.__file__
+inputs = np.load(sys.argv[1])
+X, previews = inputs["X"], inputs["previews"]
+controller = MotionController(*load_params())
+def run():
+    controller.reset()
+    return [controller.step(X[k], previews[k]).voltages for k in range(len(X))]
+np.save(sys.argv[2], np.array(run()))
+print("ready", flush=True)
+for _ in sys.stdin:
+    run()
+    print("done", flush=True)
+"""
 
 
-def load_controller_class(source_root: str | Path) -> type:
-    """`MotionController` of the package ``robotino_geom_mpc`` under `source_root`, imported under another name.
-
-    The other tree's package is loaded as ``_compared_robotino_geom_mpc`` (its
-    relative imports resolve inside it), so both versions live in one process.
-
-    Raises
-    ------
-    BenchmarkError
-        If `source_root` holds no ``robotino_geom_mpc/control/motion_controller.py``.
-    """
-    package_dir = Path(source_root) / "robotino_geom_mpc"
-    if not (package_dir / "core" / "controller.py").is_file():
-        raise BenchmarkError(f"{source_root}: no robotino_geom_mpc/control/motion_controller.py")
-    if _OTHER_PACKAGE not in sys.modules:
-        spec = importlib.util.spec_from_file_location(
-            _OTHER_PACKAGE, package_dir / "__init__.py", submodule_search_locations=[str(package_dir)]
-        )
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[_OTHER_PACKAGE] = module
-        spec.loader.exec_module(module)
-    return importlib.import_module(f"{_OTHER_PACKAGE}.core.controller").MotionController
+def _other_process(source_root: Path, inputs: Path, voltages: Path) -> subprocess.Popen:
+    """The other tree's controller process (`_OTHER`), its package first on the path."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (str(source_root), os.environ.get("PYTHONPATH"))))}
+    return subprocess.Popen([sys.executable, "-c", _OTHER, str(inputs), str(voltages), str(source_root)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, cwd=source_root)
 
 
 def compare_step(source_root: str | Path, steps: int = 1000, repeats: int = 15) -> dict[str, float]:
     """Time `MotionController.step` of this tree and of `source_root`'s on the same inputs, interleaved.
 
     Both controllers step through the paper-circle states and previews of
-    `step_inputs` from a reset; their passes alternate `repeats` times so that
-    both see the same machine load.
+    `step_inputs` from a reset; their passes alternate `repeats` times. The
+    other's pass is timed here, around a line sent and one read (some 50 us a
+    pass, 0.05 us a step).
 
     Returns
     -------
@@ -63,25 +75,44 @@ def compare_step(source_root: str | Path, steps: int = 1000, repeats: int = 15) 
         ``controller_step_us`` and ``other_controller_step_us`` (medians per
         step), ``ratio_this_over_other`` and ``max_voltage_difference_v``
         (0 up to rounding for the same control law).
+
+    Raises
+    ------
+    BenchmarkError
+        If `source_root` holds no package ``robotino_geom_mpc``, or its controller fails.
     """
+    root = Path(source_root).resolve()
+    if not (root / "robotino_geom_mpc" / "__init__.py").is_file():
+        raise BenchmarkError(f"{source_root}: no package robotino_geom_mpc")
     X, previews, robot, control = step_inputs(steps)
-    this, other = MotionController(robot, control), load_controller_class(source_root)(robot, control)
+    this = MotionController(robot, control)
+    with tempfile.TemporaryDirectory() as folder:
+        inputs, theirs = Path(folder) / "inputs.npz", Path(folder) / "voltages.npy"
+        np.savez(inputs, X=X, previews=previews)
+        other = _other_process(root, inputs, theirs)
+        try:
+            assert other.stdin is not None and other.stdout is not None
+            if other.stdout.readline().strip() != "ready":
+                raise BenchmarkError(f"{source_root}: its controller failed (exit {other.wait()})")
+            this.reset()
+            ours = np.array([this.step(X[k], previews[k]).voltages for k in range(steps)])
+            diff = float(np.abs(ours - np.load(theirs)).max())
 
-    def voltages(controller: object) -> np.ndarray:
-        controller.reset()
-        return np.array([controller.step(X[k], previews[k]).voltages for k in range(steps)])
+            def run_this() -> None:
+                this.reset()
+                for k in range(steps):
+                    this.step(X[k], previews[k])
 
-    diff = float(np.abs(voltages(this) - voltages(other)).max())
+            def run_other() -> None:
+                other.stdin.write("pass\n")
+                other.stdin.flush()
+                if other.stdout.readline().strip() != "done":
+                    raise BenchmarkError(f"{source_root}: its controller stopped mid-pass")
 
-    def timed(controller: object) -> Callable[[], None]:
-        def run() -> None:
-            controller.reset()
-            for k in range(steps):
-                controller.step(X[k], previews[k])
-
-        return run
-
-    this_s, other_s = median_per_call([timed(this), timed(other)], steps, repeats)
+            this_s, other_s = median_per_call([run_this, run_other], steps, repeats)
+        finally:
+            other.kill()
+            other.wait()
     return {
         "controller_step_us": this_s * 1e6,
         "other_controller_step_us": other_s * 1e6,

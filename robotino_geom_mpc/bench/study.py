@@ -27,7 +27,7 @@ def bench_study(quick: bool) -> dict[str, float]:
     the same runs run by run, ``per_run_us_per_tick``, the two alternating three times (the best of each):
     ``batched_cpu_speedup_vs_per_run``.
     """
-    from robotino_geom_mpc.offline.study import _one_blas_thread as one_blas_thread
+    from robotino_geom_mpc.blas import one_blas_thread
     from robotino_geom_mpc.offline.study import batch_size, draw_runs, run_rows, run_study, summarize
 
     workers = os.cpu_count() or 1

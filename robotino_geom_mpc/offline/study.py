@@ -44,17 +44,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-from robotino_geom_mpc.model.encoders import ODOMETRY_MODELS
-
+from robotino_geom_mpc.blas import one_blas_thread
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.model.encoders import ODOMETRY_MODELS
 from robotino_geom_mpc.offline.batch_simulation import RunSetting, batch_metrics
 from robotino_geom_mpc.offline.results import compute_metrics
-from robotino_geom_mpc.scenarios import get_scenario
 from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.scenarios import get_scenario
 
 __all__ = [
     "MASS_RANGE", "INERTIA_RANGE", "FRICTION_RANGE", "NOISE_MAX", "METRICS", "STATISTICS",
@@ -206,7 +205,7 @@ def run_rows(
     (one bad run fails the batch) is run again run by run, so that only the bad runs get an error. Runs over
     a link (`network`) go run by run: the batched loop has no link.
     """
-    _one_blas_thread()  # a task's process shares the cores with the other tasks' (a Dask worker's too)
+    one_blas_thread()  # a task's process shares the cores with the other tasks' (a Dask worker's too)
     if not batched or network:
         return [run_one(scenario, robot, control, draw, duration_s, settle_time_s, network) for draw in draws]
     start = time.perf_counter()
@@ -232,11 +231,6 @@ def batch_size(runs: int, workers: int, batched: bool = True) -> int:
     if batched:
         return max(1, min(BATCHED_MAX, -(-runs // 2)))
     return max(1, min(BATCH_MAX, runs // (8 * workers)))
-
-
-def _one_blas_thread() -> None:
-    """A worker's BLAS libraries on one thread: the workers fill the cores, BLAS threads would only spin."""
-    threadpool_limits(limits=1, user_api="blas")
 
 
 def _context() -> multiprocessing.context.BaseContext:

@@ -15,6 +15,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
+from robotino_geom_mpc.blas import one_blas_thread
 from robotino_geom_mpc.params.files import check_parameter_files
 from robotino_geom_mpc.params.specs import ParamError
 from robotino_geom_mpc.ros.parameters import NodeStartError
@@ -110,7 +111,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         if STOP.is_set():  # a signal during rclpy.init
             return 0
         node = factory()
-        _one_blas_thread()  # also under `ros2 run`: OpenBLAS threads only spin on a node's 3x3-9x9 matrices
+        one_blas_thread()  # also under `ros2 run`: OpenBLAS threads only spin on a node's 3x3-9x9 matrices
         gc.collect()
         gc.freeze()
         executor = EventsExecutor()
@@ -164,11 +165,3 @@ def monotonic() -> float:
     """Steady time in seconds (watchdogs and latency; never the ROS clock)."""
     return time.monotonic()
 
-
-def _one_blas_thread() -> None:
-    """BLAS on one thread (threadpoolctl); without threadpoolctl (no rosdep key) the node runs as it is."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return
-    threadpool_limits(limits=1, user_api="blas")

@@ -276,8 +276,8 @@ class OdometryFilter:
         start = np.asarray(start, dtype=float)
         if start.shape != (len(twists), 3) or not np.all(np.isfinite(start)):
             raise EstimatorError(f"start must be {len(twists)} finite poses, got shape {start.shape}")
-        stacked._last = np.zeros((len(twists), 6))
-        stacked._last[:, 0::2] = start
+        stacked._last = np.zeros((6, len(twists)))  # one row per entry of the state (`update_batch`)
+        stacked._last[0::2] = start.T
         return stacked
 
     def update_batch(self, X: np.ndarray) -> np.ndarray:
@@ -286,14 +286,17 @@ class OdometryFilter:
         The same predictor per run (its twist model), correction and heading wrap as `update`, as arrays;
         the measurements are the caller's own (unchecked).
         """
-        measured, velocity = X[:, 0::2], X[:, 1::2]
-        vx, vy, w = velocity.T
-        last: Any = self._last  # (B, 6) in a batch
+        x, vx, y, vy, theta, w = X.T
+        last: Any = self._last  # (6, B) in a batch: one row per entry of the state
         h, L = self._half_period, self.gain
-        dt = 2.0 * h
-        step = h * (last[:, 1::2] + velocity)  # the trapezoid's increments of (x, y, theta)
         mean: Any = self._period_mean  # (B,) in a batch
+        predicted = trapezoid = np.empty((3, len(X)))  # (x, y, theta) by each run's predictor
+        if not mean.all():
+            np.add(last[0], h * (last[1] + vx), out=trapezoid[0])
+            np.add(last[2], h * (last[3] + vy), out=trapezoid[1])
+            np.add(last[4], h * (last[5] + w), out=trapezoid[2])
         if mean.any():  # the period mean's: the SE(2) exponential of the twist
+            dt = 2.0 * h
             a = w * dt
             small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
             if small.any():
@@ -302,14 +305,15 @@ class OdometryFilter:
                     cdt = np.where(small, 0.5 * a * dt, (1.0 - np.cos(a)) / w)
             else:
                 sdt, cdt = np.sin(a) / w, (1.0 - np.cos(a)) / w
-            turned = np.empty_like(step)
-            turned[:, 0], turned[:, 1], turned[:, 2] = sdt * vx + cdt * vy, sdt * vy - cdt * vx, a
-            step = turned if mean.all() else np.where(mean[:, None], turned, step)
-        predicted = last[:, 0::2] + step
+            turned = np.empty_like(trapezoid)
+            np.add(last[0], sdt * vx + cdt * vy, out=turned[0])
+            np.add(last[2], sdt * vy - cdt * vx, out=turned[1])
+            np.add(last[4], a, out=turned[2])
+            predicted = turned if mean.all() else np.where(mean, turned, trapezoid)
         new = np.empty_like(last)
-        new[:, 1::2] = velocity
-        np.add(predicted[:, :2], L * (measured[:, :2] - predicted[:, :2]), out=new[:, 0:4:2])
-        innovation = measured[:, 2] - predicted[:, 2]  # math.remainder's wrap:
-        np.add(predicted[:, 2], L * (innovation - _TWO_PI * np.round(innovation / _TWO_PI)), out=new[:, 4])
+        new[1::2] = X[:, 1::2].T
+        np.add(predicted[:2], L * (X[:, 0:4:2].T - predicted[:2]), out=new[0:4:2])
+        innovation = theta - predicted[2]  # math.remainder's wrap:
+        np.add(predicted[2], L * (innovation - _TWO_PI * np.round(innovation / _TWO_PI)), out=new[4])
         self._last = new
-        return new[:, 0::2]
+        return new[0::2].T

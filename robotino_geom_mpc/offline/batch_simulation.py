@@ -166,13 +166,13 @@ class BatchSeries:
             return values[settled].max(axis=0).tolist() if count else [None] * B
 
         err = errors(pose)
-        position = np.hypot(err[:, :, 0], err[:, :, 1])
+        position = _length(err[:, :, 0], err[:, :, 1])
         current = largest_abs(self.currents[:, runs])  # each sample's largest |current| (n, runs)
         peak_current = current.max(axis=0)
         peak_voltage = largest_abs(self.voltages[:, runs]).max(axis=0)
         odometry = errors(measured)
-        position_odometry = np.hypot(odometry[:, :, 0], odometry[:, :, 1])
-        drift = np.hypot(measured[:, :, 0] - pose[:, :, 0], measured[:, :, 1] - pose[:, :, 1])
+        position_odometry = _length(odometry[:, :, 0], odometry[:, :, 1])
+        drift = _length(measured[:, :, 0] - pose[:, :, 0], measured[:, :, 1] - pose[:, :, 1])
         return {
             "rms_position_error_m": rms(position), "max_position_error_m": peak(position),
             "rms_x_error_m": rms(err[:, :, 0]), "rms_y_error_m": rms(err[:, :, 1]),
@@ -188,6 +188,11 @@ class BatchSeries:
             "rms_theta_error_odom_rad": rms(odometry[:, :, 2]), "odometry_drift_final_m": drift[-1].tolist(),
             "odometry_drift_max_m": drift.max(axis=0).tolist(),
         }
+
+
+def _length(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """sqrt(x^2 + y^2): `compute_metrics`'s hypot to a rounding unit (no overflow at these sizes), ten times as fast."""
+    return np.sqrt(x * x + y * y)
 
 
 _METRIC_CHUNK = 100  # runs whose metrics `BatchSeries.metrics` computes together

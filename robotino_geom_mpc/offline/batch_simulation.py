@@ -301,11 +301,11 @@ def simulate_batch(
     start = reference.position(np.zeros(1))[0]
     controller = MotionControllerBatch([spec.controller_model(s.robot) for s in settings], control, twists,
                                        np.tile(start, (B, 1)))
-    draws = np.zeros((n, B, 3))  # each run's pose noise, drawn at once as `run_scenario` draws it
-    for b, (std_position, std_yaw) in enumerate(noises):
+    draws = np.zeros((n, B, 3))  # each run's pose noise, the draws of `run_scenario`'s normal(0, std, (n, 3)):
+    for b, (std_position, std_yaw) in enumerate(noises):  # the same standard normals, scaled (twice as fast)
         if std_position or std_yaw:
-            draws[:, b] = np.random.default_rng(settings[b].seed).normal(
-                0.0, (std_position, std_position, std_yaw), (n, 3))
+            np.multiply(np.random.default_rng(settings[b].seed).standard_normal((n, 3)),
+                        (std_position, std_position, std_yaw), out=draws[:, b])
 
     targets = reference.position(np.arange(n + N + 1) * Ts)
     poses, measured, voltages, currents = (np.empty((n, B, 3)) for _ in range(4))

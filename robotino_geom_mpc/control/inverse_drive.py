@@ -179,7 +179,10 @@ class InverseDrive:
         Every coefficient gets the shape (B, 1) (the ZOH relations broadcast over the three wheels) and the
         current estimate the shape (B, 3); the float forms serve one run only.
         """
-        runs = [cls(p, period_s) for p in robots]
+        made: dict[tuple[float, ...], InverseDrive] = {}  # runs with the same drive share its coefficients
+        keys = [(p.resistance_ohm, p.inductance_h, p.torque_constant_n_m_per_a, p.supply_voltage_v, p.r, p.gear_ratio)
+                for p in robots]
+        runs = [made[key] if key in made else made.setdefault(key, cls(p, period_s)) for key, p in zip(keys, robots)]
         stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
         column = lambda values: np.array(values, dtype=float)[:, None]  # noqa: E731
         zoh: Any = ZOHDrive.__new__(ZOHDrive)

@@ -46,7 +46,11 @@ class MotorKinematics:
     def batch(cls, robots: Sequence[RobotinoParams]) -> MotorKinematics:
         """The kinematics of B robots at once: W(0) of shape (B, 3, 3), for the array form `speeds_and_rates`."""
         stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
-        stacked.W0 = np.stack([cls(p).W0 for p in robots])
+        made: dict[tuple[float, float, float], np.ndarray] = {}  # runs with the same wheels share W(0)
+        for p in robots:
+            if (p.gear_ratio, p.r, p.l) not in made:
+                made[p.gear_ratio, p.r, p.l] = cls(p).W0
+        stacked.W0 = np.stack([made[p.gear_ratio, p.r, p.l] for p in robots])
         stacked._W0 = None  # no float path for a batch
         return stacked
 

@@ -47,7 +47,7 @@ def _thetas(theta: object) -> np.ndarray:
     arr = np.asarray(theta, dtype=float)
     if arr.ndim > 1:
         raise DecouplingError(f"theta must be a scalar or a 1-d array, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise DecouplingError("theta must be finite")
     return arr
 
@@ -192,8 +192,9 @@ class DecouplingField:
         u = np.asarray(u, dtype=float)
         c, s = np.cos(th), np.sin(th)
         ux, uy = u[..., 0], u[..., 1]  # T(theta) u = T(0) (R(theta)^T (u_x, u_y), u_theta), as `forces_floats`
-        turned = np.empty(np.broadcast_shapes(c.shape, ux.shape) + (3,))  # R(theta)^T (u_x, u_y), u_theta
-        np.add(c * ux, s * uy, out=turned[..., 0])
+        rx = c * ux + s * uy
+        turned = np.empty((*np.shape(rx), 3))  # R(theta)^T (u_x, u_y), u_theta
+        turned[..., 0] = rx
         np.subtract(c * uy, s * ux, out=turned[..., 1])
         turned[..., 2] = u[..., 2]
         return np.einsum("...ij,...j->...i", self.T0, turned)

@@ -286,16 +286,13 @@ class OdometryFilter:
         The same predictor per run (its twist model), correction and heading wrap as `update`, as arrays;
         the measurements are the caller's own (unchecked).
         """
-        x, vx, y, vy, theta, w = X.T
+        rows = np.ascontiguousarray(X.T)  # (6, B): one row per entry of the measured state
         last: Any = self._last  # (6, B) in a batch: one row per entry of the state
         h, L = self._half_period, self.gain
         mean: Any = self._period_mean  # (B,) in a batch
-        predicted = trapezoid = np.empty((3, len(X)))  # (x, y, theta) by each run's predictor
-        if not mean.all():
-            np.add(last[0], h * (last[1] + vx), out=trapezoid[0])
-            np.add(last[2], h * (last[3] + vy), out=trapezoid[1])
-            np.add(last[4], h * (last[5] + w), out=trapezoid[2])
+        predicted = last[0::2] + h * (last[1::2] + rows[1::2])  # the trapezoid's (x, y, theta)
         if mean.any():  # the period mean's: the SE(2) exponential of the twist
+            vx, vy, w = rows[1::2]
             dt = 2.0 * h
             a = w * dt
             small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
@@ -305,15 +302,15 @@ class OdometryFilter:
                     cdt = np.where(small, 0.5 * a * dt, (1.0 - np.cos(a)) / w)
             else:
                 sdt, cdt = np.sin(a) / w, (1.0 - np.cos(a)) / w
-            turned = np.empty_like(trapezoid)
+            turned = np.empty_like(predicted)
             np.add(last[0], sdt * vx + cdt * vy, out=turned[0])
             np.add(last[2], sdt * vy - cdt * vx, out=turned[1])
             np.add(last[4], a, out=turned[2])
-            predicted = turned if mean.all() else np.where(mean, turned, trapezoid)
+            predicted = turned if mean.all() else np.where(mean, turned, predicted)
         new = np.empty_like(last)
-        new[1::2] = X[:, 1::2].T
-        np.add(predicted[:2], L * (X[:, 0:4:2].T - predicted[:2]), out=new[0:4:2])
-        innovation = theta - predicted[2]  # math.remainder's wrap:
+        new[1::2] = rows[1::2]
+        np.add(predicted[:2], L * (rows[0:4:2] - predicted[:2]), out=new[0:4:2])
+        innovation = rows[4] - predicted[2]  # math.remainder's wrap:
         np.add(predicted[2], L * (innovation - _TWO_PI * np.round(innovation / _TWO_PI)), out=new[4])
         self._last = new
         return new[0::2].T

@@ -244,12 +244,10 @@ def _rotate(pairs: np.ndarray, cos: np.ndarray, sin: np.ndarray, out: np.ndarray
 
     cos and sin (b,) are those of the angle: out_x = cos x + sign sin y, out_y = cos y - sign sin x.
     """
-    np.multiply(pairs[0], cos, out=out[0])
-    np.multiply(pairs[1], sin, out=scratch)
-    (np.add if sign > 0 else np.subtract)(out[0], scratch, out=out[0])
-    np.multiply(pairs[1], cos, out=out[1])
-    np.multiply(pairs[0], sin, out=scratch)
-    (np.subtract if sign > 0 else np.add)(out[1], scratch, out=out[1])
+    np.multiply(pairs, cos, out=out)
+    np.multiply(pairs[::-1], sin, out=scratch)  # sin (y, x)
+    (np.add if sign > 0 else np.subtract)(out[0], scratch[0], out=out[0])
+    (np.subtract if sign > 0 else np.add)(out[1], scratch[1], out=out[1])
 
 
 class _Work:
@@ -274,5 +272,5 @@ class _Work:
         self.basis = np.empty((n, _BASIS, b))
         self.basis[:, 0] = 1.0
         self.products = np.empty((_BASIS * len(_ROWS), b))
-        self.cos, self.sin, self.scratch = np.empty(b), np.empty(b), np.empty((2, b))
+        self.cos, self.sin, self.scratch = np.empty(b), np.empty(b), np.empty((2, 2, b))
         self.magnitudes, self.largest = np.empty((n + 1, 3, b)), np.empty((3, b))

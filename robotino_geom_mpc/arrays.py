@@ -1,4 +1,6 @@
-"""The one array check every module makes at its boundary: shape and finiteness, named in the error."""
+"""The array helpers the modules share: the check at their boundary (shape and finiteness, named in the error)
+and the largest |value| over three columns (the array forms' batch axis).
+"""
 
 from __future__ import annotations
 

@@ -44,13 +44,15 @@ class MotorKinematics:
 
     @classmethod
     def batch(cls, robots: Sequence[RobotinoParams]) -> MotorKinematics:
-        """The kinematics of B robots at once: W(0) of shape (B, 3, 3), for the array form `speeds_and_rates`."""
+        """The kinematics of B robots at once, for the array form `speeds_and_rates`: W(0) of shape (B, 3, 3), or
+        (3, 3) when the runs share their wheels (one product for all of them).
+        """
         stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
         made: dict[tuple[float, float, float], np.ndarray] = {}  # runs with the same wheels share W(0)
         for p in robots:
             if (p.gear_ratio, p.r, p.l) not in made:
                 made[p.gear_ratio, p.r, p.l] = cls(p).W0
-        stacked.W0 = np.stack([made[p.gear_ratio, p.r, p.l] for p in robots])
+        stacked.W0 = made.popitem()[1] if len(made) == 1 else np.stack([made[p.gear_ratio, p.r, p.l] for p in robots])
         stacked._W0 = None  # no float path for a batch
         return stacked
 
@@ -84,6 +86,8 @@ class MotorKinematics:
         np.add(c * bx, s * by, out=rate_body[..., 0])
         np.subtract(c * by, s * bx, out=rate_body[..., 1])
         rate_body[..., 2] = a[..., 2]
+        if self.W0.ndim == 2:  # one W(0) for every run
+            return velocity_body @ self.W0.T, rate_body @ self.W0.T
         return (np.einsum("...ij,...j->...i", self.W0, velocity_body),
                 np.einsum("...ij,...j->...i", self.W0, rate_body))
 

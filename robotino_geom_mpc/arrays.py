@@ -1,4 +1,6 @@
-"""The one array check every module makes at its boundary: shape and finiteness, named in the error."""
+"""The array helpers the modules share: the check at their boundary (shape and finiteness, named in the error)
+and the largest |value| over three columns (the array forms' batch axis).
+"""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ import numpy as np
 
 from robotino_geom_mpc.errors import RobotinoError
 
-__all__ = ["checked_array", "float_triple"]
+__all__ = ["checked_array", "float_triple", "largest_abs"]
 
 
 def checked_array(
@@ -56,3 +58,11 @@ def float_triple(values: Iterable[SupportsFloat]) -> tuple[float, float, float]:
     """
     x, y, z = values
     return float(x), float(y), float(z)
+
+
+def largest_abs(values: np.ndarray) -> np.ndarray:
+    """max |v| over the last axis of length 3, shape (...,): three columns compared (numpy's reduction over a
+    last axis this short costs about six times as much at a batch of 500 rows).
+    """
+    magnitudes = np.abs(values)
+    return np.maximum(np.maximum(magnitudes[..., 0], magnitudes[..., 1]), magnitudes[..., 2])

@@ -276,8 +276,8 @@ class OdometryFilter:
         start = np.asarray(start, dtype=float)
         if start.shape != (len(twists), 3) or not np.all(np.isfinite(start)):
             raise EstimatorError(f"start must be {len(twists)} finite poses, got shape {start.shape}")
-        stacked._last = np.zeros((len(twists), 6))
-        stacked._last[:, 0::2] = start
+        stacked._last = np.zeros((6, len(twists)))  # one row per entry of the state (`update_batch`)
+        stacked._last[0::2] = start.T
         return stacked
 
     def update_batch(self, X: np.ndarray) -> np.ndarray:
@@ -286,24 +286,31 @@ class OdometryFilter:
         The same predictor per run (its twist model), correction and heading wrap as `update`, as arrays;
         the measurements are the caller's own (unchecked).
         """
-        x, vx, y, vy, theta, w = X.T
-        last: Any = self._last  # (B, 6) in a batch
-        px, vx0, py, vy0, pt, w0 = last.T
+        rows = np.ascontiguousarray(X.T)  # (6, B): one row per entry of the measured state
+        last: Any = self._last  # (6, B) in a batch: one row per entry of the state
         h, L = self._half_period, self.gain
-        dt = 2.0 * h
-        a = w * dt
-        small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
-        with np.errstate(divide="ignore", invalid="ignore"):
-            sdt = np.where(small, (1.0 - a * a / 6.0) * dt, np.sin(a) / w)
-            cdt = np.where(small, 0.5 * a * dt, (1.0 - np.cos(a)) / w)
-        mean = self._period_mean
-        px = np.where(mean, px + (sdt * vx + cdt * vy), px + h * (vx0 + vx))
-        py = np.where(mean, py + (sdt * vy - cdt * vx), py + h * (vy0 + vy))
-        pt = np.where(mean, pt + a, pt + h * (w0 + w))
-        px = px + L * (x - px)
-        py = py + L * (y - py)
-        innovation = theta - pt
-        pt = pt + L * (innovation - _TWO_PI * np.round(innovation / _TWO_PI))  # math.remainder's wrap
-        last = np.column_stack((px, vx, py, vy, pt, w))
-        self._last = last
-        return last[:, 0::2]
+        mean: Any = self._period_mean  # (B,) in a batch
+        predicted = last[0::2] + h * (last[1::2] + rows[1::2])  # the trapezoid's (x, y, theta)
+        if mean.any():  # the period mean's: the SE(2) exponential of the twist
+            vx, vy, w = rows[1::2]
+            dt = 2.0 * h
+            a = w * dt
+            small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
+            if small.any():
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    sdt = np.where(small, (1.0 - a * a / 6.0) * dt, np.sin(a) / w)
+                    cdt = np.where(small, 0.5 * a * dt, (1.0 - np.cos(a)) / w)
+            else:
+                sdt, cdt = np.sin(a) / w, (1.0 - np.cos(a)) / w
+            turned = np.empty_like(predicted)
+            np.add(last[0], sdt * vx + cdt * vy, out=turned[0])
+            np.add(last[2], sdt * vy - cdt * vx, out=turned[1])
+            np.add(last[4], a, out=turned[2])
+            predicted = turned if mean.all() else np.where(mean, turned, predicted)
+        new = np.empty_like(last)
+        new[1::2] = rows[1::2]
+        np.add(predicted[:2], L * (rows[0:4:2] - predicted[:2]), out=new[0:4:2])
+        innovation = rows[4] - predicted[2]  # math.remainder's wrap:
+        np.add(predicted[2], L * (innovation - _TWO_PI * np.round(innovation / _TWO_PI)), out=new[4])
+        self._last = new
+        return new[0::2].T

@@ -46,7 +46,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.arrays import checked_array
+from robotino_geom_mpc.arrays import checked_array, largest_abs
 from robotino_geom_mpc.params.specs import RobotinoParams
 
 __all__ = ["DriveError", "ZOHDrive", "InverseDrive"]
@@ -179,7 +179,10 @@ class InverseDrive:
         Every coefficient gets the shape (B, 1) (the ZOH relations broadcast over the three wheels) and the
         current estimate the shape (B, 3); the float forms serve one run only.
         """
-        runs = [cls(p, period_s) for p in robots]
+        made: dict[tuple[float, ...], InverseDrive] = {}  # runs with the same drive share its coefficients
+        keys = [(p.resistance_ohm, p.inductance_h, p.torque_constant_n_m_per_a, p.supply_voltage_v, p.r, p.gear_ratio)
+                for p in robots]
+        runs = [made[key] if key in made else made.setdefault(key, cls(p, period_s)) for key, p in zip(keys, robots)]
         stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
         column = lambda values: np.array(values, dtype=float)[:, None]  # noqa: E731
         zoh: Any = ZOHDrive.__new__(ZOHDrive)
@@ -209,7 +212,7 @@ class InverseDrive:
         i0: Any = self._i0  # (B, 3) in a batch
         supply: Any = self.supply_voltage_v  # (B, 1) in a batch
         U = vc * i_cmd + vs * i0 + vw * omega + vr * omega_rate
-        saturated = np.abs(U).max(axis=-1) > supply[:, 0]
+        saturated = largest_abs(U) > supply[:, 0]
         ec, es, ew, er = self._end_row
         end = ec * i_cmd + es * i0 + ew * omega + er * omega_rate
         mean = i_cmd
@@ -241,7 +244,7 @@ class InverseDrive:
         i0 = self._i0
         U, saturated, mean = self.step_batch(i_cmd, omega, omega_rate, rate_of_current)
         end = self._i0
-        keep = ~saturated & (np.maximum(np.abs(i_cmd).max(axis=-1), np.abs(end).max(axis=-1)) <= current_limit)
+        keep = ~saturated & (np.maximum(largest_abs(i_cmd), largest_abs(end)) <= current_limit)
         scale = np.ones(len(keep))
         if keep.all():
             return U, saturated, mean, scale

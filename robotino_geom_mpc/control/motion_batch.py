@@ -84,12 +84,10 @@ class MotionControllerBatch:
             The reference positions at t + Ts .. t + N Ts, (N, 3) shared or (B, N, 3) per run.
         """
         X = np.array(X, dtype=float)
-        B = len(X)
         if self.estimator is not None:
             X[:, 0::2] = self.estimator.update_batch(X)
         theta, velocity = X[:, 4], X[:, 1::2]
         theta_m = theta + 0.5 * self.period_s * velocity[:, 2]
-        preview = np.broadcast_to(preview, (B, *np.shape(preview)[-2:]))
         u = self.u_prev + self.mpc.delta_u(X, self.u_prev, preview)
         currents = self.drive.current_per_force * self.field.forces(theta_m, u)
         omega, omega_rate = self.kinematics.speeds_and_rates(theta, velocity, u - self._damping * velocity)

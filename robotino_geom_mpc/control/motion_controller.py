@@ -376,8 +376,12 @@ def state_from_odometry(pose: object, twist_body: object) -> np.ndarray:
                                    f"{twist.shape}")
     c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
     vx, vy = twist[..., 0], twist[..., 1]
-    return np.stack((pose[..., 0], c * vx - s * vy, pose[..., 1], s * vx + c * vy, pose[..., 2], twist[..., 2]),
-                    axis=-1)
+    state = np.empty((*pose.shape[:-1], 6))
+    state[..., 0::2] = pose
+    np.subtract(c * vx, s * vy, out=state[..., 1])
+    np.add(s * vx, c * vy, out=state[..., 3])
+    state[..., 5] = twist[..., 2]
+    return state
 
 
 def step_interval(stamp_ns: int, last_ns: int | None, period_ns: int) -> float | None:

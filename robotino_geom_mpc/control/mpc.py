@@ -263,7 +263,7 @@ class DecoupledMPC:
         u_prev
             u(k-1), shape (..., 3).
         Y_d
-            Reference positions y_d(k+1) .. y_d(k+N), shape (..., N, 3).
+            Reference positions y_d(k+1) .. y_d(k+N), shape (..., N, 3) or (N, 3) shared by the runs.
 
         Returns
         -------
@@ -273,11 +273,11 @@ class DecoupledMPC:
 
         Notes
         -----
-        Shapes are the caller's responsibility here (the controller checks its
-        inputs once). `delta_u_floats` is the same law on Python floats.
+        Shapes are the caller's (the controller checks its inputs once); `delta_u_floats` is the law on floats.
         """
-        Y_d = np.asarray(Y_d, dtype=float)
-        z = np.concatenate((Y_d.reshape(*Y_d.shape[:-2], -1), X, u_prev), axis=-1)
+        Y_d, X, n = np.asarray(Y_d, dtype=float), np.asarray(X, dtype=float), 3 * np.shape(Y_d)[-2]
+        z = np.empty((*X.shape[:-1], n + 9))  # (Y_d.ravel(), X, u(k-1)) per run
+        z[..., :n], z[..., n : n + 6], z[..., n + 6 :] = Y_d.reshape(*Y_d.shape[:-2], n), X, u_prev
         return np.einsum("...ak,...k->...a", self.stacked_gain, z)
 
     @classmethod

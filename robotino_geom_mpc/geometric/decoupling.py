@@ -47,7 +47,7 @@ def _thetas(theta: object) -> np.ndarray:
     arr = np.asarray(theta, dtype=float)
     if arr.ndim > 1:
         raise DecouplingError(f"theta must be a scalar or a 1-d array, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise DecouplingError("theta must be finite")
     return arr
 
@@ -192,7 +192,12 @@ class DecouplingField:
         u = np.asarray(u, dtype=float)
         c, s = np.cos(th), np.sin(th)
         ux, uy = u[..., 0], u[..., 1]  # T(theta) u = T(0) (R(theta)^T (u_x, u_y), u_theta), as `forces_floats`
-        return np.einsum("...ij,...j->...i", self.T0, np.stack((c * ux + s * uy, c * uy - s * ux, u[..., 2]), axis=-1))
+        rx = c * ux + s * uy
+        turned = np.empty((*np.shape(rx), 3))  # R(theta)^T (u_x, u_y), u_theta
+        turned[..., 0] = rx
+        np.subtract(c * uy, s * ux, out=turned[..., 1])
+        turned[..., 2] = u[..., 2]
+        return np.einsum("...ij,...j->...i", self.T0, turned)
 
     def forces_floats(self, theta: float, u: Sequence[float]) -> list[float]:
         """Wheel forces F = T(theta) u [N] (eqs. 36-37) on Python floats, the per-tick path of `field`.

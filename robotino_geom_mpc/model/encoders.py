@@ -289,12 +289,19 @@ def integrate_poses(pose: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarra
     vx, vy, w = twist.T
     a = w * dt
     small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(small, 1.0 - a * a / 6.0, np.sin(a) / a)
-        c = np.where(small, 0.5 * a, (1.0 - np.cos(a)) / a)
+    if small.any():
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(small, 1.0 - a * a / 6.0, np.sin(a) / a)
+            c = np.where(small, 0.5 * a, (1.0 - np.cos(a)) / a)
+    else:
+        s, c = np.sin(a) / a, (1.0 - np.cos(a)) / a
     dx, dy = (s * vx - c * vy) * dt, (c * vx + s * vy) * dt
     ct, st = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-    return np.column_stack((pose[:, 0] + ct * dx - st * dy, pose[:, 1] + st * dx + ct * dy, pose[:, 2] + a))
+    out = np.empty_like(pose)
+    np.subtract(pose[:, 0] + ct * dx, st * dy, out=out[:, 0])
+    np.add(pose[:, 1] + st * dx, ct * dy, out=out[:, 1])
+    np.add(pose[:, 2], a, out=out[:, 2])
+    return out
 
 
 def odometry_source(plant: RobotinoPlant, model: str = "ideal", counts_per_rev: int = DEFAULT_COUNTS_PER_REV,

@@ -44,9 +44,15 @@ class MotorKinematics:
 
     @classmethod
     def batch(cls, robots: Sequence[RobotinoParams]) -> MotorKinematics:
-        """The kinematics of B robots at once: W(0) of shape (B, 3, 3), for the array form `speeds_and_rates`."""
+        """The kinematics of B robots at once, for the array form `speeds_and_rates`: W(0) of shape (B, 3, 3), or
+        (3, 3) when the runs share their wheels (one product for all of them).
+        """
         stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
-        stacked.W0 = np.stack([cls(p).W0 for p in robots])
+        made: dict[tuple[float, float, float], np.ndarray] = {}  # runs with the same wheels share W(0)
+        for p in robots:
+            if (p.gear_ratio, p.r, p.l) not in made:
+                made[p.gear_ratio, p.r, p.l] = cls(p).W0
+        stacked.W0 = made.popitem()[1] if len(made) == 1 else np.stack([made[p.gear_ratio, p.r, p.l] for p in robots])
         stacked._W0 = None  # no float path for a batch
         return stacked
 
@@ -73,10 +79,17 @@ class MotorKinematics:
         c, s = np.cos(theta), np.sin(theta)
         vx, vy, w = v[..., 0], v[..., 1], v[..., 2]
         bx, by = a[..., 0] + w * vy, a[..., 1] - w * vx
-        body_velocity = np.stack((c * vx + s * vy, c * vy - s * vx, w), axis=-1)
-        body_rate = np.stack((c * bx + s * by, c * by - s * bx, a[..., 2]), axis=-1)
-        return (np.einsum("...ij,...j->...i", self.W0, body_velocity),
-                np.einsum("...ij,...j->...i", self.W0, body_rate))
+        velocity_body, rate_body = np.empty((2, *c.shape, 3))  # R(theta)^T of the velocity and of the rate
+        np.add(c * vx, s * vy, out=velocity_body[..., 0])
+        np.subtract(c * vy, s * vx, out=velocity_body[..., 1])
+        velocity_body[..., 2] = w
+        np.add(c * bx, s * by, out=rate_body[..., 0])
+        np.subtract(c * by, s * bx, out=rate_body[..., 1])
+        rate_body[..., 2] = a[..., 2]
+        if self.W0.ndim == 2:  # one W(0) for every run
+            return velocity_body @ self.W0.T, rate_body @ self.W0.T
+        return (np.einsum("...ij,...j->...i", self.W0, velocity_body),
+                np.einsum("...ij,...j->...i", self.W0, rate_body))
 
     def speeds_and_rates_floats(
         self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]

@@ -8,11 +8,12 @@ group, one product for every heading quantity and two products per substep:
 
     v_(k+1) = M(eps_k) v_k,  M(eps) = sum_j b_j(eps) C_j   =>   v_(k+1) = sum_j b_j (C_j v_k),
 
-the C_j v_k of all runs in one matrix product (B, 8) x (8, 8 x 11) (the held voltages' share once a step;
-the wheel angles only pass through C_0, as the identity, so they are added, not multiplied). A run
-whose heading change leaves the polynomial's range (a turn rate beyond 20
-rad/s), or a group with anisotropic friction, takes the exact expm maps of
-`RobotinoPlant` for that run, as `RobotinoPlant.step` does. B = 1 is one run.
+the C_j v_k of all runs in one matrix product ((J + 2) x 11, 11) x (11, B) on the held voltages and the
+loop vector's first 8 entries (the wheel angles only pass through C_0, as the identity, so they are
+added, not multiplied), combined with one einsum. A run whose heading change leaves the polynomial's
+range (a turn rate beyond 20 rad/s), or a group with anisotropic friction, takes the exact expm maps of
+`RobotinoPlant` for that run, as `RobotinoPlant.step` does. B = 1 is one run. The work arrays are kept
+from step to step (`_Work`): arrays of this size, allocated afresh, cost more than the products.
 """
 
 from __future__ import annotations
@@ -22,12 +23,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from robotino_geom_mpc.model.plant import _BASIS, _CURRENTS, _N_LOOP, _ROWS, PlantError, \
-    RobotinoPlant, _turn
+from robotino_geom_mpc.model.plant import _BASIS, _N_LOOP, _ROWS, PlantError, RobotinoPlant, _StepCache, _turn
 from robotino_geom_mpc.params.specs import RobotinoParams
 
 __all__ = ["PlantBatch"]
 
+# The rows of `_Work.trace`: the held voltages, then `RobotinoPlant`'s loop vector's first 11 entries (x, x', y,
+# y' in the frame, theta', the currents, the wheel angles): one product takes rows 0-10 to rows 3-13.
+_HELD, _MOVED, _LOOP, _PLANAR = slice(0, 3), slice(0, 11), slice(3, 14), slice(3, 7)
+_THETA_RATE, _CURRENT_ROWS, _WHEEL_ROWS = 7, slice(8, 11), slice(11, 14)
 _WHEELS = slice(8, 11)  # the wheel angles of the loop vector: C_0 passes them on (identity), no other C_j sees them
 _DROPPED = 2.0**-56  # the terms of the substep maps' polynomial a step may leave out, relative (`PlantBatch._degree`)
 
@@ -59,9 +63,13 @@ class PlantBatch:
             groups.setdefault(p, []).append(index)
         self._groups = [(RobotinoPlant(p, substeps=substeps), np.array(rows)) for p, rows in groups.items()]
         self._whole = len(self._groups) == 1  # one group: its rows are all runs, in order (no gather, no scatter)
-        self._loop_maps: dict[tuple[int, float], list[tuple[np.ndarray, np.ndarray]]] = {}
+        self._loop_maps: dict[tuple[int, float], list[np.ndarray]] = {}
         self._term_sizes: dict[tuple[int, float], np.ndarray] = {}
-        self._columns = np.zeros((12, len(self.params)))  # the state, run by column (contiguous rows per quantity)
+        self._work: dict[tuple[int, float], _Work] = {}
+        # the augmented states w (15, B), one run per column: the state (each quantity a contiguous row), then
+        # the held voltages
+        self._augmented = np.zeros((15, len(self.params)))
+        self._columns = self._augmented[:12]
         self.time_s = 0.0
 
     @property
@@ -80,20 +88,24 @@ class PlantBatch:
         """
         x, vx, y, vy, theta, w = self._columns[:6]
         c, s = np.cos(theta), np.sin(theta)
-        return self.state[:, 0:5:2].copy(), np.column_stack((c * vx + s * vy, -s * vx + c * vy, w))
+        twist = np.empty((len(theta), 3))
+        np.add(c * vx, s * vy, out=twist[:, 0])
+        np.add(-s * vx, c * vy, out=twist[:, 1])
+        twist[:, 2] = w
+        return self.state[:, 0:5:2].copy(), twist
 
     @property
     def wheel_angles(self) -> np.ndarray:
         """Integrated wheel angles (rim distance / r) per run [rad], shape (B, 3)."""
         return self.state[:, 9:12]
 
-    def _stacked_maps(self, group: int, plant: RobotinoPlant, dt: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    def _stacked_maps(self, group: int, plant: RobotinoPlant, dt: float) -> list[np.ndarray]:
         """Per degree J = 0 .. 6: the substep maps' coefficients C_0 .. C_J and C_beta (the hand-over term)
-        on the loop vector's first 8 entries and on the held voltages, ((J + 2) x 11, 8) and ((J + 2) x 11, 3).
+        on the held voltages and the loop vector's first 8 entries (`_Work.trace`'s rows 0-10), ((J + 2) x 11, 11).
 
-        Row block j is C_j's first 11 rows, so C @ v gives every C_j v. Rows 8-10 of the loop vector, the
-        wheel angles, are left out: C_0 passes them on (identity) and no other C_j sees them (checked here),
-        so `step` adds them instead of multiplying.
+        Row block j is C_j's first 11 rows, so C @ v gives every C_j v. The wheel angles are left out: C_0
+        passes them on (identity) and no other C_j sees them (checked here), so `step` adds them instead of
+        multiplying.
         """
         key = (group, dt)
         if key not in self._loop_maps:
@@ -107,8 +119,7 @@ class PlantBatch:
             maps = []
             for degree in range(_BASIS - 1):
                 kept = coefficients[[*range(degree + 1), _BASIS - 1]].reshape(-1, _N_LOOP)
-                maps.append((np.ascontiguousarray(kept[:, : _WHEELS.start]),
-                             np.ascontiguousarray(kept[:, len(_ROWS) :])))
+                maps.append(np.hstack((kept[:, len(_ROWS) :], kept[:, : _WHEELS.start])))
             self._loop_maps[key] = maps
             # the row sums of |C_j| beyond the wheel angles: the largest change a term e^j C_j can make
             size = np.abs(np.delete(coefficients, _WHEELS, axis=2)).sum(axis=2).max(axis=1)
@@ -148,58 +159,118 @@ class PlantBatch:
             raise PlantError(f"voltages must be finite with shape ({len(self.params)}, 3), got {U.shape}")
         if not (isinstance(dt, float) and math.isfinite(dt) and dt > 0.0):
             raise PlantError(f"dt must be a positive finite number of seconds, got {dt!r}")
-        peaks = np.empty((3, len(self.params)))
+        return self.advance(U, dt, np.empty((len(self.params), 3)))
+
+    def advance(self, voltages: np.ndarray, dt: float, out: np.ndarray) -> np.ndarray:
+        """`step` without its checks, the peak currents into `out` (B, 3) (returned): for a loop that passes
+        float arrays (B, 3) and a valid dt of its own.
+
+        Non-finite voltages are not refused here: they make the states non-finite (which the offline loop's
+        metrics refuse).
+        """
         for group, (plant, rows) in enumerate(self._groups):
-            c = plant._matrices(dt)
-            n = c.n
-            # the augmented states (15, b), one run per column
-            w = np.concatenate((self._columns, U.T)) if self._whole else \
-                np.concatenate((self._columns[:, rows], U[rows].T))
-            b = w.shape[1]
-            heading = c.heading_rows @ w
-            start, end, theta_end = heading[n * _BASIS : n * _BASIS + 3]
-            raw = heading[: n * _BASIS].reshape(n, _BASIS, b)
-            turn = np.abs(raw[:, 1]).max(axis=0)  # each run's largest |eps / eps_max| of the step
-            fast = turn <= 1.0 if c.coefficients is not None else np.zeros(b, bool)
-            # Into each run's start frame: the loop vector (rotated planar pairs, then w[5:])
-            x, vx, y, vy = w[:4]
-            cos, sin = np.cos(start), np.sin(start)  # cos(-start) = cos, sin(-start) = -sin
-            trace = np.empty((n + 1, len(_ROWS), b))  # the loop vectors without the held voltages
-            trace[0, 0], trace[0, 1] = cos * x + sin * y, cos * vx + sin * vy
-            trace[0, 2], trace[0, 3] = cos * y - sin * x, cos * vy - sin * vx
-            trace[0, 4:] = w[5:12]
-            if fast.any():
-                # the basis (1, e, .., e^J, beta) of each substep, e = eps / eps_max (`_EXPONENTS`): (n, J + 2, b)
-                maps = self._stacked_maps(group, plant, dt)
-                degree = self._degree((group, dt), float(turn.max() if fast.all() else turn[fast].max()))
-                moving, driving = maps[degree]
-                basis = np.empty((n, degree + 2, b))
-                basis[:, 0] = 1.0
-                basis[:, degree + 1] = raw[:, _BASIS - 1]
-                for j in range(1, degree + 1):
-                    np.multiply(basis[:, j - 1], raw[:, 1], out=basis[:, j])
-                held = driving @ w[12:]  # the voltages' share of every C_j v, the same each substep
-                for k in range(n):
-                    products = (moving @ trace[k, : _WHEELS.start] + held).reshape(degree + 2, len(_ROWS), b)
-                    np.einsum("jib,jb->ib", products, basis[k], out=trace[k + 1])
-                    trace[k + 1, _WHEELS] += trace[k, _WHEELS]  # C_0's identity on them
-            for r in np.flatnonzero(~fast):  # exact maps, as `RobotinoPlant.step` beyond the fit
-                for k in range(n):
-                    exact = _turn(raw[k, _BASIS - 1, r]) @ plant._substep_map(
-                        raw[k, 1, r] * c.eps_max, heading[n * _BASIS + 3 + k, r], c.h)
-                    trace[k + 1, :, r] = exact @ np.concatenate((trace[k, :, r], w[12:, r]))
-            x, vx, y, vy = trace[n, :4]
-            cos, sin = np.cos(end), np.sin(end)
-            out = self._columns if self._whole else np.empty((12, b))
-            out[0], out[1], out[2], out[3] = cos * x - sin * y, cos * vx - sin * vy, sin * x + cos * y, \
-                sin * vx + cos * vy
-            out[4], out[5:] = theta_end, trace[n, 4:]
-            currents = trace[:, _CURRENTS]
-            largest = np.abs(currents).max(axis=0)
-            if self._whole:
-                np.copysign(largest, currents[-1], out=peaks)
-            else:
-                self._columns[:, rows] = out
-                peaks[:, rows] = np.copysign(largest, currents[-1])
+            self._advance_group(group, plant, rows, voltages, dt, out.T)
         self.time_s += dt
-        return peaks.T
+        return out
+
+    def _work_of(self, group: int, plant: RobotinoPlant, dt: float, b: int) -> _Work:
+        key = (group, dt)
+        if key not in self._work:
+            self._work[key] = _Work(plant._matrices(dt), b, self._augmented if self._whole else None)
+        return self._work[key]
+
+    def _advance_group(self, group: int, plant: RobotinoPlant, rows: np.ndarray, U: np.ndarray, dt: float,
+                       peaks: np.ndarray) -> None:
+        """`advance` of one parameter group (rows `rows` of the batch), its peak currents into `peaks` (3, B)."""
+        c = plant._matrices(dt)
+        n, b = c.n, len(rows)
+        work = self._work_of(group, plant, dt, b)
+        w, trace = work.augmented, work.trace
+        if self._whole:
+            w[12:] = U.T
+        else:
+            w[:12], w[12:] = self._columns[:, rows], U[rows].T
+        np.matmul(work.rows, w, out=work.heading)
+        eps, beta, means = work.eps, work.beta, work.means
+        start, end, theta_end = work.ends
+        trace[:n, _HELD] = w[12:]
+        # Into each run's start frame: the loop vector (rotated planar pairs, then w[5:12])
+        _rotate(w[:4].reshape(2, 2, b), np.cos(start, out=work.cos), np.sin(start, out=work.sin),
+                trace[0, _PLANAR].reshape(2, 2, b), work.scratch, 1.0)
+        trace[0, _THETA_RATE:] = w[5:12]
+        turn = max(float(eps.max()), -float(eps.min()))  # the step's largest |eps / eps_max|
+        slow = np.empty(0, dtype=np.intp)
+        if c.coefficients is None:
+            slow = np.arange(b)
+        elif turn > 1.0:  # the runs beyond the fit take the exact maps
+            each = np.abs(eps).max(axis=0)
+            slow = np.flatnonzero(each > 1.0)
+            turn = float(each[each <= 1.0].max(initial=0.0))
+        if len(slow) < b:
+            maps = self._stacked_maps(group, plant, dt)
+            degree = self._degree((group, dt), turn)
+            matrix = maps[degree]
+            # the basis (1, e, .., e^J, beta) of each substep, e = eps / eps_max (`_EXPONENTS`): (n, J + 2, b)
+            basis = work.basis[:, : degree + 2]
+            for j in range(1, degree + 1):
+                np.multiply(basis[:, j - 1], eps, out=basis[:, j])
+            basis[:, degree + 1] = beta
+            products = work.products[: len(matrix)]
+            terms = products.reshape(degree + 2, len(_ROWS), b)
+            for k in range(n):
+                np.matmul(matrix, trace[k, _MOVED], out=products)
+                np.einsum("jib,jb->ib", terms, basis[k], out=trace[k + 1, _LOOP])
+                trace[k + 1, _WHEEL_ROWS] += trace[k, _WHEEL_ROWS]  # C_0's identity on them
+        for r in slow:  # exact maps, as `RobotinoPlant.step` beyond the fit
+            for k in range(n):
+                exact = _turn(beta[k, r]) @ plant._substep_map(eps[k, r] * c.eps_max, means[k, r], c.h)
+                trace[k + 1, _LOOP, r] = exact @ np.concatenate((trace[k, _LOOP, r], trace[k, _HELD, r]))
+        # Back from the end frame: the state (w's first 12 rows, the batch's own when it is one group)
+        _rotate(trace[n, _PLANAR].reshape(2, 2, b), np.cos(end, out=work.cos), np.sin(end, out=work.sin),
+                w[:4].reshape(2, 2, b), work.scratch, -1.0)
+        w[4], w[5:12] = theta_end, trace[n, _THETA_RATE:]
+        currents = trace[:, _CURRENT_ROWS]
+        np.abs(currents, out=work.magnitudes).max(axis=0, out=work.largest)
+        if self._whole:
+            np.copysign(work.largest, currents[-1], out=peaks)
+        else:
+            self._columns[:, rows] = w[:12]
+            peaks[:, rows] = np.copysign(work.largest, currents[-1])
+
+
+def _rotate(pairs: np.ndarray, cos: np.ndarray, sin: np.ndarray, out: np.ndarray, scratch: np.ndarray,
+            sign: float) -> None:
+    """The planar pairs ((x, x'), (y, y')) (2, 2, b) turned by -angle (sign 1) or by angle (sign -1), into `out`.
+
+    cos and sin (b,) are those of the angle: out_x = cos x + sign sin y, out_y = cos y - sign sin x.
+    """
+    np.multiply(pairs, cos, out=out)
+    np.multiply(pairs[::-1], sin, out=scratch)  # sin (y, x)
+    (np.add if sign > 0 else np.subtract)(out[0], scratch[0], out=out[0])
+    (np.subtract if sign > 0 else np.add)(out[1], scratch[1], out=out[1])
+
+
+class _Work:
+    """The arrays one step of a parameter group writes (one step size, b runs), kept from step to step.
+
+    ``rows`` are the heading rows `PlantBatch` reads of `RobotinoPlant`'s (eps / eps_max and beta of each
+    substep, the frame angles at the start and end, theta at the end, the mean headings), ``heading`` their
+    product with the augmented states ``augmented`` (15, b); ``trace`` (n + 1, 14, b) the loop vectors at
+    the substep ends with the held voltages first (`_HELD`, `_LOOP`).
+    """
+
+    def __init__(self, c: _StepCache, b: int, augmented: np.ndarray | None) -> None:
+        n = c.n
+        picked = [*range(1, n * _BASIS, _BASIS), *range(_BASIS - 1, n * _BASIS, _BASIS),
+                  *range(n * _BASIS, n * _BASIS + 3 + n)]
+        self.rows = np.ascontiguousarray(c.heading_rows[picked])
+        self.heading = np.empty((len(picked), b))
+        self.eps, self.beta = self.heading[:n], self.heading[n : 2 * n]
+        self.ends, self.means = self.heading[2 * n : 2 * n + 3], self.heading[2 * n + 3 :]
+        self.augmented = np.zeros((15, b)) if augmented is None else augmented
+        self.trace = np.empty((n + 1, 14, b))
+        self.basis = np.empty((n, _BASIS, b))
+        self.basis[:, 0] = 1.0
+        self.products = np.empty((_BASIS * len(_ROWS), b))
+        self.cos, self.sin, self.scratch = np.empty(b), np.empty(b), np.empty((2, 2, b))
+        self.magnitudes, self.largest = np.empty((n + 1, 3, b)), np.empty((3, b))

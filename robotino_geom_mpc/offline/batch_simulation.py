@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from robotino_geom_mpc.arrays import largest_abs
 from robotino_geom_mpc.control.motion_batch import MotionControllerBatch
 from robotino_geom_mpc.control.motion_controller import state_from_odometry
 from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST, DEFAULT_COUNTS_PER_REV, ODOMETRY_MODELS, \
@@ -165,20 +166,20 @@ class BatchSeries:
             return values[settled].max(axis=0).tolist() if count else [None] * B
 
         err = errors(pose)
-        position = np.hypot(err[:, :, 0], err[:, :, 1])
-        current = np.abs(self.currents[:, runs])
-        peak_current = current.max(axis=(0, 2))
-        peak_voltage = np.abs(self.voltages[:, runs]).max(axis=(0, 2))
+        position = _length(err[:, :, 0], err[:, :, 1])
+        current = largest_abs(self.currents[:, runs])  # each sample's largest |current| (n, runs)
+        peak_current = current.max(axis=0)
+        peak_voltage = largest_abs(self.voltages[:, runs]).max(axis=0)
         odometry = errors(measured)
-        position_odometry = np.hypot(odometry[:, :, 0], odometry[:, :, 1])
-        drift = np.hypot(*np.moveaxis(measured[:, :, :2] - pose[:, :, :2], 2, 0))
+        position_odometry = _length(odometry[:, :, 0], odometry[:, :, 1])
+        drift = _length(measured[:, :, 0] - pose[:, :, 0], measured[:, :, 1] - pose[:, :, 1])
         return {
             "rms_position_error_m": rms(position), "max_position_error_m": peak(position),
             "rms_x_error_m": rms(err[:, :, 0]), "rms_y_error_m": rms(err[:, :, 1]),
             "rms_theta_error_rad": rms(err[:, :, 2]), "final_position_error_m": position[-1].tolist(),
             "max_abs_theta_error_rad": np.abs(err[:, :, 2]).max(axis=0).tolist(),
-            "peak_current_a": peak_current.tolist(), "peak_current_after_settle_a": peak(current.max(axis=2)),
-            "samples_above_nominal_current": np.any(current > nominal[:, None], axis=2).sum(axis=0).tolist(),
+            "peak_current_a": peak_current.tolist(), "peak_current_after_settle_a": peak(current),
+            "samples_above_nominal_current": (current > nominal).sum(axis=0).tolist(),
             "current_within_nominal": (peak_current <= nominal).tolist(), "peak_voltage_v": peak_voltage.tolist(),
             "voltage_within_supply": (peak_voltage <= supply * (1.0 + 1e-9)).tolist(),
             "nominal_current_a": nominal.tolist(), "supply_voltage_v": supply.tolist(),
@@ -187,6 +188,11 @@ class BatchSeries:
             "rms_theta_error_odom_rad": rms(odometry[:, :, 2]), "odometry_drift_final_m": drift[-1].tolist(),
             "odometry_drift_max_m": drift.max(axis=0).tolist(),
         }
+
+
+def _length(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """sqrt(x^2 + y^2): `compute_metrics`'s hypot to a rounding unit (no overflow at these sizes), ten times as fast."""
+    return np.sqrt(x * x + y * y)
 
 
 _METRIC_CHUNK = 100  # runs whose metrics `BatchSeries.metrics` computes together
@@ -295,11 +301,11 @@ def simulate_batch(
     start = reference.position(np.zeros(1))[0]
     controller = MotionControllerBatch([spec.controller_model(s.robot) for s in settings], control, twists,
                                        np.tile(start, (B, 1)))
-    draws = np.zeros((n, B, 3))  # each run's pose noise, drawn at once as `run_scenario` draws it
-    for b, (std_position, std_yaw) in enumerate(noises):
+    draws = np.zeros((n, B, 3))  # each run's pose noise, the draws of `run_scenario`'s normal(0, std, (n, 3)):
+    for b, (std_position, std_yaw) in enumerate(noises):  # the same standard normals, scaled (twice as fast)
         if std_position or std_yaw:
-            draws[:, b] = np.random.default_rng(settings[b].seed).normal(
-                0.0, (std_position, std_position, std_yaw), (n, 3))
+            np.multiply(np.random.default_rng(settings[b].seed).standard_normal((n, 3)),
+                        (std_position, std_position, std_yaw), out=draws[:, b])
 
     targets = reference.position(np.arange(n + N + 1) * Ts)
     poses, measured, voltages, currents = (np.empty((n, B, 3)) for _ in range(4))
@@ -312,7 +318,7 @@ def simulate_batch(
             pose[reading] = pose_encoders + draws[k, reading]
         volts, saturated[k] = controller.step(state_from_odometry(pose, twist), targets[k + 1 : k + N + 1])
         voltages[k] = volts
-        currents[k] = plant.step(volts, Ts)
+        plant.advance(volts, Ts, currents[k])
 
     return BatchSeries(scenario, control, tuple(settings), tuple(noises), np.arange(n) * Ts, targets[:n], poses,
                        measured, currents, voltages, saturated)

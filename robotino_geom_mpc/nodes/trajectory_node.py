@@ -116,6 +116,7 @@ _DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1
 _FIXED = ("mode", "control.period_s", "control.horizon", "clock_timeout_s", "preview_points")
 _GOAL_PATH_STEP = 5  # after a goal, reference_path has a pose every this many control periods
 _WAIT_LOG_PERIOD_S = 5.0  # at most one "waiting for /clock" line per this long (or per clock_timeout_s if longer)
+_GAP_FILL_TICKS = 100  # lockstep: the previews of at most this many skipped ticks are sent late
 
 
 class TrajectoryNode(Node):
@@ -314,8 +315,16 @@ class TrajectoryNode(Node):
             self._publish_ahead(self.last_clock_ns, current=True)
 
     def _publish_ahead(self, now: int, current: bool) -> None:
-        """Lockstep: the preview of the tick after `now`, after that of `now` itself if `current`."""
+        """Lockstep: the preview of the tick after `now`, after that of `now` itself if `current`, and before it
+        those of the ticks since the last one published (up to `_GAP_FILL_TICKS`): a /clock the reader's history
+        dropped in a burst of ticks (over a link the plant runs on at once through ticks with no answer due)
+        would leave the preview of its next tick unsent, and an odometry of that stamp, delivered later, waiting.
+        """
         if current:
+            period, last = self._period_ns(), self.last_published_ns
+            if last is not None and now - _GAP_FILL_TICKS * period <= last < now - period:
+                for stamp in range(last + period, now, period):
+                    self._publish_preview(stamp, stamp)
             self._publish_preview(now, now)
         after = now + self._period_ns()
         self._publish_preview(after, after)

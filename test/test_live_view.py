@@ -120,8 +120,12 @@ def test_run_foxglove_serves_the_recorded_messages_live(tmp_path):
     for topic, values, type_name in (("/odom", _odom_values, "nav_msgs/msg/Odometry"),
                                      ("/tf", _tf_values, "tf2_msgs/msg/TFMessage")):
         in_bag = {values(store.deserialize_cdr(data, type_name)): data for data in recorded[topic]}
+        stamp = (lambda key: key[:2]) if topic == "/odom" else (lambda key: key[0][:2])
+        first = min(stamp(key) for key in in_bag)
         for data in live[topic]:
             key = values(store.deserialize_cdr(data, type_name))
+            if stamp(key) < first:
+                continue  # sent before the recorder matched the topic (a realtime run does not wait for it)
             assert key in in_bag, f"{topic}: a live sample not in the bag: {key}"
             assert data == in_bag[key]  # forwarded as published: no re-encoding
         assert len({values(store.deserialize_cdr(d, type_name)) for d in live[topic]}) == len(live[topic])

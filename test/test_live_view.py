@@ -115,7 +115,7 @@ def test_run_foxglove_serves_the_recorded_messages_live(tmp_path):
         assert (channel["schemaName"], channel["schemaEncoding"], channel["schema"]) == schemas[topic]
         assert channel["encoding"] == "cdr"
     assert set(channels) == set(TOPICS)
-    # a realtime run of 6 s: 600 odometry ticks, the client connected within the first seconds
+    # a realtime run of 6 s: 600 odometry ticks; `run` starts the loop once the view serves, the client is on by then
     assert len(live["/odom"]) > 100 and len(live["/tf"]) > 100
     for topic, values, type_name in (("/odom", _odom_values, "nav_msgs/msg/Odometry"),
                                      ("/tf", _tf_values, "tf2_msgs/msg/TFMessage")):
@@ -160,3 +160,17 @@ def test_a_lockstep_run_with_the_live_view_waits_for_it_and_goes_at_real_time():
     assert plant_parameter(plain, "lockstep_max_realtime_factor") is None
     realtime = node_arguments("paper-circle", default_params_file(), 3.0, False, live_view_port=8770)
     assert plant_parameter(realtime, "lockstep_max_realtime_factor") is None
+
+
+def test_a_run_whose_live_view_cannot_serve_fails_before_the_loop_starts(tmp_path):
+    """The port is taken: `run` reports the live view's own error, exit status 1, and started no other node."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "run", "--scenario", "paper-circle",
+                               "--realtime", "--duration", "2", "--foxglove", str(port), "--out", str(tmp_path)],
+                              capture_output=True, text=True, env=os.environ.copy(), timeout=120)
+    assert proc.returncode == 1, proc.stderr + proc.stdout
+    assert "live_view_node exited with status" in proc.stderr and f"cannot serve on 127.0.0.1:{port}" in proc.stderr
+    assert sorted(p.name for p in (tmp_path / "logs").iterdir()) == ["live_view_node.err.log", "live_view_node.out.log"]

@@ -32,6 +32,7 @@ from robotino_geom_mpc.recording.bag_writer import write_metadata_yaml
 pytestmark = pytest.mark.ros
 
 FLUSH_S = 0.2
+LATE_S = 0.1  # a flush timer firing late and the delivery to the recorder, on a loaded 2-core machine
 RATE_HZ = 200.0
 KIND = "float64_array"
 
@@ -73,8 +74,8 @@ def test_reindex_after_sigkill_mid_run(procs, tmp_path):
     recovered = [values_of(KIND, m) for _, m in tolerant.decoded(["/stream"])]
     n = len(recovered)
     assert recovered == [expected_values(KIND, i) for i in range(n)]  # a gap-free prefix
-    # everything published up to a flush period before the kill is on disk, nothing published after it
-    durable = sum(t < killed_at - FLUSH_S for t in sent)
+    # everything published up to a flush period (and `LATE_S`) before the kill is on disk, nothing after it
+    durable = sum(t < killed_at - FLUSH_S - LATE_S for t in sent)
     print(f"published before the kill {before_kill}, recovered {n}, lost {before_kill - n} "
           f"({(before_kill - n) / RATE_HZ:.3f} s worth)")
     assert durable <= n <= before_kill

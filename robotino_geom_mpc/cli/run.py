@@ -24,6 +24,8 @@ twists on cmd_vel, the plant holds them with its wheel-speed PI loops, and the m
 loops' (the plant's ``applied_voltages``). ``--chain NAME`` (with ``--realtime --command-interface cmd_vel``) puts
 the real robot's driver + firmware chain in the plant node and has the controller control through it
 (``chain.active``; `robotino_sim_node.chain_driver`, `nodes.chain_control`).
+With ``--foxglove PORT`` the live view (`recording.live_view_node`) starts first and the loop once its server is
+up, so a Foxglove client connected by then sees the run from its first odometry.
 
 Over a radio link (``--link-delay-ms D --link-jitter-ms J --link-loss P --link-burst B``, each way, or the
 ``wifi`` scenario's own link) the plant emulates it (``link.up.*`` / ``link.down.*``: everything it publishes
@@ -68,6 +70,9 @@ REPORT_MODULES = ("robotino_geom_mpc.recording.bag_reader", "robotino_geom_mpc.r
                   "robotino_geom_mpc.cli.reindex", "rosbags.typesys.stores.ros2_jazzy")  # the last: the bag's types
 GOALS_SETTLE_S = 3.0  # --goals: the run goes on this long after the last motion ends (the loop settles)
 CHAIN_PI_RATE_HZ = 200.0  # --chain: the plant's wheel PI loops' rate over DDS
+LIVE_VIEW_START_S = 60.0  # --foxglove: the live view serves within this (imports, DDS participant, server)
+LIVE_VIEW_POLL_S = 0.05
+LIVE_VIEW_READY = "Foxglove live view on ws://"  # what the live view node logs once its server is up
 REALTIME_START_S = 2.0  # realtime: the reference starts this much after the first odometry (start_settle_s + discovery)
 
 
@@ -104,7 +109,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "and paths a sender publishes on goal_pose and plan; the run lasts until they end + 3 s")
     parser.add_argument("--foxglove", type=_port, nargs="?", const=8765, default=None, metavar="PORT",
                         help="serve the run's topics live to Foxglove on ws://localhost:PORT (default 8765; needs "
-                        "the [viz] extra); a lockstep run then goes at real time")
+                        "the [viz] extra); the loop starts once it serves; a lockstep run then goes at real time")
     parser.set_defaults(func=run)
     return parser
 
@@ -177,6 +182,20 @@ def _check_viz() -> None:
                          "(or pip install foxglove-sdk)")
 
 
+def _start_live_view(group: NodeGroup, argv: list[str]) -> NodeProcess:
+    """Start the live view node and wait until it logs that it serves (`NodeFailed` if it does not)."""
+    from robotino_geom_mpc.system.processes import NodeFailed
+
+    view = group.start("live_view_node", argv)
+
+    def serving() -> bool:  # rclpy logs to stderr
+        return LIVE_VIEW_READY in view.stderr_path.read_text(errors="replace")
+
+    if not group.wait(view, LIVE_VIEW_START_S, done=serving, poll_s=LIVE_VIEW_POLL_S) or view.popen.poll() is not None:
+        raise NodeFailed(f"the live view did not serve within {LIVE_VIEW_START_S:g} s:\n{view.stderr_tail()}")
+    return view
+
+
 def _goals_duration(args: argparse.Namespace, params_file: Path) -> float:
     """The run length for a goal file: its motions planned offline with the trajectory node's limits, + 3 s."""
     from robotino_geom_mpc.reference.goal_file import LIMIT_DEFAULTS, load_goal_file, motion_limits, planned_end_s
@@ -243,8 +262,10 @@ def run(args: argparse.Namespace) -> int:
     group = NodeGroup(log_dir=out / "logs")
     start = time.monotonic()
     try:
-        nodes = {name: group.start(name, argv)
-                 for name, argv in node_args.items()}
+        nodes = {}
+        if args.foxglove is not None:  # serving before the loop starts: a client that connects at once sees it all
+            nodes["live_view_node"] = _start_live_view(group, node_args.pop("live_view_node"))
+        nodes.update({name: group.start(name, argv) for name, argv in node_args.items()})
         if bag is not None:
             _import_in_background(REPORT_MODULES)
         # the plant ends the run; lockstep may be slower than real time on a loaded machine

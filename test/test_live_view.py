@@ -108,6 +108,7 @@ def _tf_values(msg) -> tuple:
                   t.transform.rotation.w) for t in msg.transforms)
 
 
+@pytest.mark.slow
 def test_run_foxglove_serves_the_recorded_messages_live(tmp_path):
     port, out = _free_port(), tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "robotino_geom_mpc", "run", "--scenario", "paper-circle",

@@ -192,12 +192,11 @@ class DecouplingField:
         u = np.asarray(u, dtype=float)
         c, s = np.cos(th), np.sin(th)
         ux, uy = u[..., 0], u[..., 1]  # T(theta) u = T(0) (R(theta)^T (u_x, u_y), u_theta), as `forces_floats`
-        rx = c * ux + s * uy
-        turned = np.empty((*np.shape(rx), 3))  # R(theta)^T (u_x, u_y), u_theta
-        turned[..., 0] = rx
-        np.subtract(c * uy, s * ux, out=turned[..., 1])
-        turned[..., 2] = u[..., 2]
-        return np.einsum("...ij,...j->...i", self.T0, turned)
+        turned = np.empty((3, *np.shape(c)))  # R(theta)^T (u_x, u_y), u_theta: one contiguous row each
+        np.add(c * ux, s * uy, out=turned[0, ...])
+        np.subtract(c * uy, s * ux, out=turned[1, ...])
+        turned[2, ...] = u[..., 2]
+        return np.einsum("...ij,j...->...i", self.T0, turned)
 
     def forces_floats(self, theta: float, u: Sequence[float]) -> list[float]:
         """Wheel forces F = T(theta) u [N] (eqs. 36-37) on Python floats, the per-tick path of `field`.

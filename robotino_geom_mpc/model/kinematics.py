@@ -79,19 +79,17 @@ class MotorKinematics:
         c, s = np.cos(theta), np.sin(theta)
         vx, vy, w = v[..., 0], v[..., 1], v[..., 2]
         bx, by = a[..., 0] + w * vy, a[..., 1] - w * vx
-        # R(theta)^T of the velocity and of the rate, one contiguous row per coordinate
-        velocity_body, rate_body = body = np.empty((2, 3, *c.shape))
-        np.add(c * vx, s * vy, out=velocity_body[0, ...])
-        np.subtract(c * vy, s * vx, out=velocity_body[1, ...])
-        velocity_body[2, ...] = w
-        np.add(c * bx, s * by, out=rate_body[0, ...])
-        np.subtract(c * by, s * bx, out=rate_body[1, ...])
-        rate_body[2, ...] = a[..., 2]
+        velocity_body, rate_body = np.empty((2, *c.shape, 3))  # R(theta)^T of the velocity and of the rate
+        np.add(c * vx, s * vy, out=velocity_body[..., 0])
+        np.subtract(c * vy, s * vx, out=velocity_body[..., 1])
+        velocity_body[..., 2] = w
+        np.add(c * bx, s * by, out=rate_body[..., 0])
+        np.subtract(c * by, s * bx, out=rate_body[..., 1])
+        rate_body[..., 2] = a[..., 2]
         if self.W0.ndim == 2:  # one W(0) for every run
-            omega, omega_rate = np.moveaxis(body, 1, -1) @ self.W0.T
-        else:
-            omega, omega_rate = np.einsum("...ij,kj...->k...i", self.W0, body)
-        return omega, omega_rate
+            return velocity_body @ self.W0.T, rate_body @ self.W0.T
+        return (np.einsum("...ij,...j->...i", self.W0, velocity_body),
+                np.einsum("...ij,...j->...i", self.W0, rate_body))
 
     def speeds_and_rates_floats(
         self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]

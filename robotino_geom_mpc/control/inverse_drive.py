@@ -245,10 +245,11 @@ class InverseDrive:
         i0 = self._i0
         U, saturated, mean = self.step_batch(i_cmd, omega, omega_rate, rate_of_current)
         end = self._i0
+        if not np.count_nonzero(saturated) and np.abs(i_cmd).max() <= current_limit \
+                and np.abs(end).max() <= current_limit:  # every run keeps its command (the common case, at once)
+            return U, saturated, mean, np.ones(len(U))
         keep = ~saturated & (np.maximum(largest_abs(i_cmd), largest_abs(end)) <= current_limit)
         scale = np.ones(len(keep))
-        if np.count_nonzero(keep) == len(keep):
-            return U, saturated, mean, scale
         rest = rate_at_rest()
         ec, es, ew, er = self._end_row
         vc, vs, vw, vr = self._voltage_row

@@ -4,7 +4,8 @@ Set before anything imports rclpy: each session gets its own random
 ROS_DOMAIN_ID (each pytest-xdist worker of a run its own, neighbours of a
 base drawn from the run's id), discovery stays on localhost, and every participant (the
 tests' own and the nodes') gets the Fast DDS profile `run` gives its nodes
-(`processes.dds_environment`). At the end, the Fast DDS segments that the
+(`processes.dds_environment`); BLAS runs on one thread, as in the nodes and the command line. At the end, the
+Fast DDS segments that the
 session's killed processes left in /dev/shm are removed.
 
 Every test is in one tier, marked in its file (setup.cfg lists the markers): ``unit`` (in-process, no
@@ -19,6 +20,8 @@ import time
 
 import pytest
 from hypothesis import settings
+
+from robotino_geom_mpc.blas import one_blas_thread
 
 settings.register_profile("ci", derandomize=True, print_blob=True)
 if os.environ.get("CI", "").lower() == "true":
@@ -37,6 +40,8 @@ def _domain_id() -> int:
 
 
 os.environ["ROS_DOMAIN_ID"] = str(_domain_id())
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the command line and the nodes run: small matrices
+one_blas_thread()  # numpy may be loaded already (a plugin)
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")

@@ -13,6 +13,7 @@ import math
 import os
 import sys
 
+from robotino_geom_mpc.blas import one_blas_thread
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ParamError
 
@@ -88,6 +89,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     verb = next((a for a in argv if not a.startswith("-")), None)
     os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)  # a venv install: message definitions live there
+    if "OPENBLAS_NUM_THREADS" not in os.environ:  # unless the user chose: one BLAS thread here and in children
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
+        one_blas_thread()
     args = build_parser(verb if verb in VERBS else None).parse_args(argv)
     try:
         return int(args.func(args) or 0)

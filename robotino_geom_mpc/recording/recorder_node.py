@@ -34,7 +34,7 @@ recording carries what `report` and `regress` need.
 
 Crash safety: the chunk in progress is closed and handed to the OS every
 ``flush_period_s`` (default 0.5 s) and whenever it reaches
-``chunk_size_bytes``; after SIGKILL at most that much is lost, `BagReader`
+``chunk_size_bytes``; after SIGKILL at most that much (and what was in transit) is lost, `BagReader`
 reads the rest and ``robotino-geom-mpc reindex`` writes a finalised MCAP
 and metadata.yaml from it. metadata.yaml is written at the end only:
 rosbags does not open an MCAP without footer even with a metadata.yaml

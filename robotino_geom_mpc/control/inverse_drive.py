@@ -176,9 +176,8 @@ class InverseDrive:
     def batch(cls, robots: Sequence[RobotinoParams], period_s: float) -> InverseDrive:
         """The drives of B robots at once, for the array forms (`step_batch`, `limited_step_batch`).
 
-        Every coefficient and the current estimate get the shape (B, 3), each run's value repeated over its
-        three wheels (contiguous: numpy's broadcast of a (B, 1) column over rows of three costs four times
-        as much as the elementwise product); the float forms serve one run only.
+        Every coefficient and the current estimate get the shape (B, 3), a run's value on its three wheels (a
+        (B, 1) column broadcast over rows of three costs numpy four times as much); float forms: one run only.
         """
         made: dict[tuple[float, ...], InverseDrive] = {}  # runs with the same drive share its coefficients
         keys = [(p.resistance_ohm, p.inductance_h, p.torque_constant_n_m_per_a, p.supply_voltage_v, p.r, p.gear_ratio)

@@ -317,11 +317,14 @@ def simulate_batch(
     start = reference.position(np.zeros(1))[0]
     controller = MotionControllerBatch([spec.controller_model(s.robot) for s in settings], control, twists,
                                        np.tile(start, (B, 1)))
-    draws = np.zeros((n, B, 3))  # each run's pose noise, the draws of `run_scenario`'s normal(0, std, (n, 3)):
-    for b, (std_position, std_yaw) in enumerate(noises):  # the same standard normals, scaled (twice as fast)
+    # each run's pose noise, the draws of `run_scenario`'s normal(0, std, (n, 3)): the same standard normals,
+    # drawn run by run into one array, then scaled into the loop's layout at once (a third faster than run by run)
+    normals = np.zeros((B, n, 3))
+    for b, (std_position, std_yaw) in enumerate(noises):
         if std_position or std_yaw:
-            np.multiply(np.random.default_rng(settings[b].seed).standard_normal((n, 3)),
-                        (std_position, std_position, std_yaw), out=draws[:, b])
+            np.random.default_rng(settings[b].seed).standard_normal(out=normals[b])
+    draws = np.multiply(normals.transpose(1, 0, 2), [(p, p, y) for p, y in noises], out=np.empty((n, B, 3)))
+    del normals
 
     targets = reference.position(np.arange(n + N + 1) * Ts)
     poses, measured, voltages, currents = (np.empty((n, B, 3)) for _ in range(4))

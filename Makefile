@@ -6,7 +6,7 @@ VENV := .venv
 STAMP := $(VENV)/.installed
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)
 DEMO_OUT ?= out/demo
-TEST_WORKERS ?= 2  # pytest-xdist workers of the unit tier (make test, unit, check): one a core of 2-core machines
+TEST_WORKERS ?= 2  # pytest-xdist workers (make test, unit, check): one a core of 2-core machines
 
 .PHONY: setup demo test unit check docs bench clean
 
@@ -23,8 +23,7 @@ demo: setup
 	$(VENV)/bin/robotino-geom-mpc run --scenario paper-circle --out $(DEMO_OUT)
 
 test: setup
-	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) -m unit test
-	$(VENV)/bin/python -m pytest -q -m ros test
+	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal test
 
 unit: setup
 	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) -m "unit and not slow" test

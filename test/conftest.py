@@ -64,10 +64,15 @@ TIERS = ("unit", "ros")
 
 
 def pytest_collection_modifyitems(config, items):
-    """Refuse a test without exactly one tier (a file's ``pytestmark``, or the test's own mark)."""
+    """Refuse a test without exactly one tier (a file's ``pytestmark``, or the test's own mark); run the files
+    with a ``slow`` test first, each file's tests together (its module fixtures once): under pytest-xdist the long
+    tests then start early, and the short ones fill the workers' ends.
+    """
     untiered = [item.nodeid for item in items if sum(item.get_closest_marker(t) is not None for t in TIERS) != 1]
     if untiered:
         raise pytest.UsageError(f"tests need exactly one of the marks {TIERS}: {untiered[:5]} ({len(untiered)})")
+    slow_files = {item.path for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.path not in slow_files)  # stable: the order within each group stays
 
 
 @pytest.fixture

@@ -36,6 +36,7 @@ def test_nodes_refuse_bad_chain_settings_by_name(node, override, name):
     assert name in proc.stderr and "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_identify_over_ros_against_the_chain_plant(tmp_path):
     """`identify --ros` against the plant node's chain over DDS finds what `identify` finds offline on the same
     emulated chain (PI loops at 200 Hz there: their effective time constant is 21 ms, not the 25 ms of 1 kHz).

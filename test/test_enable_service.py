@@ -38,6 +38,7 @@ def _set_enabled(h: Harness, client, value: bool) -> SetBool.Response:
     return h._call(client, SetBool.Request(data=value), 30.0)
 
 
+@pytest.mark.slow
 def test_disable_holds_at_zero_volts_and_enabling_again_is_bumpless(tmp_path):
     robot, control = load_params()
     period_ns, ticks = round(control.period_s * 1e9), round(DURATION_S / control.period_s)

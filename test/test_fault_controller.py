@@ -257,6 +257,7 @@ def _kill_and_restart(h, tmp_path, ns, victim):
                 joints_after=after, episodes=episodes, plant_log=plant_log, errors=errors)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("victim", ["controller_node", "trajectory_node"])
 def test_a_node_killed_and_restarted_mid_circle_restarts_bumplessly(harness, tmp_path_factory, victim):
     """The limit holds while the controller commands. A late input on a loaded host (0.1 s) stops the drives

@@ -157,6 +157,7 @@ def test_bad_goals_and_paths_are_refused_and_the_robot_holds(goal_run):
         assert reason in log, reason
 
 
+@pytest.mark.slow
 def test_goals_a_takeover_and_a_path_are_reached_within_1mm_and_1mrad(goal_run):
     run = goal_run
     errors = []

@@ -32,6 +32,7 @@ def _wait_recording(proc, topics: list[str]) -> None:
              f"the recorder to subscribe {topics}")
 
 
+@pytest.mark.slow
 def test_nothing_lost_at_100hz_and_1khz_for_10s(procs, tmp_path):
     out = tmp_path / "bag"
     rec = procs.recorder(out)

@@ -29,6 +29,7 @@ def _watchdog_states(diagnostics: list) -> list[str]:
     return [kv.value for d in diagnostics for s in d.status for kv in s.values if kv.key == "watchdog"]
 
 
+@pytest.mark.slow
 def test_a_slow_lockstep_loop_under_sim_time_is_never_stale_and_on_steady_time_it_is(tmp_path):
     runs = {"sim": True, "steady": False}
     with Harness("slow_sim_test") as h, contextlib.ExitStack() as stack:

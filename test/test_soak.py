@@ -1,4 +1,4 @@
-"""The soak's short version (``slow`` tier): 1 minute of the realtime loop with the recorder, 10 controller restarts.
+"""The soak's short version (``slow`` tier): 1 minute of the realtime loop with the recorder, 5 controller restarts.
 
 * Nothing lost: the bag holds every message of the plant's single-writer topics from the first it recorded on
   (no gap in their DDS publication sequence numbers), to the plant's last tick (its timing report's count).
@@ -10,9 +10,9 @@
   8.8 MB per 10 minutes in the first minute against 0.09 over the long soak. The bound here catches a leak of
   some 350 bytes per tick or more (a list that grows with every message: some 100 MB per 10 minutes), not a slow
   drift, and a minute shows it as well as two did.
-* Nothing left per restart: after 10 SIGKILLs and restarts of the controller (and the survivors' lease), the
+* Nothing left per restart: after 5 SIGKILLs and restarts of the controller (and the survivors' lease), the
   domain's UDP ports, its shared-memory port files and every survivor's and the supervisor's file descriptors
-  are as before (a leak of one a restart would be 10 more); the segments the kills left are removed by the
+  are as before (a leak of one a restart would be 5 more); the segments the kills left are removed by the
   clean (`system.shm`), none stays.
 """
 
@@ -26,7 +26,7 @@ from robotino_geom_mpc.bench.soak import EVERY_TICK_TOPICS, PLANT_TOPICS, SEQUEN
 pytestmark = pytest.mark.ros
 
 SOAK_S = 60.0
-RESTARTS = 10  # a descriptor, port or segment left per restart shows after 10 as after 20
+RESTARTS = 5  # a descriptor, port or segment left per restart shows after 5 as after 20
 GROWTH_BOUND_MB_PER_10MIN = 20.0  # 350 bytes a tick at 100 Hz
 
 

@@ -163,6 +163,7 @@ def test_bad_settings_are_refused(params, capsys):
         run_study("paper-circle", robot, control, [])
 
 
+@pytest.mark.slow
 def test_bench_study_figures():
     figures = REGISTRY["study"].func(True)
     assert figures["study_failed_runs"] == 0.0 and figures["study_runs"] == 64

@@ -99,6 +99,7 @@ def _payload_bytes(bag: BagReader, topic: str) -> int:
     return sum(len(message.data) for message in bag.messages(["/" + topic]))
 
 
+@pytest.mark.slow
 def test_wifi_with_plans_across_two_network_namespaces_tracks_paper_circle(hosts, tmp_path):
     duration_s = 5.0
     done = _run(hosts, tmp_path, "wifi", duration_s, lockstep=False)

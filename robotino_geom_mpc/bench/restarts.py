@@ -1,7 +1,8 @@
 """The soak's restart loop: the realtime loop with its controller killed by SIGKILL and started again, many times.
 
-What a killed node can leave behind, counted before the first kill and after the last (once the survivors have
-dropped the dead participants: a Fast DDS lease, 20 s, after it):
+What a killed node can leave behind, counted before the first kill and after the last (once the run's figures are
+back where they were, or the survivors have dropped the dead participants: a Fast DDS lease, 20 s, after it;
+``restart_settle_s`` says which):
 
 * shared memory: the Fast DDS segment a participant creates in /dev/shm (`system.shm`; a SIGKILL leaves it, the
   supervisor removes it, `remove_zombie_segments`, as `NodeGroup.stop` does) and the shared-memory ports of the
@@ -38,6 +39,7 @@ __all__ = ["LEASE_SETTLE_S", "domain_ports", "held_segments", "open_fds", "per_r
 LEASE_SETTLE_S = 25.0  # after the last kill: Fast DDS's default participant lease (20 s) and a margin
 READY_TIMEOUT_S = 120.0  # a restarted controller must log "controller ready" within this
 MATCH_S = 0.5  # then runs this long (discovery, a few ticks) before it is killed
+SETTLE_POLL_S = 0.5  # after the last kill, the figures are taken again this often until they are back
 _PORT_BASE, _DOMAIN_GAIN = 7400, 250  # RTPS well-known ports: PB + DG * domain + offsets (< DG)
 
 
@@ -111,6 +113,20 @@ def snapshot(pids: dict[str, int], segment_pids: list[int], killed: set[str]) ->
     return out
 
 
+def _settled(before: dict[str, int], take: Callable[[], dict[str, int]]) -> tuple[dict[str, int], float]:
+    """The snapshot (`take`) once the run's own figures are back to `before`, or the last one after
+    `LEASE_SETTLE_S` (the dead participants' lease); and the seconds it took. A leak never settles.
+    """
+    start = time.monotonic()
+    own = [key for key in before if key != "shm_entries_host"]
+    while True:
+        after = take()
+        waited = time.monotonic() - start
+        if all(after[key] == before[key] for key in own) or waited >= LEASE_SETTLE_S:
+            return after, waited
+        time.sleep(SETTLE_POLL_S)
+
+
 def _wait_ready(node, timeout_s: float) -> None:
     """Wait until `node` logged "controller ready"; `BenchmarkError` if it exits or the time runs out."""
     deadline = time.monotonic() + timeout_s
@@ -137,7 +153,8 @@ def restart_loop(restarts: int, folder: Path, log: Callable[[str], None]) -> dic
     Returns ``restart_count``, per figure of `snapshot` ``restart_<figure>_before``, ``_after`` (the survivors:
     plant, trajectory, description publisher, and ``bench`` for this process) and ``_per_restart``
     (`per_restart`), ``restart_segments_left_by_kill``
-    and ``restart_segments_left`` (see the module docstring) and ``restart_loop_s``, the wall time per restart.
+    and ``restart_segments_left`` (see the module docstring), ``restart_loop_s``, the wall time per restart, and
+    ``restart_settle_s``, the wait after the last (`_settled`).
 
     Raises
     ------
@@ -179,17 +196,17 @@ def restart_loop(restarts: int, folder: Path, log: Callable[[str], None]) -> dic
             if (k + 1) % 20 == 0:
                 log(f"restart: {k + 1} of {restarts} kills and restarts; now {series[-1]}")
         wall_s = (time.monotonic() - start) / max(restarts, 1)
-        time.sleep(LEASE_SETTLE_S)
-        after = snapshot(pids, [*survivors.values(), controller.popen.pid], killed)
+        after, settle_s = _settled(before, lambda: snapshot(pids, [*survivors.values(), controller.popen.pid], killed))
         left = sum((SHM_DIR / name).exists() for name in killed)
-    out = {"restart_count": restarts, "restart_loop_s": wall_s,
+    out = {"restart_count": restarts, "restart_loop_s": wall_s, "restart_settle_s": settle_s,
            "restart_segments_left_by_kill": left_by_kill, "restart_segments_left": left}
     slopes = per_restart(series)
     for key in before:
         out[f"restart_{key}_before"], out[f"restart_{key}_after"] = before[key], after[key]
         if key in slopes:
             out[f"restart_{key}_per_restart"] = slopes[key]
-    log(f"restart: {restarts} kills; before {before}; after {after}; segments left by the kills {left_by_kill}, "
+    log(f"restart: {restarts} kills; before {before}; after {after} ({settle_s:.1f} s after the last); "
+        f"segments left by the kills {left_by_kill}, "
         f"after the clean {left}")
     log("restart: left per restart (slope over the restarts): " + ", ".join(
         f"{key} {value:+.4f}" for key, value in slopes.items()))

@@ -32,7 +32,7 @@ from trajectory_msgs.msg import JointTrajectory
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.network.plan import CommandPlan
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
-from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, PlanWriter, plan_type, report_near
+from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, PlanWriter, plan_type, take_report
 from robotino_geom_mpc.ros.qos import publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.throttle import warn_throttled
 
@@ -94,16 +94,11 @@ class ControllerPlans:
     def _on_report(self, msg: JointTrajectory) -> None:
         self.reports_received += 1
         try:
-            report = report_near(msg, self.newest_stamp_s, self.window_s)
+            take_report(self.controller, msg, self.newest_stamp_s, self.window_s)
         except PlanMessageError as exc:
             self.refused_reports += 1
             warn_throttled(self.node.get_logger(), f"refused command_applied ({exc.reason}: {exc}); "
                                         f"{self.refused_reports} refused so far", 1.0)
-            return
-        if report.values is None:
-            self.controller.report_receipt(report.basis_s, report.time_s, report.taken)
-        else:
-            self.controller.report_applied(report.time_s, report.basis_s, max(report.entry_index, 0))
 
     def values(self) -> list[str]:
         """The diagnostic values of `LINK_KEYS`."""

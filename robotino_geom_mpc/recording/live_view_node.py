@@ -15,6 +15,10 @@ publisher offers it, so the latched URDF and reference path reach a viewer that 
 whether or not it was taken). A client sees what is published after it subscribed; the last sample of a latched
 (transient-local) topic is logged again whenever a client subscribes to it, so the URDF reaches every viewer.
 
+Known SDK race (foxglove-sdk 0.30): a channel is advertised to a client just before the server registers it for
+that client, so a subscription sent the instant the advertisement arrives can be refused (``Unknown channel ID``);
+a client subscribes again then (test_live_view's does).
+
 Parameters: ``port``, ``host`` (default 127.0.0.1: this machine only; 0.0.0.0 serves the network),
 ``discovery_period_s``.
 """

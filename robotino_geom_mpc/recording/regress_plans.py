@@ -5,7 +5,7 @@ parameter file) is given what the controller node got, in the order it got it: t
 ``command_applied`` messages, each topic in the order the recorder got it (one writer each: the node's order
 too), interleaved as the node took them: before each odometry, the reports up to the count the node's status of
 that odometry gives (``reports_received``; a recording without it: merged by publish time, the plant writing a
-radio packet's reports before its odometry), each refused as the node refuses it (`ros.plans.report_near`), the
+radio packet's reports before its odometry), each refused as the node refuses it (`ros.plans.take_report`), the
 receipts (`report_receipt`) and the
 applied periods (`report_applied`) from the reports, and for each odometry newer than the last used the
 ``reference_preview`` of its stamp (lockstep) or the one its diagnostics name, moved to its stamp as the node
@@ -31,7 +31,7 @@ from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.report import by_publish_time, controller_diagnostics, find_topic, stamp_ns
 from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
-from robotino_geom_mpc.ros.plans import PlanMessageError, plan_of_message, report_near
+from robotino_geom_mpc.ros.plans import PlanMessageError, plan_of_message, take_report
 
 __all__ = ["plan_topic", "regress_plans"]
 
@@ -78,15 +78,11 @@ def regress_plans(bag: BagReader, robot: RobotinoParams, control: ControlParams,
     ticks = compared = taken = 0
     worst, worst_stamp = 0.0, None
 
-    def take(msg: object) -> None:  # the node's `ControllerPlans._on_report`
+    def take(msg: object) -> None:  # as the node's `ControllerPlans._on_report`
         try:
-            report = report_near(msg, newest)
+            take_report(controller, msg, newest)
         except PlanMessageError:
-            return
-        if report.values is None:
-            controller.report_receipt(report.basis_s, report.time_s, report.taken)
-        else:
-            controller.report_applied(report.time_s, report.basis_s, max(report.entry_index, 0))
+            pass
 
     if received:  # the node counted the reports it had got by each odometry: that order, whatever the recorder's
         events = ((p, 1, m) for p, m in odom)

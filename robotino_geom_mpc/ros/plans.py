@@ -32,7 +32,7 @@ and conversion of a 25-point message cost 0.4 ms a tick).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Twist
@@ -44,9 +44,12 @@ from robotino_geom_mpc.network.plan import CommandPlan, PlanBuffer
 from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.decode import STAMP_FIELDS
 
+if TYPE_CHECKING:
+    from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
+
 __all__ = ["AppliedReport", "IGNORED", "PLAN_TOPICS", "PlanMessageError", "PlanOffer", "PlanWriter", "TWIST_AXES",
            "applied_message", "offer_plan", "plan_message", "plan_of_message", "plan_type", "received_message",
-           "REPORT_WINDOW_S", "report_near", "report_of_message"]
+           "REPORT_WINDOW_S", "report_near", "report_of_message", "take_report"]
 
 PLAN_TOPICS = {"voltages": "wheel_voltage_plan", "cmd_vel": "cmd_vel_plan"}
 REPORT_WINDOW_S = 2.0
@@ -241,6 +244,19 @@ def report_near(msg: JointTrajectory, newest_s: float | None, window_s: float = 
         which = "future" if report.time_s > newest_s else "past"
         raise PlanMessageError(f"time {report.time_s:.6f} s is {abs(report.time_s - newest_s):.3f} s in the "
                                f"{which} of the newest odometry ({newest_s:.6f} s)", which)
+    return report
+
+
+def take_report(controller: DelayCompensatingController, msg: JointTrajectory, newest_s: float | None,
+                window_s: float = REPORT_WINDOW_S) -> AppliedReport:
+    """`report_near`, handed to `controller`: a receipt (``report_receipt``) or an applied period
+    (``report_applied``); `PlanMessageError` for a report refused. The controller node and ``regress`` alike.
+    """
+    report = report_near(msg, newest_s, window_s)
+    if report.values is None:
+        controller.report_receipt(report.basis_s, report.time_s, report.taken)
+    else:
+        controller.report_applied(report.time_s, report.basis_s, max(report.entry_index, 0))
     return report
 
 

@@ -272,7 +272,7 @@ class OdometryFilter:
         stacked: Any = cls(period_s, time_constant_s)  # the same attributes with a batch axis
         if any(twist not in TWIST_MODELS for twist in twists):
             raise EstimatorError(f"twists must be of {', '.join(TWIST_MODELS)}, got {sorted(set(twists))}")
-        stacked._period_mean = np.array([twist == "period_mean" for twist in twists])
+        stacked._period_mean = np.flatnonzero([twist == "period_mean" for twist in twists])  # those runs
         start = np.asarray(start, dtype=float)
         if start.shape != (len(twists), 3) or not np.all(np.isfinite(start)):
             raise EstimatorError(f"start must be {len(twists)} finite poses, got shape {start.shape}")
@@ -289,10 +289,10 @@ class OdometryFilter:
         rows = np.ascontiguousarray(X.T)  # (6, B): one row per entry of the measured state
         last: Any = self._last  # (6, B) in a batch: one row per entry of the state
         h, L = self._half_period, self.gain
-        mean: Any = self._period_mean  # (B,) in a batch
+        runs: Any = self._period_mean  # in a batch: the runs whose predictor is the period mean's
         predicted = last[0::2] + h * (last[1::2] + rows[1::2])  # the trapezoid's (x, y, theta)
-        if mean.any():  # the period mean's: the SE(2) exponential of the twist
-            vx, vy, w = rows[1::2]
+        if len(runs):  # the period mean's: the SE(2) exponential of the twist, computed for those runs only
+            vx, vy, w = rows[1::2, runs]
             dt = 2.0 * h
             a = w * dt
             small = np.abs(a) < 1e-6  # series of sin(a)/a and (1 - cos a)/a, error below 1e-19
@@ -302,11 +302,8 @@ class OdometryFilter:
                     cdt = np.where(small, 0.5 * a * dt, (1.0 - np.cos(a)) / w)
             else:
                 sdt, cdt = np.sin(a) / w, (1.0 - np.cos(a)) / w
-            turned = np.empty_like(predicted)
-            np.add(last[0], sdt * vx + cdt * vy, out=turned[0])
-            np.add(last[2], sdt * vy - cdt * vx, out=turned[1])
-            np.add(last[4], a, out=turned[2])
-            predicted = turned if mean.all() else np.where(mean, turned, predicted)
+            x, y, theta = last[0::2, runs]
+            predicted[:, runs] = (x + (sdt * vx + cdt * vy), y + (sdt * vy - cdt * vx), theta + a)
         new = np.empty_like(last)
         new[1::2] = rows[1::2]
         np.add(predicted[:2], L * (rows[0:4:2] - predicted[:2]), out=new[0:4:2])

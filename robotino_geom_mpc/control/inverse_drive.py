@@ -176,15 +176,15 @@ class InverseDrive:
     def batch(cls, robots: Sequence[RobotinoParams], period_s: float) -> InverseDrive:
         """The drives of B robots at once, for the array forms (`step_batch`, `limited_step_batch`).
 
-        Every coefficient gets the shape (B, 1) (the ZOH relations broadcast over the three wheels) and the
-        current estimate the shape (B, 3); the float forms serve one run only.
+        Every coefficient and the current estimate get the shape (B, 3), a run's value on its three wheels (a
+        (B, 1) column broadcast over rows of three costs numpy four times as much); float forms: one run only.
         """
         made: dict[tuple[float, ...], InverseDrive] = {}  # runs with the same drive share its coefficients
         keys = [(p.resistance_ohm, p.inductance_h, p.torque_constant_n_m_per_a, p.supply_voltage_v, p.r, p.gear_ratio)
                 for p in robots]
         runs = [made[key] if key in made else made.setdefault(key, cls(p, period_s)) for key, p in zip(keys, robots)]
         stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
-        column = lambda values: np.array(values, dtype=float)[:, None]  # noqa: E731
+        column = lambda values: np.repeat(np.array(values, dtype=float)[..., None], 3, axis=-1)  # noqa: E731
         zoh: Any = ZOHDrive.__new__(ZOHDrive)
         stacked.zoh = zoh
         for name, value in vars(runs[0].zoh).items():
@@ -192,8 +192,8 @@ class InverseDrive:
         stacked.period_s = runs[0].period_s
         stacked.supply_voltage_v = column([run.supply_voltage_v for run in runs])
         stacked.current_per_force = column([run.current_per_force for run in runs])
-        stacked._voltage_row = np.array([run._voltage_row for run in runs]).T[:, :, None]  # (4, B, 1)
-        stacked._end_row = np.array([run._end_row for run in runs]).T[:, :, None]
+        stacked._voltage_row = column([run._voltage_row for run in runs]).transpose(1, 0, 2).copy()  # (4, B, 3)
+        stacked._end_row = column([run._end_row for run in runs]).transpose(1, 0, 2).copy()
         stacked._i0 = np.zeros((len(runs), 3))
         stacked._last = stacked._one_period = None
         return stacked
@@ -210,13 +210,13 @@ class InverseDrive:
         """
         vc, vs, vw, vr = self._voltage_row
         i0: Any = self._i0  # (B, 3) in a batch
-        supply: Any = self.supply_voltage_v  # (B, 1) in a batch
+        supply: Any = self.supply_voltage_v  # (B, 3) in a batch
         U = vc * i_cmd + vs * i0 + vw * omega + vr * omega_rate
         saturated = largest_abs(U) > supply[:, 0]
         ec, es, ew, er = self._end_row
         end = ec * i_cmd + es * i0 + ew * omega + er * omega_rate
         mean = i_cmd
-        if saturated.any():
+        if np.count_nonzero(saturated):  # (a quarter of `any`'s cost on a batch)
             clipped = np.clip(U, -supply, supply)
             rate = omega_rate
             clipped_mean = self.zoh.mean_current(i0, clipped, omega, rate)
@@ -244,10 +244,11 @@ class InverseDrive:
         i0 = self._i0
         U, saturated, mean = self.step_batch(i_cmd, omega, omega_rate, rate_of_current)
         end = self._i0
+        if not np.count_nonzero(saturated) and np.abs(i_cmd).max() <= current_limit \
+                and np.abs(end).max() <= current_limit:  # every run keeps its command (the common case, at once)
+            return U, saturated, mean, np.ones(len(U))
         keep = ~saturated & (np.maximum(largest_abs(i_cmd), largest_abs(end)) <= current_limit)
         scale = np.ones(len(keep))
-        if keep.all():
-            return U, saturated, mean, scale
         rest = rate_at_rest()
         ec, es, ew, er = self._end_row
         vc, vs, vw, vr = self._voltage_row

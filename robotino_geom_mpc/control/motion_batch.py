@@ -97,14 +97,15 @@ class MotionControllerBatch:
             return self.kinematics.speeds_and_rates(theta, velocity, acceleration)[1]
 
         if self.current_limit_a > 0.0:
-            rest = -self._damping * velocity
             voltages, saturated, mean, scale = self.drive.limited_step_batch(
-                currents, omega, omega_rate, lambda: self.kinematics.speeds_and_rates(theta, velocity, rest)[1],
+                currents, omega, omega_rate,
+                lambda: self.kinematics.speeds_and_rates(theta, velocity, -self._damping * velocity)[1],
                 self.current_limit_a, rate_of_current)
-            u = scale[:, None] * u
+            if scale.min() < 1.0:  # (all at 1: u as it is, the same numbers)
+                u = scale[:, None] * u
         else:
             voltages, saturated, mean = self.drive.step_batch(currents, omega, omega_rate, rate_of_current)
         # a clipped run keeps the acceleration its mean current gives (anti-windup); the others their u
         self.u_prev = np.where(saturated[:, None], self._acceleration_of_current(theta_m, mean), u) \
-            if saturated.any() else u
+            if np.count_nonzero(saturated) else u
         return voltages, saturated

@@ -32,17 +32,8 @@ from robotino_geom_mpc.geometric.decoupling import AXES
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, ParamError, RobotinoParams
 
-__all__ = [
-    "MPCError",
-    "UnstableClosedLoopError",
-    "axis_dampings",
-    "discretize_axis",
-    "prediction_matrices",
-    "DecoupledMPC",
-    "closed_loop_matrices",
-    "closed_loop_poles",
-    "check_closed_loop",
-]
+__all__ = ["MPCError", "UnstableClosedLoopError", "axis_dampings", "discretize_axis", "prediction_matrices",
+           "DecoupledMPC", "closed_loop_matrices", "closed_loop_poles", "check_closed_loop"]
 
 STABILITY_MARGIN = 1e-3  # default: a pole modulus above 1 - this is refused
 _SERIES_BELOW = 0.1  # discretize_axis: phi_2 by its series below this damping x period
@@ -188,6 +179,8 @@ class DecoupledMPC:
     (eq. 54 as printed lacks the 1/2 on the R_p term, which only rescales r).
     """
 
+    _gain_rows: np.ndarray  # a batch's stacked gain entry by entry, (3, 3N + 9, B) (`batch`)
+
     def __init__(self, robot: RobotinoParams, control: ControlParams) -> None:
         self.period_s, self.horizon = float(control.period_s), int(control.horizon)
         q, r = np.asarray(control.q, dtype=float), np.asarray(control.r, dtype=float)
@@ -276,6 +269,10 @@ class DecoupledMPC:
         Shapes are the caller's (the controller checks its inputs once); `delta_u_floats` is the law on floats.
         """
         Y_d, X, n = np.asarray(Y_d, dtype=float), np.asarray(X, dtype=float), 3 * np.shape(Y_d)[-2]
+        if self.stacked_gain.ndim == 3:  # a batch: z (3N + 9, B), one contiguous row per entry, as `_gain_rows`
+            z = np.empty((n + 9, len(X)))
+            z[:n], z[n : n + 6], z[n + 6 :] = Y_d.reshape(-1, n).T, X.T, np.transpose(u_prev)
+            return np.einsum("akb,kb->ba", self._gain_rows, z)
         z = np.empty((*X.shape[:-1], n + 9))  # (Y_d.ravel(), X, u(k-1)) per run
         z[..., :n], z[..., n : n + 6], z[..., n + 6 :] = Y_d.reshape(*Y_d.shape[:-2], n), X, u_prev
         return np.einsum("...ak,...k->...a", self.stacked_gain, z)
@@ -313,6 +310,7 @@ class DecoupledMPC:
             m.prediction_map[:, a::3, 3 * N + 2 * a : 3 * N + 2 * a + 2] = (eye - M[:, a]) @ m.G_p[:, a]
             m.prediction_map[:, a::3, 3 * N + 6 + a] = np.einsum("bij,bj->bi", eye - M[:, a], m.F_2p[:, a])
         m._reference_gains = m._state_gains = None  # no float path for a batch
+        m._gain_rows = np.ascontiguousarray(m.stacked_gain.transpose(1, 2, 0))  # `delta_u`'s: twice as fast
         return m
 
     def predicted_floats(

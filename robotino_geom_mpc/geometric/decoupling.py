@@ -160,6 +160,8 @@ class DecouplingField:
     accelerations u are turned into the body frame, then distributed.
     """
 
+    _T0_entries: np.ndarray  # a batch's T(0), (3, 3, B) (`batch`)
+
     def __init__(self, p: RobotinoParams) -> None:
         self.p = p
         self.T0 = np.linalg.inv(_acceleration_blocks_of_full_rank([p])[0])
@@ -176,10 +178,15 @@ class DecouplingField:
 
     @classmethod
     def batch(cls, robots: Sequence[RobotinoParams]) -> DecouplingField:
-        """The fields of B robots at once: T(0) of shape (B, 3, 3), for the array forms (`field`, `forces`)."""
+        """The fields of B robots at once: T(0) of shape (B, 3, 3), for the array forms (`field`, `forces`).
+
+        `forces` reads T(0) entry by entry, each entry one contiguous row over the runs (twice as fast as the
+        rows of three).
+        """
         stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
         stacked.p = tuple(robots)
         stacked.T0 = np.linalg.inv(_acceleration_blocks_of_full_rank(stacked.p))
+        stacked._T0_entries = np.ascontiguousarray(stacked.T0.transpose(1, 2, 0))  # (3, 3, B): `forces`'s
         stacked._T0_rows = None  # no float path for a batch
         return stacked
 
@@ -192,12 +199,13 @@ class DecouplingField:
         u = np.asarray(u, dtype=float)
         c, s = np.cos(th), np.sin(th)
         ux, uy = u[..., 0], u[..., 1]  # T(theta) u = T(0) (R(theta)^T (u_x, u_y), u_theta), as `forces_floats`
-        rx = c * ux + s * uy
-        turned = np.empty((*np.shape(rx), 3))  # R(theta)^T (u_x, u_y), u_theta
-        turned[..., 0] = rx
-        np.subtract(c * uy, s * ux, out=turned[..., 1])
-        turned[..., 2] = u[..., 2]
-        return np.einsum("...ij,...j->...i", self.T0, turned)
+        turned = np.empty((3, *np.shape(c)))  # R(theta)^T (u_x, u_y), u_theta: one contiguous row each
+        np.add(c * ux, s * uy, out=turned[0, ...])
+        np.subtract(c * uy, s * ux, out=turned[1, ...])
+        turned[2, ...] = u[..., 2]
+        if self.T0.ndim == 3:  # a batch: each run by its own T(0)
+            return np.einsum("ijb,jb->bi", self._T0_entries, turned)
+        return np.einsum("ij,j...->...i", self.T0, turned)
 
     def forces_floats(self, theta: float, u: Sequence[float]) -> list[float]:
         """Wheel forces F = T(theta) u [N] (eqs. 36-37) on Python floats, the per-tick path of `field`.

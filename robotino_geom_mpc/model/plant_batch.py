@@ -191,14 +191,14 @@ class PlantBatch:
         else:
             w[:12], w[12:] = self._columns[:, rows], U[rows].T
         np.matmul(work.rows, w, out=work.heading)
-        eps, beta, means = work.eps, work.beta, work.means
+        eps, beta = work.eps, work.beta
         start, end, theta_end = work.ends
         trace[:n, _HELD] = w[12:]
         # Into each run's start frame: the loop vector (rotated planar pairs, then w[5:12])
         _rotate(w[:4].reshape(2, 2, b), np.cos(start, out=work.cos), np.sin(start, out=work.sin),
                 trace[0, _PLANAR].reshape(2, 2, b), work.scratch, 1.0)
         trace[0, _THETA_RATE:] = w[5:12]
-        turn = max(float(eps.max()), -float(eps.min()))  # the step's largest |eps / eps_max|
+        turn = float(np.abs(eps, out=work.turns).max())  # the step's largest |eps / eps_max|
         slow = np.empty(0, dtype=np.intp)
         if c.coefficients is None:
             slow = np.arange(b)
@@ -210,27 +210,30 @@ class PlantBatch:
             maps = self._stacked_maps(group, plant, dt)
             degree = self._degree((group, dt), turn)
             matrix = maps[degree]
-            # the basis (1, e, .., e^J, beta) of each substep, e = eps / eps_max (`_EXPONENTS`): (n, J + 2, b)
-            basis = work.basis[:, : degree + 2]
+            # the basis (1, e, .., e^J, beta) of each substep, e = eps / eps_max (`_EXPONENTS`): (J + 2, n, b)
+            basis = work.basis[: degree + 2]
             for j in range(1, degree + 1):
-                np.multiply(basis[:, j - 1], eps, out=basis[:, j])
-            basis[:, degree + 1] = beta
+                np.multiply(basis[j - 1], eps, out=basis[j])
+            basis[degree + 1] = beta
             products = work.products[: len(matrix)]
             terms = products.reshape(degree + 2, len(_ROWS), b)
             for k in range(n):
                 np.matmul(matrix, trace[k, _MOVED], out=products)
-                np.einsum("jib,jb->ib", terms, basis[k], out=trace[k + 1, _LOOP])
+                np.einsum("jib,jb->ib", terms, basis[:, k], out=trace[k + 1, _LOOP])
                 trace[k + 1, _WHEEL_ROWS] += trace[k, _WHEEL_ROWS]  # C_0's identity on them
-        for r in slow:  # exact maps, as `RobotinoPlant.step` beyond the fit
+        means = work.mean_rows @ w[:, slow]  # the substeps' mean headings of the runs on the exact maps
+        for column, r in enumerate(slow):  # exact maps, as `RobotinoPlant.step` beyond the fit
             for k in range(n):
-                exact = _turn(beta[k, r]) @ plant._substep_map(eps[k, r] * c.eps_max, means[k, r], c.h)
+                exact = _turn(beta[k, r]) @ plant._substep_map(eps[k, r] * c.eps_max, means[k, column], c.h)
                 trace[k + 1, _LOOP, r] = exact @ np.concatenate((trace[k, _LOOP, r], trace[k, _HELD, r]))
         # Back from the end frame: the state (w's first 12 rows, the batch's own when it is one group)
         _rotate(trace[n, _PLANAR].reshape(2, 2, b), np.cos(end, out=work.cos), np.sin(end, out=work.sin),
                 w[:4].reshape(2, 2, b), work.scratch, -1.0)
         w[4], w[5:12] = theta_end, trace[n, _THETA_RATE:]
-        currents = trace[:, _CURRENT_ROWS]
-        np.abs(currents, out=work.magnitudes).max(axis=0, out=work.largest)
+        currents, largest, magnitudes = trace[:, _CURRENT_ROWS], work.largest, work.magnitudes
+        np.abs(currents[0], out=largest)
+        for k in range(1, n + 1):  # (a reduction over the first axis of (n + 1, 3, b) costs half as much again)
+            np.maximum(largest, np.abs(currents[k], out=magnitudes), out=largest)
         if self._whole:
             np.copysign(work.largest, currents[-1], out=peaks)
         else:
@@ -253,24 +256,25 @@ def _rotate(pairs: np.ndarray, cos: np.ndarray, sin: np.ndarray, out: np.ndarray
 class _Work:
     """The arrays one step of a parameter group writes (one step size, b runs), kept from step to step.
 
-    ``rows`` are the heading rows `PlantBatch` reads of `RobotinoPlant`'s (eps / eps_max and beta of each
-    substep, the frame angles at the start and end, theta at the end, the mean headings), ``heading`` their
-    product with the augmented states ``augmented`` (15, b); ``trace`` (n + 1, 14, b) the loop vectors at
-    the substep ends with the held voltages first (`_HELD`, `_LOOP`).
+    ``rows`` are the heading rows `PlantBatch` reads of `RobotinoPlant`'s every step (eps / eps_max and beta
+    of each substep, the frame angles at the start and end, theta at the end), ``heading`` their product with
+    the augmented states ``augmented`` (15, b), ``mean_rows`` those of the substeps' mean headings (read only
+    for the exact maps); ``trace`` (n + 1, 14, b) the loop vectors at the substep ends with the held voltages
+    first (`_HELD`, `_LOOP`).
     """
 
     def __init__(self, c: _StepCache, b: int, augmented: np.ndarray | None) -> None:
         n = c.n
         picked = [*range(1, n * _BASIS, _BASIS), *range(_BASIS - 1, n * _BASIS, _BASIS),
-                  *range(n * _BASIS, n * _BASIS + 3 + n)]
+                  *range(n * _BASIS, n * _BASIS + 3)]
         self.rows = np.ascontiguousarray(c.heading_rows[picked])
+        self.mean_rows = c.heading_rows[n * _BASIS + 3 :]
         self.heading = np.empty((len(picked), b))
-        self.eps, self.beta = self.heading[:n], self.heading[n : 2 * n]
-        self.ends, self.means = self.heading[2 * n : 2 * n + 3], self.heading[2 * n + 3 :]
+        self.eps, self.beta, self.ends = self.heading[:n], self.heading[n : 2 * n], self.heading[2 * n :]
         self.augmented = np.zeros((15, b)) if augmented is None else augmented
         self.trace = np.empty((n + 1, 14, b))
-        self.basis = np.empty((n, _BASIS, b))
-        self.basis[:, 0] = 1.0
+        self.basis = np.empty((_BASIS, n, b))
+        self.basis[0] = 1.0
         self.products = np.empty((_BASIS * len(_ROWS), b))
         self.cos, self.sin, self.scratch = np.empty(b), np.empty(b), np.empty((2, 2, b))
-        self.magnitudes, self.largest = np.empty((n + 1, 3, b)), np.empty((3, b))
+        self.turns, self.magnitudes, self.largest = np.empty((n, b)), np.empty((3, b)), np.empty((3, b))

@@ -28,7 +28,6 @@ from typing import Any
 
 import numpy as np
 
-from robotino_geom_mpc.arrays import largest_abs
 from robotino_geom_mpc.control.motion_batch import MotionControllerBatch
 from robotino_geom_mpc.control.motion_controller import state_from_odometry
 from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST, DEFAULT_COUNTS_PER_REV, ODOMETRY_MODELS, \
@@ -146,18 +145,24 @@ class BatchSeries:
         return rows
 
     def _metric_columns(self, runs: slice, after: np.ndarray) -> dict[str, list[Any]]:
-        """The per-run metrics of the runs `runs`, key by key (`metrics`; position errors after `after`)."""
+        """The per-run metrics of the runs `runs`, key by key (`metrics`; position errors after `after`).
+
+        Each quantity is one contiguous array (n, runs), its coordinate's own (numpy steps through rows of
+        three, the series' layout, four to six times as slowly).
+        """
         settings = self.settings[runs]
         nominal = np.array([s.robot.nominal_current_a for s in settings])
         supply = np.array([s.robot.supply_voltage_v for s in settings])
-        pose, measured, B, count = self.pose[:, runs], self.odometry[:, runs], len(settings), int(after.sum())
+        B, count, n = len(settings), int(after.sum()), len(after)
+        pose, measured = _coordinates(self.pose[:, runs]), _coordinates(self.odometry[:, runs])
+        reference = self.reference.T[:, :, None]  # (3, n, 1): each coordinate of the reference against the runs
 
         def errors(pose: np.ndarray) -> np.ndarray:
-            err = pose - self.reference[:, None, :]
-            err[:, :, 2] = wrap_angle(err[:, :, 2])
+            err = np.subtract(pose, reference, out=np.empty_like(pose))
+            err[2] = wrap_angle(err[2])
             return err
 
-        settled = slice(len(after) - count, None)  # `after` (t increasing): the last `count` samples, a view
+        settled = slice(n - count, None)  # `after` (t increasing): the last `count` samples, a view
 
         def rms(values: np.ndarray) -> list[float | None]:
             return np.sqrt(np.mean(np.square(values[settled]), axis=0)).tolist() if count else [None] * B
@@ -165,19 +170,23 @@ class BatchSeries:
         def peak(values: np.ndarray) -> list[float | None]:
             return values[settled].max(axis=0).tolist() if count else [None] * B
 
+        def largest(series: np.ndarray) -> np.ndarray:  # `largest_abs` of each sample, (n, runs)
+            magnitudes = np.abs(_coordinates(series[:, runs]))
+            return np.maximum(np.maximum(magnitudes[0], magnitudes[1]), magnitudes[2])
+
         err = errors(pose)
-        position = _length(err[:, :, 0], err[:, :, 1])
-        current = largest_abs(self.currents[:, runs])  # each sample's largest |current| (n, runs)
+        position = _length(err[0], err[1])
+        current = largest(self.currents)  # each sample's largest |current| (n, runs)
         peak_current = current.max(axis=0)
-        peak_voltage = largest_abs(self.voltages[:, runs]).max(axis=0)
+        peak_voltage = largest(self.voltages).max(axis=0)
         odometry = errors(measured)
-        position_odometry = _length(odometry[:, :, 0], odometry[:, :, 1])
-        drift = _length(measured[:, :, 0] - pose[:, :, 0], measured[:, :, 1] - pose[:, :, 1])
+        position_odometry = _length(odometry[0], odometry[1])
+        drift = _length(measured[0] - pose[0], measured[1] - pose[1])
         return {
             "rms_position_error_m": rms(position), "max_position_error_m": peak(position),
-            "rms_x_error_m": rms(err[:, :, 0]), "rms_y_error_m": rms(err[:, :, 1]),
-            "rms_theta_error_rad": rms(err[:, :, 2]), "final_position_error_m": position[-1].tolist(),
-            "max_abs_theta_error_rad": np.abs(err[:, :, 2]).max(axis=0).tolist(),
+            "rms_x_error_m": rms(err[0]), "rms_y_error_m": rms(err[1]),
+            "rms_theta_error_rad": rms(err[2]), "final_position_error_m": position[-1].tolist(),
+            "max_abs_theta_error_rad": np.abs(err[2]).max(axis=0).tolist(),
             "peak_current_a": peak_current.tolist(), "peak_current_after_settle_a": peak(current),
             "samples_above_nominal_current": (current > nominal).sum(axis=0).tolist(),
             "current_within_nominal": (peak_current <= nominal).tolist(), "peak_voltage_v": peak_voltage.tolist(),
@@ -185,9 +194,16 @@ class BatchSeries:
             "nominal_current_a": nominal.tolist(), "supply_voltage_v": supply.tolist(),
             "infeasible_steps": [0] * B, "saturated_steps": self.saturated[:, runs].sum(axis=0).tolist(),
             "rms_position_error_odom_m": rms(position_odometry), "max_position_error_odom_m": peak(position_odometry),
-            "rms_theta_error_odom_rad": rms(odometry[:, :, 2]), "odometry_drift_final_m": drift[-1].tolist(),
+            "rms_theta_error_odom_rad": rms(odometry[2]), "odometry_drift_final_m": drift[-1].tolist(),
             "odometry_drift_max_m": drift.max(axis=0).tolist(),
         }
+
+
+def _coordinates(series: np.ndarray) -> np.ndarray:
+    """A series (n, B, 3) as its three coordinates, (3, n, B) contiguous (a copy)."""
+    out = np.empty((3, *series.shape[:2]))
+    out[...] = series.transpose(2, 0, 1)
+    return out
 
 
 def _length(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -195,7 +211,7 @@ def _length(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.sqrt(x * x + y * y)
 
 
-_METRIC_CHUNK = 100  # runs whose metrics `BatchSeries.metrics` computes together
+_METRIC_CHUNK = 20  # runs whose metrics `BatchSeries.metrics` computes together (a 22 s run's (3, n, 20) in L2)
 _METRIC_ORDER = (  # `compute_metrics`'s keys in its order (METRIC_KEYS, the flags sorted, the odometry's)
     "scenario", "samples", "duration_s", "settle_time_s", "samples_after_settle", "rms_position_error_m",
     "max_position_error_m", "rms_x_error_m", "rms_y_error_m", "rms_theta_error_rad", "final_position_error_m",
@@ -301,11 +317,14 @@ def simulate_batch(
     start = reference.position(np.zeros(1))[0]
     controller = MotionControllerBatch([spec.controller_model(s.robot) for s in settings], control, twists,
                                        np.tile(start, (B, 1)))
-    draws = np.zeros((n, B, 3))  # each run's pose noise, the draws of `run_scenario`'s normal(0, std, (n, 3)):
-    for b, (std_position, std_yaw) in enumerate(noises):  # the same standard normals, scaled (twice as fast)
+    # each run's pose noise, the draws of `run_scenario`'s normal(0, std, (n, 3)): the same standard normals,
+    # drawn run by run into one array, then scaled into the loop's layout at once (a third faster than run by run)
+    normals = np.zeros((B, n, 3))
+    for b, (std_position, std_yaw) in enumerate(noises):
         if std_position or std_yaw:
-            np.multiply(np.random.default_rng(settings[b].seed).standard_normal((n, 3)),
-                        (std_position, std_position, std_yaw), out=draws[:, b])
+            np.random.default_rng(settings[b].seed).standard_normal(out=normals[b])
+    draws = np.multiply(normals.transpose(1, 0, 2), [(p, p, y) for p, y in noises], out=np.empty((n, B, 3)))
+    del normals
 
     targets = reference.position(np.arange(n + N + 1) * Ts)
     poses, measured, voltages, currents = (np.empty((n, B, 3)) for _ in range(4))

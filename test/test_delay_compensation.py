@@ -9,9 +9,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
+from robotino_geom_mpc.control.delay_compensation import PLAN_CURRENT_MARGIN, DelayCompensatingController
 from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController
 from robotino_geom_mpc.model.plant import RobotinoPlant
+from robotino_geom_mpc.model.speed_loop import WheelSpeedLoop
 from robotino_geom_mpc.network.link import LinkParams
 from robotino_geom_mpc.offline.networked import NetworkedLoop
 from robotino_geom_mpc.params.files import load_params
@@ -23,16 +24,18 @@ ROBOT, CONTROL = load_params(None)
 TS = CONTROL.period_s
 
 
-def closed_loop(controller, link_up, link_down, n, seed=0):
+def closed_loop(controller, link_up, link_down, n, seed=0, interface="voltages"):
     """The offline loop's ticks (`offline.networked`) on a plant; per tick the plant's true body state and, per
-    plan, (tick of its first action, predicted state there).
+    plan, (tick of its first action, predicted state there). With ``cmd_vel`` the commands are twists held by
+    the plant's wheel-speed loops.
     """
     reference = get_scenario("paper-circle").make_reference()
     extra = controller.preview_length if isinstance(controller, DelayCompensatingController) else controller.horizon
     targets = reference.position(np.arange(n + extra + 1) * TS)
     controller.start_at(*targets[0].tolist())
     plant = RobotinoPlant(ROBOT)
-    loop = NetworkedLoop(controller, targets, TS, link_up, link_down, seed, "voltages")
+    speed_loop = WheelSpeedLoop(ROBOT) if interface == "cmd_vel" else None
+    loop = NetworkedLoop(controller, targets, TS, link_up, link_down, seed, interface)
     states, voltages, predictions = [], [], {}
     for k in range(n):
         pose, twist = plant.odometry_floats()
@@ -43,7 +46,10 @@ def closed_loop(controller, link_up, link_down, n, seed=0):
             t_a, predicted = controller.prediction
             predictions[round(t_a / TS)] = np.array(predicted)
         voltages.append(command)
-        plant.step(command, TS)
+        if speed_loop is None:
+            plant.step(command, TS)
+        else:
+            speed_loop.run(plant, command, TS)
     return np.array(states), np.array(voltages), predictions
 
 
@@ -72,6 +78,22 @@ def test_without_delay_the_plans_first_entries_are_the_undelayed_loops_voltages(
     _, undelayed, _ = closed_loop(MotionController(ROBOT, control), LinkParams(), LinkParams(), 300)
     assert np.abs(compensated - undelayed).max() < 1e-12
     assert np.abs(undelayed).max() > 1.0  # the loop did something
+
+
+def test_without_delay_the_twist_plans_are_the_undelayed_loops_twists_under_its_current_limit():
+    # the robustness model (mass x1.2, friction x2) puts the model's currents at the limit in the ramp-in, while
+    # the wheel-speed loops draw a third of it: twist plans keep the undelayed loop's limit (no voltage margin)
+    model = get_scenario("robustness").controller_model(ROBOT)
+    control = replace(CONTROL, lead_min_periods=0, lead_max_periods=0)
+    perfect = (LinkParams(), LinkParams(), 160)
+    _, compensated, _ = closed_loop(DelayCompensatingController(model, control, "cmd_vel"), *perfect,
+                                    interface="cmd_vel")
+    _, undelayed, _ = closed_loop(MotionController(model, control), *perfect, interface="cmd_vel")
+    assert np.abs(compensated - undelayed).max() < 1e-12
+    assert np.abs(undelayed).max() > 0.2  # the loop did something [m/s]
+    margin = replace(control, current_limit_a=PLAN_CURRENT_MARGIN * control.current_limit_a)
+    _, throttled, _ = closed_loop(MotionController(model, margin), *perfect, interface="cmd_vel")
+    assert np.abs(throttled - undelayed).max() > 1e-3  # the limit binds: a margin would change the twists
 
 
 def test_lead_is_the_round_trips_quantile_within_its_bounds():

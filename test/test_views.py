@@ -1,12 +1,11 @@
 """The views in config/: the RViz config and the Foxglove layout name topics the demo bag has, with their types.
 
 The demo bag is a short lockstep run recorded by ``robotino-geom-mpc run --duration 3`` (conftest's
-`paper_circle_run`); it is read with an independent reader (rosbags). Each topic a view names must be in the bag with the type its display or panel
-takes (RViz: by display class; Foxglove 3D: paths and odometry, the URDF layer a String; plots: every
-message path resolves, on the bag's messages, to numbers as Foxglove's plot reads them (numeric strings
-too); the nominal-current reference lines are the preset's nominal current). RViz's fixed frame is the
-frame of the bag's odometry and the parent of its base_link transform.
-"""
+`paper_circle_run`); it is read with an independent reader (rosbags). Each topic a view names must be in the bag
+with the type its display or panel takes (RViz: by display class; Foxglove 3D: paths and odometry, the URDF layer a
+String; plots: every message path resolves, on the bag's messages, to numbers as Foxglove's plot reads them
+(numeric strings too); the nominal-current reference lines are the preset's nominal current). RViz's fixed frame is
+the frame of the bag's odometry and the parent of its base_link transform. """
 
 import json
 import math

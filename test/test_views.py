@@ -5,7 +5,8 @@ The demo bag is a short lockstep run recorded by ``robotino-geom-mpc run --durat
 with the type its display or panel takes (RViz: by display class; Foxglove 3D: paths and odometry, the URDF layer a
 String; plots: every message path resolves, on the bag's messages, to numbers as Foxglove's plot reads them
 (numeric strings too); the nominal-current reference lines are the preset's nominal current). RViz's fixed frame is
-the frame of the bag's odometry and the parent of its base_link transform. """
+the frame of the bag's odometry and the parent of its base_link transform.
+"""
 
 import json
 import math

@@ -10,11 +10,9 @@ just before each publish call.
 
 from __future__ import annotations
 
-import fcntl
 import json
 import math
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -157,40 +155,6 @@ class Processes:
                 proc.wait()
 
 
-SHM_DIR = Path("/dev/shm")
-_SEGMENT = re.compile(r"fastrtps_[0-9a-f]{16}")  # a Fast DDS participant's shared-memory segment
-
-
-def shm_segments() -> set[str]:
-    """Names of the Fast DDS segments in /dev/shm (empty where there is none)."""
-    return {p.name for p in SHM_DIR.glob("fastrtps_*") if _SEGMENT.fullmatch(p.name)} if SHM_DIR.is_dir() else set()
-
-
-def remove_dead_segments(names: set[str]) -> set[str]:
-    """Remove those of the named segments whose participant is dead; returns the names removed.
-
-    Fast DDS removes a segment when its participant closes; a killed one leaves it behind. A live
-    participant holds an exclusive flock on the segment's ``_el`` file, so a lock that can be taken
-    means the owner is gone (the test `fastdds shm clean` makes), and the lock is held while removing.
-    """
-    removed = set()
-    for name in names:
-        try:
-            lock = os.open(SHM_DIR / f"{name}_el", os.O_RDWR)
-        except FileNotFoundError:
-            continue
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(lock)
-            continue  # alive
-        try:
-            (SHM_DIR / name).unlink(missing_ok=True)
-            (SHM_DIR / f"{name}_el").unlink(missing_ok=True)
-            removed.add(name)
-        finally:
-            os.close(lock)
-    return removed
 
 
 def wait_for(predicate, timeout: float, what: str) -> None:

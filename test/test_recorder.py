@@ -16,8 +16,8 @@ from mcap_ros2.reader import read_ros2_messages
 from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
-from recording_helpers import (TYPES, expected_values, remove_dead_segments, shm_segments, values_of,
-                               wait_for)
+from recording_helpers import TYPES, expected_values, values_of, wait_for
+from robotino_geom_mpc.system.shm import remove_zombie_segments
 from robotino_geom_mpc.recording.bag_reader import BagReader
 
 pytestmark = pytest.mark.ros
@@ -142,12 +142,12 @@ def test_sigint_mid_run_leaves_a_complete_bag(procs, tmp_path):
 
 def test_sigkill_leaves_the_written_chunks_readable(procs, tmp_path):
     out = tmp_path / "bag"
-    segments_before = shm_segments()
+    since = time.time()
     rec = procs.recorder(out, "topics:=[stream]", "flush_period_s:=0.2")
     pub = procs.publisher([{"topic": "stream", "kind": "float64_array", "rate_hz": 500.0, "count": 600}])
     procs.published(pub)  # all sent (and the publisher waited 1 s: more than a flush period)
     assert procs.stop(rec, signal.SIGKILL) == -signal.SIGKILL
-    remove_dead_segments(shm_segments() - segments_before)  # the killed recorder's Fast DDS segment, left behind
+    remove_zombie_segments(since)  # the killed recorder's Fast DDS segment, left behind
     assert not (out / "metadata.yaml").exists()
     bag = BagReader(out)
     assert any("truncated" in p and "not finalised" in p for p in bag.problems)

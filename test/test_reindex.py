@@ -22,8 +22,8 @@ from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.rosbag2.errors import ReaderError
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
-from recording_helpers import (PYTHON, build_message, env, expected_values, remove_dead_segments,
-                               shm_segments, values_of, wait_for)
+from recording_helpers import PYTHON, build_message, env, expected_values, values_of, wait_for
+from robotino_geom_mpc.system.shm import remove_zombie_segments
 from robotino_geom_mpc.recording.bag_reader import BagReader, damage_report
 from robotino_geom_mpc.recording.bag_writer import BagWriter
 from robotino_geom_mpc.recording.bagfile import RUN_METADATA
@@ -55,7 +55,7 @@ def _rosbags_values(path) -> tuple[dict[str, int], list[tuple[int, tuple[float, 
 
 def test_reindex_after_sigkill_mid_run(procs, tmp_path):
     out = tmp_path / "bag"
-    segments_before = shm_segments()
+    since = time.time()
     rec = procs.recorder(out, "topics:=[stream]", f"flush_period_s:={FLUSH_S}", "scenario:=killed")
     pub = procs.publisher([{"topic": "stream", "kind": KIND, "rate_hz": RATE_HZ, "count": 1200}])
     wait_for(lambda: "recording /stream " in rec.log_path.read_text(), 30.0, "the recorder to subscribe")
@@ -63,7 +63,7 @@ def test_reindex_after_sigkill_mid_run(procs, tmp_path):
     killed_at = time.monotonic()
     assert procs.stop(rec, signal.SIGKILL) == -signal.SIGKILL
     sent = procs.publisher_result(pub)["times"]["stream"]
-    remove_dead_segments(shm_segments() - segments_before)  # the killed recorder's Fast DDS segment
+    remove_zombie_segments(since)  # the killed recorder's Fast DDS segment
     before_kill = sum(t < killed_at for t in sent)
     assert 100 < before_kill < len(sent), "the kill must be mid-run"
     with pytest.raises(FileNotFoundError, match="metadata"):  # the issue: rosbags refuses the killed recorder's bag

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from robotino_geom_mpc.system.processes import NodeGroup, NodeProcess
-from robotino_geom_mpc.system.shm import SHM_DIR, remove_zombie_segments, zombie_segments
+from robotino_geom_mpc.system.shm import SHM_DIR, held_segments, remove_zombie_segments, zombie_segments
 
 pytestmark = [pytest.mark.ros,
               pytest.mark.skipif(not SHM_DIR.is_dir(), reason="Fast DDS keeps its segments in /dev/shm on Linux only")]
@@ -28,19 +28,16 @@ time.sleep(600)
 """
 
 
-def _segment_locks() -> set[Path]:
-    return {p for p in SHM_DIR.glob("fastrtps_*_el") if not p.name.startswith("fastrtps_port")}
-
-
 def _start(group: NodeGroup, name: str, timeout_s: float = 60.0) -> tuple[NodeProcess, set[Path]]:
-    """A participant process in `group`, once it runs, and the lock files of the segments it made."""
-    before = _segment_locks()
+    """A participant process in `group`, once it runs, and the lock files of the segments it made: those it holds
+    (`/proc/locks`; other processes, e.g. another pytest worker's, make segments meanwhile).
+    """
     node = group.start(name, [], module="shm_probe")
     deadline = time.monotonic() + timeout_s
     while "ready" not in (node.stdout_path.read_text() if node.stdout_path.exists() else ""):
         assert time.monotonic() < deadline, f"the participant did not start:\n{node.stderr_tail()}"
         time.sleep(0.05)
-    return node, _segment_locks() - before
+    return node, {SHM_DIR / f"{segment}_el" for segment in held_segments(node.popen.pid)}
 
 
 def _kill(node: NodeProcess) -> None:

@@ -1,18 +1,16 @@
 """The views in config/: the RViz config and the Foxglove layout name topics the demo bag has, with their types.
 
-The demo bag is a short lockstep run recorded by ``robotino-geom-mpc run --duration 2``; it is read with an
-independent reader (rosbags). Each topic a view names must be in the bag with the type its display or panel
-takes (RViz: by display class; Foxglove 3D: paths and odometry, the URDF layer a String; plots: every
-message path resolves, on the bag's messages, to numbers as Foxglove's plot reads them (numeric strings
-too); the nominal-current reference lines are the preset's nominal current). RViz's fixed frame is the
-frame of the bag's odometry and the parent of its base_link transform.
+The demo bag is a short lockstep run recorded by ``robotino-geom-mpc run --duration 3`` (conftest's
+`paper_circle_run`); it is read with an independent reader (rosbags). Each topic a view names must be in the bag
+with the type its display or panel takes (RViz: by display class; Foxglove 3D: paths and odometry, the URDF layer a
+String; plots: every message path resolves, on the bag's messages, to numbers as Foxglove's plot reads them
+(numeric strings too); the nominal-current reference lines are the preset's nominal current). RViz's fixed frame is
+the frame of the bag's odometry and the parent of its base_link transform.
 """
 
 import json
 import math
 import re
-import subprocess
-import sys
 from collections import defaultdict
 
 import pytest
@@ -36,11 +34,11 @@ SAMPLES = 50  # messages per topic on which each plotted path is evaluated
 
 
 @pytest.fixture(scope="module")
-def demo_bag(tmp_path_factory):
-    """The demo bag's types by topic and the first `SAMPLES` decoded messages of each topic."""
-    out = tmp_path_factory.mktemp("demo")
-    run = subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "run", "--scenario", "paper-circle",
-                          "--duration", "2", "--out", str(out)], capture_output=True, text=True, timeout=600)
+def demo_bag(paper_circle_run):
+    """The demo's bag (a shorter paper-circle run, conftest's): its types by topic and the first `SAMPLES` decoded
+    messages of each topic.
+    """
+    out, run, _ = paper_circle_run
     assert run.returncode == 0, run.stderr[-3000:]
     types, messages = {}, defaultdict(list)
     with AnyReader([out / "bag"]) as reader:

@@ -31,9 +31,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from robotino_geom_mpc.bench.registry import BenchmarkError
-from robotino_geom_mpc.system.shm import SHM_DIR, remove_zombie_segments
+from robotino_geom_mpc.system.shm import SHM_DIR, held_segments, remove_zombie_segments
 
-__all__ = ["LEASE_SETTLE_S", "domain_ports", "held_segments", "open_fds", "per_restart", "restart_loop", "shm_ports",
+__all__ = ["LEASE_SETTLE_S", "domain_ports", "open_fds", "per_restart", "restart_loop", "shm_ports",
            "snapshot"]
 
 LEASE_SETTLE_S = 25.0  # after the last kill: Fast DDS's default participant lease (20 s) and a margin
@@ -75,24 +75,6 @@ def shm_ports(directory: Path = SHM_DIR) -> set[str]:
             if digits.isdigit() and int(digits) in wanted:
                 names.add(name)
     return names
-
-
-def held_segments(pid: int, directory: Path = SHM_DIR) -> set[str]:
-    """The Fast DDS segments (``fastrtps_<16 hex>``) whose lock file process `pid` holds: its own."""
-    held = set()
-    for line in Path("/proc/locks").read_text().splitlines():
-        fields = line.split()
-        if len(fields) > 5 and fields[1] == "FLOCK" and fields[4] == str(pid):
-            held.add(int(fields[5].rsplit(":", 1)[1]))
-    segments = set()
-    for name in os.listdir(directory):
-        if name.startswith("fastrtps_") and name.endswith("_el") and not name.startswith("fastrtps_port"):
-            try:
-                if os.stat(directory / name).st_ino in held:
-                    segments.add(name[: -len("_el")])
-            except OSError:
-                continue
-    return segments
 
 
 def open_fds(pid: int) -> int:

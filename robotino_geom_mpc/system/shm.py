@@ -25,7 +25,7 @@ import os
 import re
 from pathlib import Path
 
-__all__ = ["SHM_DIR", "remove_zombie_segments", "zombie_segments"]
+__all__ = ["SHM_DIR", "held_segments", "remove_zombie_segments", "zombie_segments"]
 
 SHM_DIR = Path("/dev/shm")
 _SEGMENT_LOCK = re.compile(r"^fastrtps_[0-9a-z]{16}_el$")
@@ -78,3 +78,21 @@ def remove_zombie_segments(since: float, directory: Path = SHM_DIR) -> int:
             except OSError:  # removed meanwhile (another cleaner)
                 pass
     return freed
+
+
+def held_segments(pid: int, directory: Path = SHM_DIR) -> set[str]:
+    """The Fast DDS segments (``fastrtps_<16 hex>``) whose lock file process `pid` holds: its own."""
+    held = set()
+    for line in Path("/proc/locks").read_text().splitlines():
+        fields = line.split()
+        if len(fields) > 5 and fields[1] == "FLOCK" and fields[4] == str(pid):
+            held.add(int(fields[5].rsplit(":", 1)[1]))
+    segments = set()
+    for name in os.listdir(directory):
+        if _SEGMENT_LOCK.match(name):
+            try:
+                if os.stat(directory / name).st_ino in held:
+                    segments.add(name[: -len("_el")])
+            except OSError:
+                continue
+    return segments

@@ -23,7 +23,7 @@ demo: setup
 	$(VENV)/bin/robotino-geom-mpc run --scenario paper-circle --out $(DEMO_OUT)
 
 test: setup
-	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal test
+	$(VENV)/bin/python -m pytest -q -rs --durations=10 -n $(TEST_WORKERS) --dist worksteal test
 
 unit: setup
 	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) -m "unit and not slow" test

@@ -1,12 +1,10 @@
 """Test session setup: an isolated DDS domain, the ament index of the venv, the tiers, Hypothesis in CI.
 
-Set before anything imports rclpy: each session gets its own random
-ROS_DOMAIN_ID (each pytest-xdist worker of a run its own, neighbours of a
-base drawn from the run's id), discovery stays on localhost, and every participant (the
-tests' own and the nodes') gets the Fast DDS profile `run` gives its nodes
-(`processes.dds_environment`); BLAS runs on one thread, as in the nodes and the command line. At the end, the
-Fast DDS segments that the
-session's killed processes left in /dev/shm are removed.
+Set before anything imports rclpy: each session gets its own random ROS_DOMAIN_ID (each pytest-xdist worker of a
+run its own, neighbours of a base drawn from the run's id), discovery stays on localhost, and every participant
+(the tests' own and the nodes') gets the Fast DDS profile `run` gives its nodes (`processes.dds_environment`); BLAS
+runs on one thread, as in the nodes and the command line. At the end, the Fast DDS segments that the session's
+killed processes left in /dev/shm are removed.
 
 Every test is in one tier, marked in its file (setup.cfg lists the markers): ``unit`` (in-process, no
 child process, no DDS: `make unit`) or ``ros`` (starts processes: nodes over DDS, the CLI, worker pools);

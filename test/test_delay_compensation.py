@@ -141,3 +141,36 @@ def test_bad_and_stale_odometry():
     assert controller.plan(0.0, (0.0,) * 6, preview) is None  # overtaken on the up-link
     assert controller.plan(TS, (0.0,) * 6, preview) is None  # a duplicate
     assert controller.statistics().odometry_stale == 2
+
+
+def test_reports_at_epoch_times_name_the_plans_sent():
+    """Realtime stamps are epoch times (1.8e9 s, a float's step 238 ns): the basis the robot decodes from a plan's
+    header (integer ns) is often not the float the controller planned with, and each report must still name its
+    plan (receipts counted, applied entries used in the prediction), as in lockstep at small times.
+    """
+    from robotino_geom_mpc.ros.plans import applied_message, plan_message, plan_of_message, received_message, \
+        take_report
+
+    control = replace(CONTROL, lead_min_periods=2, lead_max_periods=2)
+    controller = DelayCompensatingController(ROBOT, control)
+    n = controller.preview_length
+    first_ns = 1_795_798_331_190_000_123  # a node clock's stamp
+    differs, sent = 0, []
+    for k in range(40):
+        stamp_s = (first_ns + k * 10_000_000) * 1e-9
+        preview = np.outer(np.arange(1, n + 1) * TS, [0.3, 0.0, 0.0]) + [k * TS * 0.3, 0.0, 0.0]
+        plan = controller.plan(stamp_s, (k * TS * 0.3, 0.3, 0.0, 0.0, 0.0, 0.0), preview)
+        robot_plan = plan_of_message(plan_message(plan, "voltages"), TS)  # as the robot decodes it
+        differs += robot_plan.basis_s != plan.basis_s
+        take_report(controller, received_message(robot_plan.times_s[0] - TS, robot_plan.basis_s, "voltages", True),
+                    stamp_s)
+        take_report(controller, applied_message(robot_plan.times_s[0], robot_plan.basis_s, 0, robot_plan.entries[0],
+                                                "voltages"), stamp_s)
+        sent.append(plan)
+    assert differs > 5  # the case at issue occurs
+    assert controller.statistics().plans_received == len(sent)
+    assert controller.statistics().plans_lost == 0
+    newest_first = controller.history.newest_first()
+    for plan in sent[-10:]:  # each reported period runs the entry the report named
+        period = controller.history.period(plan.times_s[0])
+        assert controller.history.command(period, newest_first)[2] == plan.entries[0]

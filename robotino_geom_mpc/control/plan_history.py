@@ -11,10 +11,17 @@ plans it holds: those received by then, and those in flight, taken to arrive
 by their first entry (what the lead makes true for its quantile of the round
 trips). A plan that was due at a reported period and did not run there (an
 older plan, or none, ran) is taken as lost, until a receipt says it was late.
+
+A report names a plan by its basis as the robot decoded it from the plan's
+header (integer nanoseconds): at epoch times (1.8e9 s, a float's step 238 ns)
+that is not always the float the controller computed, so a report's plan is the
+one sent with a basis within `network.plan.TIME_TOLERANCE_S` of it (bases are a
+period apart), never an exact float key.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -70,6 +77,7 @@ class PlanHistory:
     def __init__(self, period_s: float, quantile: float, memory_s: float) -> None:
         self.period_s, self.quantile, self.memory_s = float(period_s), float(quantile), float(memory_s)
         self._plans: dict[float, SentPlan] = {}  # by basis, in the order sent (increasing basis)
+        self._bases: list[float] = []  # the keys of `_plans`, increasing (`_find`)
         self._applied: dict[int, tuple[float, int] | None] = {}  # period -> (basis, index), or None: no plan
         self._origin: float | None = None
         self.reported_s = -math.inf  # the latest period start reported on
@@ -86,9 +94,17 @@ class PlanHistory:
     def add(self, plan: CommandPlan, u: list[list[float]], end_currents: list[list[float]]) -> None:
         """Keep a plan just sent (bases increase from plan to plan)."""
         self._plans[plan.basis_s] = SentPlan(plan, u, end_currents)
+        self._bases.append(plan.basis_s)
         self.sent += 1
         if self.sent % 50 == 0:
             self._forget(plan.basis_s - self.memory_s)
+
+    def _find(self, basis_s: float) -> SentPlan | None:
+        """The plan sent with a basis within `TIME_TOLERANCE_S` of `basis_s` (a report's, decoded from ns)."""
+        i = bisect.bisect_left(self._bases, basis_s - TIME_TOLERANCE_S)
+        if i < len(self._bases) and self._bases[i] <= basis_s + TIME_TOLERANCE_S:
+            return self._plans[self._bases[i]]
+        return None
 
     def newest_first(self) -> list[SentPlan]:
         """The plans held, newest first (for `command`)."""
@@ -99,7 +115,7 @@ class PlanHistory:
 
         Every receipt is a round trip; a plan the buffer refused (older than one it runs) never runs.
         """
-        sent = self._plans.get(basis_s)
+        sent = self._find(basis_s)
         self.round_trips.append(received_s - basis_s)
         self._samples += 1
         if sent is None or sent.received_s is not None:
@@ -114,11 +130,14 @@ class PlanHistory:
 
     def report_applied(self, time_s: float, basis_s: float | None, index: int = 0) -> None:
         """The robot applied entry `index` of plan `basis_s` from its time `time_s` (None: no plan, zero command)."""
+        applied = None if basis_s is None else self._find(basis_s)
+        if applied is not None:
+            basis_s = applied.plan.basis_s  # the key the controller made it with
         self._applied[self.period(time_s)] = None if basis_s is None else (basis_s, index)
         self.reported_s = max(self.reported_s, time_s)
         self.exhausted += basis_s is None and bool(self._plans)
         for sent in reversed(self._plans.values()):  # a plan due by then that did not run was not there
-            if basis_s is not None and sent.plan.basis_s <= basis_s:
+            if basis_s is not None and sent.plan.basis_s <= basis_s + TIME_TOLERANCE_S:
                 break  # held in the order sent: the rest are older
             if sent.received_s is None and sent.plan.times_s[0] <= time_s + TIME_TOLERANCE_S:
                 self.lost += sent.missed_by_s == -math.inf
@@ -168,6 +187,7 @@ class PlanHistory:
         """Drop the plans that ended, and the reports of periods, before `before_s`."""
         for basis in [b for b, s in self._plans.items() if s.plan.end_s < before_s]:
             del self._plans[basis]
+        self._bases = list(self._plans)
         first = self.period(before_s)
         for period in [p for p in self._applied if p < first]:
             del self._applied[period]

@@ -9,10 +9,10 @@ reproduces the offline loop with the same link:
 1. /clock (not over the link: it is the simulation's time), then the tick's messages as one radio packet
    (`_measure_bundle`: the ``command_applied`` reports since the last packet, odom, the currents, the ground
    truth, joint_states, /tf) sent up at t_k; the packets due by t_k are published in order, each with its
-   reports first (the controller takes them before the odometry, as the offline controller does: one
-   participant's samples reach another in the order they were written). The controller answers each odometry newer than
-   every one before it (`SimLink.answers_due`); with none due the plant goes on at once (a lost or late
-   odometry: no answer is waited for).
+   reports first (the controller takes them before the odometry, as the offline controller does; a report that
+   comes after an odometry still waiting for its preview it holds back, `controller_plans`). The controller
+   answers each odometry newer than every one before it (`SimLink.answers_due`); with none due the plant goes
+   on at once (a lost or late odometry: no answer is waited for).
 2. each answer (a plan, or a plain command) is sent down at t_k; once all are there:
 3. the packets due down by t_k: plans offered to the buffer at t_k (`plant_plans`), or the last plain command held
    (zero after ``command_timeout_s``, the drive's watchdog);
@@ -56,8 +56,8 @@ class PlantNetwork:
         return bundle
 
     def _publish_bundle(self, bundle: list) -> None:
-        """A delivered packet, in order: the reports, then the measurements (one participant's samples reach
-        another in the order they were written: the controller takes the reports before the odometry).
+        """A delivered packet, in order: the reports, then the measurements (the controller takes the reports
+        before the odometry).
         """
         for pub, data in bundle:
             publish_acknowledged(self, pub, data)

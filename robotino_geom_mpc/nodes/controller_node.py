@@ -146,8 +146,12 @@ class ControllerNode(ControllerWatchdog, Node):
         self.previews: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         # the newest preview: stamp [ns], positions, velocities, accelerations (realtime: the one used)
         self.latest_preview: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.pending: tuple[int, np.ndarray] | None = None  # lockstep: the first odometry waiting for its preview
-        self.waiting: list[tuple[int, np.ndarray]] = []  # lockstep: odometries in arrival order, with that one first
+        self.pending: tuple[int, np.ndarray, int] | None = None  # lockstep: the first odometry waiting for its preview
+        # lockstep: odometries in arrival order, with that one first (stamp, X, arrival number)
+        self.waiting: list[tuple[int, np.ndarray, int]] = []
+        self.odom_arrivals = 0
+        if self.plans is not None and self.lockstep:  # reports after a waiting odometry wait for it
+            self.plans.hold_after = lambda: self.odom_arrivals if self.waiting else None
         self.pending_since = 0.0
         self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
         # the watchdog's clock, read at start: the node clock under use_sim_time (a slow simulation is slow, not
@@ -276,7 +280,9 @@ class ControllerNode(ControllerWatchdog, Node):
         a link several arrive at one tick, each answered in turn).
         """
         while self.waiting:
-            stamp, X = self.waiting[0]
+            stamp, X, arrival = self.waiting[0]
+            if self.plans is not None:
+                self.plans.take_held(arrival)  # the reports that came before it, and only those
             if self.last_odom_ns is not None and stamp <= self.last_odom_ns:  # overtaken while it waited
                 del self.waiting[0]
                 self._drop(stamp, "odom", "old")
@@ -294,6 +300,8 @@ class ControllerNode(ControllerWatchdog, Node):
             for old in [s for s in self.previews if s < stamp]:
                 del self.previews[old]
         self.pending = self.waiting[0] if self.waiting else None
+        if self.pending is None and self.plans is not None:
+            self.plans.take_held()
 
     def _refuse_preview(self, stamp: int | None, reason: str, message: str) -> None:
         """Realtime: zero volts now; lockstep: for the tick of its stamp (of none if unknown: only counted)."""
@@ -337,10 +345,11 @@ class ControllerNode(ControllerWatchdog, Node):
         self.odom_time = self._watch_now()
         self.theta = X[4]
         if self.lockstep:
-            if all(waiting != stamp for waiting, _ in self.waiting):
+            if all(waiting != stamp for waiting, _, _ in self.waiting):
                 if not self.waiting:
                     self.pending_since = self.odom_time
-                self.waiting.append((stamp, X))
+                self.waiting.append((stamp, X, self.odom_arrivals))
+                self.odom_arrivals += 1
             self._drain()
             return
         if self.latest_preview is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:

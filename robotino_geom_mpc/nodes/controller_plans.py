@@ -12,6 +12,9 @@ It reads the robot's ``command_applied`` (trajectory_msgs/JointTrajectory, `ros.
 and each period's applied entry, the robot's clock, and hands them to the controller. A report that cannot be
 read (wrong length, NaN) or whose time is more than ``report_window_s`` from the newest odometry stamp (a
 stamp far in the future or the past) is refused: logged (throttled), counted (``refused_reports``), ignored.
+In lockstep a report that arrives while an odometry before it waits (for its preview) is held back until that
+odometry is planned (`take_held`): each plan is made with the reports that came before its odometry, in the
+order the robot sent them, as `offline.networked` makes it, whichever of the trajectory and the plant is faster.
 
 Diagnostics (`LINK_KEYS`, on every status): the round trip (robot's receipt of a plan - its odometry stamp:
 the up-link's delay, the controller's time and the down-link's delay, one clock) mean, jitter (standard
@@ -31,6 +34,9 @@ from trajectory_msgs.msg import JointTrajectory
 
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.network.plan import CommandPlan
+from collections import deque
+from collections.abc import Callable
+
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, PlanWriter, plan_type, take_report
 from robotino_geom_mpc.ros.qos import publish_acknowledged, publish_qos
@@ -71,7 +77,10 @@ class ControllerPlans:
                                             publish_qos(lockstep))  # every report (keep-all in lockstep)
         self.newest_stamp_s: float | None = None
         self.refused_reports = 0
-        self.reports_received = 0  # every command_applied message, taken or refused (regress replays in this order)
+        self.reports_received = 0  # command_applied messages handed on, taken or refused (regress replays them so)
+        # lockstep: the arrival number of the next odometry while one waits (reports after it are held), else None
+        self.hold_after: Callable[[], int | None] = lambda: None
+        self.held: deque[tuple[int, JointTrajectory]] = deque()  # (odometries arrived before it, report)
         self.writer = PlanWriter(interface, control.plan_length)
 
     @property
@@ -91,7 +100,19 @@ class ControllerPlans:
             publish_acknowledged(self.node, self.pub, self.writer.encode(plan))
         return plan
 
+    def take_held(self, before: int | None = None) -> None:
+        """Hand on the held reports that arrived before odometry number `before` (None: all of them)."""
+        while self.held and (before is None or self.held[0][0] <= before):
+            self._take(self.held.popleft()[1])
+
     def _on_report(self, msg: JointTrajectory) -> None:
+        after = self.hold_after()
+        if after is not None:
+            self.held.append((after, msg))
+            return
+        self._take(msg)
+
+    def _take(self, msg: JointTrajectory) -> None:
         self.reports_received += 1
         try:
             take_report(self.controller, msg, self.newest_stamp_s, self.window_s)

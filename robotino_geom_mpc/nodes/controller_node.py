@@ -52,14 +52,13 @@ change, the controller is reset (u(k-1) = 0, pose filter restarted) and a C^3 of
 preview, taking the reference from the measured pose and velocity to itself within the shortest time
 whose offset acceleration stays within ``blend_acceleration_mps2`` / ``blend_acceleration_radps2``.
 
-Parameters: the robot/control parameters of config/*.yaml (``/**`` section)
-plus `controller_inputs.CONTROLLER_SPECS`. A set is refused with the reason
-when the values cannot run (`controller_inputs.closed_loop_problem`: a timeout
-under two periods, an unstable nominal closed loop, a model the controller
-cannot be built on; also at start: exit status 2) and for ``mode``, ``frame_prefix``, ``command_interface``,
-``control.period_s`` and ``control.horizon`` (the last two must agree with the trajectory
-node: restart instead); any other accepted change of a robot/control parameter rebuilds the
-controller with a bumpless restart.
+Parameters: the robot/control parameters of config/*.yaml (``/**`` section) plus
+`controller_inputs.CONTROLLER_SPECS`. A set is refused with the reason when the values cannot run
+(`controller_inputs.closed_loop_problem`: a timeout under two periods, an unstable nominal closed loop, a model
+the controller cannot be built on; also at start: exit status 2) and for ``mode``, ``frame_prefix``,
+``command_interface``, ``control.period_s`` and ``control.horizon`` (the last two must agree with the trajectory
+node: restart instead); any other accepted change of a robot/control parameter rebuilds the controller with a
+bumpless restart.
 """
 
 from __future__ import annotations
@@ -69,7 +68,6 @@ import traceback
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import Odometry
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
@@ -146,12 +144,11 @@ class ControllerNode(ControllerWatchdog, Node):
         self.previews: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         # the newest preview: stamp [ns], positions, velocities, accelerations (realtime: the one used)
         self.latest_preview: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.pending: tuple[int, np.ndarray, int] | None = None  # lockstep: the first odometry waiting for its preview
-        # lockstep: odometries in arrival order, with that one first (stamp, X, arrival number)
-        self.waiting: list[tuple[int, np.ndarray, int]] = []
-        self.odom_arrivals = 0
-        if self.plans is not None and self.lockstep:  # reports after a waiting odometry wait for it
-            self.plans.hold_after = lambda: self.odom_arrivals if self.waiting else None
+        self.pending: tuple[int, np.ndarray, list] | None = None  # lockstep: the first odometry waiting for its preview
+        # lockstep: odometries in arrival order, with that one first, each with the reports held for it (plans)
+        self.waiting: list[tuple[int, np.ndarray, list]] = []
+        if self.plans is not None and self.lockstep:
+            self.plans.hold_into = lambda: self.waiting[-1][2] if self.waiting else None
         self.pending_since = 0.0
         self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
         # the watchdog's clock, read at start: the node clock under use_sim_time (a slow simulation is slow, not
@@ -177,12 +174,6 @@ class ControllerNode(ControllerWatchdog, Node):
         self.tolerances = (p["quaternion_norm_tolerance"], p["tilt_tolerance_rad"])
         self.jump_limits = (p["reference_jump_m"], p["reference_jump_rad"])
         self.blend_limits = (p["blend_acceleration_mps2"], p["blend_acceleration_radps2"])
-
-    def _start_watchdog(self):
-        """The timer of the watchdog, at half the shorter timeout, on the watchdog's clock (`_watch_now`)."""
-        timeout = min(self.params["odom_timeout_s"], self.params["reference_timeout_s"])
-        clock = self.get_clock() if self.sim_time else Clock(clock_type=ClockType.STEADY_TIME)
-        return self.create_timer(timeout / 2, self._check_watchdog, clock=clock)
 
     def _on_params(self, changed: dict) -> None:
         self._read_limits()
@@ -280,12 +271,12 @@ class ControllerNode(ControllerWatchdog, Node):
         a link several arrive at one tick, each answered in turn).
         """
         while self.waiting:
-            stamp, X, arrival = self.waiting[0]
-            if self.plans is not None:
-                self.plans.take_held(arrival)  # the reports that came before it, and only those
+            stamp, X, held = self.waiting[0]
             if self.last_odom_ns is not None and stamp <= self.last_odom_ns:  # overtaken while it waited
                 del self.waiting[0]
                 self._drop(stamp, "odom", "old")
+                if held:  # the reports that came after it (only with plans)
+                    self.plans.take(held)
                 continue
             arrays = self.previews.get(stamp)
             if arrays is None:
@@ -297,11 +288,11 @@ class ControllerNode(ControllerWatchdog, Node):
                              f"{arrays}")
             else:
                 self._control(stamp, X, *arrays, stamp)
+            if held:
+                self.plans.take(held)
             for old in [s for s in self.previews if s < stamp]:
                 del self.previews[old]
         self.pending = self.waiting[0] if self.waiting else None
-        if self.pending is None and self.plans is not None:
-            self.plans.take_held()
 
     def _refuse_preview(self, stamp: int | None, reason: str, message: str) -> None:
         """Realtime: zero volts now; lockstep: for the tick of its stamp (of none if unknown: only counted)."""
@@ -348,8 +339,7 @@ class ControllerNode(ControllerWatchdog, Node):
             if all(waiting != stamp for waiting, _, _ in self.waiting):
                 if not self.waiting:
                     self.pending_since = self.odom_time
-                self.waiting.append((stamp, X, self.odom_arrivals))
-                self.odom_arrivals += 1
+                self.waiting.append((stamp, X, []))
             self._drain()
             return
         if self.latest_preview is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:

@@ -13,8 +13,9 @@ and each period's applied entry, the robot's clock, and hands them to the contro
 read (wrong length, NaN) or whose time is more than ``report_window_s`` from the newest odometry stamp (a
 stamp far in the future or the past) is refused: logged (throttled), counted (``refused_reports``), ignored.
 In lockstep a report that arrives while an odometry before it waits (for its preview) is held back until that
-odometry is planned (`take_held`): each plan is made with the reports that came before its odometry, in the
-order the robot sent them, as `offline.networked` makes it, whichever of the trajectory and the plant is faster.
+odometry is planned (`hold_into`, `take`): each plan is made with the reports that came before its odometry, in
+the order the robot sent them, as `offline.networked` makes it, whichever of the trajectory and the plant is
+faster.
 
 Diagnostics (`LINK_KEYS`, on every status): the round trip (robot's receipt of a plan - its odometry stamp:
 the up-link's delay, the controller's time and the down-link's delay, one clock) mean, jitter (standard
@@ -34,7 +35,6 @@ from trajectory_msgs.msg import JointTrajectory
 
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.network.plan import CommandPlan
-from collections import deque
 from collections.abc import Callable
 
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
@@ -78,9 +78,8 @@ class ControllerPlans:
         self.newest_stamp_s: float | None = None
         self.refused_reports = 0
         self.reports_received = 0  # command_applied messages handed on, taken or refused (regress replays them so)
-        # lockstep: the arrival number of the next odometry while one waits (reports after it are held), else None
-        self.hold_after: Callable[[], int | None] = lambda: None
-        self.held: deque[tuple[int, JointTrajectory]] = deque()  # (odometries arrived before it, report)
+        # lockstep: the list of the reports held for the last odometry still waiting (None: none waits)
+        self.hold_into: Callable[[], list[JointTrajectory] | None] = lambda: None
         self.writer = PlanWriter(interface, control.plan_length)
 
     @property
@@ -100,15 +99,15 @@ class ControllerPlans:
             publish_acknowledged(self.node, self.pub, self.writer.encode(plan))
         return plan
 
-    def take_held(self, before: int | None = None) -> None:
-        """Hand on the held reports that arrived before odometry number `before` (None: all of them)."""
-        while self.held and (before is None or self.held[0][0] <= before):
-            self._take(self.held.popleft()[1])
+    def take(self, reports: list[JointTrajectory]) -> None:
+        """Hand on held reports, in the order they came."""
+        for msg in reports:
+            self._take(msg)
 
     def _on_report(self, msg: JointTrajectory) -> None:
-        after = self.hold_after()
-        if after is not None:
-            self.held.append((after, msg))
+        held = self.hold_into()
+        if held is not None:
+            held.append(msg)
             return
         self._take(msg)
 

@@ -7,6 +7,8 @@ steady-clock timer runs at half the shorter timeout and says, throttled, what th
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.clock import Clock, ClockType
+
 from robotino_geom_mpc.ros.throttle import info_throttled, warn_throttled
 
 __all__ = ["ControllerWatchdog"]
@@ -16,6 +18,12 @@ _WAIT_LOG_PERIOD_S = 5.0  # throttle of the "waiting for ..." log
 
 class ControllerWatchdog:
     """The watchdog methods of the controller node."""
+
+    def _start_watchdog(self):
+        """The timer of the watchdog, at half the shorter timeout, on the watchdog's clock (`_watch_now`)."""
+        timeout = min(self.params["odom_timeout_s"], self.params["reference_timeout_s"])
+        clock = self.get_clock() if self.sim_time else Clock(clock_type=ClockType.STEADY_TIME)
+        return self.create_timer(timeout / 2, self._check_watchdog, clock=clock)
 
     def _log_wait(self, now: float) -> None:
         """Say what the controller waits for when it has heard nothing for a timeout (throttled)."""

@@ -29,14 +29,13 @@ them against its odometry).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory
 
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.network.plan import CommandPlan
-from collections.abc import Callable
-
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanMessageError, PlanWriter, plan_type, take_report
 from robotino_geom_mpc.ros.qos import publish_acknowledged, publish_qos

@@ -12,6 +12,7 @@ import os
 import signal
 import threading
 import time
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -43,28 +44,26 @@ def link_overrides(up: LinkParams, down: LinkParams) -> dict:
             for field in ("delay_s", "jitter_s", "loss", "burst_length", "duplicate")}
 
 
-class stalled:
-    """Stop and continue process `pid` (40 ms stopped, 30 ms running) until `until` has exited; left running."""
+@contextmanager
+def stalled(pid: int):
+    """Stop and continue process `pid` (40 ms stopped, 30 ms running) while the block runs; left running."""
+    done = threading.Event()
 
-    def __init__(self, pid: int, until) -> None:
-        self.pid, self.until, self.stop = pid, until, threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        while not self.stop.is_set() and self.until.poll() is None:
-            os.kill(self.pid, signal.SIGSTOP)
+    def pulse() -> None:
+        while not done.is_set():
+            os.kill(pid, signal.SIGSTOP)
             time.sleep(0.04)
-            os.kill(self.pid, signal.SIGCONT)
+            os.kill(pid, signal.SIGCONT)
             time.sleep(0.03)
 
-    def __enter__(self):
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.stop.set()
-        self.thread.join()
-        os.kill(self.pid, signal.SIGCONT)
+    thread = threading.Thread(target=pulse, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+        os.kill(pid, signal.SIGCONT)
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +80,7 @@ def networked_run(tmp_path_factory):
                 plant_overrides={"plans": True, "seed": SEED, **link_overrides(UP, DOWN)},
                 trajectory_overrides={"preview_points": points}, controller_overrides={"plans": True})
             trajectory = next(n for n in group.nodes if n.name == "trajectory_node")
-            with stalled(trajectory.popen.pid, plant.popen):
+            with stalled(trajectory.popen.pid):
                 assert group.wait(plant, 300.0), plant.stderr_tail()
             assert plant.popen.returncode == 0, plant.stderr_tail()
         counts, stable_since = None, time.monotonic()

@@ -28,6 +28,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 DASK = str(Path(sys.executable).with_name("dask"))
 SAMPLES, SEED, DURATION_S = 16, 5, 1.0  # 2 batches of 8 runs
+STOP_GRACE_S = 3.0  # a dask process ends within a second of SIGTERM; a worker's close can hang (10 s and more)
 
 
 def _without_wall(rows):
@@ -70,7 +71,7 @@ class Cluster:
                 os.killpg(process.pid, signal.SIGTERM)
         for process in self.processes:
             try:
-                process.wait(timeout=10)
+                process.wait(timeout=STOP_GRACE_S)
             except subprocess.TimeoutExpired:
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()

@@ -181,7 +181,8 @@ def _around_peak(joints: list, statuses: list, gear_km: float, t0: int, window_n
     at = stamp_to_ns(peak.header.stamp)
     near = [f"{(stamp_to_ns(j.header.stamp) - t0) * 1e-9:.3f} s: {np.round(np.asarray(j.effort) / gear_km, 3)} A"
             for j in joints if abs(stamp_to_ns(j.header.stamp) - at) <= window_ns]
-    said = [f"{(stamp - t0) * 1e-9:.3f} s: {message} {({k: kv[k] for k in ('dt_s', 'saturated', 'watchdog', 'blend_remaining_s') if k in kv})}"
+    keys = ("dt_s", "saturated", "watchdog", "blend_remaining_s")
+    said = [f"{(stamp - t0) * 1e-9:.3f} s: {message} {({k: kv[k] for k in keys if k in kv})}"
             for stamp, message, kv in statuses if abs(stamp - at) <= window_ns]
     return "currents " + "; ".join(near) + " | statuses " + "; ".join(said)
 

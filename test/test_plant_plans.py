@@ -118,7 +118,11 @@ def realtime_plan_run(tmp_path_factory):
         pub = h.node.create_publisher(JointTrajectory, "wheel_voltage_plan", PUBLISH_QOS)
         plant = group.start("plant_node", ros_args(None, {"mode": "realtime", "plans": True, "duration_s": 3.0}))
         answered, late = 0, set()
-        while h.spin_until(lambda: len(odom) > answered or plant.popen.poll() is not None, 10.0) and len(odom) > answered:
+
+        def more() -> bool:  # an odometry to answer, or the plant's end (not a 10 s wait after its last)
+            return len(odom) > answered or plant.popen.poll() is not None
+
+        while h.spin_until(more, 10.0) and len(odom) > answered:
             stamp = odom[-1].header.stamp
             basis = (stamp.sec * 1_000_000_000 + stamp.nanosec) * 1e-9  # as `ros.plans` reads stamps
             answered = len(odom)

@@ -80,8 +80,9 @@ def test_two_namespaced_robots_track_their_own_references_without_crossing(tmp_p
             transforms = harness.collect("/tf", TFMessage)
             plants = {}
             for (namespace, scenario), group in zip(ROBOTS.items(), (group1, group2)):
-                args = node_arguments(scenario, params, DURATION_S, lockstep=True, wait_for=list(PROBE_WAIT_FOR),
-                                      namespace=namespace)
+                # and this harness's /tf reader: a lockstep run can end before it matched (no frame of that robot)
+                args = node_arguments(scenario, params, DURATION_S, lockstep=True,
+                                      wait_for=[*PROBE_WAIT_FOR, "/tf:1"], namespace=namespace)
                 started = {name: group.start(name, argv) for name, argv in args.items()}
                 plants[namespace] = (group, started["plant_node"])
             deadline = time.monotonic() + 240.0

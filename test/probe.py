@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 
 import numpy as np
 import rclpy
@@ -106,6 +107,17 @@ class ProbeSpinner:
                 self.executor.spin_once(timeout_sec=0.05)
         except Exception:  # context shut down while spinning
             pass
+
+    def wait_for_ticks(self, ticks: int, timeout_s: float = 60.0) -> None:
+        """Wait until the probe holds `ticks` samples of every topic: after the plant's exit the probe's thread
+        still takes what DDS delivered (on a loaded host, hundreds of samples take it a second and more).
+        """
+        probe, deadline = self.probe, time.monotonic() + timeout_s
+        while min(len(probe.truth), len(probe.reference), len(probe.currents), len(probe.voltages)) < ticks:
+            assert time.monotonic() < deadline, (f"the probe has {len(probe.truth)} truth, {len(probe.reference)} "
+                                                 f"previews, {len(probe.currents)} currents, {len(probe.voltages)} "
+                                                 f"voltages of {ticks} ticks after {timeout_s:g} s")
+            time.sleep(0.02)
 
     def close(self) -> None:
         self.context.try_shutdown()

@@ -303,8 +303,6 @@ def test_lockstep_loop_with_encoder_odometry_equals_the_offline_loop(tmp_path):
     """The three node processes started with node_arguments(odometry="encoders") reproduce
     run_scenario(odometry="encoders") to 1e-6: the plant's dead reckoning and the controller's predictor.
     """
-    import time
-
     from probe import PROBE_WAIT_FOR, ProbeSpinner
     from robotino_geom_mpc.params.presets import default_params_file
     from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
@@ -320,7 +318,7 @@ def test_lockstep_loop_with_encoder_odometry_equals_the_offline_loop(tmp_path):
             nodes = {name: group.start(name, args[name]) for name in loop}
             assert group.wait(nodes["plant_node"], 240.0), nodes["plant_node"].stderr_tail()
             assert nodes["plant_node"].popen.returncode == 0
-        time.sleep(0.3)  # the probe takes the last samples
+        probe.wait_for_ticks(round(duration / TS))
         dds = probe.probe.run_data("paper-circle")
     finally:
         probe.close()

@@ -94,7 +94,8 @@ def test_two_namespaced_robots_track_their_own_references_without_crossing(tmp_p
                 assert group.wait(plant, 1.0), f"{namespace}: {plant.stderr_tail()}"
                 assert plant.popen.returncode == 0, plant.stderr_tail()
             harness.spin_for(0.3)
-        time.sleep(0.3)  # the probes take the last samples
+        for probe in probes.values():
+            probe.wait_for_ticks(round(DURATION_S / control.period_s))
         runs = {ns: probes[ns].probe.run_data(scenario, params) for ns, scenario in ROBOTS.items()}
     finally:
         for probe in probes.values():

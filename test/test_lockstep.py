@@ -1,7 +1,6 @@
 """The full lockstep loop over DDS (three node processes) reproduces the offline loop of `simulate`."""
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -27,12 +26,7 @@ def test_lockstep_dds_loop_equals_the_offline_loop(tmp_path):
             plant = lockstep_nodes(group, "paper-circle", DURATION_S, wait_for=PROBE_WAIT_FOR)
             assert group.wait(plant, 240.0), plant.stderr_tail()
             assert plant.popen.returncode == 0
-        counts, still_since = None, time.monotonic()  # the probe takes the last samples (it lags on a loaded host)
-        while time.monotonic() - still_since < 2.0:
-            time.sleep(0.2)
-            now = (len(probe.probe.truth), len(probe.probe.currents), len(probe.probe.voltages))
-            if now != counts:
-                counts, still_since = now, time.monotonic()
+        probe.wait_for_ticks(round(DURATION_S / control.period_s))
         dds = probe.probe.run_data("paper-circle")
     finally:
         probe.close()

@@ -36,26 +36,43 @@ def test_nodes_refuse_bad_chain_settings_by_name(node, override, name):
     assert name in proc.stderr and "Traceback" not in proc.stderr
 
 
-@pytest.mark.slow
-def test_identify_over_ros_against_the_chain_plant(tmp_path):
-    """`identify --ros` against the plant node's chain over DDS finds what `identify` finds offline on the same
-    emulated chain (PI loops at 200 Hz there: their effective time constant is 21 ms, not the 25 ms of 1 kHz).
-    """
-    delay = 0.01
-    chain = chain_params({"chain.link.delay_s": delay})
-    robot = load_params()[0]
-    offline = fit_chain(run_excitation(EmulatedRobot(ChainEmulator(RobotinoPlant(robot), chain, seed=1,
-                                                                   speed_loop_rate_hz=200.0))), chain_params())
+STALL_ATTEMPTS = 3  # identifications whose emulation fell behind the wall clock, discarded before failing
+
+
+def _identify_over_ros(tmp_path, delay: float) -> tuple[dict, str]:
+    """`identify --ros` against a chain plant node: the fit's report and the plant's log."""
     with NodeGroup(log_dir=tmp_path / "logs") as group:
         plant = group.start("plant_node", ros_args(None, {**CHAIN, "chain.link.delay_s": delay, "duration_s": 40.0}))
         out = tmp_path / "id"
         proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "identify", "--ros", "--out", str(out)],
                               capture_output=True, text=True, timeout=120)
         assert proc.returncode == 0, proc.stderr + plant.stderr_tail(20)
-    fit = json.loads((out / "identify.json").read_text())
+    return json.loads((out / "identify.json").read_text()), plant.stderr_tail(200)
+
+
+@pytest.mark.slow
+def test_identify_over_ros_against_the_chain_plant(tmp_path):
+    """`identify --ros` against the plant node's chain over DDS finds what `identify` finds offline on the same
+    emulated chain (PI loops at 200 Hz there: their effective time constant is 21 ms, not the 25 ms of 1 kHz).
+
+    The emulation runs at wall-clock speed; a stalled host makes it fall behind (the plant logs its late passes)
+    and apply the commands queued meanwhile at the wrong instants: one such run fitted a rotation ramp of
+    4.47 rad/s^2 for 3.11. A run whose plant logged late passes is repeated, up to `STALL_ATTEMPTS` runs.
+    """
+    delay = 0.01
+    chain = chain_params({"chain.link.delay_s": delay})
+    robot = load_params()[0]
+    offline = fit_chain(run_excitation(EmulatedRobot(ChainEmulator(RobotinoPlant(robot), chain, seed=1,
+                                                                   speed_loop_rate_hz=200.0))), chain_params())
+    for attempt in range(STALL_ATTEMPTS):
+        fit, plant_log = _identify_over_ros(tmp_path / f"attempt{attempt}", delay)
+        if "late passes" not in plant_log:
+            break
+    else:
+        raise AssertionError(f"the emulation fell behind the wall clock in all {STALL_ATTEMPTS} runs:\n{plant_log}")
     # over DDS the round trip adds the node-to-node hops and the plant's 5 ms poll to the WiFi's 2 x 10 ms; below,
     # the phase of the emulated driver's 30 Hz loop against the excitation (fixed offline by the seed, free over
     # DDS): 13.5 ms for the 20 ms link in 1 of 3 runs, at this commit and at bfed9e9 alike (not yet explained)
     assert offline.round_trip_s - 0.0075 <= fit["round_trip_s"] <= offline.round_trip_s + 0.010
     for key in ("ramp_translation_m_s2", "ramp_rotation_rad_s2", "speed_loop_time_constant_s"):
-        assert fit[key] == pytest.approx(getattr(offline, key), rel=0.1), key
+        assert fit[key] == pytest.approx(getattr(offline, key), rel=0.1), (key, plant_log)

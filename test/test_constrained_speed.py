@@ -4,6 +4,7 @@ No wall time is asserted: the work is counted (QP solves, active-set iterations)
 and the benchmark's two sides must agree.
 """
 
+import functools
 from dataclasses import replace
 
 import daqp
@@ -149,6 +150,13 @@ def _pair(model, control):
     return _CountingChecks(model, control, mpc), ConstrainedMPC(model, control, mpc)
 
 
+@functools.lru_cache(maxsize=1)
+def _constrained() -> tuple:
+    """The preset's robot and its control parameters in constrained mode (read once: the property's examples)."""
+    robot, control = load_params()
+    return robot, replace(control, mode="constrained")
+
+
 def test_screen_passes_only_feasible_ticks_and_keeps_u_bit_for_bit(inputs):
     """On every bench input: each screened tick's rows (the full check, independent instance) lie in [-1, 1],
     u equals the always-checking `solve` bit for bit, and the screen decides most nominal ticks.
@@ -173,7 +181,7 @@ def test_screen_passes_only_feasible_ticks_and_keeps_u_bit_for_bit(inputs):
 
 def _tick(rng, scale_y):
     """A random tick (X, u(k-1), Y_d, i_0) near the closed form's limits when scale_y is large."""
-    _, control = load_params()
+    control = _constrained()[1]
     X = rng.normal(0.0, [0.5, 0.3, 0.5, 0.3, 3.0, 0.5])
     Ts, N = control.period_s, control.horizon
     Y_d = X[0::2] + np.outer(np.arange(1, N + 1) * Ts, X[1::2]) + rng.normal(0.0, scale_y, (N, 3))
@@ -188,11 +196,9 @@ def test_screen_never_passes_a_tick_the_full_check_fails(seed, size, scale_y, sh
     """Property: from a checked reference tick, any other tick (moved by 10**size in every input, and its
     positions translated by `shift` metres) that the screen passes meets every limit, with the closed form's u.
     """
-    robot, control = load_params()
-    control = replace(control, mode="constrained")
     rng = np.random.default_rng(seed)
     X, u_prev, Y_d, i_start = _tick(rng, 10.0**scale_y)
-    screen, full = _pair(robot, control)
+    screen, full = _pair(*_constrained())
     assume(np.abs(full.closed_form_rows(X, u_prev, Y_d, i_start)).max() <= 1.0)
     screen.screened(X, u_prev, Y_d, i_start)  # the full check: the reference
     step = 10.0**size

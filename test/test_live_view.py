@@ -112,7 +112,8 @@ def _tf_values(msg) -> tuple:
 def test_run_foxglove_serves_the_recorded_messages_live(tmp_path):
     port, out = _free_port(), tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "robotino_geom_mpc", "run", "--scenario", "paper-circle",
-                             "--realtime", "--duration", str(DURATION_S), "--foxglove", str(port), "--out", str(out)],
+                             "--realtime", "--duration", str(DURATION_S), "--foxglove", str(port), "--out", str(out),
+                             "--no-plots"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy())
     try:
         channels, live = asyncio.run(asyncio.wait_for(_watch(port, proc), 300))

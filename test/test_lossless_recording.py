@@ -48,7 +48,8 @@ def counts(tmp_path_factory):
     busy = multiprocessing.get_context("spawn").Process(target=_busy, daemon=True)
     busy.start()
     try:
-        status = main(["run", "--scenario", "paper-circle", "--duration", str(DURATION_S), "--out", str(out)])
+        status = main(["run", "--scenario", "paper-circle", "--duration", str(DURATION_S), "--out", str(out),
+                       "--no-plots"])
     finally:
         busy.kill()
         busy.join()

@@ -26,7 +26,7 @@ DURATION_S = 2.0
 def wifi_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("wifi")
     done = subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "run", "--scenario", "wifi", "--duration",
-                           str(DURATION_S), "--out", str(out)], capture_output=True, text=True, timeout=600)
+                           str(DURATION_S), "--out", str(out), "--no-plots"], capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stdout + done.stderr
     return out
 
@@ -63,7 +63,8 @@ def test_report_measures_the_links_loss(wifi_run):
 def test_regress_replays_every_plan_of_a_realtime_run_over_the_link(tmp_path):
     out = tmp_path / "realtime"
     done = subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "run", "--scenario", "wifi", "--realtime",
-                           "--duration", "4", "--out", str(out)], capture_output=True, text=True, timeout=600)
+                           "--duration", "4", "--out", str(out), "--no-plots"], capture_output=True, text=True,
+                          timeout=600)
     assert done.returncode == 0, done.stdout + done.stderr
     result = regress_bag(out / "bag")
     # every plan the recorder holds is found (a basis back from the plan's header is some 100 ns off its odometry

@@ -48,8 +48,9 @@ def test_run_robustness_is_simulates_robustness_with_its_mismatch_and_noise(tmp_
     offline robustness run with the same seed (the nominal loop tracks to microns, this one to a tenth of a mm).
     """
     out = tmp_path / "robustness"
-    proc = _cli("run", "--scenario", "robustness", "--duration", "2", "--seed", "4", "--out", str(out))
+    proc = _cli("run", "--scenario", "robustness", "--duration", "2", "--seed", "4", "--out", str(out), "--no-plots")
     assert proc.returncode == 0, proc.stderr + proc.stdout
+    assert not list(out.glob("*.png"))  # --no-plots: the metrics only
     metrics = _assert_metrics_of_simulate(out, "robustness", duration_s=2.0, seed=4)
     assert metrics["rms_position_error_m"] > 2e-5
 

@@ -68,13 +68,14 @@ def test_paper_circle_tracks_the_reference(circle_run):
 
 def test_default_out_dir_is_out_scenario(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    assert main(["simulate", "--scenario", "point-to-point", "--duration", "0.2", "--no-progress"]) == 0
+    assert main(["simulate", "--scenario", "point-to-point", "--duration", "0.2", "--no-progress", "--no-plots"]) == 0
     assert read_metrics(tmp_path / "out" / "point-to-point" / "metrics.json")["scenario"] == "point-to-point"
 
 
 def test_robustness_runs_the_registrys_mismatch_and_noise(tmp_path, capsys):
     out = tmp_path / "rob"
-    assert main(["simulate", "--scenario", "robustness", "--duration", "0.5", "--out", str(out), "--no-progress"]) == 0
+    assert main(["simulate", "--scenario", "robustness", "--duration", "0.5", "--out", str(out), "--no-progress",
+                 "--no-plots"]) == 0
     run = load_run(out / "run.npz")
     assert run.scenario == "robustness" and run.meta["odometry_noise"] == [1e-3, 1e-3]
     assert run.meta["controller_mismatch"] == {"mass": 1.2, "inertia": 0.8, "friction": 2.0}
@@ -123,8 +124,9 @@ def test_missing_params_file_exits_2(tmp_path, capsys):
 def test_encoder_odometry_reports_both_frames(tmp_path):
     out = tmp_path / "enc"
     proc = _cli("simulate", "--scenario", "paper-circle", "--duration", "3", "--odometry", "encoders", "--out",
-                str(out), "--no-progress")
+                str(out), "--no-progress", "--no-plots")
     assert proc.returncode == 0, proc.stderr
+    assert not list(out.glob("*.png")) and "and 0 figures" in proc.stdout  # --no-plots
     metrics, run = read_metrics(out / "metrics.json"), load_run(out / "run.npz")
     assert run.meta["odometry"] == "encoders"
     assert metrics == pytest.approx({**compute_metrics(run, settle_time_s=1.0), **{
@@ -151,10 +153,10 @@ def test_link_options_out_of_range_exit_2_naming_the_option(tmp_path, capsys, ar
 
 def test_a_run_over_a_link_reports_it(tmp_path, capsys):
     out = tmp_path / "o"
-    assert main(["simulate", "--scenario", "paper-circle", "--duration", "0.5", "--no-progress", "--out", str(out),
-                 "--link-delay-ms", "20", "--link-loss", "0.2", "--link-burst", "2"]) == 0
+    assert main(["simulate", "--scenario", "paper-circle", "--duration", "0.5", "--no-progress", "--no-plots", "--out",
+                 str(out), "--link-delay-ms", "20", "--link-loss", "0.2", "--link-burst", "2"]) == 0
     text = capsys.readouterr().out
     assert "link: up " in text and "compensated: round trip" in text
-    assert main(["simulate", "--scenario", "paper-circle", "--duration", "0.5", "--no-progress", "--out", str(out),
-                 "--link-delay-ms", "20", "--no-compensation"]) == 0
+    assert main(["simulate", "--scenario", "paper-circle", "--duration", "0.5", "--no-progress", "--no-plots", "--out",
+                 str(out), "--link-delay-ms", "20", "--no-compensation"]) == 0
     assert "uncompensated" in capsys.readouterr().out

@@ -96,7 +96,7 @@ def test_the_parameter_file_runs_unchanged(tuned, tmp_path):
     assert values["control.horizon"] == control.horizon
     assert set(values) <= set(NODE_PARAMETERS["robotino_controller"]) | {"use_sim_time"}
     assert main(["simulate", "--scenario", "paper-circle", "--duration", "1.5", "--params", str(out / "params.yaml"),
-                 "--out", str(tmp_path / "sim")]) == 0
+                 "--out", str(tmp_path / "sim"), "--no-plots"]) == 0
     metrics = json.loads((tmp_path / "sim" / "metrics.json").read_text())
     assert math.isfinite(metrics["rms_position_error_m"])
 

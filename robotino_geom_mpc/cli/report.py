@@ -14,6 +14,7 @@ from pathlib import Path
 
 from . import VERBS, UsageError
 from robotino_geom_mpc.cli.reindex import warn_damage
+from robotino_geom_mpc.cli.simulate import add_no_plots_argument
 
 __all__ = ["add_parser", "run"]
 
@@ -31,6 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--params", type=Path, default=None,
                         help="ROS 2 parameter file (default: the parameters stored in the recording)")
     parser.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    add_no_plots_argument(parser)
     parser.set_defaults(func=run)
     return parser
 
@@ -47,13 +49,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         bag = BagReader(args.bag)
         warn_damage("report", damage_report(bag))
-        metrics = report_bag(bag, args.out, params_file=args.params)
+        metrics = report_bag(bag, args.out, params_file=args.params, plots=not args.no_plots)
     except BagError as exc:
         raise UsageError(str(exc)) from None
     if args.json:
         print(json.dumps(metrics, indent=2, sort_keys=True))
     else:
-        print(f"{metrics['samples']} ticks; metrics and figures in {args.out}")
+        print(f"{metrics['samples']} ticks; metrics{'' if args.no_plots else ' and figures'} in {args.out}")
         if metrics.get("link") is not None:
             from robotino_geom_mpc.recording.link_report import link_line
 

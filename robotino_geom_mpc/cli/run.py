@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING
 from robotino_geom_mpc.scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
 from robotino_geom_mpc.cli.simulate import add_chain_argument, add_command_interface_argument, add_link_arguments, \
-    add_odometry_argument, add_scenario_argument, chain_from_args, link_from_args
+    add_no_plots_argument, add_odometry_argument, add_scenario_argument, chain_from_args, link_from_args
 
 if TYPE_CHECKING:
     from robotino_geom_mpc.system.processes import NodeGroup, NodeProcess
@@ -104,6 +104,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         help="the controller sends delay-compensated plans and the plant applies them at their times "
                         "even without a link (over a link they are the default)")
     parser.add_argument("--no-record", action="store_true", help="no recording (and so no metrics or figures)")
+    add_no_plots_argument(parser)
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
                         "and paths a sender publishes on goal_pose and plan; the run lasts until they end + 3 s")
@@ -299,7 +300,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             reader = BagReader(bag)
             warn_damage("run", damage_report(reader))
-            metrics = report_bag(reader, out, params_file)
+            metrics = report_bag(reader, out, params_file, plots=not args.no_plots)
         except BagError as exc:
             print(f"robotino-geom-mpc run: error: {exc}", file=sys.stderr)
             return 1
@@ -320,5 +321,6 @@ def run(args: argparse.Namespace) -> int:
     if metrics.get("rms_position_error_odom_m") is not None:
         print(f"  in the odom frame: rms {metrics['rms_position_error_odom_m']:.3g} m; drift from the truth at the "
               f"end {metrics['odometry_drift_final_m']:.3g} m")
-    print(f"  wrote {out / 'metrics.json'} and the figures in {time.monotonic() - stopped:.1f} s; recording in {bag}")
+    print(f"  wrote {out / 'metrics.json'}{'' if args.no_plots else ' and the figures'} in "
+          f"{time.monotonic() - stopped:.1f} s; recording in {bag}")
     return 0

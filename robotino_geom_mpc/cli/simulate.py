@@ -1,7 +1,7 @@
 """`robotino-geom-mpc simulate`: one offline closed-loop run, its metrics.json and figures.
 
 Runs `simulation.run_scenario` (plant + controller + reference, no ROS) and
-writes DIR/metrics.json, DIR/run.npz and the PNGs of `plots.write_plots`.
+writes DIR/metrics.json, DIR/run.npz and the PNGs of `plots.write_plots` (none with ``--no-plots``).
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from robotino_geom_mpc.network.link import LinkError, LinkParams
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario
 from . import VERBS, UsageError, positive_float, seed_value
 
-__all__ = ["add_chain_argument", "add_link_arguments", "add_odometry_argument", "add_parser", "add_scenario_argument",
-           "chain_from_args", "link_from_args", "run"]
+__all__ = ["add_chain_argument", "add_link_arguments", "add_no_plots_argument", "add_odometry_argument", "add_parser",
+           "add_scenario_argument", "chain_from_args", "link_from_args", "run"]
 
 SETTLE_TIME_S = 1.0
 
@@ -43,6 +43,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         help="wheel current limit of the closed-form mode [A] (control.current_limit_a; "
                         "0 = none, the paper's controller; default: the parameter file's)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_no_plots_argument(parser)
     add_command_interface_argument(parser)
     add_chain_argument(parser)
     parser.add_argument("--controller-chain", type=Path, default=None, metavar="FILE",
@@ -187,6 +188,12 @@ def add_odometry_argument(parser: argparse.ArgumentParser) -> None:
                         "or encoders (dead reckoning from 2048-count motor encoders: drifts from the ground truth)")
 
 
+def add_no_plots_argument(parser: argparse.ArgumentParser) -> None:
+    """The ``--no-plots`` option of `simulate`, `run` and `report`."""
+    parser.add_argument("--no-plots", action="store_true",
+                        help="write no figures, only the metrics (scripts and batches: the figures take 1-2 s of CPU)")
+
+
 def add_command_interface_argument(parser: argparse.ArgumentParser) -> None:
     """The ``--command-interface {voltages,cmd_vel}`` option of `simulate` and `run`."""
     parser.add_argument("--command-interface", choices=("voltages", "cmd_vel"), default="voltages",
@@ -201,7 +208,6 @@ def _fmt(value: float | None, unit: str) -> str:
 def run(args: argparse.Namespace) -> int:
     """Run the scenario, write the outputs, print a summary; returns the exit status."""
     from robotino_geom_mpc.params.files import load_params
-    from robotino_geom_mpc.offline.plots import write_plots
     from robotino_geom_mpc.offline.results import compute_metrics, save_run, write_metrics
     from robotino_geom_mpc.offline.simulation import run_scenario
 
@@ -238,7 +244,12 @@ def run(args: argparse.Namespace) -> int:
     metrics["realtime_factor"] = metrics["duration_s"] / wall_s
     write_metrics(metrics, out / "metrics.json")
     save_run(data, out / "run.npz")
-    figures = write_plots(data, out, settle_time_s=SETTLE_TIME_S)
+    if args.no_plots:
+        figures = []
+    else:
+        from robotino_geom_mpc.offline.plots import write_plots
+
+        figures = write_plots(data, out, settle_time_s=SETTLE_TIME_S)
 
     m = metrics
     print(f"scenario {m['scenario']}: {m['duration_s']:.3g} s simulated in {wall_s:.3g} s")

@@ -45,7 +45,6 @@ import numpy as np
 
 from robotino_geom_mpc.params.specs import ParamError, params_from_values
 from robotino_geom_mpc.params.files import load_params
-from robotino_geom_mpc.offline.plots import write_plots
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError, BagMessage, RUN_METADATA
 from robotino_geom_mpc.recording.definitions import _typestore
@@ -322,8 +321,9 @@ def report_bag(
     out_dir: str | os.PathLike,
     params_file: str | os.PathLike | None = None,
     settle_time_s: float = 1.0,
+    plots: bool = True,
 ) -> dict[str, Any]:
-    """Write ``out_dir/metrics.json`` and the figures of a recorded run; returns the metrics.
+    """Write ``out_dir/metrics.json`` and (with `plots`) the figures of a recorded run; returns the metrics.
 
     Uses `results.compute_metrics` / `results.write_metrics` and
     `plots.write_plots`, the same code as ``simulate`` and ``run``; a run with plans also gets ``link``, the
@@ -346,5 +346,8 @@ def report_bag(
     if link is not None:  # a run with plans: the link it ran over, as the recording shows it
         metrics["link"] = link
     write_metrics(metrics, out / "metrics.json")
-    write_plots(run, out, settle_time_s=settle_time_s)
+    if plots:
+        from robotino_geom_mpc.offline.plots import write_plots  # matplotlib: imported only to draw
+
+        write_plots(run, out, settle_time_s=settle_time_s)
     return metrics

@@ -103,7 +103,8 @@ def _offline_twists(monkeypatch, robot, control):
 def test_run_cmd_vel_records_the_metrics_of_simulate_and_the_controllers_twists(tmp_path, monkeypatch):
     out = tmp_path / "run"
     proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "run", "--scenario", "paper-circle",
-                           "--command-interface", "cmd_vel", "--duration", str(DURATION_S), "--out", str(out), "--no-plots"],
+                           "--command-interface", "cmd_vel", "--duration", str(DURATION_S), "--out", str(out),
+                           "--no-plots"],
                           capture_output=True, text=True, timeout=600, env=os.environ.copy())
     assert proc.returncode == 0, proc.stderr + proc.stdout
     robot, control = load_params()

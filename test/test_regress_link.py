@@ -26,7 +26,8 @@ DURATION_S = 2.0
 def wifi_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("wifi")
     done = subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "run", "--scenario", "wifi", "--duration",
-                           str(DURATION_S), "--out", str(out), "--no-plots"], capture_output=True, text=True, timeout=600)
+                           str(DURATION_S), "--out", str(out), "--no-plots"], capture_output=True, text=True,
+                          timeout=600)
     assert done.returncode == 0, done.stdout + done.stderr
     return out
 

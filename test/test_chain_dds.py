@@ -37,9 +37,10 @@ def test_nodes_refuse_bad_chain_settings_by_name(node, override, name):
     assert name in proc.stderr and "Traceback" not in proc.stderr
 
 
-STALL_ATTEMPTS = 3  # identifications whose emulation fell behind the wall clock, discarded before failing
-# the emulation and identify above the other test worker's processes where the test may raise them (root): that
-# worker's load otherwise adds its scheduling latency to the round trip (33 ms for 20 ms in one full-suite run)
+ATTEMPTS = 3  # identifications over DDS, the disturbed ones discarded, before the test fails
+DISTURBED = 2.0  # a run whose twist residual exceeds the offline fit's this many times was disturbed
+# the emulation and identify above the other test worker's processes where the test may raise them (root): fewer
+# stalls of the kind that disturb a run
 PRIORITY = ("nice", "-n", "-10") if os.geteuid() == 0 else ()
 
 
@@ -59,21 +60,28 @@ def test_identify_over_ros_against_the_chain_plant(tmp_path):
     """`identify --ros` against the plant node's chain over DDS finds what `identify` finds offline on the same
     emulated chain (PI loops at 200 Hz there: their effective time constant is 21 ms, not the 25 ms of 1 kHz).
 
-    The emulation runs at wall-clock speed; a stalled host makes it fall behind (the plant logs its late passes)
-    and apply the commands queued meanwhile at the wrong instants: one such run fitted a rotation ramp of
-    4.47 rad/s^2 for 3.11. A run whose plant logged late passes is repeated, up to `STALL_ATTEMPTS` runs.
+    A stalled host disturbs a run over DDS. The command answering an odometry dispatch acts at the driver's next
+    pass offline; over DDS it does so only if the plant's poll, identify and two DDS hops take less than the pass
+    period (33 ms), and otherwise a pass later. The emulation may also fall behind the wall clock (the plant logs
+    its late passes) and apply the commands queued meanwhile at the wrong instants. The fit of a disturbed run
+    misses: twist residuals of 1.1 and 5.6 mm/s against 0.25 offline, with a speed loop of 28.6 ms for 21.2 and a
+    rotation ramp of 4.47 rad/s^2 for 3.11 (full-suite runs, 2 of 6). A run with late passes or a residual above
+    `DISTURBED` times the offline one is repeated, up to `ATTEMPTS` runs.
     """
     delay = 0.01
     chain = chain_params({"chain.link.delay_s": delay})
     robot = load_params()[0]
     offline = fit_chain(run_excitation(EmulatedRobot(ChainEmulator(RobotinoPlant(robot), chain, seed=1,
                                                                    speed_loop_rate_hz=200.0))), chain_params())
-    for attempt in range(STALL_ATTEMPTS):
+    fits = []
+    for attempt in range(ATTEMPTS):
         fit, plant_log = _identify_over_ros(tmp_path / f"attempt{attempt}", delay)
-        if "late passes" not in plant_log:
+        fits.append(fit)
+        if "late passes" not in plant_log and fit["twist_residual_rms"] <= DISTURBED * offline.residual_rms:
             break
     else:
-        raise AssertionError(f"the emulation fell behind the wall clock in all {STALL_ATTEMPTS} runs:\n{plant_log}")
+        raise AssertionError(f"all {ATTEMPTS} runs disturbed (offline residual {offline.residual_rms}): {fits}\n"
+                             f"{plant_log}")
     # over DDS the round trip adds the node-to-node hops and the plant's 5 ms poll to the WiFi's 2 x 10 ms; below,
     # the phase of the emulated driver's 30 Hz loop against the excitation (fixed offline by the seed, free over
     # DDS): 13.5 ms for the 20 ms link in 1 of 3 runs, at this commit and at bfed9e9 alike (not yet explained)

@@ -65,7 +65,7 @@ def test_identify_over_ros_against_the_chain_plant(tmp_path):
     period (33 ms), and otherwise a pass later. The emulation may also fall behind the wall clock (the plant logs
     its late passes) and apply the commands queued meanwhile at the wrong instants. The fit of a disturbed run
     misses: twist residuals of 1.1 and 5.6 mm/s against 0.25 offline, with a speed loop of 28.6 ms for 21.2 and a
-    rotation ramp of 4.47 rad/s^2 for 3.11 (full-suite runs, 2 of 6). A run with late passes or a residual above
+    rotation ramp of 4.47 rad/s^2 for 3.11 (two full-suite runs). A run with late passes or a residual above
     `DISTURBED` times the offline one is repeated, up to `ATTEMPTS` runs.
     """
     delay = 0.01

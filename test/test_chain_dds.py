@@ -1,6 +1,6 @@
 """The chain over DDS: the plant node as driver + firmware (``chain.active``), `identify --ros` against it, and
-the nodes' refusals. Realtime: a host too loaded to run the emulation at wall-clock speed fails these (the plant
-logs its late passes).
+the nodes' refusals. Realtime: an identification that a stalled host disturbed is repeated (the test's docstring);
+a host too loaded for every attempt fails it.
 """
 
 import json

@@ -191,7 +191,7 @@ def add_odometry_argument(parser: argparse.ArgumentParser) -> None:
 def add_no_plots_argument(parser: argparse.ArgumentParser) -> None:
     """The ``--no-plots`` option of `simulate`, `run` and `report`."""
     parser.add_argument("--no-plots", action="store_true",
-                        help="write no figures, only the metrics (scripts and batches: the figures take 1-2 s of CPU)")
+                        help="write no figures, only the metrics (for scripts and batches of runs)")
 
 
 def add_command_interface_argument(parser: argparse.ArgumentParser) -> None:

@@ -36,9 +36,8 @@ that command is older than ``command_timeout_s``, as a real drive's watchdog doe
 warning, ``command_timeouts`` in the report), then applies the new command or sends the measurements. So there
 is no physics timer (nothing wakes the process between events) and a command takes effect at most one grid
 step late. A publish timer sends the measurements every control period, stamped with the node-clock time of
-the grid point they belong to (a timer that fires again before the grid has advanced, as a late timer catches
-up, sends nothing: each stamp is a new grid point, so stamps increase); after ``duration_s`` (if > 0) the node
-reports the loop's timing as it saw it (`loop_timing.LoopTiming`) and exits.
+the grid point they belong to, once per grid point; after ``duration_s`` (if > 0) the node reports the loop's
+timing as it saw it (`loop_timing.LoopTiming`) and exits.
 
 ``lockstep``: the plant owns time and repeats `simulation.run_scenario`'s tick: tick k is the state at t_k = k
 Ts; it publishes the odometry (noise drawn from ``default_rng(seed)``, as the offline loop does), /clock and
@@ -223,8 +222,7 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
             self.started_at = monotonic()
             self.clock_offset_s = clock_minus_steady_ns(self) * 1e-9  # robot - steady
             self.hold = CommandHold(self.started_at, 1.0 / self.params["physics_rate_hz"])  # a refused one: 0 V
-            self.ticks = 0  # published
-            self.published_grid_s = -math.inf  # steady time of the grid point last published (stamps increase)
+            self.ticks, self.published_grid_s = 0, -math.inf  # published; the last one's grid point [s, steady]
             self.timing = LoopTiming(window_s=self.params["timing_window_s"])
             self.publish_timer = self.create_timer(self.control.period_s, self._publish_realtime, clock=steady)
         self.chain = attach_chain(self)  # chain.active: the driver + firmware chain takes commands and odometry
@@ -378,8 +376,7 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
                                                self.busy_s, **self.counts))
             self.done.set_result(True)
             return
-        grid_time = self._advance(now)
-        if grid_time <= self.published_grid_s:  # a late timer firing again within one grid step: no new state
+        if (grid_time := self._advance(now)) <= self.published_grid_s:  # a late timer firing again: no new state
             return
         self.published_grid_s = grid_time
         self.timing.published(monotonic())

@@ -2,7 +2,6 @@
 
 import json
 import math
-import os
 import subprocess
 import sys
 import textwrap
@@ -203,8 +202,7 @@ def test_realtime_publishes_each_grid_point_once_so_stamps_increase():
         rclpy.shutdown()
         """)
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).parent),
-                                                                             os.environ.get("PYTHONPATH", "")])})
+                          cwd=Path(__file__).parent)  # `-c` imports from the working directory: the harness
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.splitlines()[-1])
     assert result["ticks"] == 2

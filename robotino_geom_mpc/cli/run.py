@@ -21,9 +21,9 @@ scenario and parameters. With ``--goals FILE`` (scenario ``goals``) a goal sende
 (`scenarios.node_parameters`): e.g. in ``robustness`` the controller a
 mismatched model and the plant odometry noise. With ``--command-interface cmd_vel`` the controller sends
 twists on cmd_vel, the plant holds them with its wheel-speed PI loops, and the metrics' voltages are those
-loops' (the plant's ``applied_voltages``). ``--chain NAME`` (with ``--realtime --command-interface cmd_vel``) puts
-the real robot's driver + firmware chain in the plant node and has the controller control through it
-(``chain.active``; `robotino_sim_node.chain_driver`, `nodes.chain_control`).
+loops' (the plant's ``applied_voltages``). ``--chain NAME`` (with ``--realtime``; it implies ``--command-interface
+cmd_vel``) puts the real robot's driver + firmware chain in the plant node and has the controller control through
+it (``chain.active``; `robotino_sim_node.chain_driver`, `nodes.chain_control`).
 With ``--foxglove PORT`` the live view (`recording.live_view_node`) starts first and the loop once its server is
 up, so a Foxglove client connected by then sees the run from its first odometry.
 
@@ -52,7 +52,8 @@ from typing import TYPE_CHECKING
 from robotino_geom_mpc.scenarios import SCENARIOS
 from . import VERBS, UsageError, positive_float, seed_value
 from robotino_geom_mpc.cli.simulate import add_chain_argument, add_command_interface_argument, add_link_arguments, \
-    add_no_plots_argument, add_odometry_argument, add_scenario_argument, chain_from_args, link_from_args
+    add_no_plots_argument, add_odometry_argument, add_scenario_argument, chain_from_args, command_interface_from_args, \
+    link_from_args
 
 if TYPE_CHECKING:
     from robotino_geom_mpc.system.processes import NodeGroup, NodeProcess
@@ -98,8 +99,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         help="seed of the odometry noise (default 0)")
     add_odometry_argument(parser)
     add_command_interface_argument(parser)
-    add_chain_argument(parser)
-    add_link_arguments(parser)
+    add_chain_argument(parser, implies_cmd_vel=True)
+    add_link_arguments(parser, "run")
     parser.add_argument("--plans", action="store_true",
                         help="the controller sends delay-compensated plans and the plant applies them at their times "
                         "even without a link (over a link they are the default)")
@@ -221,14 +222,16 @@ def run(args: argparse.Namespace) -> int:
     from robotino_geom_mpc.system.processes import TIMING_REPORT, NodeFailed, NodeGroup, node_arguments
 
     chain = chain_from_args(args)
+    command_interface = command_interface_from_args(args, chain)
     overrides: dict = {}
     if chain is not None:  # the plant behind the driver chain, the controller through it (both: chain.active)
-        if args.lockstep or args.command_interface != "cmd_vel":
-            raise UsageError("--chain needs --realtime and --command-interface cmd_vel (the driver's loop and the "
-                             "firmware's tick run on the wall clock)")
+        if args.lockstep:
+            raise UsageError("--chain needs --realtime (the driver's loop and the firmware's tick run on the wall "
+                             "clock)")
         values = {"chain.active": "enabled", **chain.values()}
         # the PI loops at 200 Hz (5 samples a tick, 1 kHz offline): the emulation keeps up with the wall clock
         overrides = {"plant_node": {**values, "wheel_pi.rate_hz": CHAIN_PI_RATE_HZ}, "controller_node": dict(values)}
+    link = link_from_args(args)
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)
     duration = args.duration if args.duration is not None else SCENARIOS[args.scenario].duration_s
@@ -245,9 +248,8 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
 
-    link = link_from_args(args)
     node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
-                               odometry=args.odometry, command_interface=args.command_interface, link=link,
+                               odometry=args.odometry, command_interface=command_interface, link=link,
                                plans=False if args.no_compensation else (True if args.plans else None),
                                goals_file=None if args.goals is None else args.goals.resolve(),
                                overrides={**overrides, "plant_node": {**overrides.get("plant_node", {}),

@@ -12,13 +12,13 @@ from dataclasses import replace
 from pathlib import Path
 
 from robotino_geom_mpc.model.encoders import ODOMETRY_MODELS
-from robotino_geom_mpc.network.link import LinkError, LinkParams
+from robotino_geom_mpc.network.link import MAX_DELAY_S, LinkError, LinkParams
 
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario
 from . import VERBS, UsageError, positive_float, seed_value
 
 __all__ = ["add_chain_argument", "add_link_arguments", "add_no_plots_argument", "add_odometry_argument", "add_parser",
-           "add_scenario_argument", "chain_from_args", "link_from_args", "run"]
+           "add_scenario_argument", "chain_from_args", "command_interface_from_args", "link_from_args", "run"]
 
 SETTLE_TIME_S = 1.0
 
@@ -45,23 +45,28 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     add_no_plots_argument(parser)
     add_command_interface_argument(parser)
-    add_chain_argument(parser)
+    add_chain_argument(parser, implies_cmd_vel=True)
     parser.add_argument("--controller-chain", type=Path, default=None, metavar="FILE",
                         help="with --chain: the controller's chain.* from this parameter file (identify's "
                         "chain_params.yaml) instead of the true chain's")
-    add_link_arguments(parser)
+    add_link_arguments(parser, "simulate")
     parser.set_defaults(func=run)
     return parser
 
 
-def add_chain_argument(parser: argparse.ArgumentParser) -> None:
-    """The ``--chain NAME`` and ``--chain-set chain.NAME=VALUE`` options of `simulate`, `study` and `identify`."""
+def add_chain_argument(parser: argparse.ArgumentParser, *, implies_cmd_vel: bool = False) -> None:
+    """The ``--chain NAME`` and ``--chain-set chain.NAME=VALUE`` options of `simulate`, `run`, `study` and `identify`.
+
+    `implies_cmd_vel`: the verb has ``--command-interface`` (`simulate`, `run`), which ``--chain`` sets to cmd_vel
+    (`command_interface_from_args`); the help says so only there.
+    """
     from robotino_geom_mpc.model.driver_chain import CHAIN_PRESETS
 
+    through = "implies --command-interface cmd_vel" if implies_cmd_vel else "the controller commands it by cmd_vel"
     parser.add_argument("--chain", choices=tuple(CHAIN_PRESETS), default=None,
                         help="put the real robot's driver and firmware chain between controller and plant "
-                        "(robocup-logistics: the ros2-robotino driver on a Robotino 3/4; needs --command-interface "
-                        "cmd_vel; docs/howto/real_robotino.md)")
+                        f"(robocup-logistics: the ros2-robotino driver on a Robotino 3/4; {through}; "
+                        "docs/robotino.md)")
     parser.add_argument("--chain-set", action="append", default=[], metavar="chain.NAME=VALUE",
                         help="override one chain parameter (repeatable), e.g. chain.link.delay_s=0.01")
 
@@ -111,6 +116,10 @@ _LINK_OPTIONS = (  # (option, LinkParams field, metavar, help)
     ("--link-burst", "burst_length", "B", "mean loss-burst length B [packets] (default 1: isolated losses; "
      "needs P <= B / (B + 1))"),
 )
+MAX_DELAY_MS = 1e3 * MAX_DELAY_S  # --link-delay-ms and --link-jitter-ms: `LinkParams`' range in the options' unit
+# what runs over the link, per verb (the options' help)
+LINK_LOOPS = {"simulate": "the offline loop", "study": "each offline run", "run": "the loop over DDS (the plant "
+              "node emulates the link)"}
 
 
 def _finite_float(text: str) -> float:
@@ -124,13 +133,13 @@ def _finite_float(text: str) -> float:
     return value
 
 
-def add_link_arguments(parser: argparse.ArgumentParser) -> None:
-    """The emulated radio link's options (each way) of `simulate` and `study`, and ``--no-compensation``."""
+def add_link_arguments(parser: argparse.ArgumentParser, verb: str) -> None:
+    """The emulated radio link's options (each way) of `simulate`, `study` and `run`, and ``--no-compensation``."""
     group = parser.add_argument_group("radio link between the robot and the controller, each way "
                                       "(network.link; docs/howto/networked_control.md)")
     for option, _, metavar, text in _LINK_OPTIONS:
         group.add_argument(option, type=_finite_float, default=None, metavar=metavar,
-                           help=f"{text}; any of these options runs the offline loop over the link "
+                           help=f"{text}; any of these options runs {LINK_LOOPS[verb]} over the link "
                            "(default: the scenario's link, none but for wifi)")
     group.add_argument("--no-compensation", action="store_true",
                        help="over a link: the plain controller, each command acting when it arrives and held "
@@ -143,17 +152,26 @@ def link_from_args(args: argparse.Namespace) -> LinkParams | None:
     Raises
     ------
     UsageError
-        For a value out of range, naming its option.
+        For a value out of range, naming its option and in its unit (ms for the delay and the jitter).
     """
-    values = {field: getattr(args, option[2:].replace("-", "_")) for option, field, *_ in _LINK_OPTIONS}
-    if all(v is None for v in values.values()):
+    delay, jitter, loss, burst = (getattr(args, option[2:].replace("-", "_")) for option, *_ in _LINK_OPTIONS)
+    if delay is None and jitter is None and loss is None and burst is None:
         return None
-    delay, jitter, loss, burst = (values[f] for f in ("delay_s", "jitter_s", "loss", "burst_length"))
+    for option, value in (("--link-delay-ms", delay), ("--link-jitter-ms", jitter)):
+        if value is not None and not 0.0 <= value <= MAX_DELAY_MS:
+            raise UsageError(f"{option} must be in [0, {MAX_DELAY_MS:g}] ms, got {value:g}")
+    if loss is not None and not 0.0 <= loss < 1.0:
+        raise UsageError(f"--link-loss must be in [0, 1), got {loss:g}")
+    if burst is not None and burst < 1.0:
+        raise UsageError(f"--link-burst must be >= 1 packet, got {burst:g}")
+    loss, burst = loss or 0.0, 1.0 if burst is None else burst
+    if loss > burst / (burst + 1.0):
+        raise UsageError(f"--link-loss {loss:g} needs --link-burst >= {loss / (1.0 - loss):g} (a loss P with bursts "
+                         f"of B packets needs P <= B / (B + 1)), got {burst:g}")
     try:
-        return LinkParams.from_ms(delay or 0.0, jitter or 0.0, loss or 0.0, 1.0 if burst is None else burst)
-    except LinkError as exc:
-        option = next((o for o, f, *_ in _LINK_OPTIONS if f"link.{f}" in str(exc)), "--link-*")
-        raise UsageError(f"{option}: {exc}") from None
+        return LinkParams.from_ms(delay or 0.0, jitter or 0.0, loss, burst)
+    except LinkError as exc:  # the checks above are LinkParams' own in the options' units: a guard only
+        raise UsageError(f"--link-*: {exc}") from None
 
 
 def _current_limit(text: str) -> float:
@@ -195,10 +213,27 @@ def add_no_plots_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def add_command_interface_argument(parser: argparse.ArgumentParser) -> None:
-    """The ``--command-interface {voltages,cmd_vel}`` option of `simulate` and `run`."""
-    parser.add_argument("--command-interface", choices=("voltages", "cmd_vel"), default="voltages",
+    """The ``--command-interface {voltages,cmd_vel}`` option of `simulate` and `run` (`command_interface_from_args`)."""
+    parser.add_argument("--command-interface", choices=("voltages", "cmd_vel"), default=None,
                         help="voltages: the controller's wheel voltages drive the motors (default); cmd_vel: its "
-                        "base_link velocity is held by per-wheel PI speed loops, as on a Robotino driven by cmd_vel")
+                        "base_link velocity is held by per-wheel PI speed loops, as on a Robotino driven by cmd_vel "
+                        "(the default with --chain)")
+
+
+def command_interface_from_args(args: argparse.Namespace, chain: object | None) -> str:
+    """The command interface of ``--command-interface``; with ``--chain`` (`chain` not None) cmd_vel, the driver's.
+
+    Raises
+    ------
+    UsageError
+        For ``--chain`` with an explicit ``--command-interface voltages``.
+    """
+    if chain is None:
+        return args.command_interface or "voltages"
+    if args.command_interface == "voltages":
+        raise UsageError("--chain drives the robot through the driver's cmd_vel: drop --command-interface voltages "
+                         "(--chain implies --command-interface cmd_vel)")
+    return "cmd_vel"
 
 
 def _fmt(value: float | None, unit: str) -> str:
@@ -212,8 +247,9 @@ def run(args: argparse.Namespace) -> int:
     from robotino_geom_mpc.offline.simulation import run_scenario
 
     chain = chain_from_args(args)
-    if chain is not None and args.command_interface != "cmd_vel":
-        raise UsageError("--chain needs --command-interface cmd_vel (the driver takes cmd_vel)")
+    command_interface = command_interface_from_args(args, chain)
+    if chain is not None and args.odometry != "ideal":
+        raise UsageError("--chain gives the firmware's odometry: use it with --odometry ideal")
     if args.controller_chain is not None and chain is None:
         raise UsageError("--controller-chain needs --chain")
     controller_chain = None if args.controller_chain is None else controller_chain_from_file(args.controller_chain,
@@ -234,7 +270,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     data = run_scenario(
         args.scenario, robot, control, duration_s=args.duration, seed=args.seed, progress=not args.no_progress,
-        odometry=args.odometry, command_interface=args.command_interface, link_up=link, link_down=link,
+        odometry=args.odometry, command_interface=command_interface, link_up=link, link_down=link,
         compensate=not args.no_compensation, chain=chain, controller_chain=controller_chain,
     )
     wall_s = time.perf_counter() - start

@@ -21,9 +21,12 @@ __all__ = ["add_parser", "run"]
 
 def _positive_int(text: str) -> int:
     """argparse type: an integer >= 1."""
-    value = seed_value(text)
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
     if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be a positive integer (1 or more), got {text!r}")
     return value
 
 
@@ -58,7 +61,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         help="run each draw on its own (the per-tick float path) instead of stepping each batch's "
                         "runs together (the same rows to 1e-9, about ten times slower)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    add_link_arguments(parser)
+    add_link_arguments(parser, "study")
     add_chain_argument(parser)
     parser.set_defaults(func=run)
     return parser

@@ -1,0 +1,78 @@
+"""Replay of recordings made by older code: test/data/regress/ holds one per mode, made by `run` of commit
+ec8bd99 (its README.md: the commands), never re-recorded.
+
+Each recording, read by rosbags (a reader independent of the package's), holds the topics the replay reads, with
+their types, every message decodable, and the run's parameters in its metadata (read by mcap), so that the replay
+does not depend on today's preset. Today's `regress` reproduces each replayed mode's recorded commands to 1e-12:
+every recorded answer of the lockstep run, at most one compared tick per recorded command otherwise.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
+
+from robotino_geom_mpc.cli import main
+from robotino_geom_mpc.recording.bagfile import RUN_METADATA
+from robotino_geom_mpc.recording.regress import regress_bag
+
+pytestmark = pytest.mark.unit
+
+DATA = Path(__file__).parent / "data" / "regress"
+ODOMETRY = {"/odom": "nav_msgs/msg/Odometry", "/reference_preview": "trajectory_msgs/msg/MultiDOFJointTrajectory"}
+DIAGNOSTICS = {"/diagnostics": "diagnostic_msgs/msg/DiagnosticArray"}
+# folder -> (the compared command topic, the topics the replay reads: name -> type)
+RECORDINGS = {
+    "lockstep_demo": ("/wheel_voltages", {**ODOMETRY, **DIAGNOSTICS,
+                                          "/wheel_voltages": "std_msgs/msg/Float64MultiArray"}),
+    "realtime_wifi_plans": ("/wheel_voltage_plan", {**ODOMETRY, **DIAGNOSTICS,
+                                                    "/wheel_voltage_plan": "trajectory_msgs/msg/JointTrajectory",
+                                                    "/command_applied": "trajectory_msgs/msg/JointTrajectory"}),
+    "realtime_cmd_vel": ("/cmd_vel", {**ODOMETRY, **DIAGNOSTICS, "/cmd_vel": "geometry_msgs/msg/Twist"}),
+    # the chain controller of ec8bd99 published no diagnostics: its inputs and its twists
+    "realtime_chain": ("/cmd_vel", {**ODOMETRY, "/cmd_vel": "geometry_msgs/msg/Twist"}),
+}
+# the modes today's regress replays (the chain recording joins them with the chain's replay, issue 37)
+REPLAYED = ("lockstep_demo", "realtime_wifi_plans", "realtime_cmd_vel")
+
+
+def _counts(folder: str) -> dict[str, tuple[str, int]]:
+    """Per topic of the recording's replay inputs: (type, messages decoded by rosbags)."""
+    topics = RECORDINGS[folder][1]
+    counts: dict[str, tuple[str, int]] = {}
+    with AnyReader([DATA / folder]) as reader:
+        connections = [c for c in reader.connections if c.topic in topics]
+        for connection, _, raw in reader.messages(connections):
+            reader.deserialize(raw, connection.msgtype)
+            kind, n = counts.get(connection.topic, (connection.msgtype, 0))
+            counts[connection.topic] = (kind, n + 1)
+    return counts
+
+
+@pytest.mark.parametrize("folder", sorted(RECORDINGS))
+def test_recording_holds_what_the_replay_reads(folder):
+    counts = _counts(folder)
+    assert {topic: kind for topic, (kind, _) in counts.items()} == RECORDINGS[folder][1]
+    assert all(n > 0 for _, n in counts.values()), counts
+    with open(next((DATA / folder).glob("*.mcap")), "rb") as stream:
+        metadata = {record.name: record.metadata for record in make_reader(stream).iter_metadata()}
+    parameters = json.loads(metadata[RUN_METADATA]["parameters"])
+    assert parameters["control.period_s"] > 0
+
+
+@pytest.mark.parametrize("folder", REPLAYED)
+def test_regress_replays_a_recording_of_older_code(folder, capsys):
+    command = RECORDINGS[folder][0]
+    recorded = _counts(folder)[command][1]
+    result = regress_bag(DATA / folder)
+    assert result.command == command.lstrip("/")
+    assert 0 < result.compared <= recorded
+    if folder == "lockstep_demo":  # lockstep: every tick's answer is compared
+        assert result.compared == result.ticks == recorded
+    assert result.gap is None and result.max_deviation_v <= 1e-12 and result.passed
+    assert main(["regress", str(DATA / folder)]) == 0
+    assert capsys.readouterr().out.startswith(f"PASS: {result.compared} of {result.ticks} ticks compared")

@@ -36,8 +36,9 @@ duration       run length [s] of the plant; 0 runs until stopped. The plant ends
                (its duration, or a failure) the launch shuts the other nodes down, as ``run`` stops them
 seed           seed of the plant's odometry noise
 command_buffer true: also start the robot-side command buffer (``command_buffer_node``: ``cmd_vel_plan`` in,
-               the driver's ``cmd_vel`` out at the plans' times, zero twist when they stop; on a real
-               Robotino it runs on the robot's PC beside the driver, see docs/howto/real_robot_buffer.md)
+               the driver's ``cmd_vel`` out at the plans' times, zero twist when they stop) beside the
+               simulator; on a real Robotino's PC start launch/robot_side.launch.py instead, which starts the
+               buffer alone (docs/howto/real_robot_buffer.md)
 record         true: also start the MCAP recorder (bag in ``bag``)
 bag            recording directory (default: rosbag2_<date> in the working directory)
 rviz           true: also start rviz2 with config/robotino.rviz (fixed frame odom, the robot model, TF, the
@@ -56,8 +57,6 @@ the recorder's subscriptions (``lockstep_wait_for``), so the recording holds tic
 from the recording.
 """
 
-import math
-
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, EmitEvent, LogInfo, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
@@ -71,27 +70,9 @@ from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
 from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, frame_prefix, namespace_remaps, recorder_wait_for, \
     ros_namespace
 from robotino_geom_mpc.scenarios import node_parameters
+from robotino_geom_mpc.system.launch_arguments import flag, node_environment, number
 
 PACKAGE = "robotino_geom_mpc"
-
-
-def _flag(config: dict, name: str) -> bool:
-    """A true/false launch argument (as launch's conditions read it: true, false, 1, 0)."""
-    value = config[name].strip().lower()
-    if value not in ("true", "false", "1", "0"):
-        raise ValueError(f"launch argument '{name}' must be true or false, got {config[name]!r}")
-    return value in ("true", "1")
-
-
-def _number(config: dict, name: str, kind: type = float) -> float:
-    """A non-negative finite number from a launch argument."""
-    try:
-        value = kind(config[name])
-    except ValueError:
-        raise ValueError(f"launch argument '{name}' must be a number, got {config[name]!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"launch argument '{name}' must be finite and >= 0, got {config[name]!r}")
-    return value
 
 
 def _has_robot_state_publisher() -> bool:
@@ -138,9 +119,9 @@ def _nodes(context) -> list:
     scenario, params_file = config["scenario"], config["params_file"]
     robot, _ = load_params(params_file)
     overrides = node_parameters(scenario, robot)
-    lockstep = _flag(config, "lockstep")
+    lockstep = flag(config, "lockstep")
     mode = "lockstep" if lockstep else "realtime"
-    record = _flag(config, "record")
+    record = flag(config, "record")
     namespace = ros_namespace(config["namespace"])
     prefix = frame_prefix(namespace) if config["frame_prefix"] == "auto" else check_frame_prefix(config["frame_prefix"])
     frames = {"frame_prefix": prefix}
@@ -148,17 +129,15 @@ def _nodes(context) -> list:
     if interface not in ("voltages", "cmd_vel"):
         raise ValueError(f"launch argument 'command_interface' must be voltages or cmd_vel, got {interface!r}")
     command = {} if interface == "voltages" else {"command_interface": interface}  # voltages: the nodes' default
-    env = {"OPENBLAS_NUM_THREADS": "1"}
-    if config["fastdds_profile"]:
-        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = config["fastdds_profile"]
+    env = node_environment(config)
     remappings = [(old, new) for old, new in namespace_remaps(namespace, lockstep).items() if old != "__ns"]
     common = {"namespace": namespace, "remappings": remappings, "additional_env": env, "output": "screen"}
 
     def own(name: str) -> dict:  # the frame prefix for the nodes that declare it
         return frames if name in FRAME_PREFIX_NODES else {}
 
-    plant = {**overrides["plant_node"], "mode": mode, "duration_s": _number(config, "duration"),
-             "seed": _number(config, "seed", int), **command, **own("plant_node")}
+    plant = {**overrides["plant_node"], "mode": mode, "duration_s": number(config, "duration"),
+             "seed": number(config, "seed", int), **command, **own("plant_node")}
     if record:  # the lockstep plant also waits for the recorder's subscriptions
         plant["lockstep_wait_for"] = recorder_wait_for(interface)
     plant_node = Node(package=PACKAGE, executable="plant_node", name="robotino_plant",
@@ -174,13 +153,13 @@ def _nodes(context) -> list:
         plant_node,
         _description(config["plant_params"], prefix, mode, **common),
     ]
-    if _flag(config, "command_buffer"):
+    if flag(config, "command_buffer"):
         nodes.append(Node(package=PACKAGE, executable="command_buffer_node", name="robotino_command_buffer",
                           parameters=[params_file], **common))
     if record:
         nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
                           parameters=[params_file, {"output": config["bag"], "scenario": scenario}], **common))
-    views = _rviz(config, namespace, remappings) if _flag(config, "rviz") else []
+    views = _rviz(config, namespace, remappings) if flag(config, "rviz") else []
     ended = EmitEvent(event=Shutdown(reason="the plant ended the run"))
     return [*nodes, *views, RegisterEventHandler(OnProcessExit(target_action=plant_node, on_exit=[ended]))]
 

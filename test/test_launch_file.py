@@ -15,14 +15,10 @@ launches (test/data/launch_ros), which an emulation of its writer reproduces byt
 emulated files of every configuration pass each node's parameter-file check.
 """
 
-import importlib.util
 import json
-import sys
-import types
 from pathlib import Path
 
 import pytest
-import yaml
 
 import ament_index_python.packages
 
@@ -35,6 +31,7 @@ from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, RECORDER_WAIT
     recorder_wait_for
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
 from robotino_geom_mpc.offline.simulation import run_scenario
+from launch_standins import Context, Recorded, install, launch_ros_file, load_description, of
 
 pytestmark = pytest.mark.unit
 
@@ -46,74 +43,19 @@ LOOP = {"trajectory_node", "controller_node", "plant_node"}
 DESCRIPTION = "robot_description_publisher"  # the package's own, where robot_state_publisher is not installed
 
 
-class Recorded:
-    """A stand-in action or substitution: keeps its arguments."""
-
-    made: list["Recorded"] = []
-
-    def __init__(self, *args, **kwargs) -> None:
-        self.args, self.kwargs = args, kwargs
-        Recorded.made.append(self)
-
-
-def _kind(name: str) -> type:
-    return type(name, (Recorded,), {})
-
-
-STAND_INS = {
-    "launch": {"LaunchDescription": _kind("LaunchDescription")},
-    "launch.actions": {n: _kind(n) for n in ("DeclareLaunchArgument", "EmitEvent", "LogInfo", "OpaqueFunction",
-                                             "RegisterEventHandler")},
-    "launch.event_handlers": {"OnProcessExit": _kind("OnProcessExit")},
-    "launch.events": {"Shutdown": _kind("Shutdown")},
-    "launch.substitutions": {n: _kind(n) for n in ("EnvironmentVariable", "LaunchConfiguration",
-                                                   "PathJoinSubstitution")},
-    "launch_ros": {},
-    "launch_ros.actions": {"Node": _kind("Node")},
-    "launch_ros.substitutions": {"FindPackageShare": _kind("FindPackageShare")},
-}
-
-
-class Configurations(dict):
-    """`LaunchContext.launch_configurations` (name -> string), remembering which names were read."""
-
-    def __init__(self, values: dict[str, str]) -> None:
-        super().__init__(values)
-        self.read: set[str] = set()
-
-    def __getitem__(self, name: str) -> str:
-        self.read.add(name)
-        return super().__getitem__(name)
-
-
-class Context:
-    """The `LaunchContext` an `OpaqueFunction` gets, reduced to what the file may use."""
-
-    def __init__(self, values: dict[str, str]) -> None:
-        self.launch_configurations = Configurations(values)
-
-
 @pytest.fixture
 def description(monkeypatch):
     """The launch description, with robot_state_publisher not installed (see `with_rsp`)."""
     monkeypatch.setattr(ament_index_python.packages, "get_package_share_directory", _not_installed)
-    for name, attrs in STAND_INS.items():
-        module = types.ModuleType(name)
-        module.__dict__.update(attrs)
-        monkeypatch.setitem(sys.modules, name, module)
-    Recorded.made = []
-    spec = importlib.util.spec_from_file_location("robotino_launch", LAUNCH_FILE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.generate_launch_description().args[0]
+    install(monkeypatch.setitem)
+    return load_description(LAUNCH_FILE)
 
 
 def _not_installed(package: str) -> str:
     raise ament_index_python.packages.PackageNotFoundError(package)
 
 
-def _of(kind: str, items) -> list[Recorded]:
-    return [a for a in items if type(a).__name__ == kind]
+_of = of
 
 
 def _defaults(description) -> dict[str, str]:
@@ -337,38 +279,7 @@ FIXTURE_ARGUMENTS = {
 }
 
 
-def _launch_ros_value(value):
-    """A value as launch_ros 0.26.6 evaluates it (normalize_parameters.py, evaluate_parameters.py): a string goes
-    through a YAML round trip, a list becomes a tuple of one type (ints and floats: floats).
-    """
-    if isinstance(value, str):
-        return yaml.safe_load(yaml.dump(value))
-    if isinstance(value, (list, tuple)):
-        kinds = {type(v) for v in value}
-        if kinds <= {int, float} and float in kinds:
-            return tuple(float(v) for v in value)
-        return tuple(yaml.safe_load(yaml.dump(v)) if isinstance(v, str) else v for v in value)
-    return value
-
-
-def _launch_ros_file(node: Recorded, params: dict) -> str:
-    """The text launch_ros 0.26.6 writes for a dict of a Node's ``parameters`` (`Node._create_params_file_from_dict`):
-    nested dicts flattened with '.', under the node's full name (``/<namespace>/<name>``), '/**' for a node
-    without a name, with ``yaml.dump(..., default_flow_style=False)``.
-    """
-    flat = {}
-
-    def walk(tree: dict, prefix: str = "") -> None:
-        for key, value in tree.items():
-            if isinstance(value, dict):
-                walk(value, f"{prefix}{key}.")
-            else:
-                flat[f"{prefix}{key}"] = _launch_ros_value(value)
-
-    walk(params)
-    name = node.kwargs.get("name")
-    key = "/**" if name is None else f"{node.kwargs['namespace'].rstrip('/')}/{name}"
-    return yaml.dump({key: {"ros__parameters": flat}}, default_flow_style=False)
+_launch_ros_file = launch_ros_file
 
 
 def _written(nodes: dict[str, Recorded], folder: Path) -> dict[str, list[Path]]:

@@ -1,0 +1,111 @@
+"""Launch what runs on the laptop beside a real Robotino: trajectory and controller (optionally the recorder).
+
+No plant simulator, no robot description: the robocup-logistics driver (``rto_node``, started on its own, see
+docs/howto/real_robotino.md) publishes the odometry and takes the twists. The controller commands it by
+``cmd_vel`` through the chain controller (``chain.active: enabled``) and starts DISABLED by default: it publishes
+zero twist every tick until ``~/enable`` (std_srvs/SetBool) is called with true.
+
+    ros2 launch robotino_geom_mpc real_robot.launch.py chain_params:=my_chain/chain_params.yaml
+    ros2 service call /robotino_controller/enable std_srvs/srv/SetBool '{data: true}'    # go
+    ros2 service call /robotino_controller/enable std_srvs/srv/SetBool '{data: false}'   # stop: zero twist
+
+Launch arguments
+----------------
+scenario       the reference (default paper-circle); a scenario that changes the simulated robot (model
+               mismatch, odometry noise, a radio link: robustness, wifi) is refused: a real robot has its own
+params_file    ROS 2 parameter file of the robot (default: config/robotino3_real.yaml: the Robotino 3 preset and
+               the chain settings of the robocup-logistics preset, with the lines a lab edits marked)
+chain_params   the controller's chain file that ``robotino-geom-mpc identify --ros --out DIR`` writes
+               (DIR/chain_params.yaml), read after params_file; empty (default): the preset's chain settings
+namespace      the driver's namespace (its launch argument ``namespace``; default none, as the driver's): every
+               node runs in it and ``odom`` / ``cmd_vel`` are pinned to ``<namespace>/odom`` and
+               ``<namespace>/cmd_vel``, the driver's topics (reliable, volatile, as its depth-10 endpoints)
+frame_prefix   prefix of our frame ids (the reference's ``odom``); ``auto`` (default): ``<namespace>/`` with a
+               namespace, else none. The controller reads the driver's odometry in any frame
+start_enabled  false (default): the controller publishes zero twist until enabled; true: it tracks at once
+fastdds_profile  Fast DDS profile of the nodes (default: $FASTRTPS_DEFAULT_PROFILES_FILE if set, else
+               config/fastdds_localhost.xml: the driver runs on this host too); empty: none set by the launch
+record         true: also start the MCAP recorder (bag in ``bag``; ``robotino-geom-mpc report BAG`` afterwards)
+bag            recording directory (default: rosbag2_<date> in the working directory)
+
+Bad arguments (an unknown scenario, a simulation-only one, a bad namespace, a missing file) stop the launch
+with a clear error before any node starts (an ``OpaqueFunction``). The controller checks its parameters as
+any node does (`params.files.check_parameter_files` gives the same verdict offline).
+"""
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import EnvironmentVariable, PathJoinSubstitution
+from launch_ros.actions import Node
+from launch_ros.substitutions import FindPackageShare
+
+from robotino_geom_mpc.description.urdf import check_frame_prefix
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.scenarios import ScenarioError, get_scenario, node_parameters
+from robotino_geom_mpc.system.launch_arguments import driver_remaps, flag, node_environment
+from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, frame_prefix, ros_namespace
+
+PACKAGE = "robotino_geom_mpc"
+
+
+def _reference_only(name: str) -> None:
+    """Refuse a scenario that changes the simulated robot rather than the reference."""
+    scenario = get_scenario(name)
+    if scenario.mismatch is not None or scenario.noise.position_m or scenario.noise.yaw_rad \
+            or scenario.link is not None:
+        raise ScenarioError(f"scenario {name!r} changes the simulated robot (model mismatch, odometry noise or a "
+                            "radio link), not the reference: on a real robot use the scenario of its reference "
+                            f"({scenario.reference!r})")
+
+
+def _nodes(context) -> list:
+    """Trajectory, controller (disabled unless start_enabled) and the optional recorder."""
+    config = context.launch_configurations
+    scenario, params_file, chain_file = config["scenario"], config["params_file"], config["chain_params"]
+    _reference_only(scenario)
+    robot, _ = load_params(params_file)  # a missing or malformed file stops the launch here
+    namespace = ros_namespace(config["namespace"])
+    prefix = frame_prefix(namespace) if config["frame_prefix"] == "auto" else check_frame_prefix(config["frame_prefix"])
+    common = {"namespace": namespace, "remappings": driver_remaps(namespace),
+              "additional_env": node_environment(config), "output": "screen"}
+
+    def own(name: str) -> dict:  # the frame prefix for the nodes that declare it
+        return {"frame_prefix": prefix} if name in FRAME_PREFIX_NODES else {}
+
+    controller = {"mode": "realtime", "command_interface": "cmd_vel", "chain.active": "enabled",
+                  "start_enabled": flag(config, "start_enabled"), **own("controller_node")}
+    trajectory = {**node_parameters(scenario, robot)["trajectory_node"], "mode": "realtime", **own("trajectory_node")}
+    nodes = [
+        Node(package=PACKAGE, executable="trajectory_node", name="robotino_trajectory",
+             parameters=[params_file, trajectory], **common),
+        Node(package=PACKAGE, executable="controller_node", name="robotino_controller",
+             parameters=[params_file, *([chain_file] if chain_file else []), controller], **common),
+    ]
+    if flag(config, "record"):
+        nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
+                          parameters=[params_file, {"output": config["bag"], "scenario": scenario}], **common))
+    return nodes
+
+
+def generate_launch_description() -> LaunchDescription:
+    default_params = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "robotino3_real.yaml"])
+    default_profile = PathJoinSubstitution([FindPackageShare(PACKAGE), "config", "fastdds_localhost.xml"])
+    return LaunchDescription([
+        DeclareLaunchArgument("scenario", default_value="paper-circle", description="the reference (scenarios.py)"),
+        DeclareLaunchArgument("params_file", default_value=default_params,
+                              description="the robot's parameter file (default config/robotino3_real.yaml)"),
+        DeclareLaunchArgument("chain_params", default_value="",
+                              description="identify's DIR/chain_params.yaml (empty: the preset's chain)"),
+        DeclareLaunchArgument("namespace", default_value="", description="the driver's namespace (default none)"),
+        DeclareLaunchArgument("frame_prefix", default_value="auto",
+                              description="frame id prefix; auto: '<namespace>/' with a namespace, else none"),
+        DeclareLaunchArgument("start_enabled", default_value="false",
+                              description="false: zero twist until ~/enable true; true: track at once"),
+        DeclareLaunchArgument("fastdds_profile",
+                              default_value=EnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE",
+                                                                default_value=default_profile),
+                              description="Fast DDS profile of the nodes; empty: none set by the launch"),
+        DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),
+        DeclareLaunchArgument("bag", default_value="", description="recording directory"),
+        OpaqueFunction(function=_nodes),
+    ])

@@ -24,7 +24,9 @@ publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layo
                                   under the optimal increments of eq. 56), pose j stamped t_k + j Ts; computed
                                   and sent only while a subscription is matched.
 services   ``~/enable``           std_srvs/SetBool. Disabled: zero output every tick (diagnostic message
-                                  ``disabled``), the controller holds its state; enabled again: bumpless restart.
+                                  ``disabled``; realtime: on every odometry, with or without a reference), the
+                                  controller holds its state; enabled again: bumpless restart. ``start_enabled``
+                                  false starts the node disabled (the first enable is its bumpless start).
 
 Publishers: `controller_outputs.ControllerOutputs`. Inputs are read in
 place by a `ros.cdr.CdrLayout` (any other layout: `ros.cdr.cdr_reader`).
@@ -130,7 +132,8 @@ class ControllerNode(ControllerWatchdog, Node):
                                          self.params["command_interface"])
         self.odom_frame = prefix + ODOM_FRAME  # the frame of the previews it takes
         self.chain = chain_control(self)  # chain.active: control through the driver chain (`chain_control`)
-        self.enabled, self.enable_srv = True, self.create_service(SetBool, "~/enable", self._on_enable)
+        self.enabled = self.params["start_enabled"]
+        self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
         self.preview_layout = preview_layout(self.control.period_s, self.preview_points, prefix)
         # lockstep plans: the previews of the ticks before an odometry's late delivery are all kept
@@ -161,8 +164,10 @@ class ControllerNode(ControllerWatchdog, Node):
         self.counters = InputCounters()
         self.blend = BlendEngagement(self.control.period_s, self.preview_points)
         self.watchdog = self._start_watchdog()
+        disabled = "" if self.enabled else \
+            f"; disabled (zero output) until {self.resolve_service_name(self.enable_srv.srv_name)} true"
         self.get_logger().info(f"controller ready ({self.params['mode']}, mode {self.control.mode}, "
-                               f"N = {self.control.horizon}, Ts = {self.control.period_s:g} s)")
+                               f"N = {self.control.horizon}, Ts = {self.control.period_s:g} s){disabled}")
 
     # parameters ---------------------------------------------------------------------------------
     def _read_limits(self) -> None:
@@ -197,10 +202,14 @@ class ControllerNode(ControllerWatchdog, Node):
             self.outputs.send_zero()
 
     def _on_enable(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
-        """~/enable: false holds (zero output every tick, the controller untouched); true re-engages bumplessly."""
+        """~/enable: false holds (zero output every tick, the controller untouched); true re-engages bumplessly.
+
+        A node started disabled (``start_enabled`` false) that has never tracked keeps its pending start
+        engagement (bumpless too; at t = 0 of a lockstep run exactly as `simulate` starts).
+        """
         if request.data != self.enabled:
             self.enabled = request.data
-            if self.enabled:
+            if self.enabled and self.blend.reason != "start":
                 self.blend.request("enable")  # u(k-1) = 0 (the robot held), blend from the measured state
             self.get_logger().info("enabled: tracking resumes bumplessly" if self.enabled else
                                    "disabled: zero output, holding")
@@ -335,6 +344,9 @@ class ControllerNode(ControllerWatchdog, Node):
             return
         self.odom_time = self._watch_now()
         self.theta = X[4]
+        if not self.enabled and not self.lockstep:  # lockstep: each tick answered with the preview of its stamp
+            self._hold(stamp)
+            return
         if self.lockstep:
             if all(waiting != stamp for waiting, _, _ in self.waiting):
                 if not self.waiting:
@@ -359,9 +371,7 @@ class ControllerNode(ControllerWatchdog, Node):
         `positions`, `velocities`, `accelerations` are the reference at `stamp` + j Ts, j = 0..N.
         """
         if not self.enabled:
-            self.last_odom_ns = stamp
-            self.outputs.answer(stamp, [0.0, 0.0, 0.0])
-            self.outputs.diagnose(stamp, DiagnosticStatus.OK, "disabled")
+            self._hold(stamp)
             return
         reason = self.blend.due(preview_stamp)
         first = self.previews.get(0) if self.plans is not None else None  # over a link tick 0 may be lost
@@ -404,6 +414,16 @@ class ControllerNode(ControllerWatchdog, Node):
             f"{out.compute_time_s * 1e3:.4f}", str(flags[0]).lower(), str(flags[1]).lower(), str(preview_stamp),
             f"{self.control.period_s if dt_s is None else dt_s:.9g}"]
         self.outputs.diagnose(stamp, level, "tracking", tracking)
+
+    def _hold(self, stamp: int) -> None:
+        """Disabled: zero output for the odometry of `stamp` and the diagnostic ``disabled`` (through the chain, the
+        zero twist noted in its controller's command model: the firmware gets it as any other command).
+        """
+        self.last_odom_ns = stamp
+        if self.chain is not None:
+            self.chain.note_zero(self.get_clock().now().nanoseconds)
+        self.outputs.answer(stamp, [0.0, 0.0, 0.0])
+        self.outputs.diagnose(stamp, DiagnosticStatus.OK, "disabled")
 
     def _plan(self, stamp: int, X: np.ndarray, preview: np.ndarray, error: np.ndarray, preview_stamp: int) -> None:
         """Plans: the plan of this odometry published, its first entry as the plain command (none for an

@@ -70,7 +70,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "robotino_controller": _ROBOT_CONTROL + (
         "mode", "odom_timeout_s", "reference_timeout_s", "future_tolerance_s", "quaternion_norm_tolerance",
         "tilt_tolerance_rad", "reference_jump_m", "reference_jump_rad", "blend_acceleration_mps2",
-        "blend_acceleration_radps2", "frame_prefix", "command_interface", "plans",
+        "blend_acceleration_radps2", "frame_prefix", "command_interface", "plans", "start_enabled",
     ) + _CHAIN,
     "robotino_plant": _ROBOT_CONTROL + (
         "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s",

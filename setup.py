@@ -59,7 +59,7 @@ setup(
             "mypy==2.4.1",
             "import-linter==2.17",
         ],
-        "docs": ["sphinx>=8,<10", "myst-parser>=4,<6"],
+        "docs": ["sphinx>=8,<10", "myst-parser>=4,<6", "sphinx-book-theme==1.4.0"],  # the theme: docs/conf.py
     },
     zip_safe=True,
     maintainer="robotino_geom_mpc developers",

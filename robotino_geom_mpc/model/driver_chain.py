@@ -1,8 +1,8 @@
 """The real Robotino's command and odometry chain (driver + firmware) as parameters and its pieces (no rclpy).
 
 What sits between a ROS ``cmd_vel`` and the wheels on a Robotino 3/4 driven by the robocup-logistics
-ros2-robotino driver (read from its code and Festo's daemons; /work/shared/ROBOTINO_NOTES.md, "The real
-robot's chain"; docs/howto/real_robotino.md):
+ros2-robotino driver (read from its code and Festo's daemons; docs/robotino.md, "The real robot's chain",
+with the sources at a named commit; docs/howto/real_robotino.md):
 
 * the driver node spins in a loop at ``driver_rate_hz`` (30 Hz). At each pass it dispatches the odometry
   that arrived since the previous pass, stamped with its own clock at dispatch (the firmware sends none),

@@ -4,7 +4,7 @@ State of the body (eq. 2): X = (x, x', y, y', theta, theta'), outputs
 (x, y, theta) (eq. 5). The coupled plant adds the three armature currents:
 (X, i_1, i_2, i_3).
 
-Conventions and corrections (../shared/ROBOTINO_NOTES.md):
+Conventions and corrections (docs/theory.md, "Errata of the paper"):
 
 * wheel i pushes along d_i(theta) = (sin(phi_i - theta), cos(phi_i - theta))
   = R(theta) d_i(0) in the odom frame, phi = (0, 2 pi/3, -2 pi/3): the

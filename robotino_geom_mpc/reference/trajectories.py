@@ -7,7 +7,7 @@ follow it. Positions, velocities, accelerations and jerks are analytic (chain
 rule of Faa di Bruno on a smooth curve and a smooth time law, `reference.time_law`),
 never numerical differences.
 
-References (`REFERENCES`, ../shared/ROBOTINO_NOTES.md, "Reference scenarios"):
+References (`REFERENCES`; docs/theory.md, "The reference scenarios"):
 
 * ``paper-circle``: the circle of Figs. 4-6, radius 0.5 m, period 10 s,
   theta_d = 0, starting and ending at rest at the origin (with ``ramp_in=False``

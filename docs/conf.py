@@ -47,5 +47,13 @@ _ROS_MODULES = ("rclpy", "nav_msgs", "geometry_msgs", "std_msgs", "sensor_msgs",
                 "daqp", "osqp", "quadprog")
 autodoc_mock_imports = [m for m in _ROS_MODULES if _missing(m)]
 
-html_theme = "alabaster"
+# sphinx-book-theme (the docs extra): the whole toctree with its captions in the sidebar and a wide article column in
+# which wide tables and code blocks fit (or scroll in their own box); MathJax typesets myst's $...$ and $$...$$.
+# Where it is not installed (a rosdoc2 build with the Sphinx of the distribution) Sphinx's own alabaster.
+html_title = "robotino_geom_mpc"
+if _missing("sphinx_book_theme"):
+    html_theme = "alabaster"
+else:
+    html_theme = "sphinx_book_theme"
+    html_theme_options = {"show_toc_level": 2, "navigation_with_keys": False}
 html_static_path: list[str] = []

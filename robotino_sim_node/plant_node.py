@@ -57,6 +57,10 @@ meaning), written once every reader has acknowledged the run's samples.
 Networked (`plant_network`): ``link.up.*`` / ``link.down.*`` (`link_params`) put an emulated radio link between
 the robot and everything off-board; ``plans`` takes plans instead of plain commands, reports ``command_applied``
 (`plant_plans`). Parameters: the robot/control ones of config/*.yaml (``/**``) plus those in `PLANT_SPECS`.
+
+Start: the node looks for another publisher of its ``odom`` topic on the ROS graph for ``odom_publisher_check_s``
+from its creation, before it publishes anything (`odom_sources`); one found (a real driver's, another simulator's:
+two sources of odometry are a fault), it exits with status 2 and an error naming the publisher's node.
 """
 
 from __future__ import annotations
@@ -86,6 +90,7 @@ from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
 from robotino_geom_mpc.model.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source, twist_covariance
 from robotino_sim_node.link_params import LINK_DEFAULTS, LINK_SPECS, link_params, link_problem
 from robotino_sim_node.lockstep_start import StartHandshake
+from robotino_sim_node.odom_sources import ODOM_CHECK_DEFAULTS, ODOM_CHECK_SPECS, check_single_odom_source
 from robotino_sim_node.loop_timing import LockstepPace, LoopTiming, clock_minus_steady_ns, realtime_report
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import WHEEL_PI_DEFAULTS, WHEEL_PI_SPECS, WheelSpeedLoop
@@ -121,13 +126,14 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("plans", bool, "Take the plans (wheel_voltage_plan / cmd_vel_plan) instead of the plain commands "
               "and report what was applied on command_applied"),
     ParamSpec("timing_window_s", float, "Realtime: report the figures per window this long too", "s", 0.0, 1e6, False),
-) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS + LINK_SPECS + CHAIN_NODE_SPECS
+) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS + LINK_SPECS + CHAIN_NODE_SPECS + ODOM_CHECK_SPECS
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1, "seed": 0,
     "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0, "plans": False,
     "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "timing_report": "", "timing_window_s": 0.0,
     **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS, **LINK_DEFAULTS, **CHAIN_NODE_DEFAULTS,
+    **ODOM_CHECK_DEFAULTS,
 }
 
 _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray")  # other layouts than the controller's
@@ -139,11 +145,12 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
 
     def __init__(self) -> None:
         super().__init__("robotino_plant")
+        created = monotonic()  # the odometry sources' check counts its window from here (`odom_sources`)
         self.params = SpecParameters(
             self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params,
             # the realtime grid (steps of 1 / physics_rate_hz), the odometry model
             fixed=("mode", "physics_rate_hz", "timing_report", "plans", *ODOMETRY_DEFAULTS, *TF_DEFAULTS,
-                   *WHEEL_PI_DEFAULTS, *LINK_DEFAULTS, *CHAIN_NODE_DEFAULTS), check=link_problem,
+                   *WHEEL_PI_DEFAULTS, *LINK_DEFAULTS, *CHAIN_NODE_DEFAULTS, *ODOM_CHECK_DEFAULTS), check=link_problem,
         )
         try:
             self.frame_prefix = check_frame_prefix(self.params["frame_prefix"])
@@ -208,6 +215,8 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
         duration = self.params["duration_s"]
         self.last_tick = max(1, int(round(duration / self.control.period_s))) - 1 if duration > 0 else None
         self.busy_s = 0.0  # in the callbacks (lockstep: ticks 1 ..)
+        # nothing published and no callback run yet; the publishers match their readers meanwhile
+        check_single_odom_source(self, self.odom_pub, created, self.params["odom_publisher_check_s"])
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.lockstep:
             self.pace = LockstepPace(self.params["lockstep_max_realtime_factor"], self.control.period_s)

@@ -1,0 +1,72 @@
+"""The plant simulator refuses to start beside another publisher of its ``odom`` topic (two sources of odometry are
+a fault, issue 36): it exits with status 2, names the other publisher's node, and publishes nothing.
+
+The other publisher is a stand-in node in the test process (it never publishes, so whatever the test's own
+subscriptions receive came from the plant); one in another namespace does not count.
+"""
+
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import pytest
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+
+from harness import DEEP_QOS, Harness
+from robotino_sim_node.odom_sources import other_publishers
+from robotino_geom_mpc.system.processes import ros_args
+
+
+def _info(namespace: str, name: str) -> SimpleNamespace:
+    return SimpleNamespace(node_namespace=namespace, node_name=name)
+
+
+@pytest.mark.unit
+def test_the_own_publisher_is_left_out_once():
+    own = _info("/robot1", "robotino_plant")
+    assert other_publishers([own], "robotino_plant", "/robot1") == []
+    assert other_publishers([own, _info("/robot1", "robotino_node")], "robotino_plant", "/robot1") == \
+        ["/robot1/robotino_node"]
+    # a second simulator of the same name and namespace is another source
+    assert other_publishers([own, own], "robotino_plant", "/robot1") == ["/robot1/robotino_plant"]
+    assert other_publishers([_info("/", "driver")], "robotino_plant", "/") == ["/driver"]
+
+
+def _plant(namespace: str) -> subprocess.Popen:
+    args = ros_args(None, {"mode": "realtime", "odom_publisher_check_s": 3.0})
+    if namespace:
+        args += ["-r", f"__ns:={namespace}"]
+    return subprocess.Popen([sys.executable, "-m", "robotino_sim_node.plant_node", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("plant_namespace, refused", [("/robot1", True), ("/robot2", False)])
+def test_the_plant_refuses_to_start_beside_another_odometry_publisher(plant_namespace, refused):
+    with Harness("odom_source_test") as h:
+        standin = Node("standin_odom", namespace="/robot1", context=h.context)
+        standin.create_publisher(Odometry, "odom", 10)  # /robot1/odom, never published on
+        h.executor.add_node(standin)
+        received = {topic: h.collect(f"{plant_namespace}/{topic}", Odometry, DEEP_QOS)
+                    for topic in ("odom", "ground_truth/odom")}
+        h.spin_for(0.5)  # the stand-in is on the graph before the plant starts
+        plant = _plant(plant_namespace)
+        try:
+            if refused:
+                assert h.spin_until(lambda: plant.poll() is not None, 60.0)
+                h.spin_for(0.5)  # anything it had sent would be here by now
+            else:  # it starts and publishes its odometry
+                assert h.spin_until(lambda: len(received["odom"]) >= 10, 60.0), plant.stderr
+        finally:
+            if plant.poll() is None:
+                plant.terminate()
+            _, stderr = plant.communicate(timeout=30)
+    if refused:
+        assert plant.returncode == 2, stderr
+        assert "another publisher of /robot1/odom is on the ROS graph: /robot1/standin_odom" in stderr, stderr
+        assert "Traceback" not in stderr
+        assert received == {"odom": [], "ground_truth/odom": []}
+    else:
+        assert plant.returncode == 0, stderr
+        assert "another publisher" not in stderr

@@ -39,7 +39,7 @@ def citations_outside(text: bytes) -> list[tuple[int, str]]:
 
 
 def test_the_detector_finds_paths_outside_and_leaves_urls_alone():
-    planted = b"".join((b"# Sources: ../", b"shared/NOTES.md\n", b"x = '/", b"work/main/config'\n",
+    planted = b"".join((b"# Sources: ../", b"shared", b"/NOTES.md\n", b"x = '/", b"work/main/config'\n",
                         b"see https://example.org/", b"work/page and docs/robotino.md\n"))
     assert [n for n, _ in citations_outside(planted)] == [1, 2]
 

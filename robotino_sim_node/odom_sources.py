@@ -16,7 +16,6 @@ import time
 from typing import Any
 
 from robotino_geom_mpc.params.specs import ParamSpec
-from robotino_geom_mpc.ros.parameters import NodeStartError
 
 __all__ = ["ODOM_CHECK_DEFAULTS", "ODOM_CHECK_SPECS", "check_single_odom_source", "other_publishers"]
 
@@ -50,6 +49,8 @@ def check_single_odom_source(node: Any, publisher: Any, since: float, window_s: 
     NodeStartError
         Naming the other publishers (node names from the graph) as soon as one is seen.
     """
+    from robotino_geom_mpc.ros.parameters import NodeStartError  # (rclpy: not at this plain module's import)
+
     topic = publisher.topic_name  # resolved: namespace and remaps applied
     seen = None  # when another publisher was first seen
     while True:

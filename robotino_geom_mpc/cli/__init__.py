@@ -33,6 +33,7 @@ VERBS: dict[str, str] = {
     "tune": "search the MPC weights and horizon over Monte-Carlo studies, with a held-out certificate",
     "bench": "time the control step against OSQP and the offline simulation",
     "identify": "fit the real robot's driver chain (dead time, ramps, speed loop) from a short cmd_vel excitation",
+    "preflight": "dry run before the first motion: check the driver chain (graph, odometry rate, stamps, at rest)",
 }
 
 

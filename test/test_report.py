@@ -124,7 +124,7 @@ def synthetic(tmp_path_factory):
 
 
 def _assert_same_metrics(got: dict, want: dict) -> None:
-    assert set(got) == set(want)
+    assert set(got) == set(want) | {"truth"} and got["truth"] == "ground_truth"  # a report names its truth
     for key, value in want.items():
         if isinstance(value, float):
             assert got[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
@@ -158,7 +158,13 @@ def test_report_verb(synthetic, tmp_path, capsys):
     mcap = next(path.glob("*.mcap"))  # a bare .mcap works too
     assert main(["report", str(mcap), "--out", str(tmp_path / "o"), "--no-plots"]) == 0
     _assert_same_metrics(read_metrics(tmp_path / "o" / "metrics.json"), compute_metrics(expected))
-    assert not list((tmp_path / "o").glob("*.png")) and "; metrics in " in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert not list((tmp_path / "o").glob("*.png")) and f"wrote {tmp_path / 'o' / 'metrics.json'}" in out
+    assert "truth: ground_truth" in out and read_metrics(tmp_path / "o" / "metrics.json")["truth"] == "ground_truth"
+    assert main(["report", str(mcap), "--no-plots"]) == 0  # without --out: <bag>-report beside the bag
+    beside = mcap.parent / f"{mcap.stem}-report" / "metrics.json"
+    assert f"wrote {beside}" in capsys.readouterr().out
+    _assert_same_metrics(read_metrics(beside), compute_metrics(expected))
     assert main(["report", str(tmp_path / "none"), "--out", str(tmp_path / "p")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no such bag" in err

@@ -31,6 +31,20 @@ How a recording maps onto `results.RunData` (one sample per control tick k):
 
 Ticks lacking one of these (e.g. the last tick, answered after the recorder
 stopped) are left out; ``meta["ticks_dropped"]`` counts them.
+
+A recording without ``ground_truth/odom`` (a real robot: nothing knows the true pose) is reported as odometry
+sees it (`recorded_run`, ``meta["truth"]`` ``"odometry"``; else ``"ground_truth"`` and the mapping above):
+
+* tick times and pose: the distinct ``odom`` stamps and, per stamp, its last message (a driver that dispatches
+  two samples under one stamp sends the newer second);
+* reference: the reference the controller had, the newest ``reference_preview`` stamped at or before the tick
+  (within its span of N Ts), its point 0 carried to the tick by its velocity and acceleration (second order, as
+  the controller moves it: `reference.trajectories.shift_preview`), else the ``reference_path`` as above;
+* currents, voltages and the commanded twist (``cmd_vel``): the newest message of each published before the
+  tick's next odometry (the value in force over the tick); ticks before the first currents or voltages are left
+  out, a twist before the first ``cmd_vel`` is zero (nothing commanded yet). Where ``wheel_currents`` (or any
+  voltages) are missing, as through the real driver, `RecordedRun.commands` holds the commanded body twist and
+  the wheel speeds it asks for, drawn instead, and the metrics of the missing series are None.
 """
 
 from __future__ import annotations
@@ -38,6 +52,7 @@ from __future__ import annotations
 import json
 import os
 from bisect import bisect_left, bisect_right
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -48,7 +63,10 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError, BagMessage, RUN_METADATA
 from robotino_geom_mpc.recording.definitions import _typestore
+from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.offline.results import RunData, compute_metrics, write_metrics
+from robotino_geom_mpc.recording.odometry_timing import odometry_timing
+from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.ros.cdr import diagnostics_with, float64_array, odometry_pose, preview_start, values_of
 from robotino_geom_mpc.ros.decode import (
     diagnostics_with_of_message,
@@ -60,6 +78,8 @@ from robotino_geom_mpc.ros.decode import (
 )
 
 __all__ = [
+    "RecordedRun",
+    "recorded_run",
     "find_topic",
     "run_parameters",
     "resolve_parameters",
@@ -69,6 +89,8 @@ __all__ = [
     "yaw",
     "run_data_from_bag",
     "report_bag",
+    "Report",
+    "write_report",
 ]
 
 
@@ -210,23 +232,71 @@ def controller_diagnostics(msg: Any) -> dict[str, str] | None:
     return _diagnostics_of_message(msg)[1]
 
 
+@dataclass(frozen=True)
+class RecordedRun:
+    """A recorded run (`recorded_run`): its `RunData` and what the recording lacked.
+
+    Attributes
+    ----------
+    run
+        The run; ``run.meta["truth"]`` is ``"ground_truth"`` or ``"odometry"``. Where the recording has no
+        currents (or voltages) its ``currents`` (``voltages``) are zeros standing in, never to be read as data:
+        `currents` (`voltages`) say so.
+    currents, voltages
+        Whether the recording holds wheel currents, and voltages (``wheel_voltages`` or ``applied_voltages``).
+    twist, wheel_speeds
+        Without currents: the commanded body twist (v_x, v_y [m/s], theta' [rad/s] in base_link, from ``cmd_vel``)
+        and the wheel speeds it asks for [rad/s] per tick, shape (n, 3), drawn instead; else None.
+    """
+
+    run: RunData
+    currents: bool = True
+    voltages: bool = True
+    twist: np.ndarray | None = None
+    wheel_speeds: np.ndarray | None = None
+
+    @property
+    def truth(self) -> str:
+        """``"ground_truth"`` or ``"odometry"``."""
+        return self.run.meta["truth"]
+
+
 def run_data_from_bag(
     bag: BagReader | str | os.PathLike,
     params_file: str | os.PathLike | None = None,
     scenario: str | None = None,
 ) -> RunData:
-    """Extract the `RunData` of a recorded run (see the module docstring for the mapping).
+    """The `RunData` of a recorded run (`recorded_run`'s; see the module docstring for the mapping)."""
+    return recorded_run(bag, params_file, scenario).run
+
+
+def recorded_run(
+    bag: BagReader | str | os.PathLike,
+    params_file: str | os.PathLike | None = None,
+    scenario: str | None = None,
+) -> RecordedRun:
+    """Extract a recorded run: against ``ground_truth/odom`` where recorded, else as odometry sees it.
 
     Raises
     ------
     BagError
-        If the bag lacks ``ground_truth/odom``, ``wheel_currents`` or
-        ``wheel_voltages`` (a cmd_vel run: ``applied_voltages``), or no tick has all its data.
+        If the bag lacks ``odom`` (without ground truth), the currents or the voltages of a run with ground truth,
+        or no tick has all its data.
     """
     if not isinstance(bag, BagReader):
         bag = BagReader(bag)
     robot, control, stored_scenario, source = resolve_parameters(bag, params_file)
-    truth_topic = find_topic(bag, "ground_truth/odom", "nav_msgs/msg/Odometry")
+    meta = {"source": "recording", "bag": str(bag.path), "parameters": source, "bag_problems": list(bag.problems)}
+    name = scenario or stored_scenario or "recording"
+    truth_topic = find_topic(bag, "ground_truth/odom", "nav_msgs/msg/Odometry", False)
+    if truth_topic is None:
+        return _odometry_run(bag, robot, control, name, meta)
+    return RecordedRun(_ground_truth_run(bag, truth_topic, robot, control, name, meta))
+
+
+def _ground_truth_run(bag: BagReader, truth_topic: str, robot: Any, control: Any, scenario: str,
+                      meta: dict[str, Any]) -> RunData:
+    """The run against the ground truth (the module docstring's first mapping)."""
     truth = sorted(_first_per_stamp(_values_by_publish_time(
         bag, truth_topic, odometry_pose, odometry_pose_of_message)).items())
     currents = _values_by_publish_time(bag, find_topic(bag, "wheel_currents", "std_msgs/msg/Float64MultiArray"),
@@ -243,14 +313,7 @@ def run_data_from_bag(
     diags = _first_per_stamp([item for item in _values_by_publish_time(
         bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False), _read_diagnostics,
         _diagnostics_of_message) if item[1][1] is not None])
-    path = by_publish_time(bag, find_topic(bag, "reference_path", "nav_msgs/msg/Path", False))
-    path_t = path_ref = None
-    if path:
-        poses = path[-1][1].poses
-        if poses:
-            path_t = np.array([stamp_ns(p.header.stamp) for p in poses], dtype=np.int64)
-            path_ref = np.array([(p.pose.position.x, p.pose.position.y, yaw(p.pose.orientation)) for p in poses])
-            path_ref[:, 2] = np.unwrap(path_ref[:, 2])
+    path_reference = _path_reference(bag)
 
     cur_t = [p for p, _ in currents]
     volt_t = [p for p, _ in voltages]
@@ -270,10 +333,8 @@ def run_data_from_bag(
             voltage = _first_after(volt_t, voltages, after, next_publish)
         if stamp in previews and previews[stamp][1] is not None:
             reference = previews[stamp][1]
-        elif path_t is not None and path_t[0] <= stamp <= path_t[-1]:
-            reference = tuple(np.interp(stamp, path_t, path_ref[:, j]) for j in range(3))
         else:
-            reference = None
+            reference = path_reference(stamp)
         if current is None or voltage is None or reference is None or len(current) != 3 or len(voltage) != 3:
             continue
         rows.append((stamp, pose, reference, current, voltage, diag[1] if diag else None,
@@ -293,7 +354,7 @@ def run_data_from_bag(
             flags[name] = np.array([r[5].get(name) == "true" for r in rows])
         compute = np.array([float(r[5]["compute_time_ms"]) * 1e-3 for r in rows])
     return RunData(
-        scenario=scenario or stored_scenario or "recording",
+        scenario=scenario,
         t=np.array([(r[0] - t0) * 1e-9 for r in rows]),
         pose=pose,
         reference=reference,
@@ -306,28 +367,158 @@ def run_data_from_bag(
         flags=flags,
         compute_time_s=compute,
         odometry=odometry,
-        meta={
-            "source": "recording",
-            "bag": str(bag.path),
-            "parameters": source,
-            "ticks_dropped": len(truth) - len(rows),
-            "bag_problems": list(bag.problems),
-        },
+        meta={**meta, "truth": "ground_truth", "ticks_dropped": len(truth) - len(rows)},
     )
 
 
-def report_bag(
+def _path_reference(bag: BagReader) -> Callable[[int], tuple[float, float, float] | None]:
+    """The reference at a stamp [ns] from the last ``reference_path`` (linear between its poses; None outside)."""
+    path = by_publish_time(bag, find_topic(bag, "reference_path", "nav_msgs/msg/Path", False))
+    poses = path[-1][1].poses if path else []
+    if not poses:
+        return lambda stamp: None
+    path_t = np.array([stamp_ns(p.header.stamp) for p in poses], dtype=np.int64)
+    path_ref = np.array([(p.pose.position.x, p.pose.position.y, yaw(p.pose.orientation)) for p in poses])
+    path_ref[:, 2] = np.unwrap(path_ref[:, 2])
+
+    def at(stamp: int) -> tuple[float, float, float] | None:
+        if not path_t[0] <= stamp <= path_t[-1]:
+            return None
+        return tuple(np.interp(stamp, path_t, path_ref[:, j]) for j in range(3))  # type: ignore[return-value]
+    return at
+
+
+def _preview_point0(msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Point 0 of a preview: pose, velocity and acceleration (x, y, theta), zeros where it has no derivatives."""
+    if not msg.points or not msg.points[0].transforms:
+        return None
+    point = msg.points[0]
+    tf = point.transforms[0]
+
+    def triple(twists: Any) -> np.ndarray:
+        return np.array((twists[0].linear.x, twists[0].linear.y, twists[0].angular.z)) if twists else np.zeros(3)
+    return (np.array((tf.translation.x, tf.translation.y, yaw(tf.rotation))), triple(point.velocities),
+            triple(point.accelerations))
+
+
+def _preview_reference(bag: BagReader, span_s: float) -> Callable[[int], tuple[float, float, float] | None]:
+    """The reference the controller had at a stamp [ns]: the newest ``reference_preview`` stamped at or before it
+    (within `span_s`), point 0 carried to the stamp (`shift_preview`); the ``reference_path`` otherwise.
+    """
+    points: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray] | None] = {}
+    for _, msg in by_publish_time(bag, find_topic(bag, "reference_preview",
+                                                  "trajectory_msgs/msg/MultiDOFJointTrajectory", False)):
+        points.setdefault(stamp_ns(msg.header.stamp), _preview_point0(msg))
+    stamps = sorted(s for s, point in points.items() if point is not None)
+    path_reference = _path_reference(bag)
+    span_ns = round(span_s * 1e9)
+
+    def at(stamp: int) -> tuple[float, float, float] | None:
+        i = bisect_right(stamps, stamp) - 1
+        if i < 0 or stamp - stamps[i] > span_ns:
+            return path_reference(stamp)
+        position, velocity, acceleration = points[stamps[i]]  # type: ignore[misc]
+        return tuple(shift_preview(position, velocity, acceleration, (stamp - stamps[i]) * 1e-9).tolist())
+    return at
+
+
+def _latest_before(times: list[int], items: list[tuple[int, Any]], end: int | None) -> Any:
+    """The value of the newest item published before `end` (all items for None), None if there is none."""
+    i = (bisect_left(times, end) if end is not None else len(items)) - 1
+    return items[i][1] if i >= 0 else None
+
+
+def _twist(msg: Any) -> tuple[float, float, float]:
+    return (msg.linear.x, msg.linear.y, msg.angular.z)
+
+
+def _odometry_run(bag: BagReader, robot: Any, control: Any, scenario: str, meta: dict[str, Any]) -> RecordedRun:
+    """The run as odometry sees it (a recording without ground truth; the module docstring's second mapping)."""
+    samples = _values_by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry"), odometry_pose,
+                                      odometry_pose_of_message)
+    last: dict[int, tuple[float, float, float]] = {}  # stamp -> the pose of its last message
+    begins: dict[int, int] = {}  # stamp -> publish time of its first message
+    for publish, (stamp, pose) in samples:
+        last[stamp] = pose
+        begins.setdefault(stamp, publish)
+    stamps = sorted(last)
+    float_topic = "std_msgs/msg/Float64MultiArray"
+    series = {}  # name -> (publish times, items) of the optional series
+    for name, topics in (("currents", ("wheel_currents",)), ("voltages", ("wheel_voltages", "applied_voltages"))):
+        topic = next((t for t in (find_topic(bag, n, float_topic, False) for n in topics) if t is not None), None)
+        if topic is not None:
+            items = _values_by_publish_time(bag, topic, float64_array, float64_array_of_message)
+            series[name] = ([p for p, _ in items], items)
+    cmd_topic = find_topic(bag, "cmd_vel", "geometry_msgs/msg/Twist", False)
+    commands = [(p, _twist(m)) for p, m in by_publish_time(bag, cmd_topic)] if "currents" not in series else []
+    command_t = [p for p, _ in commands]
+    reference_at = _preview_reference(bag, control.horizon * control.period_s)
+    rows: list[tuple] = []
+    for k, stamp in enumerate(stamps):
+        end = begins[stamps[k + 1]] if k + 1 < len(stamps) else None
+        reference = reference_at(stamp)
+        values = {name: _latest_before(times, items, end) for name, (times, items) in series.items()}
+        if reference is None or any(v is None or len(v) != 3 for v in values.values()):
+            continue
+        twist = _latest_before(command_t, commands, end) if cmd_topic is not None else None
+        rows.append((stamp, last[stamp], reference, values.get("currents"), values.get("voltages"),
+                     twist or (0.0, 0.0, 0.0)))
+    if not rows:
+        raise BagError(f"{bag.path}: no odometry tick with a reference (reference_preview or reference_path)"
+                       + (", currents" if "currents" in series else "")
+                       + (" and voltages" if "voltages" in series else "") + " in the recording")
+    t0 = rows[0][0]
+    pose, reference = np.array([r[1] for r in rows]), np.array([r[2] for r in rows])
+    for angles in (pose, reference):
+        angles[:, 2] = np.unwrap(angles[:, 2])
+    zeros = np.zeros((len(rows), 3))
+    twist = np.array([r[5] for r in rows]) if "currents" not in series and cmd_topic is not None else None
+    run = RunData(
+        scenario=scenario,
+        t=np.array([(r[0] - t0) * 1e-9 for r in rows]),
+        pose=pose,
+        reference=reference,
+        currents=np.array([r[3] for r in rows]) if "currents" in series else zeros,
+        voltages=np.array([r[4] for r in rows]) if "voltages" in series else zeros,
+        control_period_s=control.period_s,
+        horizon=control.horizon,
+        nominal_current_a=robot.nominal_current_a,
+        supply_voltage_v=robot.supply_voltage_v,
+        meta={**meta, "truth": "odometry", "ticks_dropped": len(stamps) - len(rows)},
+    )
+    wheels = None if twist is None else twist @ (MotorKinematics(robot).W0 / robot.gear_ratio).T
+    return RecordedRun(run, "currents" in series, "voltages" in series, twist, wheels)
+
+
+_CURRENT_KEYS = ("peak_current_a", "peak_current_after_settle_a", "samples_above_nominal_current",
+                 "current_within_nominal")
+_VOLTAGE_KEYS = ("peak_voltage_v", "voltage_within_supply")
+
+
+@dataclass(frozen=True)
+class Report:
+    """What `write_report` wrote: the metrics (as in metrics.json), the figures' paths, the truth it used."""
+
+    metrics: dict[str, Any]
+    figures: list[Path]
+    truth: str
+
+
+def write_report(
     bag: BagReader | str | os.PathLike,
     out_dir: str | os.PathLike,
     params_file: str | os.PathLike | None = None,
     settle_time_s: float = 1.0,
     plots: bool = True,
-) -> dict[str, Any]:
-    """Write ``out_dir/metrics.json`` and (with `plots`) the figures of a recorded run; returns the metrics.
+) -> Report:
+    """Write ``out_dir/metrics.json`` and (with `plots`) the figures of a recorded run.
 
-    Uses `results.compute_metrics` / `results.write_metrics` and
-    `plots.write_plots`, the same code as ``simulate`` and ``run``; a run with plans also gets ``link``, the
-    link's figures as the recording shows them (`link_report.link_figures`).
+    Uses `results.compute_metrics` / `results.write_metrics` and `plots.write_plots`, the same code as
+    ``simulate`` and ``run``. The metrics name the truth they are measured against (``truth``:
+    ``"ground_truth"`` or ``"odometry"``, `recorded_run`); without ground truth they also hold ``timing``, the
+    odometry's and commands' timing (`odometry_timing.odometry_timing`), and the current (voltage) metrics are
+    None where the recording has no currents (voltages). A run with plans also gets ``link``, the link's figures
+    as the recording shows them (`link_report.link_figures`).
 
     Raises
     ------
@@ -338,16 +529,37 @@ def report_bag(
 
     if not isinstance(bag, BagReader):
         bag = BagReader(bag)
-    run = run_data_from_bag(bag, params_file)
+    recorded = recorded_run(bag, params_file)
+    run = recorded.run
     out = Path(out_dir)
     metrics = compute_metrics(run, settle_time_s=settle_time_s)
+    for present, keys in ((recorded.currents, _CURRENT_KEYS), (recorded.voltages, _VOLTAGE_KEYS)):
+        if not present:  # zeros stood in for the series: no figure of it
+            metrics.update(dict.fromkeys(keys))
+    metrics["truth"] = recorded.truth
     lockstep = find_topic(bag, "clock", "rosgraph_msgs/msg/Clock", False) is not None  # the lockstep plant's
+    if recorded.truth == "odometry":
+        metrics["timing"] = odometry_timing(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry"),
+                                            find_topic(bag, "cmd_vel", "geometry_msgs/msg/Twist", False), lockstep)
     link = link_figures(bag, run.control_period_s, lockstep)
     if link is not None:  # a run with plans: the link it ran over, as the recording shows it
         metrics["link"] = link
     write_metrics(metrics, out / "metrics.json")
+    figures: list[Path] = []
     if plots:
         from robotino_geom_mpc.offline.plots import write_plots  # matplotlib: imported only to draw
 
-        write_plots(run, out, settle_time_s=settle_time_s)
-    return metrics
+        commands = None if recorded.twist is None else (recorded.twist, recorded.wheel_speeds)
+        figures = write_plots(run, out, settle_time_s=settle_time_s, commands=commands, voltages=recorded.voltages)
+    return Report(metrics, figures, recorded.truth)
+
+
+def report_bag(
+    bag: BagReader | str | os.PathLike,
+    out_dir: str | os.PathLike,
+    params_file: str | os.PathLike | None = None,
+    settle_time_s: float = 1.0,
+    plots: bool = True,
+) -> dict[str, Any]:
+    """`write_report`'s metrics (what ``run`` prints from)."""
+    return write_report(bag, out_dir, params_file, settle_time_s, plots).metrics

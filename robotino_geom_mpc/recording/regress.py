@@ -53,6 +53,7 @@ from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
+from robotino_geom_mpc.recording.regress_chain import chain_parameters, regress_chain
 from robotino_geom_mpc.recording.regress_plans import plan_topic, regress_plans
 from robotino_geom_mpc.recording.report import (
     by_publish_time,
@@ -89,6 +90,8 @@ class RegressionResult:
     command
         The compared command topic: ``wheel_voltages`` (deviations in V) or ``cmd_vel`` (in m/s and rad/s), or
         the plans of a run with plans, ``wheel_voltage_plan`` (V) or ``cmd_vel_plan`` (`regress_plans`).
+    chain_source
+        A chain recording (`regress_chain`): where the chain's parameters came from; else None.
     """
 
     ticks: int
@@ -99,6 +102,7 @@ class RegressionResult:
     gap_at_s: float | None = None
     gap: str | None = None
     command: str = "wheel_voltages"
+    chain_source: str | None = None
 
     @property
     def passed(self) -> bool:
@@ -114,9 +118,14 @@ def regress_bag(
     bag: BagReader | str | os.PathLike,
     params_file: str | os.PathLike | None = None,
     tolerance_v: float = 1e-12,
+    chain_file: str | os.PathLike | None = None,
 ) -> RegressionResult:
     """Recompute the controller's voltages (a cmd_vel run: twists) from a recording and compare them to the
     recorded ones.
+
+    A chain recording (the controller's recorded parameters say ``chain.active`` enabled, or `chain_file`, the
+    chain's parameter file, is given, or a cmd_vel recording holds no tracking status of the controller: the
+    chain mode publishes none) is replayed by `regress_chain`.
 
     Raises
     ------
@@ -141,6 +150,11 @@ def regress_bag(
                        "(geometry_msgs/msg/Twist) topic in the recording: no controller command to compare")
     voltages = by_publish_time(bag, command or find_topic(bag, "cmd_vel", "geometry_msgs/msg/Twist"))
     diags = by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False))
+    if twists and (chain_file is not None or chain_parameters(bag)[2]
+                   or not any(controller_diagnostics(msg) is not None for _, msg in diags)):
+        replay = regress_chain(bag, control, tolerance_v, chain_file)
+        return RegressionResult(replay.ticks, replay.compared, replay.max_deviation, replay.worst_stamp_s,
+                                float(tolerance_v), command="cmd_vel", chain_source=replay.chain_source)
     volt_t = [p for p, _ in voltages]
     answers: dict[int, np.ndarray] = {}  # tick stamp -> recorded voltages
     used: dict[int, int] = {}  # tick stamp -> stamp of the preview the node used (its diagnostics say)

@@ -23,7 +23,9 @@ from mcap.writer import Writer
 from rosbags.highlevel import AnyReader
 
 from robotino_geom_mpc.cli import main
+from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.regress import regress_bag
+from robotino_geom_mpc.recording.report import by_publish_time
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -179,3 +181,43 @@ def test_regress_fails_on_a_changed_twist(chain_run, tmp_path, capsys):
     assert not result.passed and 0.5e-6 < result.max_deviation_v < 2e-6
     assert main(["regress", str(tmp_path / "changed.mcap")]) == 1
     assert capsys.readouterr().out.startswith("FAIL")
+
+
+def test_regress_replays_a_chain_run_started_disabled(tmp_path):
+    """``start_enabled`` false: the node holds (a zero twist and the status ``disabled`` per odometry, no step)
+    until ``~/enable`` true; the replay holds where the status says so and reproduces every twist after.
+    """
+    import signal
+    import time
+
+    from std_srvs.srv import SetBool
+
+    from harness import Harness
+    from robotino_geom_mpc.params.presets import default_params_file
+    from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
+
+    chain = {"command_interface": "cmd_vel", "chain.active": "enabled"}
+    bag = tmp_path / "bag"
+    args = node_arguments("paper-circle", default_params_file(), 0.0, False, bag=bag, command_interface="cmd_vel",
+                          overrides={"plant_node": {**chain, "wheel_pi.rate_hz": 200.0},
+                                     "controller_node": {**chain, "start_enabled": False}})
+    with Harness("chain_disabled_recording") as h, NodeGroup(log_dir=tmp_path) as group:
+        nodes = {name: group.start(name, argv) for name, argv in args.items()}
+        client = h.node.create_client(SetBool, "/robotino_controller/enable")
+        assert client.wait_for_service(timeout_sec=60.0)
+        h.spin_for(2.0)  # held
+        assert h._call(client, SetBool.Request(data=True), 30.0).message == "enabled"
+        h.spin_for(4.0)
+        for name in ("trajectory_node", "controller_node", "plant_node", "robot_description_publisher"):
+            if name in nodes:
+                nodes[name].popen.send_signal(signal.SIGINT)
+        time.sleep(1.0)
+        nodes["recorder_node"].popen.send_signal(signal.SIGINT)
+        assert nodes["recorder_node"].popen.wait(30) == 0
+    result = regress_bag(bag)
+    held = sum(1 for _, msg in by_publish_time(BagReader(bag), "/diagnostics")
+               if any(s.message == "disabled" for s in msg.status))
+    print(f"{held} odometries held, then {result.compared} of {result.ticks} compared, max deviation "
+          f"{result.max_deviation_v:.1e}")
+    assert held > 20 and result.compared > 60  # 2 s held, 4 s tracked at 30 Hz
+    assert result.max_deviation_v <= 1e-12 and result.passed, result

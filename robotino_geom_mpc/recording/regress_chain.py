@@ -199,7 +199,8 @@ def regress_chain(bag: BagReader, control: ControlParams, tolerance: float,
         z.command += 1
         return z
 
-    def expand(r: _Reading, publish: int, stamp: int, msg: Any, recorded_preview: int) -> list[_Reading]:
+    def expand(r: _Reading, publish: int, stamp: int, msg: Any, recorded_preview: int, disabled: bool
+               ) -> list[_Reading]:
         r.deviation = None
         while r.command in own:  # the zeros the node sent of its own before this odometry
             r = own_zero(r)  # type: ignore[assignment]
@@ -209,7 +210,7 @@ def regress_chain(bag: BagReader, control: ControlParams, tolerance: float,
             X = odometry_state(msg, r.theta)
         except InputRejected:  # refused: the node sends a zero of its own
             return [z for z in (own_zero(r),) if z is not None] or [r]
-        if held.get(stamp, 0) > 0:  # disabled: a zero answer, noted, no step
+        if disabled:  # a zero answer, noted, no step
             z = own_zero(r)
             if z is None:
                 return []
@@ -252,7 +253,10 @@ def regress_chain(bag: BagReader, control: ControlParams, tolerance: float,
     for publish, msg, log in odom:
         stamp = stamp_ns(msg.header.stamp)
         recorded_preview = bisect_left(preview_log, log) - 1
-        expanded = [e for r in readings for e in expand(r, publish, stamp, msg, recorded_preview)]
+        disabled = held.get(stamp, 0) > 0  # the node's status said so for this odometry
+        if disabled:
+            held[stamp] -= 1
+        expanded = [e for r in readings for e in expand(r, publish, stamp, msg, recorded_preview, disabled)]
         matching = [e for e in expanded if e.deviation is None or e.deviation <= tolerance]
         if not matching:  # no reading gives the recorded answer: the nearest goes on, its deviation counted
             matching = [min(expanded, key=lambda e: e.deviation if e.deviation is not None else np.inf)] \

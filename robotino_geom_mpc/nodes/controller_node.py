@@ -27,6 +27,9 @@ services   ``~/enable``           std_srvs/SetBool. Disabled: zero output every 
                                   ``disabled``; realtime: on every odometry, with or without a reference), the
                                   controller holds its state; enabled again: bumpless restart. ``start_enabled``
                                   false starts the node disabled (the first enable is its bumpless start).
+publishes  ``controller_enabled`` std_msgs/Bool, `LATCHED_QOS` (reliable, transient local, depth 1): the enabled
+                                  state, at start and on every change (a trajectory node with
+                                  ``start_on_enable`` starts its reference when it turns true).
 
 Publishers: `controller_outputs.ControllerOutputs`. Inputs are read in
 place by a `ros.cdr.CdrLayout` (any other layout: `ros.cdr.cdr_reader`).
@@ -71,6 +74,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from std_msgs.msg import Bool
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
@@ -92,7 +96,7 @@ from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, preview_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.plans import REPORT_WINDOW_S
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, LOCKSTEP_PUBLISH_QOS
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, LATCHED_QOS, LOCKSTEP_PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_geom_mpc.ros.throttle import error_throttled, warn_throttled
 
@@ -134,6 +138,8 @@ class ControllerNode(ControllerWatchdog, Node):
         self.chain = chain_control(self)  # chain.active: control through the driver chain (`chain_control`)
         self.enabled = self.params["start_enabled"]
         self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
+        self.enabled_pub = self.create_publisher(Bool, "controller_enabled", LATCHED_QOS)
+        self.enabled_pub.publish(Bool(data=self.enabled))
         self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
         self.preview_layout = preview_layout(self.control.period_s, self.preview_points, prefix)
         # lockstep plans: the previews of the ticks before an odometry's late delivery are all kept
@@ -211,6 +217,7 @@ class ControllerNode(ControllerWatchdog, Node):
             self.enabled = request.data
             if self.enabled and self.blend.reason != "start":
                 self.blend.request("enable")  # u(k-1) = 0 (the robot held), blend from the measured state
+            self.enabled_pub.publish(Bool(data=self.enabled))
             self.get_logger().info("enabled: tracking resumes bumplessly" if self.enabled else
                                    "disabled: zero output, holding")
         response.success, response.message = True, "enabled" if self.enabled else "disabled"

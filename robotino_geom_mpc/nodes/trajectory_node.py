@@ -12,8 +12,13 @@ publishes  ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory, `publ
                                   Point 0 is the reference at t_k itself (tracking error, recording);
                                   points 1..N are `reference.trajectories.preview` (x_d(k+1) .. x_d(k+N)).
            ``reference_path``     nav_msgs/Path in ``<frame_prefix>odom``, `LATCHED_QOS` (transient local), the
-                                  whole reference sampled every control period, published once.
+                                  whole reference sampled every control period, published at the start (again
+                                  after each goal, and at each start with ``start_on_enable``).
 subscribes ``/clock``             rosgraph_msgs/Clock (lockstep only, reliable).
+           ``controller_enabled`` std_msgs/Bool, `LATCHED_QOS` (``start_on_enable`` only): the controller's
+                                  enabled state.
+           ``odom``               nav_msgs/Odometry, best effort, keep-last 1 (``anchor_to_robot`` only): the
+                                  robot's pose the reference is anchored at.
            ``goal_pose``, ``plan``  geometry_msgs/PoseStamped, nav_msgs/Path (scenario ``goals`` only:
                                   `nodes.goal_inputs`, which checks them and replans the reference).
 
@@ -62,11 +67,33 @@ plant's next resend); the controller keys previews by stamp, so repeats
 are harmless. Without /clock for ``clock_timeout_s`` (a plant not started,
 stalled or ended) the node logs, throttled, what it waits for.
 
+Starting on the enable, from where the robot stands (realtime)
+--------------------------------------------------------------
+``start_on_enable``: once the start condition above holds, the node holds the reference's start until the
+controller's ``controller_enabled`` is true, and the reference's t = 0 is the moment that message arrives
+(not the next timer tick). While it holds, it publishes every period the preview of the start point at rest
+(all N + 1 points the reference's pose at t = 0, zero velocities and accelerations), so the disabled
+controller has a fresh reference at the enable, its watchdog says ``ok``, and its first enabled ticks hold the
+robot where the reference starts. A disable (``controller_enabled`` false) returns the node to the hold: the
+reference is made anew (goals dropped) and the next enable starts it again from t = 0.
+
+``anchor_to_robot``: at the start the scenario's reference is moved rigidly onto the robot's pose from the
+newest ``odom`` (`reference.anchor`: x, y rotated by its heading, the heading added), so it starts exactly at
+the robot's pose, at rest; the hold previews follow that pose until then (a robot pushed by hand while
+disabled starts where it is put), and the start waits for a first odometry. ``reference_path`` is published
+at the start, anchored. In scenario ``goals`` the held start pose is the robot's and goals and paths stay
+absolute poses in ``odom``; ``goal_pose`` and ``plan`` are subscribed from the start on (a goal needs the start
+pose it moves from), dropped again at a return to the hold.
+
+Both are realtime features (a real robot, started disabled): in lockstep the plant's /clock drives the
+reference and the simulated robot starts at the origin with it, so a lockstep node with either true refuses
+to start (exit status 2). Both false (the defaults): the reference starts as described under Timing.
+
 Parameters: ``control.period_s`` and ``control.horizon`` of config/*.yaml
-(``/**`` section; fixed while the node runs, as are ``mode`` and
-``clock_timeout_s``), the robot's (the wheel kinematics and the motor's nominal speed bound the
-goal motions), `TRAJECTORY_SPECS`, `nodes.goal_inputs.GOAL_SPECS` and ``waypoints`` (a flat list
-x1, y1, theta1, x2, ... for point-to-point; empty: the scenario's default).
+(``/**`` section; fixed while the node runs, as are ``mode``, ``clock_timeout_s``, ``start_on_enable`` and
+``anchor_to_robot``), the robot's (the wheel kinematics and the motor's nominal speed bound the goal motions),
+`TRAJECTORY_SPECS`, `nodes.goal_inputs.GOAL_SPECS` and ``waypoints`` (a flat list x1, y1, theta1, x2, ... for
+point-to-point; empty: the scenario's default).
 ``scenario`` is a name of `robotino_geom_mpc.scenarios.SCENARIOS`; the node
 tracks its reference (``robustness``: paper-circle; the mismatch and the
 noise are the controller's and the plant's parameters).
@@ -80,16 +107,22 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
+from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
+from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from robotino_geom_mpc.reference.anchor import anchored
 from robotino_geom_mpc.reference.goals import GoalReference
 from robotino_geom_mpc.params.specs import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.nodes.goal_inputs import GOAL_DEFAULTS, GOAL_SPECS, GoalInputs, goal_params_problem
 from robotino_geom_mpc.reference.trajectories import Reference, TrajectoryError
-from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate
-from robotino_geom_mpc.ros.messages import ODOM_FRAME, path_cdr, point_values, preview_template, preview_values
+from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate, MalformedMessage, cdr_reader
+from robotino_geom_mpc.ros.decode import InputRejected, check_yaw_quaternion, odometry_values, yaw_of
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, path_cdr, point_values, preview_template, \
+    preview_values
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.qos import CLOCK_SUB_QOS, LATCHED_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
@@ -110,13 +143,32 @@ TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
               "waits for", "s", 0.0, 3600.0, True),
     ParamSpec("preview_points", int, "Points after the first in each preview; 0: control.horizon (N). A controller "
               "with plans needs its DelayCompensatingController.preview_length", "", 0, 10000, False),
+    ParamSpec("start_on_enable", bool, "Realtime: hold the reference's start (its t = 0 point, at rest) until the "
+              "controller's controller_enabled is true, and start t = 0 then; a disable holds again"),
+    ParamSpec("anchor_to_robot", bool, "Realtime: move the scenario rigidly onto the robot's pose (newest odom) at "
+              "the start, so the reference starts where the robot stands, at rest (goals: hold that pose)"),
 )
 _DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1.0, "clock_timeout_s": 5.0,
-             "preview_points": 0}
-_FIXED = ("mode", "control.period_s", "control.horizon", "clock_timeout_s", "preview_points")
+             "preview_points": 0, "start_on_enable": False, "anchor_to_robot": False}
+_FIXED = ("mode", "control.period_s", "control.horizon", "clock_timeout_s", "preview_points", "start_on_enable",
+          "anchor_to_robot")
+_REALTIME_ONLY = ("start_on_enable", "anchor_to_robot")
+# the robot's pose for the anchor: only the newest odometry matters, from any publisher (best effort reads both)
+_POSE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+_read_odom = cdr_reader(Odometry, "nav_msgs/msg/Odometry")  # odometry in frames the in-place layout does not read
 _GOAL_PATH_STEP = 5  # after a goal, reference_path has a pose every this many control periods
 _WAIT_LOG_PERIOD_S = 5.0  # at most one "waiting for /clock" line per this long (or per clock_timeout_s if longer)
 _GAP_FILL_TICKS = 100  # lockstep: the previews of at most this many skipped ticks are sent late
+
+
+def _params_problem(values: dict) -> str | None:
+    """Why the node's parameters cannot run: the goal limits' problem, or a realtime feature in lockstep."""
+    on = [name for name in _REALTIME_ONLY if values[name]]
+    if values["mode"] == "lockstep" and on:
+        return (f"{' and '.join(on)} {'is a realtime feature' if len(on) == 1 else 'are realtime features'} (a "
+                "real robot started disabled): in lockstep the plant's /clock drives the reference and the simulated "
+                "robot starts at the origin with it; set them false or use mode realtime")
+    return goal_params_problem(values)
 
 
 class TrajectoryNode(Node):
@@ -127,7 +179,7 @@ class TrajectoryNode(Node):
         specs = ALL_SPECS + TRAJECTORY_SPECS + GOAL_SPECS
         self.params = SpecParameters(
             self, specs, {**spec_defaults(ALL_SPECS), **_DEFAULTS, **GOAL_DEFAULTS}, self._on_params, fixed=_FIXED,
-            check=goal_params_problem,
+            check=_params_problem,
         )
         self.declare_parameter(
             "waypoints",
@@ -140,14 +192,14 @@ class TrajectoryNode(Node):
         )
         self.add_on_set_parameters_callback(self._check_waypoints)
         self.add_post_set_parameters_callback(self._on_waypoints)
+        self.lockstep = self.params["mode"] == "lockstep"
+        self.start_on_enable, self.anchor_to_robot = self.params["start_on_enable"], self.params["anchor_to_robot"]
+        self.anchor: tuple[float, float, float] | None = None  # anchor_to_robot: the pose at the start
+        self.goals = GoalInputs(self, self.params.values, self._reference_time, self._replanned)
         try:
-            self.waypoints = self._waypoints()
-            self.reference = self._make_reference(self.params["scenario"], self.waypoints)
+            self._use_reference()
         except TrajectoryError as exc:
             raise NodeStartError(str(exc)) from None
-        self.lockstep = self.params["mode"] == "lockstep"
-        self.goals = GoalInputs(self, self.params.values, self._reference_time, self._replanned)
-        self.goals.attach(self.reference)
         self.preview_pub = self.create_publisher(
             MultiDOFJointTrajectory, "reference_preview", publish_qos(self.lockstep),
             event_callbacks=PublisherEventCallbacks(matched=self._on_preview_matched),
@@ -158,6 +210,15 @@ class TrajectoryNode(Node):
         self.start_ns: int | None = 0 if self.lockstep else None  # node-clock time of the reference's t = 0
         self.subscribed_since: int | None = None  # realtime: node-clock time since which the start condition holds
         self.odom_topic = self.resolve_topic_name("odom")  # realtime: its publisher is part of the start condition
+        self.robot_pose: tuple[float, float, float] | None = None  # anchor_to_robot: from the newest odometry
+        if self.anchor_to_robot:
+            self.odom_layout = odometry_layout(self.params["frame_prefix"])
+            self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, _POSE_QOS, raw=True)
+        self.controller_enabled = False  # start_on_enable: the controller's state (controller_enabled)
+        self.holding = False  # start_on_enable: publishing the start at rest, waiting for the enable
+        self.hold_checked_at = 0.0  # steady time the hold last looked for a publisher of controller_enabled
+        if self.start_on_enable:
+            self.enabled_sub = self.create_subscription(Bool, "controller_enabled", self._on_enabled, LATCHED_QOS)
         self.preview_cdr: CdrTemplate | None = None  # built on first use (horizon and period fixed)
         self.grid: np.ndarray | None = None  # lockstep: point values at k Ts (`_grid_values`)
         if self.lockstep:
@@ -170,9 +231,11 @@ class TrajectoryNode(Node):
             self.timer = self.create_timer(self.params["control.period_s"], self._on_timer)
         if self.start_ns is not None:
             self._publish_path()
+        starts = ("; starts on the controller's enable" if self.start_on_enable else "") + \
+            ("; anchored at the robot's pose" if self.anchor_to_robot else "")
         self.get_logger().info(
             f"trajectory '{self.params['scenario']}' (reference {self.reference.name}, "
-            f"{self.reference.duration_s:g} s, N = {self.params['control.horizon']}, {self.params['mode']})"
+            f"{self.reference.duration_s:g} s, N = {self.params['control.horizon']}, {self.params['mode']}){starts}"
         )
 
     # parameters ---------------------------------------------------------------------------------
@@ -227,10 +290,20 @@ class TrajectoryNode(Node):
             self._new_reference()  # (None: the scenario's default)
 
     def _new_reference(self) -> None:
-        self.waypoints = self._waypoints()
-        self.reference = self._make_reference(self.params["scenario"], self.waypoints)
-        self.goals.attach(self.reference)
+        self._use_reference()
         self._replanned(self.reference)
+
+    def _use_reference(self) -> None:
+        """The scenario's reference of the current parameters, anchored once the anchor is known.
+
+        Anchored to the robot, goals are taken from the start on only (they move from the robot's pose).
+        """
+        self.waypoints = self._waypoints()
+        self.scenario_reference = self._make_reference(self.params["scenario"], self.waypoints)
+        self.reference = self.scenario_reference if self.anchor is None else \
+            anchored(self.scenario_reference, self.anchor)
+        self.grid = None
+        self.goals.attach(None if self.anchor_to_robot and self.anchor is None else self.reference)
 
     def _reference_time(self) -> float:
         """The reference time [s] a goal starts at: the latest tick published (lockstep), now (realtime)."""
@@ -273,11 +346,13 @@ class TrajectoryNode(Node):
     def _preview_points(self) -> int:
         return self.params["preview_points"] or self.params["control.horizon"]
 
-    def _publish_preview(self, t_ns: int, reference_t_ns: int) -> None:
+    def _publish_preview(self, t_ns: int, reference_t_ns: int, values: list[float] | None = None) -> None:
+        """The preview stamped `t_ns` of the reference at `reference_t_ns` (or of the point `values`)."""
         period_s, horizon = self.params["control.period_s"], self._preview_points()
         if self.preview_cdr is None:
             self.preview_cdr = preview_template(period_s, horizon, self.params["frame_prefix"])
-        values = self._grid_values(reference_t_ns) if self.lockstep else None
+        if values is None and self.lockstep:
+            values = self._grid_values(reference_t_ns)
         if values is None:
             values = preview_values(self.reference, reference_t_ns, period_s, horizon)
         publish_acknowledged(self, self.preview_pub, self.preview_cdr.pack(*divmod(t_ns, 1_000_000_000), *values))
@@ -335,18 +410,88 @@ class TrajectoryNode(Node):
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
         if self.start_ns is None:
-            if self.preview_pub.get_subscription_count() == 0 or self.count_publishers(self.odom_topic) == 0:
-                self.subscribed_since = None
-                return  # the reference starts when a controller listens and the robot sends odometry ...
-            if self.subscribed_since is None:
-                self.subscribed_since = now
-            if now - self.subscribed_since < int(self.params["start_settle_s"] * 1e9):
-                return  # ... and has for the settle time
-            self.start_ns = now
-            self._publish_preview(now, 0)  # the loop's data first: the path is for the tools
-            self._publish_path()
+            if not self._settled(now):
+                return
+            if self.start_on_enable and not self.controller_enabled:
+                self._hold(now)
+                return
+            self._start(now)
             return
         self._publish_preview(now, now - self.start_ns)
+
+    def _settled(self, now: int) -> bool:
+        """Realtime: whether the reference may start at `now` (module docstring, Timing)."""
+        if self.preview_pub.get_subscription_count() == 0 or self.count_publishers(self.odom_topic) == 0 or \
+                (self.anchor_to_robot and self.robot_pose is None):
+            self.subscribed_since = None
+            return False  # the reference starts when a controller listens and the robot sends odometry ...
+        if self.subscribed_since is None:
+            self.subscribed_since = now
+        return now - self.subscribed_since >= int(self.params["start_settle_s"] * 1e9)  # ... for the settle time
+
+    def _start(self, now: int) -> None:
+        """Realtime: t = 0 of the reference at `now`, anchored at the robot's pose with ``anchor_to_robot``."""
+        self.start_ns, self.holding = now, False
+        if self.anchor_to_robot:
+            self.anchor = self.robot_pose
+            self._use_reference()
+            x, y, theta = self.anchor
+            self.get_logger().info(f"reference anchored at the robot's pose ({x:.4f} m, {y:.4f} m, {theta:.4f} rad)")
+        if self.start_on_enable:
+            self.get_logger().info("the controller is enabled: the reference starts (t = 0)")
+        self._publish_preview(now, 0)  # the loop's data first: the path is for the tools
+        self._publish_path()
+
+    def _hold(self, now: int) -> None:
+        """start_on_enable: the preview of the reference's start point at rest (anchored: at the robot's pose)."""
+        start = self.scenario_reference if self.robot_pose is None or not self.anchor_to_robot else \
+            anchored(self.scenario_reference, self.robot_pose)
+        points = self._preview_points() + 1
+        positions = np.tile(start.position(0.0), (points, 1))
+        self._publish_preview(now, 0, point_values(positions, np.zeros((points, 3)), np.zeros((points, 3)))
+                              .ravel().tolist())
+        topic = self.enabled_sub.topic_name
+        if not self.holding:
+            self.holding, self.hold_checked_at = True, monotonic()
+            self.get_logger().info(f"holding the reference's start at {np.round(positions[0], 4).tolist()} until "
+                                   f"{topic} is true (the controller's enable)")
+        elif monotonic() - self.hold_checked_at > _WAIT_LOG_PERIOD_S:  # (a graph query: not every period)
+            self.hold_checked_at = monotonic()
+            if self.count_publishers(topic) == 0:
+                self.get_logger().warn(f"holding the reference's start: no publisher of {topic} (a controller of "
+                                       "this package says there whether it is enabled)")
+
+    def _on_enabled(self, msg: Bool) -> None:
+        """start_on_enable: start at the enable (if the start condition holds, else at the tick it does); a
+        disable after the start returns to the hold with the reference made anew.
+        """
+        enabled = bool(msg.data)
+        if enabled == self.controller_enabled:
+            return
+        self.controller_enabled = enabled
+        now = self.get_clock().now().nanoseconds
+        if enabled and self.start_ns is None and self._settled(now):
+            self._start(now)
+        elif not enabled and self.start_ns is not None:
+            self.start_ns, self.anchor = None, None
+            self._use_reference()  # (goals dropped)
+            self.get_logger().info("the controller is disabled: the reference holds its start again until the "
+                                   "next enable")
+
+    def _on_odom(self, data: bytes) -> None:
+        """anchor_to_robot: the robot's pose (x, y, yaw) of an odometry; a malformed one is refused (logged)."""
+        try:
+            values = self.odom_layout.read(data)
+            if values is None:
+                values = odometry_values(_read_odom(data))
+            x, y, qx, qy, qz, qw = values[2:8]
+            if not np.isfinite([x, y, qx, qy, qz, qw]).all():
+                raise InputRejected("odom contains non-finite values", "non_finite")
+            check_yaw_quaternion(qx, qy, qz, qw, "odom")
+        except (MalformedMessage, InputRejected) as exc:
+            warn_throttled(self.get_logger(), f"odometry refused for the anchor: {exc}", 1.0)
+            return
+        self.robot_pose = (x, y, yaw_of(qx, qy, qz, qw))
 
     def _publish_path(self, from_s: float = 0.0, step: int = 1) -> None:
         period = self.params["control.period_s"] * step

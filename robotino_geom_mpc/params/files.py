@@ -78,13 +78,13 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "seed", "timing_report", "lockstep_wait_for",
         "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std",
         "command_interface", "wheel_pi.kp", "wheel_pi.ki", "wheel_pi.rate_hz", "publish_tf", "frame_prefix",
-        "plans", "timing_window_s",
+        "plans", "timing_window_s", "odom_publisher_check_s",
     ) + _CHAIN + _LINK,
     "robotino_trajectory": _ROBOT_CONTROL + (
         "scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints", "goals.max_velocity_mps",
         "goals.max_acceleration_mps2", "goals.max_jerk_mps3", "goals.max_angular_velocity_radps",
         "goals.max_angular_acceleration_radps2", "goals.max_angular_jerk_radps3", "goals.max_rim_speed_mps",
-        "frame_prefix", "preview_points",
+        "frame_prefix", "preview_points", "start_on_enable", "anchor_to_robot",
     ),
     "recorder": _ROBOT_CONTROL + (
         "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",

@@ -3,7 +3,10 @@
 No plant simulator, no robot description: the robocup-logistics driver (``rto_node``, started on its own, see
 docs/howto/real_robotino.md) publishes the odometry and takes the twists. The controller commands it by
 ``cmd_vel`` through the chain controller (``chain.active: enabled``) and starts DISABLED by default: it publishes
-zero twist every tick until ``~/enable`` (std_srvs/SetBool) is called with true.
+zero twist every tick until ``~/enable`` (std_srvs/SetBool) is called with true. The reference starts at that
+enable, from where the robot stands (the trajectory's ``start_on_enable`` and ``anchor_to_robot``): until then it
+holds the robot's pose at rest, then runs the scenario moved rigidly onto the robot's pose, from rest, with no
+catch-up (a disable holds again; the next enable starts the scenario anew from where the robot then is).
 
     ros2 launch robotino_geom_mpc real_robot.launch.py chain_params:=my_chain/chain_params.yaml
     ros2 service call /robotino_controller/enable std_srvs/srv/SetBool '{data: true}'    # go
@@ -23,6 +26,12 @@ namespace      the driver's namespace (its launch argument ``namespace``; defaul
 frame_prefix   prefix of our frame ids (the reference's ``odom``); ``auto`` (default): ``<namespace>/`` with a
                namespace, else none. The controller reads the driver's odometry in any frame
 start_enabled  false (default): the controller publishes zero twist until enabled; true: it tracks at once
+start_on_enable  true (default): the reference starts (t = 0) when the controller is enabled, holding its start
+               at rest until then; false: about a second after the controller and the odometry are up, enabled
+               or not (the controller then catches up at the firmware's ramps at the enable)
+anchor_to_robot  true (default): the scenario is moved rigidly onto the robot's pose at the start (paper-circle's
+               centre 0.5 m to the robot's left); false: the scenario as defined in the driver's ``odom`` (from its
+               origin: the controller drives the robot there first)
 fastdds_profile  Fast DDS profile of the nodes (default: $FASTRTPS_DEFAULT_PROFILES_FILE if set, else
                config/fastdds_localhost.xml: the driver runs on this host too); empty: none set by the launch
 record         true: also start the MCAP recorder (bag in ``bag``; ``robotino-geom-mpc report BAG`` afterwards)
@@ -59,7 +68,9 @@ def _reference_only(name: str) -> None:
 
 
 def _nodes(context) -> list:
-    """Trajectory, controller (disabled unless start_enabled) and the optional recorder."""
+    """Trajectory (started by the enable, at the robot, unless told otherwise), controller (disabled unless
+    start_enabled) and the optional recorder.
+    """
     config = context.launch_configurations
     scenario, params_file, chain_file = config["scenario"], config["params_file"], config["chain_params"]
     _reference_only(scenario)
@@ -74,7 +85,9 @@ def _nodes(context) -> list:
 
     controller = {"mode": "realtime", "command_interface": "cmd_vel", "chain.active": "enabled",
                   "start_enabled": flag(config, "start_enabled"), **own("controller_node")}
-    trajectory = {**node_parameters(scenario, robot)["trajectory_node"], "mode": "realtime", **own("trajectory_node")}
+    trajectory = {**node_parameters(scenario, robot)["trajectory_node"], "mode": "realtime",
+                  **{name: flag(config, name) for name in ("start_on_enable", "anchor_to_robot")},
+                  **own("trajectory_node")}
     nodes = [
         Node(package=PACKAGE, executable="trajectory_node", name="robotino_trajectory",
              parameters=[params_file, trajectory], **common),
@@ -101,6 +114,10 @@ def generate_launch_description() -> LaunchDescription:
                               description="frame id prefix; auto: '<namespace>/' with a namespace, else none"),
         DeclareLaunchArgument("start_enabled", default_value="false",
                               description="false: zero twist until ~/enable true; true: track at once"),
+        DeclareLaunchArgument("start_on_enable", default_value="true",
+                              description="true: the reference starts at the controller's enable, held until then"),
+        DeclareLaunchArgument("anchor_to_robot", default_value="true",
+                              description="true: the scenario starts at the robot's pose (moved rigidly onto it)"),
         DeclareLaunchArgument("fastdds_profile",
                               default_value=EnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE",
                                                                 default_value=default_profile),

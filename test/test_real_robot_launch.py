@@ -82,6 +82,7 @@ def test_the_real_robot_launch_starts_no_simulator_and_a_disabled_chain_controll
     assert overrides == {"mode": "realtime", "command_interface": "cmd_vel", "chain.active": "enabled",
                          "start_enabled": False, "frame_prefix": ""}
     assert trajectory.kwargs["parameters"] == [str(REAL_PARAMS), {"scenario": "paper-circle", "mode": "realtime",
+                                                                  "start_on_enable": True, "anchor_to_robot": True,
                                                                   "frame_prefix": ""}]
     for node in nodes.values():  # the driver's topics (its launch's default namespace: none)
         assert node.kwargs["namespace"] == ""
@@ -105,13 +106,16 @@ def test_identifys_chain_file_and_the_arguments_reach_the_nodes(launch, tmp_path
     chain_file = write_chain_file(tmp_path / "chain_params.yaml", {"chain.active": "enabled",
                                                                    **identified.values()}, "identify")
     nodes, _ = launch("real_robot.launch.py", chain_params=str(chain_file), start_enabled="true",
-                      namespace="robotinobase1", record="true", bag=str(tmp_path / "bag"), scenario="lemniscate")
+                      namespace="robotinobase1", record="true", bag=str(tmp_path / "bag"), scenario="lemniscate",
+                      start_on_enable="false", anchor_to_robot="0")
     assert set(nodes) == {"trajectory_node", "controller_node", "recorder_node"}
     controller = nodes["controller_node"]
     files = controller.kwargs["parameters"]
     assert files[:2] == [str(REAL_PARAMS), str(chain_file)]  # identify's values win over the file's preset
     assert files[2]["start_enabled"] is True and files[2]["frame_prefix"] == "robotinobase1/"
-    assert nodes["trajectory_node"].kwargs["parameters"][1]["scenario"] == "lemniscate"
+    trajectory = nodes["trajectory_node"].kwargs["parameters"][1]
+    assert trajectory["scenario"] == "lemniscate"
+    assert trajectory["start_on_enable"] is False and trajectory["anchor_to_robot"] is False
     assert nodes["recorder_node"].kwargs["parameters"][1] == {"output": str(tmp_path / "bag"), "scenario": "lemniscate"}
     for node in nodes.values():
         assert node.kwargs["namespace"] == "/robotinobase1"
@@ -129,6 +133,8 @@ def test_identifys_chain_file_and_the_arguments_reach_the_nodes(launch, tmp_path
     ({"scenario": "wifi"}, ScenarioError, "radio link"),
     ({"scenario": "paper-circel"}, ScenarioError, "did you mean 'paper-circle'"),
     ({"start_enabled": "yes"}, ValueError, "start_enabled"),
+    ({"start_on_enable": "on"}, ValueError, "start_on_enable"),
+    ({"anchor_to_robot": ""}, ValueError, "anchor_to_robot"),
     ({"record": "maybe"}, ValueError, "record"),
     ({"namespace": "robot-1"}, NamespaceError, "robot-1"),
     ({"params_file": "/nonexistent/robot.yaml"}, (OSError, ParamError), "robot.yaml"),

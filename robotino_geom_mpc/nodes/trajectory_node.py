@@ -79,8 +79,8 @@ reference is made anew (goals dropped) and the next enable starts it again from 
 
 ``anchor_to_robot``: at the start the scenario's reference is moved rigidly onto the robot's pose from the
 newest ``odom`` (`reference.anchor`: x, y rotated by its heading, the heading added), so it starts exactly at
-the robot's pose, at rest; the hold previews follow that pose until then (a robot pushed by hand while
-disabled starts where it is put), and the start waits for a first odometry. ``reference_path`` is published
+the robot's pose, at rest; the hold previews follow that pose until then (a robot moved while disabled
+starts where it then stands), and the start waits for a first odometry. ``reference_path`` is published
 at the start, anchored. In scenario ``goals`` the held start pose is the robot's and goals and paths stay
 absolute poses in ``odom``; ``goal_pose`` and ``plan`` are subscribed from the start on (a goal needs the start
 pose it moves from), dropped again at a return to the hold.

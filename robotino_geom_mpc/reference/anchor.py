@@ -68,7 +68,7 @@ def anchored(reference: Reference, pose: Sequence[float] | np.ndarray) -> Refere
 
     Raises
     ------
-    TrajectoryError
+    robotino_geom_mpc.reference.trajectories.TrajectoryError
         A pose that is not three finite numbers, or a goals reference that already has motions.
     """
     if isinstance(reference, GoalReference):

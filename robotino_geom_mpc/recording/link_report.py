@@ -25,8 +25,7 @@ from typing import Any
 import numpy as np
 
 from robotino_geom_mpc.recording.bag_reader import BagReader
-from robotino_geom_mpc.recording.report import by_publish_time, find_topic, stamp_ns
-from robotino_geom_mpc.recording.regress_plans import plan_topic
+from robotino_geom_mpc.recording.topics import by_publish_time, find_topic, plan_topic, stamp_ns
 from robotino_geom_mpc.ros.plans import PlanMessageError, report_of_message
 
 __all__ = ["link_figures", "link_line"]

@@ -28,7 +28,7 @@ from robotino_geom_mpc.control.motion_controller import ControllerInputError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
-from robotino_geom_mpc.recording.report import by_publish_time, controller_diagnostics, find_topic, stamp_ns
+from robotino_geom_mpc.recording.topics import by_publish_time, controller_diagnostics, find_topic, plan_topic, stamp_ns
 from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
 from robotino_geom_mpc.ros.plans import PlanMessageError, plan_of_message, take_report
@@ -36,17 +36,6 @@ from robotino_geom_mpc.ros.plans import PlanMessageError, plan_of_message, take_
 __all__ = ["plan_topic", "regress_plans"]
 
 _BASIS_TOLERANCE_NS = 1000
-_PLAN_TYPES = {"wheel_voltage_plan": "trajectory_msgs/msg/JointTrajectory",
-               "cmd_vel_plan": "trajectory_msgs/msg/MultiDOFJointTrajectory"}
-
-
-def plan_topic(bag: BagReader) -> tuple[str, str] | None:
-    """(topic, interface) of the plans in a recording, None without plans."""
-    for name, interface in (("wheel_voltage_plan", "voltages"), ("cmd_vel_plan", "cmd_vel")):
-        topic = find_topic(bag, name, _PLAN_TYPES[name], False)
-        if topic is not None:
-            return topic, interface
-    return None
 
 
 def regress_plans(bag: BagReader, robot: RobotinoParams, control: ControlParams,

@@ -61,15 +61,23 @@ import numpy as np
 from robotino_geom_mpc.params.specs import ParamError, params_from_values
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.recording.bag_reader import BagReader
-from robotino_geom_mpc.recording.bagfile import BagError, BagMessage, RUN_METADATA
+from robotino_geom_mpc.recording.bagfile import BagError, RUN_METADATA
 from robotino_geom_mpc.recording.definitions import _typestore
 from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.offline.results import RunData, compute_metrics, write_metrics
+from robotino_geom_mpc.recording.link_report import link_figures
 from robotino_geom_mpc.recording.odometry_timing import odometry_timing
+from robotino_geom_mpc.recording.topics import (
+    by_publish_time,
+    controller_diagnostics,
+    controller_diagnostics_of_message,
+    converted_by_publish_time,
+    find_topic,
+    read_controller_diagnostics,
+)
 from robotino_geom_mpc.reference.trajectories import shift_preview
-from robotino_geom_mpc.ros.cdr import diagnostics_with, float64_array, odometry_pose, preview_start, values_of
+from robotino_geom_mpc.ros.cdr import float64_array, odometry_pose, preview_start, values_of
 from robotino_geom_mpc.ros.decode import (
-    diagnostics_with_of_message,
     float64_array_of_message,
     odometry_pose_of_message,
     preview_start_of_message,
@@ -98,29 +106,6 @@ __all__ = [
 def yaw(q: Any) -> float:
     """Yaw (rad) of a quaternion message (ZYX convention)."""
     return yaw_of(q.x, q.y, q.z, q.w)
-
-
-def find_topic(bag: BagReader, suffix: str, type_name: str, required: bool = True) -> str | None:
-    """The recorded topic named ``/<suffix>`` (or ``/<ns>/<suffix>``) of type `type_name`.
-
-    Raises
-    ------
-    BagError
-        If `required` and there is no such topic, or there are several.
-    """
-    names = [
-        n for n, t in bag.topics.items() if (n == "/" + suffix or n.endswith("/" + suffix)) and t.type == type_name
-    ]
-    # the shallowest wins: /robot1/odom, not /robot1/ground_truth/odom; two robots' odom stay ambiguous
-    depth = min((n.count("/") for n in names), default=0)
-    names = [n for n in names if n.count("/") == depth]
-    if len(names) == 1:
-        return names[0]
-    if len(names) > 1:
-        raise BagError(f"{bag.path}: several {suffix} topics ({', '.join(names)})")
-    if required:
-        raise BagError(f"{bag.path}: no '{suffix}' topic of type {type_name} in the recording")
-    return None
 
 
 def run_parameters(bag: BagReader) -> tuple[dict[str, Any] | None, str]:
@@ -158,44 +143,13 @@ def resolve_parameters(bag: BagReader, params_file: str | os.PathLike | None):
     return robot, control, scenario, source
 
 
-def _by_publish_time(bag: BagReader, topic: str | None, convert: Callable[[BagMessage], Any]) -> list[tuple[int, Any]]:
-    """(publish time [ns], `convert(message)`) of a topic, in publish-time order ([] for None); BagError if a
-    message does not decode.
-    """
-    if topic is None:
-        return []
-    items = []
-    for m in bag.messages([topic]):
-        try:
-            items.append((m.publish_time_ns, convert(m)))
-        except Exception as exc:  # SerdeError, struct.error, IndexError, KeyError (unknown type)
-            raise BagError(f"{bag.path}: a {m.type} message on {topic} does not decode: {exc!r}") from None
-    items.sort(key=lambda item: item[0])
-    return items
-
-
-def by_publish_time(bag: BagReader, topic: str | None) -> list[tuple[int, Any]]:
-    """(publish time [ns], deserialised message) of a topic, in publish-time order ([] for None).
-
-    rosbags' CDR decoder (its ROS 2 Jazzy types) builds the messages: 2-3 times faster than rclpy's
-    `deserialize_message` and without importing rclpy.
-
-    Raises
-    ------
-    BagError
-        If a message of `topic` does not decode as its type.
-    """
-    store = _typestore()
-    return _by_publish_time(bag, topic, lambda m: store.deserialize_cdr(m.data, m.type))
-
-
 def _values_by_publish_time(bag: BagReader, topic: str | None, read: Callable[[bytes], Any],
                             of_message: Callable[[Any], Any]) -> list[tuple[int, Any]]:
     """`by_publish_time` of the values `read` takes from each message's bytes (`cdr_values`; rosbags' decoder
     and `of_message` for bytes it does not walk): a tenth of the cost of decoding whole messages.
     """
     store = _typestore()
-    return _by_publish_time(bag, topic, lambda m: values_of(
+    return converted_by_publish_time(bag, topic, lambda m: values_of(
         m.data, read, of_message, lambda: store.deserialize_cdr(m.data, m.type)))
 
 
@@ -221,15 +175,6 @@ def _applied_voltages_topic(bag: BagReader) -> str:
         raise BagError(f"{bag.path}: no 'wheel_voltages' (nor, for a cmd_vel run, 'applied_voltages') topic of "
                        "type std_msgs/msg/Float64MultiArray in the recording")
     return topic
-
-
-_TRACKING_KEY = "error_x_m"  # the controller's tracking status is the diagnostics status with this key
-_read_diagnostics, _diagnostics_of_message = diagnostics_with(_TRACKING_KEY), diagnostics_with_of_message(_TRACKING_KEY)
-
-
-def controller_diagnostics(msg: Any) -> dict[str, str] | None:
-    """Key-values of the controller's tracking status in a DiagnosticArray (None if it has none)."""
-    return _diagnostics_of_message(msg)[1]
 
 
 @dataclass(frozen=True)
@@ -311,8 +256,8 @@ def _ground_truth_run(bag: BagReader, truth_topic: str, robot: Any, control: Any
         bag, find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory", False),
         preview_start, preview_start_of_message))
     diags = _first_per_stamp([item for item in _values_by_publish_time(
-        bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False), _read_diagnostics,
-        _diagnostics_of_message) if item[1][1] is not None])
+        bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False), read_controller_diagnostics,
+        controller_diagnostics_of_message) if item[1][1] is not None])
     path_reference = _path_reference(bag)
 
     cur_t = [p for p, _ in currents]
@@ -525,8 +470,6 @@ def write_report(
     BagError
         If the bag cannot be read or lacks the topics of a run.
     """
-    from robotino_geom_mpc.recording.link_report import link_figures
-
     if not isinstance(bag, BagReader):
         bag = BagReader(bag)
     recorded = recorded_run(bag, params_file)

@@ -33,7 +33,7 @@ import numpy as np
 from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S
 from robotino_geom_mpc.ros.qos import publish_acknowledged
 from robotino_geom_mpc.ros.spin import monotonic
-from robotino_sim_node.command_hold import MAX_CHUNK
+from robotino_geom_mpc.loop.command_hold import MAX_CHUNK
 
 __all__ = ["PlantNetwork"]
 

@@ -86,7 +86,7 @@ from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spe
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_sim_node.chain_driver import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, attach_chain
-from robotino_sim_node.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
+from robotino_geom_mpc.loop.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
 from robotino_geom_mpc.model.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source, twist_covariance
 from robotino_sim_node.link_params import LINK_DEFAULTS, LINK_SPECS, link_params, link_problem
 from robotino_sim_node.lockstep_start import StartHandshake

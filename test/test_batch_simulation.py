@@ -23,7 +23,7 @@ from robotino_geom_mpc.model.plant_batch import PlantBatch
 from robotino_geom_mpc.offline import batch_simulation
 from robotino_geom_mpc.offline.batch_simulation import RunSetting, batch_metrics, run_batch, simulate_batch
 from robotino_geom_mpc.offline.results import RunDataError, compute_metrics
-from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, SimulationError, run_scenario
 from robotino_geom_mpc.params.files import load_params
 
 pytestmark = [pytest.mark.unit, pytest.mark.slow]
@@ -58,9 +58,10 @@ def _settings(robot, count: int, seed: int, anisotropic: bool = False) -> list[R
 
 def _assert_equal_runs(batch, settings, scenario, control, duration_s):
     for data, s in zip(batch, settings, strict=True):
-        truth = run_scenario(scenario, s.robot, control, duration_s=duration_s, seed=s.seed, plant_robot=s.plant_robot,
-                             odometry_noise=s.odometry_noise, odometry=s.odometry,
-                             encoder_counts_per_rev=s.encoder_counts_per_rev, wheel_slip_std=s.wheel_slip_std)
+        truth = run_scenario(RunConfig(scenario, s.robot, control, duration_s=duration_s, seed=s.seed,
+                                       plant_robot=s.plant_robot, odometry_noise=s.odometry_noise,
+                                       odometry=s.odometry, encoder_counts_per_rev=s.encoder_counts_per_rev,
+                                       wheel_slip_std=s.wheel_slip_std))
         expected, got = compute_metrics(truth), compute_metrics(data)
         timing = {"compute_time_median_s", "compute_time_p99_s", "compute_time_max_s"}  # wall clock: no truth
         assert set(got) - timing == set(expected) - timing
@@ -143,9 +144,10 @@ def test_batch_metrics_are_each_runs_compute_metrics(params, settle_time_s, monk
     settings = _settings(robot, 6, 11)
     got = batch_metrics("robustness", control, settings, duration_s=1.0, settle_time_s=settle_time_s)
     for metrics, s in zip(got, settings, strict=True):
-        truth = run_scenario("robustness", s.robot, control, duration_s=1.0, seed=s.seed, plant_robot=s.plant_robot,
-                             odometry_noise=s.odometry_noise, odometry=s.odometry,
-                             encoder_counts_per_rev=s.encoder_counts_per_rev, wheel_slip_std=s.wheel_slip_std)
+        truth = run_scenario(RunConfig("robustness", s.robot, control, duration_s=1.0, seed=s.seed,
+                                       plant_robot=s.plant_robot, odometry_noise=s.odometry_noise,
+                                       odometry=s.odometry, encoder_counts_per_rev=s.encoder_counts_per_rev,
+                                       wheel_slip_std=s.wheel_slip_std))
         expected = {key: value for key, value in compute_metrics(truth, settle_time_s=settle_time_s).items()
                     if not key.startswith("compute_time")}
         assert list(metrics) == list(expected)  # the same keys in the same order

@@ -8,7 +8,7 @@ import pytest
 from robotino_geom_mpc.control.chain_controller import ChainController, ChainControllerError
 from robotino_geom_mpc.model.driver_chain import chain_params
 from robotino_geom_mpc.offline.results import compute_metrics
-from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, SimulationError, run_scenario
 from robotino_geom_mpc.params.files import load_params
 
 pytestmark = [pytest.mark.unit, pytest.mark.slow]
@@ -28,7 +28,7 @@ def params():
 ])
 def test_tracking_through_the_chain_meets_the_issue_targets(params, scenario, values, rms_max):
     robot, control = params
-    run = run_scenario(scenario, robot, control, command_interface="cmd_vel", chain=chain_params(values))
+    run = run_scenario(RunConfig(scenario, robot, control, command_interface="cmd_vel", chain=chain_params(values)))
     m = compute_metrics(run)
     assert m["rms_position_error_m"] <= rms_max
     assert m["peak_current_a"] <= robot.nominal_current_a
@@ -76,4 +76,4 @@ def test_bad_inputs_are_refused(params):
         controller.step(0.0, (0.0, math.nan, 0.0), (0.0, 0.0, 0.0), lambda t: np.zeros((len(t), 3)))
     robot, control = params
     with pytest.raises(SimulationError, match="cmd_vel"):
-        run_scenario("paper-circle", robot, control, chain=chain_params())
+        run_scenario(RunConfig("paper-circle", robot, control, chain=chain_params()))

@@ -25,7 +25,7 @@ from robotino_geom_mpc.recording.regress import regress_bag
 from robotino_geom_mpc.recording.report import run_data_from_bag
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.system.processes import RECORDER_WAIT_FOR, NodeGroup, node_arguments, recorder_wait_for
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 
 pytestmark = pytest.mark.ros
 
@@ -76,11 +76,12 @@ def test_lockstep_cmd_vel_loop_equals_simulate_cmd_vel(tmp_path):
         currents = np.array(probe.probe.currents)
     finally:
         probe.close()
-    offline = run_scenario("paper-circle", robot, control, duration_s=DURATION_S, command_interface="cmd_vel")
+    offline = run_scenario(RunConfig("paper-circle", robot, control, duration_s=DURATION_S,
+                                     command_interface="cmd_vel"))
     assert len(truth) == len(currents) == offline.n == ticks
     np.testing.assert_allclose(truth, offline.pose, rtol=1e-6, atol=1e-9)
     np.testing.assert_allclose(currents, offline.currents, rtol=1e-6, atol=1e-9)
-    voltage_path = run_scenario("paper-circle", robot, control, duration_s=DURATION_S)
+    voltage_path = run_scenario(RunConfig("paper-circle", robot, control, duration_s=DURATION_S))
     assert np.abs(offline.pose - voltage_path.pose).max() > 1e-6  # the PI loop changed the run: the test can fail
     assert np.hypot(*(offline.pose[:, :2] - offline.reference[:, :2]).T).max() < 1e-3  # and it closed the loop
 
@@ -95,7 +96,7 @@ def _offline_twists(monkeypatch, robot, control):
         return twists[-1]
 
     monkeypatch.setattr(MotionController, "next_velocity", recording)
-    run = run_scenario("paper-circle", robot, control, duration_s=DURATION_S, command_interface="cmd_vel")
+    run = run_scenario(RunConfig("paper-circle", robot, control, duration_s=DURATION_S, command_interface="cmd_vel"))
     monkeypatch.undo()
     return run, np.array(twists)
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from robotino_sim_node.command_hold import MAX_CHUNK, CommandHold
+from robotino_geom_mpc.loop.command_hold import MAX_CHUNK, CommandHold
 
 pytestmark = pytest.mark.unit
 

@@ -11,7 +11,7 @@ from robotino_geom_mpc.control.motion_controller import ControllerInputError, Mo
 from robotino_geom_mpc.geometric.decoupling import DecouplingField
 from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings
 from robotino_geom_mpc.params.files import load_params
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 from robotino_geom_mpc.model.plant import RobotinoPlant
 
 pytestmark = pytest.mark.unit
@@ -206,7 +206,7 @@ def test_filter_keeps_odometry_noise_out_of_the_currents_in_closed_loop(params):
     peaks = {}
     for tau in (0.0, 0.5):
         filtered = replace(control, odometry_filter_time_constant_s=tau, current_limit_a=0.0)
-        run = run_scenario("robustness", robot, filtered, duration_s=1.5)
+        run = run_scenario(RunConfig("robustness", robot, filtered, duration_s=1.5))
         peaks[tau] = np.abs(run.currents).max()
         saturated = run.flags["saturated"].any()
         error = np.hypot(*(run.pose[:, :2] - run.reference[:, :2]).T)

@@ -15,7 +15,7 @@ from robotino_geom_mpc.model import dynamics as model
 from robotino_geom_mpc.control.motion_controller import MotionController
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.offline.results import compute_metrics
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 
 pytestmark = pytest.mark.unit
 
@@ -87,12 +87,13 @@ def test_robustness_seeds_keep_the_nominal_current_with_no_start_kick(params):
     robot, control = params
     peaks, rms, peaks_off = [], [], []
     for seed in range(20):
-        run = run_scenario("robustness", robot, control, seed=seed)
+        run = run_scenario(RunConfig("robustness", robot, control, seed=seed))
         metrics = compute_metrics(run, settle_time_s=1.0)
         peaks.append(metrics["peak_current_a"])
         rms.append(metrics["rms_position_error_m"])
         if seed in (1, 3, 5):  # the paper's controller peaked at 0.94, 3.4 and 1.49 A at the first steps
-            off = run_scenario("robustness", robot, replace(control, current_limit_a=0.0), seed=seed, duration_s=0.5)
+            off = run_scenario(RunConfig("robustness", robot, replace(control, current_limit_a=0.0), seed=seed,
+                                         duration_s=0.5))
             peaks_off.append(np.abs(off.currents).max())
     assert max(peaks) <= TOLERANCE * robot.nominal_current_a, peaks
     assert max(rms) <= 0.3e-3, rms
@@ -123,8 +124,8 @@ def test_the_start_kick_came_from_the_first_measurements_noise(params, noise):
 def test_paper_circle_step_start_transient_with_and_without_the_limit(params):
     """The paper's start (no ramp-in): above nominal without the limit, within nominal + 2 % with it."""
     robot, control = params
-    on = run_scenario("paper-circle-step", robot, control)
-    off = run_scenario("paper-circle-step", robot, replace(control, current_limit_a=0.0), duration_s=1.0)
+    on = run_scenario(RunConfig("paper-circle-step", robot, control))
+    off = run_scenario(RunConfig("paper-circle-step", robot, replace(control, current_limit_a=0.0), duration_s=1.0))
     assert np.abs(on.currents).max() <= TOLERANCE * robot.nominal_current_a
     start_off = np.abs(off.currents[:10]).max()  # the first 0.1 s
     assert start_off > 2.0 * robot.nominal_current_a
@@ -133,6 +134,6 @@ def test_paper_circle_step_start_transient_with_and_without_the_limit(params):
 def test_the_limit_never_binds_on_paper_circle(params):
     """paper-circle peaks at 0.27 A: the limited and the paper's controller give the same voltages."""
     robot, control = params
-    on = run_scenario("paper-circle", robot, control, duration_s=6.0)
-    off = run_scenario("paper-circle", robot, replace(control, current_limit_a=0.0), duration_s=6.0)
+    on = run_scenario(RunConfig("paper-circle", robot, control, duration_s=6.0))
+    off = run_scenario(RunConfig("paper-circle", robot, replace(control, current_limit_a=0.0), duration_s=6.0))
     np.testing.assert_array_equal(on.voltages, off.voltages)

@@ -267,9 +267,9 @@ def test_period_mean_filter_reproduces_the_encoder_pose_and_the_trapezoid_lags()
 def test_paper_circle_with_encoder_odometry_meets_the_issue_16_target():
     """Issue 16, item 3: odom-frame RMS tracking error <= 0.3 mm, peak current <= nominal + 2 % (0.877 A)."""
     from robotino_geom_mpc.offline.results import compute_metrics
-    from robotino_geom_mpc.offline.simulation import run_scenario
+    from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 
-    m = compute_metrics(run_scenario("paper-circle", ROBOT, CONTROL, odometry="encoders"))
+    m = compute_metrics(run_scenario(RunConfig("paper-circle", ROBOT, CONTROL, odometry="encoders")))
     assert m["rms_position_error_odom_m"] <= 0.3e-3
     assert m["peak_current_a"] <= 1.02 * ROBOT.nominal_current_a
 
@@ -286,7 +286,8 @@ def test_encoder_odometry_gives_the_controller_the_period_mean_predictor(monkeyp
     spy = lambda robot, control: seen.append(control) or real(robot, control)  # noqa: E731
     monkeypatch.setattr(simulation, "MotionController", spy)
     for odometry in ("encoders", "ideal"):
-        simulation.run_scenario("paper-circle", ROBOT, CONTROL, duration_s=0.05, odometry=odometry)
+        simulation.run_scenario(simulation.RunConfig("paper-circle", ROBOT, CONTROL, duration_s=0.05,
+                                                     odometry=odometry))
     assert CONTROL.odometry_twist == "instantaneous"  # the preset's
     assert [c.odometry_twist for c in seen] == ["period_mean", "instantaneous"]
     assert seen[0] == replace(CONTROL, odometry_twist="period_mean")
@@ -306,7 +307,7 @@ def test_lockstep_loop_with_encoder_odometry_equals_the_offline_loop(tmp_path):
     from probe import PROBE_WAIT_FOR, ProbeSpinner
     from robotino_geom_mpc.params.presets import default_params_file
     from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
-    from robotino_geom_mpc.offline.simulation import run_scenario
+    from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 
     duration = 3.0
     probe = ProbeSpinner()
@@ -322,7 +323,7 @@ def test_lockstep_loop_with_encoder_odometry_equals_the_offline_loop(tmp_path):
         dds = probe.probe.run_data("paper-circle")
     finally:
         probe.close()
-    offline = run_scenario("paper-circle", ROBOT, CONTROL, duration_s=duration, odometry="encoders")
+    offline = run_scenario(RunConfig("paper-circle", ROBOT, CONTROL, duration_s=duration, odometry="encoders"))
     assert dds.n == offline.n == round(duration / TS)
     for name in ("pose", "reference", "currents", "voltages"):
         np.testing.assert_allclose(getattr(dds, name), getattr(offline, name), rtol=1e-6, atol=1e-9, err_msg=name)

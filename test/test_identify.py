@@ -12,7 +12,7 @@ from robotino_geom_mpc.control.chain_identification import Excitation, IdentifyE
 from robotino_geom_mpc.model.driver_chain import chain_params
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.offline.results import compute_metrics
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 from robotino_geom_mpc.params.files import check_parameter_files, load_params, read_parameter_file
 
 pytestmark = [pytest.mark.unit, pytest.mark.slow]
@@ -101,8 +101,8 @@ def test_identify_cli_writes_a_file_the_controller_takes_and_the_controller_meet
     report = json.loads((out / "identify.json").read_text())
     assert report["truth"] == chain_params().values()
     control = load_params()[1]
-    run = run_scenario("paper-circle", robot, control, command_interface="cmd_vel", chain=chain_params(),
-                       controller_chain=controller_chain)
+    run = run_scenario(RunConfig("paper-circle", robot, control, command_interface="cmd_vel", chain=chain_params(),
+                                 controller_chain=controller_chain))
     m = compute_metrics(run)
     assert m["rms_position_error_m"] <= 0.002 and m["peak_current_a"] <= robot.nominal_current_a
 

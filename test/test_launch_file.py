@@ -30,7 +30,7 @@ from robotino_geom_mpc.description.urdf import DescriptionError, robotino_urdf
 from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, NamespaceError, node_arguments, \
     recorder_wait_for
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 from launch_standins import Context, Recorded, install, launch_ros_file, load_description, of
 
 pytestmark = pytest.mark.unit
@@ -114,7 +114,7 @@ def test_each_node_gets_its_scenarios_parameters(description, scenario):
     values = {**read_parameter_file(PARAMS), **by_node["controller_node"]}
     launched, _ = params_from_values({s.name: values[s.name] for s in ALL_SPECS}, "launch")
     assert launched == get_scenario(scenario).controller_model(robot)
-    offline = run_scenario(scenario, robot, control, duration_s=0.05)
+    offline = run_scenario(RunConfig(scenario, robot, control, duration_s=0.05))
     assert [plant["odometry_noise.position_m"], plant["odometry_noise.yaw_rad"]] == offline.meta["odometry_noise"]
     assert (launched != robot) == (offline.meta["controller_mismatch"] is not None)
 

@@ -10,7 +10,7 @@ from probe import PROBE_WAIT_FOR, ProbeSpinner
 from robotino_geom_mpc.bench.dds import lockstep_nodes
 from robotino_geom_mpc.system.processes import NodeGroup
 from robotino_geom_mpc.offline.results import compute_metrics
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 
 pytestmark = pytest.mark.ros
 
@@ -30,7 +30,7 @@ def test_lockstep_dds_loop_equals_the_offline_loop(tmp_path):
         dds = probe.probe.run_data("paper-circle")
     finally:
         probe.close()
-    offline = run_scenario("paper-circle", robot, control, duration_s=DURATION_S)
+    offline = run_scenario(RunConfig("paper-circle", robot, control, duration_s=DURATION_S))
     assert dds.n == offline.n == round(DURATION_S / control.period_s)
     for name in ("t", "pose", "reference", "currents", "voltages"):
         np.testing.assert_allclose(getattr(dds, name), getattr(offline, name), rtol=1e-6, atol=1e-9, err_msg=name)

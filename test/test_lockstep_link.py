@@ -23,7 +23,7 @@ from robotino_geom_mpc.bench.dds import lockstep_nodes
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.network.link import Link, LinkParams
 from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.plans import report_of_message
 from robotino_geom_mpc.system.processes import NodeGroup
@@ -91,8 +91,8 @@ def networked_run(tmp_path_factory):
         truth = dict(probe.probe.truth)
     finally:
         probe.close()
-    offline = run_scenario("paper-circle", robot, control, duration_s=DURATION_S, seed=SEED, link_up=UP,
-                           link_down=DOWN)
+    offline = run_scenario(RunConfig("paper-circle", robot, control, duration_s=DURATION_S, seed=SEED, link_up=UP,
+                                     link_down=DOWN))
     return control, truth, [report_of_message(m) for m in reports], offline
 
 

@@ -14,7 +14,7 @@ from robotino_geom_mpc.system.processes import node_arguments, wait_for_exit
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.offline.results import compute_metrics
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 
 pytestmark = pytest.mark.ros
 
@@ -59,7 +59,7 @@ def _assert_metrics_of_simulate(out, scenario, duration_s=DURATION_S, seed=0) ->
     """DIR/metrics.json of `run` equals compute_metrics of `run_scenario` (wall-clock times aside)."""
     metrics = json.loads((out / "metrics.json").read_text())
     robot, control = load_params()
-    want = compute_metrics(run_scenario(scenario, robot, control, duration_s=duration_s, seed=seed))
+    want = compute_metrics(run_scenario(RunConfig(scenario, robot, control, duration_s=duration_s, seed=seed)))
     for key, value in want.items():
         if key.startswith("compute_time"):
             continue  # wall-clock measurements

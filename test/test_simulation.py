@@ -9,7 +9,7 @@ from robotino_geom_mpc.control.mpc import axis_dampings
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.reference.trajectories import make_reference
 from robotino_geom_mpc.scenarios import ScenarioError, get_scenario
-from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, SimulationError, run_scenario
 
 pytestmark = pytest.mark.unit
 
@@ -22,7 +22,7 @@ def params():
 @pytest.fixture(scope="module")
 def circle(params):
     robot, control = params
-    return run_scenario("paper-circle", robot, control, duration_s=3.0)
+    return run_scenario(RunConfig("paper-circle", robot, control, duration_s=3.0))
 
 
 def test_perfect_model_tracks_the_circle(params, circle):
@@ -55,9 +55,9 @@ def test_currents_are_those_of_the_references_inverse_dynamics(params, circle):
 
 def test_robustness_scenario_stays_bounded_and_is_reproducible(params):
     robot, control = params
-    a = run_scenario("robustness", robot, control, duration_s=2.0, seed=3)
-    b = run_scenario("robustness", robot, control, duration_s=2.0, seed=3)
-    c = run_scenario("robustness", robot, control, duration_s=2.0, seed=4)
+    a = run_scenario(RunConfig("robustness", robot, control, duration_s=2.0, seed=3))
+    b = run_scenario(RunConfig("robustness", robot, control, duration_s=2.0, seed=3))
+    c = run_scenario(RunConfig("robustness", robot, control, duration_s=2.0, seed=4))
     np.testing.assert_array_equal(a.voltages, b.voltages)
     assert not np.array_equal(a.voltages, c.voltages)
     error = np.hypot(*(a.pose[:, :2] - a.reference[:, :2]).T)
@@ -72,7 +72,8 @@ def test_robustness_scenario_stays_bounded_and_is_reproducible(params):
 def test_plant_robot_and_noise_options(params):
     robot, control = params
     heavy = robot.scaled(mass=1.1)
-    run = run_scenario("point-to-point", robot, control, duration_s=0.5, plant_robot=heavy, odometry_noise=(0.0, 0.0))
+    run = run_scenario(RunConfig("point-to-point", robot, control, duration_s=0.5, plant_robot=heavy,
+                                 odometry_noise=(0.0, 0.0)))
     assert run.meta["plant_params"] == "plant_robot" and run.t.shape == (50,)
 
 
@@ -92,7 +93,7 @@ def test_bad_settings_raise(params, kwargs, error, match):
     robot, control = params
     args = {"scenario": "paper-circle", **kwargs}
     with pytest.raises(error, match=match):
-        run_scenario(args.pop("scenario"), robot, control, **args)
+        run_scenario(RunConfig(args.pop("scenario"), robot, control, **args))
 
 
 def test_each_tick_measures_then_previews_then_steps(params, monkeypatch):
@@ -109,7 +110,7 @@ def test_each_tick_measures_then_previews_then_steps(params, monkeypatch):
         return original(self, X, Y_d)
 
     monkeypatch.setattr(controller_module.MotionController, "step", spy)
-    run = run_scenario("lemniscate", robot, control, duration_s=0.3, progress=True)
+    run = run_scenario(RunConfig("lemniscate", robot, control, duration_s=0.3, progress=True))
     reference = make_reference("lemniscate")
     assert len(seen) == len(run.t)
     for k, (X, Y_d) in enumerate(seen):
@@ -131,7 +132,7 @@ def test_encoder_odometry_is_what_the_controller_tracks(params, monkeypatch):
         return original(self, X, Y_d)
 
     monkeypatch.setattr(controller_module.MotionController, "step", spy)
-    run = run_scenario("paper-circle", robot, control, duration_s=2.0, odometry="encoders")
+    run = run_scenario(RunConfig("paper-circle", robot, control, duration_s=2.0, odometry="encoders"))
     X = np.array(seen)
     np.testing.assert_array_equal(X[:, 0::2], run.odometry)
     assert run.meta["odometry"] == "encoders" and run.meta["encoder_counts_per_rev"] == 2048
@@ -144,5 +145,5 @@ def test_encoder_odometry_is_what_the_controller_tracks(params, monkeypatch):
     for k in range(1, len(X)):
         np.testing.assert_allclose(integrate_pose(run.odometry[k - 1], twist[k], control.period_s), run.odometry[k],
                                    atol=1e-12)
-    ideal = run_scenario("paper-circle", robot, control, duration_s=2.0)
+    ideal = run_scenario(RunConfig("paper-circle", robot, control, duration_s=2.0))
     np.testing.assert_array_equal(ideal.odometry, ideal.pose)  # noise-free ideal odometry is the truth

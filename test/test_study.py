@@ -22,7 +22,7 @@ from robotino_geom_mpc.bench import REGISTRY
 from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.offline.results import compute_metrics
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 from robotino_geom_mpc.offline.study import (
     COLUMNS, DRAW_FIELDS, METRICS, STATISTICS, Draw, StudyError, draw_runs, read_rows, run_study, write_study,
 )
@@ -60,8 +60,9 @@ def _direct(robot, control, row, scenario="paper-circle"):
         body_friction_y_n_s_per_m=robot.body_friction_y_n_s_per_m * row["friction"],
         body_friction_theta_n_m_s=robot.body_friction_theta_n_m_s * row["friction"],
     )
-    data = run_scenario(scenario, model, control, duration_s=DURATION_S, seed=row["seed"], plant_robot=robot,
-                        odometry_noise=(row["noise_position_m"], row["noise_yaw_rad"]), odometry=row["odometry"])
+    data = run_scenario(RunConfig(scenario, model, control, duration_s=DURATION_S, seed=row["seed"], plant_robot=robot,
+                                  odometry_noise=(row["noise_position_m"], row["noise_yaw_rad"]),
+                                  odometry=row["odometry"]))
     return compute_metrics(data, settle_time_s=1.0)
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from robotino_geom_mpc.params.files import load_params
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 from robotino_geom_mpc.model import plant as plant_module
 from robotino_geom_mpc.model.encoders import (
     EncoderOdometry, body_twist, encoder_counts, integrate_pose, wheel_speeds_from_counts,
@@ -66,12 +66,13 @@ def test_encoder_update_is_the_numpy_functions_step_by_step():
 
 def test_run_noise_is_one_pose_noise_draw_per_tick():
     noise, seed = (1.5e-3, 0.7e-3), 21
-    data = run_scenario("paper-circle", ROBOT, CONTROL, duration_s=0.5, seed=seed, odometry_noise=noise)
+    data = run_scenario(RunConfig("paper-circle", ROBOT, CONTROL, duration_s=0.5, seed=seed, odometry_noise=noise))
     rng, plant = np.random.default_rng(seed), RobotinoPlant(ROBOT)
     per_tick = np.array([plant.pose_noise(rng, noise) for _ in range(data.n)])
     np.testing.assert_allclose(data.odometry - data.pose, per_tick, rtol=0.0, atol=1e-15)
     assert np.abs(per_tick).max() > 1e-4  # noise was drawn
-    quiet = run_scenario("paper-circle", ROBOT, CONTROL, duration_s=0.5, seed=seed, odometry_noise=(0.0, 0.0))
+    quiet = run_scenario(RunConfig("paper-circle", ROBOT, CONTROL, duration_s=0.5, seed=seed,
+                                   odometry_noise=(0.0, 0.0)))
     np.testing.assert_array_equal(quiet.odometry, quiet.pose)
 
 

@@ -17,7 +17,7 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.ros.plans import report_of_message
 from robotino_geom_mpc.offline.results import compute_metrics
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 from robotino_geom_mpc.system.netns import NetnsUnavailable, netns_unavailable, two_hosts
 
 pytestmark = [pytest.mark.ros, pytest.mark.skipif(netns_unavailable() is not None,
@@ -60,7 +60,7 @@ def test_lockstep_across_two_network_namespaces_equals_simulate(hosts, tmp_path)
     robot, control = load_params()
     done = _run(hosts, tmp_path, "paper-circle", duration_s, lockstep=True)
     dds, crossed = done.run, done.plant_received_bytes
-    offline = run_scenario("paper-circle", robot, control, duration_s=duration_s)
+    offline = run_scenario(RunConfig("paper-circle", robot, control, duration_s=duration_s))
     assert dds.n == offline.n == round(duration_s / control.period_s)
     for name in ("t", "pose", "reference", "currents", "voltages"):
         np.testing.assert_allclose(getattr(dds, name), getattr(offline, name), rtol=1e-6, atol=1e-9, err_msg=name)

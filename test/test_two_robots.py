@@ -22,7 +22,7 @@ from probe import PROBE_WAIT_FOR, LoopProbe, ProbeSpinner
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.system.processes import NodeGroup, node_arguments
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 
 pytestmark = pytest.mark.ros
 
@@ -102,7 +102,7 @@ def test_two_namespaced_robots_track_their_own_references_without_crossing(tmp_p
             probe.close()
 
     for namespace, scenario in ROBOTS.items():
-        offline = run_scenario(scenario, robot, control, duration_s=DURATION_S)
+        offline = run_scenario(RunConfig(scenario, robot, control, duration_s=DURATION_S))
         dds = runs[namespace]
         assert dds.n == offline.n == round(DURATION_S / control.period_s), namespace
         for name in ("t", "pose", "reference", "currents", "voltages"):

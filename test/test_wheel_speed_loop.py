@@ -7,7 +7,7 @@ import pytest
 
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.offline.results import compute_metrics
-from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, SimulationError, run_scenario
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import DEFAULT_KI, DEFAULT_KP, SPEED_LOOP_TIME_CONSTANT_S, WheelSpeedLoop, \
     WheelSpeedLoopError, tuned_gains
@@ -72,10 +72,10 @@ def test_a_non_finite_twist_is_refused(robot):
 
 def test_the_offline_cmd_vel_loop_tracks_the_circle():
     robot, control = load_params()
-    data = run_scenario("paper-circle", robot, control, duration_s=4.0, command_interface="cmd_vel")
+    data = run_scenario(RunConfig("paper-circle", robot, control, duration_s=4.0, command_interface="cmd_vel"))
     metrics = compute_metrics(data)
     assert data.meta["command_interface"] == "cmd_vel"
     assert metrics["max_position_error_m"] < 1e-3  # closed loop: sub-millimetre on the circle
     assert metrics["peak_current_a"] < robot.nominal_current_a
     with pytest.raises(SimulationError, match="command_interface"):
-        run_scenario("paper-circle", robot, control, duration_s=0.1, command_interface="torque")
+        run_scenario(RunConfig("paper-circle", robot, control, duration_s=0.1, command_interface="torque"))

@@ -11,12 +11,12 @@ __all__ = ["bench_dds", "bench_offline_sim"]
 @benchmark("offline_sim", "offline closed loop (plant + controller + reference) on paper-circle, real-time factor")
 def bench_offline_sim(quick: bool) -> dict[str, float]:
     """Simulated seconds per wall-clock second of `simulation.run_scenario` on paper-circle."""
-    from robotino_geom_mpc.offline.simulation import run_scenario
+    from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 
     duration_s, repeats = (5.0, 1) if quick else (60.0, 3)
     robot, control = load_params()
     (wall_s,) = median_per_call(
-        [lambda: run_scenario("paper-circle", robot, control, duration_s=duration_s, seed=0, progress=False)],
+        [lambda: run_scenario(RunConfig("paper-circle", robot, control, duration_s=duration_s))],
         1,
         repeats,
     )

@@ -244,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the scenario, write the outputs, print a summary; returns the exit status."""
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.offline.results import compute_metrics, save_run, write_metrics
-    from robotino_geom_mpc.offline.simulation import run_scenario
+    from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 
     chain = chain_from_args(args)
     command_interface = command_interface_from_args(args, chain)
@@ -268,11 +268,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot create output folder {out}: {exc.strerror or exc}") from None
 
     start = time.perf_counter()
-    data = run_scenario(
+    data = run_scenario(RunConfig(
         args.scenario, robot, control, duration_s=args.duration, seed=args.seed, progress=not args.no_progress,
         odometry=args.odometry, command_interface=command_interface, link_up=link, link_down=link,
         compensate=not args.no_compensation, chain=chain, controller_chain=controller_chain,
-    )
+    ))
     wall_s = time.perf_counter() - start
 
     metrics = compute_metrics(data, settle_time_s=SETTLE_TIME_S)

@@ -34,7 +34,7 @@ from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST, DEFAULT_COUNTS_PE
     EncoderOdometryBatch
 from robotino_geom_mpc.model.plant_batch import PlantBatch
 from robotino_geom_mpc.offline.results import RunData, RunDataError, compute_metrics, wrap_angle
-from robotino_geom_mpc.offline.simulation import SimulationError, run_scenario, run_ticks
+from robotino_geom_mpc.offline.simulation import RunConfig, SimulationError, run_scenario, run_ticks
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.scenarios import get_scenario
 
@@ -66,10 +66,10 @@ class RunSetting:
 
 def _per_run(scenario: str, control: ControlParams, settings: Sequence[RunSetting], duration_s: float | None,
              command_interface: str) -> list[RunData]:
-    return [run_scenario(scenario, s.robot, control, duration_s=duration_s, seed=s.seed, plant_robot=s.plant_robot,
-                         odometry_noise=s.odometry_noise, odometry=s.odometry,
-                         encoder_counts_per_rev=s.encoder_counts_per_rev, wheel_slip_std=s.wheel_slip_std,
-                         command_interface=command_interface) for s in settings]
+    return [run_scenario(RunConfig(scenario, s.robot, control, duration_s=duration_s, seed=s.seed,
+                                   plant_robot=s.plant_robot, odometry_noise=s.odometry_noise, odometry=s.odometry,
+                                   encoder_counts_per_rev=s.encoder_counts_per_rev, wheel_slip_std=s.wheel_slip_std,
+                                   command_interface=command_interface)) for s in settings]
 
 
 # its fields in prose, not an Attributes section: the docs would link `pose` and `currents` to four classes'

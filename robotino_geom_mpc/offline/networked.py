@@ -33,12 +33,14 @@ Each tick k (t_k = k Ts), in this order (the lockstep DDS loop reproduces it):
    ``buffer.command_at(t_k)`` (zero without a plan); uncompensated, the held
    command, zero when it arrived more than `COMMAND_TIMEOUT_S` ago (the plant
    node's watchdog) or none has;
+
+The robot's side of steps 1, 3 and 4 is `loop.command_link.CommandLink` (the lockstep plant node runs the
+same object); the controller's side of step 2 is here.
 5. record and step the plant as the undelayed loop does (its steps 4-5).
 """
 
 from __future__ import annotations
 
-import heapq
 import math
 from typing import Any
 
@@ -46,33 +48,11 @@ import numpy as np
 
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
-from robotino_geom_mpc.network.link import Link, LinkParams
-from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S, PlanBuffer
+from robotino_geom_mpc.loop.command_link import COMMAND_TIMEOUT_S, CommandLink
+from robotino_geom_mpc.loop.plan_follower import PlanFollower, PlanReport
+from robotino_geom_mpc.network.link import LinkParams
 
 __all__ = ["COMMAND_TIMEOUT_S", "NetworkedLoop", "link_meta"]
-
-COMMAND_TIMEOUT_S = 0.1
-"""The plant node's watchdog (its ``command_timeout_s`` default): a command held longer gives zero."""
-
-_ZERO = (0.0, 0.0, 0.0)
-
-
-class _Queue:
-    """Packets in flight, handed out in order of delivery time, then of sending."""
-
-    def __init__(self, link: Link) -> None:
-        self.link, self._heap, self._seq = link, [], 0
-
-    def send(self, now_s: float, packet: Any) -> None:
-        for delivery in self.link.transmit(now_s):
-            heapq.heappush(self._heap, (delivery, self._seq, packet))
-            self._seq += 1
-
-    def due(self, now_s: float) -> list[Any]:
-        out = []
-        while self._heap and self._heap[0][0] <= now_s + TIME_TOLERANCE_S:
-            out.append(heapq.heappop(self._heap)[2])
-        return out
 
 
 class NetworkedLoop:
@@ -100,76 +80,61 @@ class NetworkedLoop:
         self.controller = controller
         self.compensated = isinstance(controller, DelayCompensatingController)
         self.targets, self.period_s = targets, period_s
-        self.up = _Queue(Link(link_up or LinkParams(), seed + 1))
-        self.down = _Queue(Link(link_down or LinkParams(), seed + 2))
+        self.follower = PlanFollower(period_s) if self.compensated else None
+        self.robot = CommandLink(link_up, link_down, seed, self.follower)
         self.cmd_vel = command_interface == "cmd_vel"
-        self.buffer = PlanBuffer()
-        self._receipts: list[tuple[float, float]] = []
-        self._applied: tuple[float, float | None, int] | None = None
-        self._held: tuple[float, tuple[float, float, float]] | None = None  # uncompensated: (arrival, command)
         self._last_stamp: int | None = None
-        self.exhausted = 0
 
-    def command(self, k: int, pose: list[float], twist: list[float]) -> tuple[float, float, float]:
+    def command(self, k: int, pose: tuple[float, float, float], twist: tuple[float, float, float]
+                ) -> tuple[float, float, float]:
         """Steps 1-4 of tick k for the odometry (pose, twist) measured at t_k: the command for the period."""
         t = k * self.period_s
-        self.up.send(t, (k, odometry_state_floats(pose, twist), self._applied, self._receipts))
-        self._receipts = []
-        for stamp_k, X, applied, receipts in self.up.due(t):
-            self._controller_takes(t, stamp_k, X, applied, receipts)
-        if self.compensated:
-            for plan in self.down.due(t):
-                reason = self.buffer.offer(plan, t)  # a refusal is counted by the buffer; the plans held stay
-                self._receipts.append((plan.basis_s, t, reason is None))
-            applied = self.buffer.command_at(t)
-            self._applied = (t, None, 0) if applied is None else (t, applied.basis_s, applied.entry_index)
-            return _ZERO if applied is None else applied.values
-        for command in self.down.due(t):
-            self._held = (t, command)
-        if self._held is None or t - self._held[0] > COMMAND_TIMEOUT_S + TIME_TOLERANCE_S:
-            self.exhausted += self._held is not None
-            return _ZERO
-        return self._held[1]
+        robot = self.robot
+        for stamp_k, X, reports in robot.send_up(t, (k, odometry_state_floats(pose, twist), robot.pop_reports())):
+            self._controller_takes(t, stamp_k, X, reports)
+        robot.take_due(t)
+        return robot.period_command(t)
 
-    def _controller_takes(self, t: float, stamp_k: int, X: tuple, applied, receipts) -> None:
+    def _controller_takes(self, t: float, stamp_k: int, X: tuple, reports: list[PlanReport]) -> None:
         """Step 2 for one up-link packet."""
         Ts, controller = self.period_s, self.controller
-        if self.compensated:
-            for basis, received, taken in receipts:
-                controller.report_receipt(basis, received, taken)
-            if applied is not None:
-                controller.report_applied(*applied)
+        if isinstance(controller, DelayCompensatingController):
+            for report in reports:  # the receipts, then what was applied (the robot's order)
+                if report.values is not None:
+                    controller.report_applied(report.time_s, report.basis_s, report.entry_index)
+                elif report.basis_s is not None:  # (a receipt always names its plan)
+                    controller.report_receipt(report.basis_s, report.time_s, report.taken)
             plan = controller.plan(stamp_k * Ts, X, self.targets[stamp_k + 1: stamp_k + 1 + controller.preview_length])
             if plan is not None:
-                self.down.send(t, plan)
+                self.robot.send_down(t, plan)
             return
         if self._last_stamp is not None and stamp_k <= self._last_stamp:
             return
         dt = None if self._last_stamp is None or stamp_k - self._last_stamp == 1 else (stamp_k - self._last_stamp) * Ts
         self._last_stamp = stamp_k
         out = controller.step(X, self.targets[stamp_k + 1: stamp_k + 1 + controller.horizon], dt)
-        self.down.send(t, controller.next_velocity() if self.cmd_vel else out.voltages)
+        self.robot.send_down(t, controller.next_velocity() if self.cmd_vel else out.voltages)
 
     def meta(self) -> dict[str, Any]:
         """The link's counts for the run's meta (`RunData.meta`)."""
-        up, down = self.up.link, self.down.link
+        up, down = self.robot.link.up.link, self.robot.link.down.link
         out: dict[str, Any] = {
             "compensated": self.compensated,
             "up": {"sent": up.sent, "lost": up.lost, "duplicated": up.duplicated},
             "down": {"sent": down.sent, "lost": down.lost, "duplicated": down.duplicated},
         }
-        if self.compensated:
+        if isinstance(self.controller, DelayCompensatingController) and self.follower is not None:
             stats = self.controller.statistics()
             out["controller"] = {k: (None if isinstance(v, float) and math.isnan(v) else v)
                                  for k, v in vars(stats).items()}
-            out["buffer"] = {"accepted": self.buffer.accepted, "refused": dict(self.buffer.refused),
-                             "exhausted": self.buffer.exhausted}
+            buffer = self.follower.buffer
+            out["buffer"] = {"accepted": buffer.accepted, "refused": dict(buffer.refused),
+                             "exhausted": buffer.exhausted}
         else:
-            out["timeouts"] = self.exhausted
+            out["timeouts"] = self.robot.timeouts
         return out
 
 
 def link_meta(link: LinkParams | None) -> dict[str, float] | None:
     """A direction's parameters for the run's meta."""
     return None if link is None else dict(vars(link))
-

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from tqdm import tqdm
@@ -54,10 +54,11 @@ from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.model.driver_chain import ChainParams
 from robotino_geom_mpc.offline.chain_loop import run_chain_scenario
 from robotino_geom_mpc.offline.networked import NetworkedLoop, link_meta
+from robotino_geom_mpc.loop.robot_loop import PoseNoise, RobotLoop, TwistDrive, VoltageDrive
 from robotino_geom_mpc.offline.results import RunData
 from robotino_geom_mpc.scenarios import get_scenario
 
-__all__ = ["SimulationError", "run_scenario", "run_ticks"]
+__all__ = ["RunConfig", "SimulationError", "run_scenario", "run_ticks"]
 
 
 class SimulationError(RobotinoError, ValueError):
@@ -72,30 +73,11 @@ def run_ticks(duration_s: float, period_s: float) -> int:
     return max(1, int(round(duration / period_s)))
 
 
-def run_scenario(
-    scenario: str,
-    robot: RobotinoParams,
-    control: ControlParams,
-    *,
-    duration_s: float | None = None,
-    seed: int = 0,
-    progress: bool = False,
-    plant_robot: RobotinoParams | None = None,
-    odometry_noise: tuple[float, float] | None = None,
-    odometry: str = "ideal",
-    encoder_counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
-    wheel_slip_std: float = 0.0,
-    command_interface: str = "voltages",
-    wheel_pi: tuple[float, float, float] | None = None,
-    chain: ChainParams | None = None,
-    controller_chain: ChainParams | None = None,
-    link_up: LinkParams | None = None,
-    link_down: LinkParams | None = None,
-    compensate: bool = True,
-) -> RunData:
-    """Simulate one scenario in closed loop.
+@dataclass(frozen=True)
+class RunConfig:
+    """One offline run's settings (`run_scenario`; the command line, `study`, `tune` and the tests build it).
 
-    Parameters
+    Attributes
     ----------
     scenario
         A name of `scenarios.SCENARIOS`.
@@ -141,6 +123,35 @@ def run_scenario(
         Over a link: the delay-compensating, plan-making controller (`control.delay_compensation`) and
         the robot's plan buffer; False: the plain controller, its command acting on arrival and held
         (the uncompensated baseline).
+    """
+
+    scenario: str
+    robot: RobotinoParams
+    control: ControlParams
+    duration_s: float | None = None
+    seed: int = 0
+    progress: bool = False
+    plant_robot: RobotinoParams | None = None
+    odometry_noise: tuple[float, float] | None = None
+    odometry: str = "ideal"
+    encoder_counts_per_rev: int = DEFAULT_COUNTS_PER_REV
+    wheel_slip_std: float = 0.0
+    command_interface: str = "voltages"
+    wheel_pi: tuple[float, float, float] | None = None
+    chain: ChainParams | None = None
+    controller_chain: ChainParams | None = None
+    link_up: LinkParams | None = None
+    link_down: LinkParams | None = None
+    compensate: bool = True
+
+
+def run_scenario(config: RunConfig) -> RunData:
+    """Simulate one scenario in closed loop: a `loop.robot_loop.RobotLoop` and the controller on one clock.
+
+    Parameters
+    ----------
+    config
+        The run's settings.
 
     Returns
     -------
@@ -155,17 +166,21 @@ def run_scenario(
     SimulationError
         Non-positive duration, negative noise or a bad odometry setting.
     """
+    scenario, robot, control, seed = config.scenario, config.robot, config.control, config.seed
+    odometry, command_interface, plant_robot = config.odometry, config.command_interface, config.plant_robot
+    chain, link_up, link_down = config.chain, config.link_up, config.link_down
     if chain is not None:
         if command_interface != "cmd_vel" or odometry != "ideal":
             raise SimulationError("a chain takes cmd_vel and gives the firmware's odometry: command_interface "
                                   f"must be cmd_vel and odometry ideal, got {command_interface!r}, {odometry!r}")
-        return run_chain_scenario(scenario, robot, chain, duration_s=duration_s, seed=seed, progress=progress,
-                                  plant_robot=plant_robot, odometry_noise=odometry_noise,
-                                  controller_chain=controller_chain)
+        return run_chain_scenario(scenario, robot, chain, duration_s=config.duration_s, seed=seed,
+                                  progress=config.progress, plant_robot=plant_robot,
+                                  odometry_noise=config.odometry_noise, controller_chain=config.controller_chain)
     spec = get_scenario(scenario)
     if link_up is None and link_down is None and spec.link is not None:
         link_up = link_down = spec.link
     networked = any(link is not None and link.enabled for link in (link_up, link_down))
+    odometry_noise = config.odometry_noise
     if odometry_noise is None:
         odometry_noise = (spec.noise.position_m, spec.noise.yaw_rad)
     noise = tuple(float(v) for v in odometry_noise)
@@ -173,24 +188,27 @@ def run_scenario(
         raise SimulationError(f"odometry_noise must be two non-negative numbers, got {odometry_noise!r}")
     reference = spec.make_reference()
     Ts, N = control.period_s, control.horizon
-    n = run_ticks(reference.duration_s if duration_s is None else duration_s, Ts)
+    n = run_ticks(reference.duration_s if config.duration_s is None else config.duration_s, Ts)
 
     plant = RobotinoPlant(plant_robot if plant_robot is not None else robot)
     try:
-        source = odometry_source(plant, odometry, encoder_counts_per_rev, wheel_slip_std, seed)
+        source = odometry_source(plant, odometry, config.encoder_counts_per_rev, config.wheel_slip_std, seed)
     except EncoderError as exc:
         raise SimulationError(str(exc)) from None
     if command_interface not in ("voltages", "cmd_vel"):
         raise SimulationError(f"command_interface must be 'voltages' or 'cmd_vel', got {command_interface!r}")
-    speed_loop = None
+    drive: VoltageDrive | TwistDrive = VoltageDrive(plant)
     if command_interface == "cmd_vel":
         try:
-            speed_loop = WheelSpeedLoop(plant.params, *(wheel_pi or (DEFAULT_KP, DEFAULT_KI, DEFAULT_RATE_HZ)))
+            drive = TwistDrive(plant, WheelSpeedLoop(plant.params, *(config.wheel_pi or (DEFAULT_KP, DEFAULT_KI,
+                                                                                         DEFAULT_RATE_HZ))))
         except WheelSpeedLoopError as exc:
             raise SimulationError(str(exc)) from None
+    cmd_vel = isinstance(drive, TwistDrive)
     if odometry in CONTROLLER_TWIST:
         control = replace(control, odometry_twist=CONTROLLER_TWIST[odometry])
-    if networked and compensate:
+    controller: DelayCompensatingController | MotionController
+    if networked and config.compensate:
         controller = DelayCompensatingController(spec.controller_model(robot), control, command_interface)
         extra = controller.preview_length
     else:
@@ -198,39 +216,35 @@ def run_scenario(
         extra = N
     controller.start_at(*reference.position(np.zeros(1))[0].tolist())  # robot and reference start together
     # The run's pose noise drawn at once: the same values as one `RobotinoPlant.pose_noise` draw per tick.
-    std_position, std_yaw = noise
-    draws = (np.random.default_rng(seed).normal(0.0, (std_position, std_position, std_yaw), (n, 3)).tolist()
-             if std_position or std_yaw else [None] * n)
+    robot_loop = RobotLoop(plant, source, drive, Ts, PoseNoise(noise, seed, n))
 
     t = np.arange(n) * Ts
     targets = reference.position(np.arange(n + extra + 1) * Ts)  # row j: the reference at j Ts
     # Only floats and arrays are kept per tick (no tuples): nothing for the garbage collector to scan.
     poses, measured, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], [], []
-    measure, plant_step = source.noisy_odometry_floats, plant.step
+    measure, drive_period, pose_floats = robot_loop.measure, robot_loop.drive, plant.pose_floats
     loop = NetworkedLoop(controller, targets, Ts, link_up, link_down, seed, command_interface) if networked else None
-    for k in tqdm(range(n), desc=scenario, unit="tick", disable=not progress, mininterval=0.5):
-        pose_measured, twist_measured = measure(draws[k])
-        if loop is None:
-            out = controller.step(odometry_state_floats(pose_measured, twist_measured), targets[k + 1 : k + N + 1])
-            command, flags = out.voltages, (out.saturated, out.infeasible, out.compute_time_s)
+    motion = None if loop is not None or isinstance(controller, DelayCompensatingController) else controller
+    for k in tqdm(range(n), desc=scenario, unit="tick", disable=not config.progress, mininterval=0.5):
+        pose_measured, twist_measured = measure()
+        if motion is not None:
+            out = motion.step(odometry_state_floats(pose_measured, twist_measured), targets[k + 1 : k + N + 1])
+            command = motion.next_velocity() if cmd_vel else out.voltages
+            flags = (out.saturated, out.infeasible, out.compute_time_s)
         else:
+            assert loop is not None
             start = time.perf_counter()
             command = loop.command(k, pose_measured, twist_measured)
-            flags = (any(abs(v) >= robot.supply_voltage_v for v in command) and speed_loop is None, False,
+            flags = (any(abs(v) >= robot.supply_voltage_v for v in command) and not cmd_vel, False,
                      time.perf_counter() - start)
-        poses += plant.pose_floats()
+        poses += pose_floats()
         measured += pose_measured
-        voltages += command
         saturated.append(flags[0])
         infeasible.append(flags[1])
         compute.append(flags[2])
-        if speed_loop is None:
-            plant_step(command, Ts)
-            substep_currents.append(plant.substep_currents)
-        else:
-            held, trace = speed_loop.run(plant, controller.next_velocity() if loop is None else command, Ts)
-            voltages[-3:] = held.mean(axis=0).tolist()
-            substep_currents.append(trace)
+        applied, trace = drive_period(command)
+        voltages += applied
+        substep_currents.append(trace)
     pose = np.array(poses).reshape(n, 3)
     trace = np.array(substep_currents)  # (n, substeps + 1, 3); the last row is the current at the period's end
     currents = np.copysign(np.abs(trace).max(axis=1), trace[:, -1])
@@ -255,7 +269,8 @@ def run_scenario(
             "odometry_noise": list(noise),
             "odometry": odometry,
             "command_interface": command_interface,
-            **({"encoder_counts_per_rev": int(encoder_counts_per_rev), "wheel_slip_std": float(wheel_slip_std)}
+            **({"encoder_counts_per_rev": int(config.encoder_counts_per_rev),
+                "wheel_slip_std": float(config.wheel_slip_std)}
                if odometry == "encoders" else {}),
             "controller_mismatch": None if spec.mismatch is None else asdict(spec.mismatch),
             "plant_params": "plant_robot" if plant_robot is not None else "robot",

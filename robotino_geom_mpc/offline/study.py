@@ -51,7 +51,7 @@ from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.model.encoders import ODOMETRY_MODELS
 from robotino_geom_mpc.offline.batch_simulation import RunSetting, batch_metrics
 from robotino_geom_mpc.offline.results import compute_metrics
-from robotino_geom_mpc.offline.simulation import run_scenario
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.scenarios import get_scenario
 
@@ -159,11 +159,11 @@ def run_draw(
     `network` holds run_scenario's ``link_up``, ``link_down`` and ``compensate`` (None: the scenario's link).
     Returns the `results.RunData`; raises what `run_scenario` raises.
     """
-    return run_scenario(
+    return run_scenario(RunConfig(
         scenario, robot.scaled(mass=draw.mass, inertia=draw.inertia, friction=draw.friction), control,
         duration_s=duration_s, seed=draw.seed, plant_robot=robot,
         odometry_noise=(draw.noise_position_m, draw.noise_yaw_rad), odometry=draw.odometry, **(network or {}),
-    )
+    ))
 
 
 def run_one(

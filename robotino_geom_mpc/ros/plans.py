@@ -40,6 +40,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJ
     MultiDOFJointTrajectoryPoint
 
 from robotino_geom_mpc.description.urdf import BASE_LINK, JOINT_NAMES
+from robotino_geom_mpc.loop.events import AppliedReport
+from robotino_geom_mpc.loop.inputs import REPORT_WINDOW_S, report_problem
 from robotino_geom_mpc.network.plan import CommandPlan, PlanBuffer
 from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.decode import STAMP_FIELDS
@@ -52,8 +54,6 @@ __all__ = ["AppliedReport", "IGNORED", "PLAN_TOPICS", "PlanMessageError", "PlanO
            "REPORT_WINDOW_S", "report_near", "report_of_message", "take_report"]
 
 PLAN_TOPICS = {"voltages": "wheel_voltage_plan", "cmd_vel": "cmd_vel_plan"}
-REPORT_WINDOW_S = 2.0
-"""A ``command_applied`` report further than this from the newest odometry stamp is refused [s]."""
 TWIST_AXES = ("base_link_x", "base_link_y", "base_link_yaw")  # command_applied's names of a twist's values
 IGNORED = ("older", "duplicate")  # `PlanBuffer.offer`'s refusals that are no fault: counted, not logged
 
@@ -64,19 +64,6 @@ class PlanMessageError(ValueError):
     def __init__(self, message: str, reason: str) -> None:
         super().__init__(message)
         self.reason = reason
-
-
-class AppliedReport(NamedTuple):
-    """One ``command_applied`` event: `values` None = receipt of plan `basis_s` at `time_s` (`taken` by the
-    buffer or not); else the period starting at `time_s` got `values` (entry `entry_index` of plan `basis_s`; basis
-    None: no plan, zero).
-    """
-
-    time_s: float
-    basis_s: float | None
-    entry_index: int
-    values: tuple[float, float, float] | None
-    taken: bool = True
 
 
 def _seconds(sec: int, nanosec: int) -> float:
@@ -240,10 +227,9 @@ def report_near(msg: JointTrajectory, newest_s: float | None, window_s: float = 
     `window_s` from the newest odometry stamp `newest_s` (a stamp far off; None: no odometry yet, any time).
     """
     report = report_of_message(msg)
-    if newest_s is not None and abs(report.time_s - newest_s) > window_s:
-        which = "future" if report.time_s > newest_s else "past"
-        raise PlanMessageError(f"time {report.time_s:.6f} s is {abs(report.time_s - newest_s):.3f} s in the "
-                               f"{which} of the newest odometry ({newest_s:.6f} s)", which)
+    problem = report_problem(report.time_s, newest_s, window_s)
+    if problem is not None:
+        raise PlanMessageError(problem[1], problem[0])
     return report
 
 

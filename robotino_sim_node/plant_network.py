@@ -3,15 +3,15 @@
 `PlantNetwork` is a part of `plant_node.PlantNode` (a mixin: its methods use the node's publishers, plant and
 counters). What it does, per mode:
 
-``lockstep`` (`sim_link.SimLink`, sim time), each tick k in the order of `offline.networked`, so that the DDS loop
-reproduces the offline loop with the same link:
+``lockstep`` (`loop.link_queue.RobotLink`, sim time), each tick k in the order of `offline.networked`, so that
+the DDS loop reproduces the offline loop with the same link:
 
 1. /clock (not over the link: it is the simulation's time), then the tick's messages as one radio packet
    (`_measure_bundle`: the ``command_applied`` reports since the last packet, odom, the currents, the ground
    truth, joint_states, /tf) sent up at t_k; the packets due by t_k are published in order, each with its
    reports first (the controller takes them before the odometry, as the offline controller does; a report that
    comes after an odometry still waiting for its preview it holds back, `controller_plans`). The controller
-   answers each odometry newer than every one before it (`SimLink.answers_due`); with none due the plant goes
+   answers each odometry newer than every one before it (`RobotLink.answers_due`); with none due the plant goes
    on at once (a lost or late odometry: no answer is waited for).
 2. each answer (a plan, or a plain command) is sent down at t_k; once all are there:
 3. the packets due down by t_k: plans offered to the buffer at t_k (`plant_plans`), or the last plain command held
@@ -64,7 +64,7 @@ class PlantNetwork:
 
     def _network_tick(self, fresh: bool) -> None:
         """Lockstep step 1 (`offline.networked`): /clock, the tick's packet up, the packets due published; the
-        answers due counted (resent: /clock and the odometries delivered this tick again).
+        answers due counted (`RobotLink.answers_due`; resent: /clock and the odometries delivered this tick again).
         """
         t_ns = self._time_ns()
         stamp = divmod(t_ns, 1_000_000_000)
@@ -110,7 +110,7 @@ class PlantNetwork:
             else:
                 self.held = (t, item)
         if self.plans is not None:
-            values = self.plans.command_at(t)[1]
+            values = self.plans.command_at(t)
         elif self.held is not None and t - self.held[0] <= self.params["command_timeout_s"] + TIME_TOLERANCE_S:
             values = self.held[1]
         else:

@@ -86,6 +86,7 @@ from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spe
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_sim_node.chain_driver import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, attach_chain
+from robotino_geom_mpc.loop.link_queue import RobotLink
 from robotino_geom_mpc.loop.command_hold import MAX_CHUNK, ZERO_VOLTS, CommandHold
 from robotino_geom_mpc.model.encoders import ODOMETRY_DEFAULTS, ODOMETRY_SPECS, odometry_source, twist_covariance
 from robotino_sim_node.link_params import LINK_DEFAULTS, LINK_SPECS, link_params, link_problem
@@ -100,7 +101,6 @@ from robotino_sim_node.plant_lockstep import PlantLockstep
 from robotino_sim_node.plant_network import PlantNetwork
 from robotino_sim_node.plant_plans import PlantPlans
 from robotino_sim_node.radio import Radio
-from robotino_sim_node.sim_link import SimLink
 from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
@@ -182,7 +182,7 @@ class PlantNode(PlantLockstep, PlantNetwork, Node):
         up, down = link_params(p.values, "up"), link_params(p.values, "down")
         self.networked = self.plans is not None or up.enabled or down.enabled  # else: as without a link
         self.radio = Radio(self, up, down, p["seed"]) if self.networked and not self.lockstep else None
-        self.sim_link = SimLink(up, down, p["seed"]) if self.networked and self.lockstep else None
+        self.sim_link = RobotLink(up, down, p["seed"]) if self.networked and self.lockstep else None
         self.applied_pub = self.create_publisher(JointTrajectory, "command_applied", qos) if self.plans else None
         if self.plans is not None:
             self.command_sub = self.create_subscription(self.plans.msg_type, self.plans.topic, self._on_plan,

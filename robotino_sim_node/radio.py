@@ -1,9 +1,9 @@
 """The realtime plant's emulated radio: each message leaves (or arrives) when the link delivers it.
 
-A `Radio` holds one `network.link.Link` per direction and a queue of deliveries ordered by time (robot clock,
-the node's clock in seconds). `Radio.send` asks the direction's link when a message sent now is delivered (never,
-once or twice) and queues the action (publish these bytes, or hand this command to the plant) for each delivery;
-a steady timer polls the queue every `POLL_S` and runs what is due (within a poll of its time). A direction that
+A `Radio` holds one `loop.link_queue.LinkQueue` per direction (the link's one ordering, robot clock: the node's
+clock in seconds). `Radio.send` queues the action (publish these bytes, or hand this command to the plant) for
+each delivery of a message sent now (never, once or twice); a steady timer polls the queues every `POLL_S` and
+runs what is due (within a poll of its time). A direction that
 is off (`LinkParams.enabled` false) runs its actions at once. With both directions off and no plans the plant
 does not create a radio: its messages go out as before.
 
@@ -14,14 +14,13 @@ are cancelled and reset a hundred times a second, including the plant's own tick
 
 from __future__ import annotations
 
-import heapq
-import itertools
 from collections.abc import Callable
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
-from robotino_geom_mpc.network.link import Link, LinkParams
+from robotino_geom_mpc.loop.link_queue import LinkQueue
+from robotino_geom_mpc.network.link import LinkParams
 
 __all__ = ["Radio"]
 
@@ -44,9 +43,8 @@ class Radio:
 
     def __init__(self, node: Node, up: LinkParams, down: LinkParams, seed: int) -> None:
         self.node = node
-        self.links = {"up": Link(up, seed + 1), "down": Link(down, seed + 2)}
-        self.queue: list[tuple[float, int, Callable[[], None]]] = []
-        self._order = itertools.count()
+        self.queues: dict[str, LinkQueue[Callable[[], None]]] = {"up": LinkQueue(up, seed + 1),
+                                                                  "down": LinkQueue(down, seed + 2)}
         self.timer = None  # both directions off (plans without a link): nothing is ever queued, nothing to poll
         if up.enabled or down.enabled:
             self.timer = node.create_timer(POLL_S, self._deliver, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -60,19 +58,14 @@ class Radio:
 
         On a direction that is off the action runs now (count 1).
         """
-        link = self.links[way]
-        if not link.params.enabled:
+        queue = self.queues[way]
+        if not queue.enabled:
             action()
             return 1
-        now_s = self.now_s() if now_s is None else now_s
-        times = link.transmit(now_s)
-        for t in times:
-            heapq.heappush(self.queue, (t, next(self._order), action))
-        return len(times)
+        return queue.send(self.now_s() if now_s is None else now_s, action)
 
     def _deliver(self) -> None:
-        if not self.queue:
-            return
         now_s = self.now_s()
-        while self.queue and self.queue[0][0] <= now_s:
-            heapq.heappop(self.queue)[2]()
+        for queue in self.queues.values():
+            for action in queue.due(now_s):
+                action()

@@ -8,6 +8,8 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
   warm-started, tight tolerances) on the same inputs, as three problems
   (the paper's three MPCs; the headline ratio) and stacked into one
   block-diagonal QP; all must give the same commanded accelerations u.
+* `float_path`: one control step and each of its kernels on Python floats (the nodes' and `simulate`'s per-tick
+  path) beside the array kernels that serve a batch (the study's), both on one run: is the float path needed?
 * `offline`: the offline closed loop's real-time factor on paper-circle, and
   the nodes over DDS (`dds`: lockstep real-time factor, realtime missed
   ticks and latency, each beside the bare rclpy round trip of `roundtrip`;
@@ -32,6 +34,7 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
 
 # registration, in the order `bench` runs them
 from robotino_geom_mpc.bench import controller_step, offline  # noqa: F401, I001
+from robotino_geom_mpc.bench import float_path  # noqa: F401
 from robotino_geom_mpc.bench import study  # noqa: F401
 from robotino_geom_mpc.bench import cdr  # noqa: F401
 from robotino_geom_mpc.bench import constrained  # noqa: F401

@@ -11,8 +11,8 @@ import math
 import statistics
 import sys
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable
 
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.system.processes import NodeFailed, NodeGroup, NodeProcess
@@ -64,7 +64,7 @@ def benchmark(name: str, description: str, default: bool = True,
     return register
 
 
-def median_per_call(passes: list[Callable[[], None]], calls: int, repeats: int) -> list[float]:
+def median_per_call(passes: Sequence[Callable[[], object]], calls: int, repeats: int) -> list[float]:
     """Median wall time per call [s] of each pass (`calls` calls each), repeats interleaved."""
     samples: list[list[float]] = [[] for _ in passes]
     for _ in range(repeats):

@@ -13,8 +13,6 @@ velocity's high-frequency content.
 
 from __future__ import annotations
 
-from typing import Any
-
 import math
 from collections.abc import Sequence
 
@@ -23,7 +21,7 @@ import numpy as np
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import TWIST_MODELS
 
-__all__ = ["TWIST_MODELS", "EstimatorError", "OdometryFilter", "filter_gain", "noise_std_ratio"]
+__all__ = ["TWIST_MODELS", "EstimatorError", "OdometryFilter", "OdometryFilterBatch", "filter_gain", "noise_std_ratio"]
 
 _TWO_PI = 2.0 * math.pi
 
@@ -256,40 +254,43 @@ class OdometryFilter:
         self._last = (px, vx, py, vy, pt, w)
         return px, py, pt
 
-    @classmethod
-    def batch(cls, period_s: float, time_constant_s: float, twists: Sequence[str], start: np.ndarray) -> OdometryFilter:
-        """The filters of B runs at once, each started at a known pose (`start_at`), for `update_batch`.
 
-        Parameters
-        ----------
-        period_s, time_constant_s
-            As for the class (shared by the runs).
-        twists
-            Each run's twist model (`TWIST_MODELS`).
-        start
-            The start poses (x, y, theta), shape (B, 3).
-        """
-        stacked: Any = cls(period_s, time_constant_s)  # the same attributes with a batch axis
+class OdometryFilterBatch:
+    """The filters of B runs at once (`OdometryFilter` per run), each started at a known pose (`start_at`).
+
+    Parameters
+    ----------
+    period_s, time_constant_s
+        As for `OdometryFilter` (shared by the runs).
+    twists
+        Each run's twist model (`TWIST_MODELS`).
+    start
+        The start poses (x, y, theta), shape (B, 3).
+    """
+
+    def __init__(self, period_s: float, time_constant_s: float, twists: Sequence[str], start: np.ndarray) -> None:
+        one = OdometryFilter(period_s, time_constant_s)  # checks the shared settings
         if any(twist not in TWIST_MODELS for twist in twists):
             raise EstimatorError(f"twists must be of {', '.join(TWIST_MODELS)}, got {sorted(set(twists))}")
-        stacked._period_mean = np.flatnonzero([twist == "period_mean" for twist in twists])  # those runs
         start = np.asarray(start, dtype=float)
         if start.shape != (len(twists), 3) or not np.all(np.isfinite(start)):
             raise EstimatorError(f"start must be {len(twists)} finite poses, got shape {start.shape}")
-        stacked._last = np.zeros((6, len(twists)))  # one row per entry of the state (`update_batch`)
-        stacked._last[0::2] = start.T
-        return stacked
+        self.period_s, self.time_constant_s, self.gain = one.period_s, one.time_constant_s, one.gain
+        self._half_period = one._half_period
+        self._period_mean = np.flatnonzero([twist == "period_mean" for twist in twists])  # the runs with that model
+        self._last = np.zeros((6, len(twists)))  # one row per entry of the state
+        self._last[0::2] = start.T
 
-    def update_batch(self, X: np.ndarray) -> np.ndarray:
-        """`update` over one period for a batch (`batch`): measured states X (B, 6) in, estimates (B, 3) out.
+    def update(self, X: np.ndarray) -> np.ndarray:
+        """`OdometryFilter.update` over one period of every run: measured states X (B, 6) in, estimates (B, 3) out.
 
         The same predictor per run (its twist model), correction and heading wrap as `update`, as arrays;
         the measurements are the caller's own (unchecked).
         """
         rows = np.ascontiguousarray(X.T)  # (6, B): one row per entry of the measured state
-        last: Any = self._last  # (6, B) in a batch: one row per entry of the state
+        last = self._last
         h, L = self._half_period, self.gain
-        runs: Any = self._period_mean  # in a batch: the runs whose predictor is the period mean's
+        runs = self._period_mean
         predicted = last[0::2] + h * (last[1::2] + rows[1::2])  # the trapezoid's (x, y, theta)
         if len(runs):  # the period mean's: the SE(2) exponential of the twist, computed for those runs only
             vx, vy, w = rows[1::2, runs]

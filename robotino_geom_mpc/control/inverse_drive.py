@@ -38,8 +38,6 @@ L (i*_k - i*_{k-1})/Ts with the back-EMF at the tick lags by 9.5 mA
 
 from __future__ import annotations
 
-from typing import Any
-
 import math
 from collections.abc import Callable, Sequence
 
@@ -49,13 +47,18 @@ from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.arrays import checked_array, largest_abs
 from robotino_geom_mpc.params.specs import RobotinoParams
 
-__all__ = ["DriveError", "ZOHDrive", "InverseDrive"]
+__all__ = ["DriveError", "ZOHDrive", "InverseDrive", "InverseDriveBatch"]
 
 _SATURATION_PASSES = 4  # fixed-point passes for the mean current under clipped voltages
 
 
 class DriveError(RobotinoError, ValueError):
     """A drive input with the wrong shape or a non-finite value."""
+
+
+def _mean_current(d: ZOHDrive | _ZOHBatch, i_start, U, omega, omega_rate):
+    """The period average of the current for a held voltage U (module notes), on `d`'s coefficients."""
+    return d.phi * i_start + d._m_volt * (U - d.torque_constant * omega) - d._m_rate * omega_rate
 
 
 class ZOHDrive:
@@ -120,7 +123,7 @@ class ZOHDrive:
 
     def mean_current(self, i_start, U, omega, omega_rate):
         """Average of the current over the period for a held voltage U."""
-        return self.phi * i_start + self._m_volt * (U - self.torque_constant * omega) - self._m_rate * omega_rate
+        return _mean_current(self, i_start, U, omega, omega_rate)
 
     def end_current(self, i_start, U, omega, omega_rate, elapsed_s: float | None = None):
         """Current at the end of the period, or after `elapsed_s` [s] > 0, for a held voltage U."""
@@ -155,8 +158,6 @@ class InverseDrive:
         Control period Ts over which each voltage is held.
     """
 
-    _i0: Any  # the predicted start currents: 3 floats, or (B, 3) in a batch
-
     def __init__(self, p: RobotinoParams, period_s: float) -> None:
         if not (math.isfinite(period_s) and period_s > 0.0):
             raise DriveError(f"period_s must be finite and > 0, got {period_s!r}")
@@ -171,105 +172,6 @@ class InverseDrive:
         self._voltage_row = tuple(voltage_row.tolist())
         self._end_row = tuple(self.zoh.end_current(basis[1], voltage_row, basis[2], basis[3]).tolist())
         self.reset()
-
-    @classmethod
-    def batch(cls, robots: Sequence[RobotinoParams], period_s: float) -> InverseDrive:
-        """The drives of B robots at once, for the array forms (`step_batch`, `limited_step_batch`).
-
-        Every coefficient and the current estimate get the shape (B, 3), a run's value on its three wheels (a
-        (B, 1) column broadcast over rows of three costs numpy four times as much); float forms: one run only.
-        """
-        made: dict[tuple[float, ...], InverseDrive] = {}  # runs with the same drive share its coefficients
-        keys = [(p.resistance_ohm, p.inductance_h, p.torque_constant_n_m_per_a, p.supply_voltage_v, p.r, p.gear_ratio)
-                for p in robots]
-        runs = [made[key] if key in made else made.setdefault(key, cls(p, period_s)) for key, p in zip(keys, robots)]
-        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
-        column = lambda values: np.repeat(np.array(values, dtype=float)[..., None], 3, axis=-1)  # noqa: E731
-        zoh: Any = ZOHDrive.__new__(ZOHDrive)
-        stacked.zoh = zoh
-        for name, value in vars(runs[0].zoh).items():
-            setattr(zoh, name, column([getattr(run.zoh, name) for run in runs]))
-        stacked.period_s = runs[0].period_s
-        stacked.supply_voltage_v = column([run.supply_voltage_v for run in runs])
-        stacked.current_per_force = column([run.current_per_force for run in runs])
-        stacked._voltage_row = column([run._voltage_row for run in runs]).transpose(1, 0, 2).copy()  # (4, B, 3)
-        stacked._end_row = column([run._end_row for run in runs]).transpose(1, 0, 2).copy()
-        stacked._i0 = np.zeros((len(runs), 3))
-        stacked._last = stacked._one_period = None
-        return stacked
-
-    def step_batch(
-        self, i_cmd: np.ndarray, omega: np.ndarray, omega_rate: np.ndarray,
-        rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """`step` for a batch (`batch`): arrays (B, 3) in; voltages (B, 3), saturated (B,), mean currents (B, 3).
-
-        The same relations in the same order as `step`, run by run: an unclipped run takes the voltage and
-        end-current rows, a clipped one the ZOH relations with the mean current found by the fixed point
-        (`rate_of_current` maps (B, 3) mean currents to (B, 3) motor-speed rates).
-        """
-        vc, vs, vw, vr = self._voltage_row
-        i0: Any = self._i0  # (B, 3) in a batch
-        supply: Any = self.supply_voltage_v  # (B, 3) in a batch
-        U = vc * i_cmd + vs * i0 + vw * omega + vr * omega_rate
-        saturated = largest_abs(U) > supply[:, 0]
-        ec, es, ew, er = self._end_row
-        end = ec * i_cmd + es * i0 + ew * omega + er * omega_rate
-        mean = i_cmd
-        if np.count_nonzero(saturated):  # (a quarter of `any`'s cost on a batch)
-            clipped = np.clip(U, -supply, supply)
-            rate = omega_rate
-            clipped_mean = self.zoh.mean_current(i0, clipped, omega, rate)
-            if rate_of_current is not None:
-                for _ in range(_SATURATION_PASSES):
-                    rate = rate_of_current(clipped_mean)
-                    clipped_mean = self.zoh.mean_current(i0, clipped, omega, rate)
-            rows = saturated[:, None]
-            U = np.where(rows, clipped, U)
-            mean = np.where(rows, clipped_mean, i_cmd)
-            end = np.where(rows, self.zoh.end_current(i0, clipped, omega, rate), end)
-        self._i0 = end
-        return U, saturated, mean
-
-    def limited_step_batch(
-        self, i_cmd: np.ndarray, omega: np.ndarray, omega_rate: np.ndarray, rate_at_rest: Callable[[], np.ndarray],
-        current_limit: float, rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """`limited_step` for a batch: as `step_batch`, plus the scale s (B,) of each run's command.
-
-        A run whose full command keeps its limits keeps it (s = 1); every other one is stepped again from the
-        same start currents with its command scaled by the largest s whose affine bounds a + s b all hold
-        (the candidates of `limited_step`).
-        """
-        i0 = self._i0
-        U, saturated, mean = self.step_batch(i_cmd, omega, omega_rate, rate_of_current)
-        end = self._i0
-        if not np.count_nonzero(saturated) and np.abs(i_cmd).max() <= current_limit \
-                and np.abs(end).max() <= current_limit:  # every run keeps its command (the common case, at once)
-            return U, saturated, mean, np.ones(len(U))
-        keep = ~saturated & (np.maximum(largest_abs(i_cmd), largest_abs(end)) <= current_limit)
-        scale = np.ones(len(keep))
-        rest = rate_at_rest()
-        ec, es, ew, er = self._end_row
-        vc, vs, vw, vr = self._voltage_row
-        dr = omega_rate - rest
-        with np.errstate(divide="ignore", invalid="ignore"):
-            for a, b, bound in (
-                (np.zeros_like(i_cmd), i_cmd, current_limit),
-                (es * i0 + ew * omega + er * rest, ec * i_cmd + er * dr, current_limit),
-                (vs * i0 + vw * omega + vr * rest, vc * i_cmd + vr * dr, self.supply_voltage_v),
-            ):
-                full = a + b
-                binds = (np.abs(full) > bound) & (np.abs(a) < bound)
-                candidate = np.where(binds, (np.copysign(bound, full) - a) / b, np.inf)
-                scale = np.minimum(scale, candidate.min(axis=-1))
-        scale = np.where(keep, 1.0, scale)
-        self._i0 = i0
-        scaled = scale[:, None]
-        U2, saturated2, mean2 = self.step_batch(scaled * i_cmd, omega, rest + scaled * dr, rate_of_current)
-        rows = keep[:, None]
-        self._i0 = np.where(rows, end, self._i0)
-        return (np.where(rows, U, U2), np.where(keep, saturated, saturated2), np.where(rows, mean, mean2), scale)
 
     @property
     def current_estimate(self) -> np.ndarray:
@@ -447,3 +349,138 @@ class InverseDrive:
         self._one_period = self._i0
         return clipped.tolist(), True, mean.tolist()
 
+
+class _ZOHBatch:
+    """`ZOHDrive`'s coefficients of B runs' drives, each a (B, 3) array (a run's value on its three wheels)."""
+
+    def __init__(self, drives: Sequence[ZOHDrive]) -> None:
+        column = lambda name: _column([getattr(d, name) for d in drives])  # noqa: E731
+        self.phi, self.alpha, self.torque_constant = column("phi"), column("alpha"), column("torque_constant")
+        self._m_volt, self._m_rate = column("_m_volt"), column("_m_rate")
+        self._e_volt, self._e_rate = column("_e_volt"), column("_e_rate")
+
+    def mean_current(self, i_start: np.ndarray, U: np.ndarray, omega: np.ndarray,
+                     omega_rate: np.ndarray) -> np.ndarray:
+        """`ZOHDrive.mean_current` of each run's drives."""
+        return _mean_current(self, i_start, U, omega, omega_rate)
+
+    def end_current(self, i_start: np.ndarray, U: np.ndarray, omega: np.ndarray,
+                    omega_rate: np.ndarray) -> np.ndarray:
+        """`ZOHDrive.end_current` over one period of each run's drives."""
+        return self.alpha * i_start + self._e_volt * (U - self.torque_constant * omega) - self._e_rate * omega_rate
+
+
+def _column(values: Sequence[object]) -> np.ndarray:
+    """Per-run values (B, ...) repeated over the three wheels: (B, ..., 3) (a (B, 1) column broadcast over rows of
+    three costs numpy four times as much).
+    """
+    return np.repeat(np.array(values, dtype=float)[..., None], 3, axis=-1)
+
+
+class InverseDriveBatch:
+    """The inverse drives of B robots at once (`InverseDrive` per run): every coefficient and the current estimate
+    of shape (B, 3), a run's value on its three wheels.
+
+    Parameters
+    ----------
+    robots
+        Each run's motor parameters and supply voltage (B >= 1).
+    period_s
+        Control period Ts, shared by the runs.
+    """
+
+    def __init__(self, robots: Sequence[RobotinoParams], period_s: float) -> None:
+        made: dict[tuple[float, ...], InverseDrive] = {}  # runs with the same drive share its coefficients
+        keys = [(p.resistance_ohm, p.inductance_h, p.torque_constant_n_m_per_a, p.supply_voltage_v, p.r, p.gear_ratio)
+                for p in robots]
+        runs = [made[key] if key in made else made.setdefault(key, InverseDrive(p, period_s))
+                for key, p in zip(keys, robots)]
+        self.zoh = _ZOHBatch([run.zoh for run in runs])
+        self.period_s = runs[0].period_s
+        self.supply_voltage_v = _column([run.supply_voltage_v for run in runs])
+        self.current_per_force = _column([run.current_per_force for run in runs])
+        self._voltage_row = _column([run._voltage_row for run in runs]).transpose(1, 0, 2).copy()  # (4, B, 3)
+        self._end_row = _column([run._end_row for run in runs]).transpose(1, 0, 2).copy()
+        self.reset()
+
+    @property
+    def current_estimate(self) -> np.ndarray:
+        """Predicted currents at the start of the next period [A], (B, 3)."""
+        return self._i0.copy()
+
+    def reset(self) -> None:
+        """Start again from zero currents (robots at rest, drives off)."""
+        self._i0 = np.zeros(self.supply_voltage_v.shape)
+
+    def step(
+        self, i_cmd: np.ndarray, omega: np.ndarray, omega_rate: np.ndarray,
+        rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`InverseDrive.step` of each run: arrays (B, 3) in; voltages (B, 3), saturated (B,), mean currents (B, 3).
+
+        The same relations in the same order as `InverseDrive.step`, run by run: an unclipped run takes the voltage
+        and end-current rows, a clipped one the ZOH relations with the mean current found by the fixed point
+        (`rate_of_current` maps (B, 3) mean currents to (B, 3) motor-speed rates).
+        """
+        vc, vs, vw, vr = self._voltage_row
+        i0, supply = self._i0, self.supply_voltage_v
+        U = vc * i_cmd + vs * i0 + vw * omega + vr * omega_rate
+        saturated = largest_abs(U) > supply[:, 0]
+        ec, es, ew, er = self._end_row
+        end = ec * i_cmd + es * i0 + ew * omega + er * omega_rate
+        mean = i_cmd
+        if np.count_nonzero(saturated):  # (a quarter of `any`'s cost on a batch)
+            clipped = np.clip(U, -supply, supply)
+            rate = omega_rate
+            clipped_mean = self.zoh.mean_current(i0, clipped, omega, rate)
+            if rate_of_current is not None:
+                for _ in range(_SATURATION_PASSES):
+                    rate = rate_of_current(clipped_mean)
+                    clipped_mean = self.zoh.mean_current(i0, clipped, omega, rate)
+            rows = saturated[:, None]
+            U = np.where(rows, clipped, U)
+            mean = np.where(rows, clipped_mean, i_cmd)
+            end = np.where(rows, self.zoh.end_current(i0, clipped, omega, rate), end)
+        self._i0 = end
+        return U, saturated, mean
+
+    def limited_step(
+        self, i_cmd: np.ndarray, omega: np.ndarray, omega_rate: np.ndarray, rate_at_rest: Callable[[], np.ndarray],
+        current_limit: float, rate_of_current: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """`InverseDrive.limited_step` of each run: as `step`, plus the scale s (B,) of each run's command.
+
+        A run whose full command keeps its limits keeps it (s = 1); every other one is stepped again from the
+        same start currents with its command scaled by the largest s whose affine bounds a + s b all hold
+        (the candidates of `InverseDrive.limited_step`).
+        """
+        i0 = self._i0
+        U, saturated, mean = self.step(i_cmd, omega, omega_rate, rate_of_current)
+        end = self._i0
+        if not np.count_nonzero(saturated) and np.abs(i_cmd).max() <= current_limit \
+                and np.abs(end).max() <= current_limit:  # every run keeps its command (the common case, at once)
+            return U, saturated, mean, np.ones(len(U))
+        keep = ~saturated & (np.maximum(largest_abs(i_cmd), largest_abs(end)) <= current_limit)
+        scale = np.ones(len(keep))
+        rest = rate_at_rest()
+        ec, es, ew, er = self._end_row
+        vc, vs, vw, vr = self._voltage_row
+        dr = omega_rate - rest
+        bounds: tuple[tuple[np.ndarray, np.ndarray, float | np.ndarray], ...] = (
+            (np.zeros_like(i_cmd), i_cmd, current_limit),
+            (es * i0 + ew * omega + er * rest, ec * i_cmd + er * dr, current_limit),
+            (vs * i0 + vw * omega + vr * rest, vc * i_cmd + vr * dr, self.supply_voltage_v),
+        )
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for a, b, bound in bounds:
+                full = a + b
+                binds = (np.abs(full) > bound) & (np.abs(a) < bound)
+                candidate = np.where(binds, (np.copysign(bound, full) - a) / b, np.inf)
+                scale = np.minimum(scale, candidate.min(axis=-1))
+        scale = np.where(keep, 1.0, scale)
+        self._i0 = i0
+        scaled = scale[:, None]
+        U2, saturated2, mean2 = self.step(scaled * i_cmd, omega, rest + scaled * dr, rate_of_current)
+        rows = keep[:, None]
+        self._i0 = np.where(rows, end, self._i0)
+        return (np.where(rows, U, U2), np.where(keep, saturated, saturated2), np.where(rows, mean, mean2), scale)

@@ -1,9 +1,9 @@
 """`MotionController.step` for B runs at once: the array form of one control step, each run with its own model.
 
 Fig. 3 per run, as arrays with a leading batch axis: the pose filter
-(`OdometryFilter.update_batch`), the three MPCs (`DecoupledMPC.delta_u`), the
-decoupling field (`DecouplingField.forces`), the inverse drive with the
-current limit (`InverseDrive.limited_step_batch`) and the anti-windup of
+(`OdometryFilterBatch.update`), the three MPCs (`DecoupledMPCBatch.delta_u`), the
+decoupling field (`DecouplingFieldBatch.forces`), the inverse drive with the
+current limit (`InverseDriveBatch.limited_step`) and the anti-windup of
 clipped voltages, in the order and with the relations of
 `MotionController.step` (see its notes). Closed-form mode, one period per
 step (the offline loop's rhythm); the constrained mode's QP stays per run
@@ -16,13 +16,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from robotino_geom_mpc.control.estimator import OdometryFilter
-from robotino_geom_mpc.control.inverse_drive import InverseDrive
-from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings
+from robotino_geom_mpc.control.estimator import OdometryFilterBatch
+from robotino_geom_mpc.control.inverse_drive import InverseDriveBatch
+from robotino_geom_mpc.control.mpc import DecoupledMPCBatch, axis_dampings
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.geometric.decoupling import DecouplingField
+from robotino_geom_mpc.geometric.decoupling import DecouplingFieldBatch
 from robotino_geom_mpc.model.dynamics import acceleration_blocks, force_per_current
-from robotino_geom_mpc.model.kinematics import MotorKinematics
+from robotino_geom_mpc.model.kinematics import MotorKinematicsBatch
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 
 __all__ = ["BatchControlError", "MotionControllerBatch"]
@@ -55,17 +55,17 @@ class MotionControllerBatch:
             raise BatchControlError(f"need one twist model per run and at least one run, got {len(robots)} runs "
                                     f"and {len(twists)} twist models")
         self.period_s = float(control.period_s)
-        self.mpc = DecoupledMPC.batch(robots, control)
-        self.field = DecouplingField.batch(robots)
-        self.kinematics = MotorKinematics.batch(robots)
-        self.drive = InverseDrive.batch(robots, self.period_s)
+        self.mpc = DecoupledMPCBatch(robots, control)
+        self.field = DecouplingFieldBatch(robots)
+        self.kinematics = MotorKinematicsBatch(robots)
+        self.drive = InverseDriveBatch(robots, self.period_s)
         self.current_limit_a = float(control.current_limit_a)
         self._damping = np.stack([axis_dampings(p) for p in robots])
         # eq. (9) per run: wheel forces per unit current and the M, l / J of the acceleration rows
         self._force_per_current = np.array([force_per_current(p) for p in robots])[:, None]
         self._mass, self._lever_per_inertia = np.array([p.M for p in robots]), np.array([p.l / p.J for p in robots])
         tau = float(control.odometry_filter_time_constant_s)
-        self.estimator = OdometryFilter.batch(self.period_s, tau, twists, start) if tau > 0.0 else None
+        self.estimator = OdometryFilterBatch(self.period_s, tau, twists, start) if tau > 0.0 else None
         self.u_prev = np.zeros((len(robots), 3))
 
     def _acceleration_of_current(self, theta: np.ndarray, current: np.ndarray) -> np.ndarray:
@@ -85,7 +85,7 @@ class MotionControllerBatch:
         """
         X = np.array(X, dtype=float)
         if self.estimator is not None:
-            X[:, 0::2] = self.estimator.update_batch(X)
+            X[:, 0::2] = self.estimator.update(X)
         theta, velocity = X[:, 4], X[:, 1::2]
         theta_m = theta + 0.5 * self.period_s * velocity[:, 2]
         u = self.u_prev + self.mpc.delta_u(X, self.u_prev, preview)
@@ -97,14 +97,14 @@ class MotionControllerBatch:
             return self.kinematics.speeds_and_rates(theta, velocity, acceleration)[1]
 
         if self.current_limit_a > 0.0:
-            voltages, saturated, mean, scale = self.drive.limited_step_batch(
+            voltages, saturated, mean, scale = self.drive.limited_step(
                 currents, omega, omega_rate,
                 lambda: self.kinematics.speeds_and_rates(theta, velocity, -self._damping * velocity)[1],
                 self.current_limit_a, rate_of_current)
             if scale.min() < 1.0:  # (all at 1: u as it is, the same numbers)
                 u = scale[:, None] * u
         else:
-            voltages, saturated, mean = self.drive.step_batch(currents, omega, omega_rate, rate_of_current)
+            voltages, saturated, mean = self.drive.step(currents, omega, omega_rate, rate_of_current)
         # a clipped run keeps the acceleration its mean current gives (anti-windup); the others their u
         self.u_prev = np.where(saturated[:, None], self._acceleration_of_current(theta_m, mean), u) \
             if np.count_nonzero(saturated) else u

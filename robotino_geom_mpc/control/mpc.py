@@ -19,8 +19,6 @@ horizon) can make the loop unstable, which a controller must refuse.
 
 from __future__ import annotations
 
-from typing import Any
-
 from collections.abc import Sequence
 from itertools import chain
 import math
@@ -33,7 +31,7 @@ from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, ParamError, RobotinoParams
 
 __all__ = ["MPCError", "UnstableClosedLoopError", "axis_dampings", "discretize_axis", "prediction_matrices",
-           "DecoupledMPC", "closed_loop_matrices", "closed_loop_poles", "check_closed_loop"]
+           "DecoupledMPC", "DecoupledMPCBatch", "closed_loop_matrices", "closed_loop_poles", "check_closed_loop"]
 
 STABILITY_MARGIN = 1e-3  # default: a pole modulus above 1 - this is refused
 _SERIES_BELOW = 0.1  # discretize_axis: phi_2 by its series below this damping x period
@@ -179,8 +177,6 @@ class DecoupledMPC:
     (eq. 54 as printed lacks the 1/2 on the R_p term, which only rescales r).
     """
 
-    _gain_rows: np.ndarray  # a batch's stacked gain entry by entry, (3, 3N + 9, B) (`batch`)
-
     def __init__(self, robot: RobotinoParams, control: ControlParams) -> None:
         self.period_s, self.horizon = float(control.period_s), int(control.horizon)
         q, r = np.asarray(control.q, dtype=float), np.asarray(control.r, dtype=float)
@@ -247,7 +243,7 @@ class DecoupledMPC:
         return np.einsum("anm,ma->na", self.gain, self.free_error(x, u_prev, Y_d))
 
     def delta_u(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray) -> np.ndarray:
-        """First component Delta u(k) of eq. (56) for the three axes, the array form (any leading batch axes).
+        """First component Delta u(k) of eq. (56) for the three axes, the array form (any leading axes).
 
         Parameters
         ----------
@@ -256,62 +252,21 @@ class DecoupledMPC:
         u_prev
             u(k-1), shape (..., 3).
         Y_d
-            Reference positions y_d(k+1) .. y_d(k+N), shape (..., N, 3) or (N, 3) shared by the runs.
+            Reference positions y_d(k+1) .. y_d(k+N), shape (..., N, 3) or (N, 3) shared.
 
         Returns
         -------
         ndarray, shape (..., 3)
-            ``stacked_gain @ (Y_d.ravel(), X, u(k-1))`` per run; with a stacked MPC (`batch`, gains
-            (B, 3, 3N + 9)) each run by its own gain.
+            ``stacked_gain @ (Y_d.ravel(), X, u(k-1))``; B runs each with its own model: `DecoupledMPCBatch`.
 
         Notes
         -----
         Shapes are the caller's (the controller checks its inputs once); `delta_u_floats` is the law on floats.
         """
         Y_d, X, n = np.asarray(Y_d, dtype=float), np.asarray(X, dtype=float), 3 * np.shape(Y_d)[-2]
-        if self.stacked_gain.ndim == 3:  # a batch: z (3N + 9, B), one contiguous row per entry, as `_gain_rows`
-            z = np.empty((n + 9, len(X)))
-            z[:n], z[n : n + 6], z[n + 6 :] = Y_d.reshape(-1, n).T, X.T, np.transpose(u_prev)
-            return np.einsum("akb,kb->ba", self._gain_rows, z)
         z = np.empty((*X.shape[:-1], n + 9))  # (Y_d.ravel(), X, u(k-1)) per run
         z[..., :n], z[..., n : n + 6], z[..., n + 6 :] = Y_d.reshape(*Y_d.shape[:-2], n), X, u_prev
         return np.einsum("...ak,...k->...a", self.stacked_gain, z)
-
-    @classmethod
-    def batch(cls, robots: Sequence[RobotinoParams], control: ControlParams) -> DecoupledMPC:
-        """The MPCs of B controller models at once: every array attribute gains a leading batch axis (B, ...).
-
-        The relations of `__init__` and `prediction_matrices` on the stacked axes (B, 3), equal to each run's own
-        to rounding; the array forms (`delta_u`) then give each run its own gain, the float forms serve one run.
-        """
-        first = cls(robots[0], control)  # checks the weights (every run's)
-        N, B, eye, T = first.horizon, len(robots), np.eye(first.horizon), first.period_s
-        m: Any = cls.__new__(cls)  # the same attributes with a batch axis
-        m.period_s, m.horizon, m.q, m.r = T, N, np.tile(first.q, (B, 1)), np.tile(first.r, (B, 1))
-        models = [discretize_axis(damping, T) for p in robots for damping in axis_dampings(p)]
-        m.A_d, m.B_d = np.reshape([a for a, _ in models], (B, 3, 2, 2)), np.reshape([b for _, b in models], (B, 3, 2))
-        m.G_p, m.F_1p, m.F_2p = np.empty((B, 3, N, 2)), np.zeros((B, 3, N, N)), np.empty((B, 3, N))
-        power, partial = np.tile(np.eye(2), (B, 3, 1, 1)), 0.0
-        for j in range(N):  # `prediction_matrices`, every axis of every run at once
-            partial = partial + np.einsum("...ij,...j->...i", power, m.B_d)
-            power = power @ m.A_d
-            m.G_p[..., j, :], m.F_2p[..., j] = power[..., 0, :], partial[..., 0]
-            m.F_1p[..., j, : j + 1] = m.F_2p[..., j::-1]
-        q, r, F1T = first.q[:, None, None], first.r[:, None, None], m.F_1p.swapaxes(-1, -2)
-        m.hessian = q * F1T @ m.F_1p + r * eye
-        m.gain = np.linalg.solve(m.hessian, q * F1T)
-        k, M = m.gain[..., 0, :], m.F_1p @ m.gain  # (B, 3, N), (B, 3, N, N)
-        m.stacked_gain, m.prediction_map = np.zeros((B, 3, 3 * N + 9)), np.zeros((B, 3 * N, 3 * N + 9))
-        for a in range(3):
-            m.stacked_gain[:, a, a : 3 * N : 3] = k[:, a]
-            m.stacked_gain[:, a, 3 * N + 2 * a : 3 * N + 2 * a + 2] = -np.einsum("bn,bnm->bm", k[:, a], m.G_p[:, a])
-            m.stacked_gain[:, a, 3 * N + 6 + a] = -np.einsum("bn,bn->b", k[:, a], m.F_2p[:, a])
-            m.prediction_map[:, a::3, a : 3 * N : 3] = M[:, a]
-            m.prediction_map[:, a::3, 3 * N + 2 * a : 3 * N + 2 * a + 2] = (eye - M[:, a]) @ m.G_p[:, a]
-            m.prediction_map[:, a::3, 3 * N + 6 + a] = np.einsum("bij,bj->bi", eye - M[:, a], m.F_2p[:, a])
-        m._reference_gains = m._state_gains = None  # no float path for a batch
-        m._gain_rows = np.ascontiguousarray(m.stacked_gain.transpose(1, 2, 0))  # `delta_u`'s: twice as fast
-        return m
 
     def predicted_floats(
         self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]]
@@ -350,6 +305,65 @@ class DecoupledMPC:
             sum(map(mul, kyy, yy)) + kpy * py + kvy * vy + kuy * upy,
             sum(map(mul, kyt, yt)) + kpt * pt + kvt * vt + kut * upt,
         ]
+
+
+class DecoupledMPCBatch:
+    """The MPCs of B controller models at once (`DecoupledMPC` per run, stacked): array attributes (B, ...).
+
+    The relations of `DecoupledMPC.__init__` and `prediction_matrices` on the stacked axes (B, 3), equal to each
+    run's own to rounding; `delta_u` steps each run by its own gain.
+
+    Parameters
+    ----------
+    robots
+        Each run's controller model (B >= 1).
+    control
+        Period, horizon and weights, shared by the runs.
+
+    Attributes
+    ----------
+    A_d, B_d, G_p, F_1p, F_2p, hessian, gain, stacked_gain, prediction_map
+        As `DecoupledMPC`'s, with a leading batch axis (B, ...).
+    """
+
+    def __init__(self, robots: Sequence[RobotinoParams], control: ControlParams) -> None:
+        first = DecoupledMPC(robots[0], control)  # checks the weights (every run's)
+        N, B, eye, T = first.horizon, len(robots), np.eye(first.horizon), first.period_s
+        self.period_s, self.horizon, self.q, self.r = T, N, np.tile(first.q, (B, 1)), np.tile(first.r, (B, 1))
+        models = [discretize_axis(damping, T) for p in robots for damping in axis_dampings(p)]
+        self.A_d = np.reshape([a for a, _ in models], (B, 3, 2, 2))
+        self.B_d = np.reshape([b for _, b in models], (B, 3, 2))
+        self.G_p, self.F_1p, self.F_2p = np.empty((B, 3, N, 2)), np.zeros((B, 3, N, N)), np.empty((B, 3, N))
+        power, partial = np.tile(np.eye(2), (B, 3, 1, 1)), np.zeros((B, 3, 2))
+        for j in range(N):  # `prediction_matrices`, every axis of every run at once
+            partial = partial + np.einsum("...ij,...j->...i", power, self.B_d)
+            power = power @ self.A_d
+            self.G_p[..., j, :], self.F_2p[..., j] = power[..., 0, :], partial[..., 0]
+            self.F_1p[..., j, : j + 1] = self.F_2p[..., j::-1]
+        q, r, F1T = first.q[:, None, None], first.r[:, None, None], self.F_1p.swapaxes(-1, -2)
+        self.hessian = q * F1T @ self.F_1p + r * eye
+        self.gain = np.linalg.solve(self.hessian, q * F1T)
+        k, M = self.gain[..., 0, :], self.F_1p @ self.gain  # (B, 3, N), (B, 3, N, N)
+        self.stacked_gain, self.prediction_map = np.zeros((B, 3, 3 * N + 9)), np.zeros((B, 3 * N, 3 * N + 9))
+        for a in range(3):
+            self.stacked_gain[:, a, a : 3 * N : 3] = k[:, a]
+            self.stacked_gain[:, a, 3 * N + 2 * a : 3 * N + 2 * a + 2] = -np.einsum("bn,bnm->bm", k[:, a],
+                                                                                     self.G_p[:, a])
+            self.stacked_gain[:, a, 3 * N + 6 + a] = -np.einsum("bn,bn->b", k[:, a], self.F_2p[:, a])
+            self.prediction_map[:, a::3, a : 3 * N : 3] = M[:, a]
+            self.prediction_map[:, a::3, 3 * N + 2 * a : 3 * N + 2 * a + 2] = (eye - M[:, a]) @ self.G_p[:, a]
+            self.prediction_map[:, a::3, 3 * N + 6 + a] = np.einsum("bij,bj->bi", eye - M[:, a], self.F_2p[:, a])
+        # the stacked gain entry by entry, (3, 3N + 9, B): one contiguous row per entry, `delta_u` twice as fast
+        self._gain_rows = np.ascontiguousarray(self.stacked_gain.transpose(1, 2, 0))
+
+    def delta_u(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray) -> np.ndarray:
+        """`DecoupledMPC.delta_u` of each run by its own gain: X (B, 6), u_prev (B, 3), Y_d (N, 3) shared or
+        (B, N, 3) -> (B, 3).
+        """
+        Y_d, X, n = np.asarray(Y_d, dtype=float), np.asarray(X, dtype=float), 3 * np.shape(Y_d)[-2]
+        z = np.empty((n + 9, len(X)))  # (Y_d.ravel(), X, u(k-1)) per run, a column each
+        z[:n], z[n : n + 6], z[n + 6 :] = Y_d.reshape(-1, n).T, X.T, np.transpose(u_prev)
+        return np.einsum("akb,kb->ba", self._gain_rows, z)
 
 
 def closed_loop_matrices(mpc: DecoupledMPC) -> np.ndarray:

@@ -9,8 +9,6 @@ paper places singularities (erratum 2: there are none).
 
 from __future__ import annotations
 
-from typing import Any
-
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -29,6 +27,7 @@ __all__ = [
     "g_theta_stack",
     "decoupling_field_toolbox",
     "DecouplingField",
+    "DecouplingFieldBatch",
     "ConditionResult",
     "DecouplingReport",
     "theta_grid",
@@ -139,6 +138,22 @@ def _acceleration_blocks_of_full_rank(robots: Sequence[RobotinoParams], rtol: fl
     return G3
 
 
+def _body_accelerations(theta: object, u: np.ndarray) -> np.ndarray:
+    """(R(theta)^T (u_x, u_y), u_theta), shape (3, ...) for theta (...,) and u (..., 3): T(theta) u = T(0) of this.
+
+    One contiguous row per component, as `DecouplingField.forces` and `DecouplingFieldBatch.forces` read it.
+    """
+    th = _thetas(theta)
+    u = np.asarray(u, dtype=float)
+    c, s = np.cos(th), np.sin(th)
+    ux, uy = u[..., 0], u[..., 1]  # as `DecouplingField.forces_floats`
+    turned = np.empty((3, *np.shape(c)))
+    np.add(c * ux, s * uy, out=turned[0, ...])
+    np.subtract(c * uy, s * ux, out=turned[1, ...])
+    turned[2, ...] = u[..., 2]
+    return turned
+
+
 class DecouplingField:
     """Fast T(theta) for the control loop: T(theta) = T(0) diag(R(theta)^T, 1).
 
@@ -160,8 +175,6 @@ class DecouplingField:
     accelerations u are turned into the body frame, then distributed.
     """
 
-    _T0_entries: np.ndarray  # a batch's T(0), (3, 3, B) (`batch`)
-
     def __init__(self, p: RobotinoParams) -> None:
         self.p = p
         self.T0 = np.linalg.inv(_acceleration_blocks_of_full_rank([p])[0])
@@ -176,36 +189,12 @@ class DecouplingField:
         rot[..., 2, 2] = 1.0
         return self.T0 @ rot
 
-    @classmethod
-    def batch(cls, robots: Sequence[RobotinoParams]) -> DecouplingField:
-        """The fields of B robots at once: T(0) of shape (B, 3, 3), for the array forms (`field`, `forces`).
-
-        `forces` reads T(0) entry by entry, each entry one contiguous row over the runs (twice as fast as the
-        rows of three).
-        """
-        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
-        stacked.p = tuple(robots)
-        stacked.T0 = np.linalg.inv(_acceleration_blocks_of_full_rank(stacked.p))
-        stacked._T0_entries = np.ascontiguousarray(stacked.T0.transpose(1, 2, 0))  # (3, 3, B): `forces`'s
-        stacked._T0_rows = None  # no float path for a batch
-        return stacked
-
     def forces(self, theta: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Wheel forces F = T(theta) u [N] (eqs. 36-37), the array form: theta (...,), u (..., 3) -> (..., 3).
 
-        With a batch field (`batch`) theta and u carry its batch axis (B,) and (B, 3).
+        B runs each with its own model: `DecouplingFieldBatch`.
         """
-        th = _thetas(theta)
-        u = np.asarray(u, dtype=float)
-        c, s = np.cos(th), np.sin(th)
-        ux, uy = u[..., 0], u[..., 1]  # T(theta) u = T(0) (R(theta)^T (u_x, u_y), u_theta), as `forces_floats`
-        turned = np.empty((3, *np.shape(c)))  # R(theta)^T (u_x, u_y), u_theta: one contiguous row each
-        np.add(c * ux, s * uy, out=turned[0, ...])
-        np.subtract(c * uy, s * ux, out=turned[1, ...])
-        turned[2, ...] = u[..., 2]
-        if self.T0.ndim == 3:  # a batch: each run by its own T(0)
-            return np.einsum("ijb,jb->bi", self._T0_entries, turned)
-        return np.einsum("ij,j...->...i", self.T0, turned)
+        return np.einsum("ij,j...->...i", self.T0, _body_accelerations(theta, u))
 
     def forces_floats(self, theta: float, u: Sequence[float]) -> list[float]:
         """Wheel forces F = T(theta) u [N] (eqs. 36-37) on Python floats, the per-tick path of `field`.
@@ -222,6 +211,24 @@ class DecouplingField:
         rx, ry = c * ux + s * uy, c * uy - s * ux
         (a0, b0, e0), (a1, b1, e1), (a2, b2, e2) = self._T0_rows
         return [a0 * rx + b0 * ry + e0 * ut, a1 * rx + b1 * ry + e1 * ut, a2 * rx + b2 * ry + e2 * ut]
+
+
+class DecouplingFieldBatch:
+    """The fields of B robots at once (`DecouplingField` per run): T(0) of shape (B, 3, 3).
+
+    Parameters
+    ----------
+    robots
+        Each run's robot parameters (B >= 1).
+    """
+
+    def __init__(self, robots: Sequence[RobotinoParams]) -> None:
+        self.T0 = np.linalg.inv(_acceleration_blocks_of_full_rank(robots))
+        self._T0_entries = np.ascontiguousarray(self.T0.transpose(1, 2, 0))  # (3, 3, B): twice as fast as rows
+
+    def forces(self, theta: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """`DecouplingField.forces` of each run by its own T(0): theta (B,), u (B, 3) -> (B, 3)."""
+        return np.einsum("ijb,jb->bi", self._T0_entries, _body_accelerations(theta, u))
 
 
 @dataclass(frozen=True)

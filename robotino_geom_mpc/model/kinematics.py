@@ -6,8 +6,6 @@ turns gear / r times as fast; d_i(theta) = R(theta) d_i(0) turns W(theta) into W
 
 from __future__ import annotations
 
-from typing import Any
-
 import math
 from collections.abc import Sequence
 
@@ -16,7 +14,45 @@ import numpy as np
 from robotino_geom_mpc.model.dynamics import wheel_directions
 from robotino_geom_mpc.params.specs import RobotinoParams
 
-__all__ = ["MotorKinematics"]
+__all__ = ["MotorKinematics", "MotorKinematicsBatch", "speeds_and_rates"]
+
+
+def speeds_and_rates(
+    W0: np.ndarray, theta: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Motor speeds omega and their rate omega' for a body velocity and acceleration (array form).
+
+    Parameters
+    ----------
+    W0
+        W(0), shape (3, 3) shared by the runs, or (..., 3, 3) one per run.
+    theta
+        Heading [rad], shape (...,) (a batch axis, or none for one run).
+    velocity, acceleration
+        (x', y', theta') and (x'', y'', theta'') in the odom frame, shape (..., 3).
+
+    Returns
+    -------
+    omega, omega_rate : ndarray, shape (..., 3)
+        omega = W(0) R(theta)^T v and omega' = W(theta) a + theta' W'(theta) v, where
+        W'(theta) v = W(theta) (y', -x', 0): both are W(0) applied to body-frame vectors.
+    """
+    theta = np.asarray(theta, dtype=float)
+    v, a = np.asarray(velocity, dtype=float), np.asarray(acceleration, dtype=float)
+    c, s = np.cos(theta), np.sin(theta)
+    vx, vy, w = v[..., 0], v[..., 1], v[..., 2]
+    bx, by = a[..., 0] + w * vy, a[..., 1] - w * vx
+    velocity_body, rate_body = np.empty((2, *c.shape, 3))  # R(theta)^T of the velocity and of the rate
+    np.add(c * vx, s * vy, out=velocity_body[..., 0])
+    np.subtract(c * vy, s * vx, out=velocity_body[..., 1])
+    velocity_body[..., 2] = w
+    np.add(c * bx, s * by, out=rate_body[..., 0])
+    np.subtract(c * by, s * bx, out=rate_body[..., 1])
+    rate_body[..., 2] = a[..., 2]
+    if W0.ndim == 2:  # one W(0) for every run
+        return velocity_body @ W0.T, rate_body @ W0.T
+    return (np.einsum("...ij,...j->...i", W0, velocity_body),
+            np.einsum("...ij,...j->...i", W0, rate_body))
 
 
 class MotorKinematics:
@@ -42,54 +78,11 @@ class MotorKinematics:
         c, s = math.cos(theta), math.sin(theta)
         return self.W0 @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
 
-    @classmethod
-    def batch(cls, robots: Sequence[RobotinoParams]) -> MotorKinematics:
-        """The kinematics of B robots at once, for the array form `speeds_and_rates`: W(0) of shape (B, 3, 3), or
-        (3, 3) when the runs share their wheels (one product for all of them).
-        """
-        stacked: Any = cls.__new__(cls)  # the same attributes with a batch axis
-        made: dict[tuple[float, float, float], np.ndarray] = {}  # runs with the same wheels share W(0)
-        for p in robots:
-            if (p.gear_ratio, p.r, p.l) not in made:
-                made[p.gear_ratio, p.r, p.l] = cls(p).W0
-        stacked.W0 = made.popitem()[1] if len(made) == 1 else np.stack([made[p.gear_ratio, p.r, p.l] for p in robots])
-        stacked._W0 = None  # no float path for a batch
-        return stacked
-
     def speeds_and_rates(
         self, theta: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Motor speeds omega and their rate omega' for a body velocity and acceleration (array form).
-
-        Parameters
-        ----------
-        theta
-            Heading [rad], shape (...,) (a batch axis, or none for one run).
-        velocity, acceleration
-            (x', y', theta') and (x'', y'', theta'') in the odom frame, shape (..., 3).
-
-        Returns
-        -------
-        omega, omega_rate : ndarray, shape (..., 3)
-            omega = W(0) R(theta)^T v and omega' = W(theta) a + theta' W'(theta) v, where
-            W'(theta) v = W(theta) (y', -x', 0): both are W(0) applied to body-frame vectors.
-        """
-        theta = np.asarray(theta, dtype=float)
-        v, a = np.asarray(velocity, dtype=float), np.asarray(acceleration, dtype=float)
-        c, s = np.cos(theta), np.sin(theta)
-        vx, vy, w = v[..., 0], v[..., 1], v[..., 2]
-        bx, by = a[..., 0] + w * vy, a[..., 1] - w * vx
-        velocity_body, rate_body = np.empty((2, *c.shape, 3))  # R(theta)^T of the velocity and of the rate
-        np.add(c * vx, s * vy, out=velocity_body[..., 0])
-        np.subtract(c * vy, s * vx, out=velocity_body[..., 1])
-        velocity_body[..., 2] = w
-        np.add(c * bx, s * by, out=rate_body[..., 0])
-        np.subtract(c * by, s * bx, out=rate_body[..., 1])
-        rate_body[..., 2] = a[..., 2]
-        if self.W0.ndim == 2:  # one W(0) for every run
-            return velocity_body @ self.W0.T, rate_body @ self.W0.T
-        return (np.einsum("...ij,...j->...i", self.W0, velocity_body),
-                np.einsum("...ij,...j->...i", self.W0, rate_body))
+        """Motor speeds omega and their rate omega' (array form, any leading axes): `speeds_and_rates` by W(0)."""
+        return speeds_and_rates(self.W0, theta, velocity, acceleration)
 
     def speeds_and_rates_floats(
         self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
@@ -106,3 +99,27 @@ class MotorKinematics:
             [a0 * px + b0 * py + e0 * w, a1 * px + b1 * py + e1 * w, a2 * px + b2 * py + e2 * w],
             [a0 * qx + b0 * qy + e0 * aw, a1 * qx + b1 * qy + e1 * aw, a2 * qx + b2 * qy + e2 * aw],
         )
+
+
+class MotorKinematicsBatch:
+    """The kinematics of B robots at once: W(0) of shape (B, 3, 3), or (3, 3) when the runs share their wheels
+    (one product for all of them).
+
+    Parameters
+    ----------
+    robots
+        Each run's wheel radius, wheel distance and gear ratio (B >= 1).
+    """
+
+    def __init__(self, robots: Sequence[RobotinoParams]) -> None:
+        made: dict[tuple[float, float, float], np.ndarray] = {}  # runs with the same wheels share W(0)
+        for p in robots:
+            if (p.gear_ratio, p.r, p.l) not in made:
+                made[p.gear_ratio, p.r, p.l] = MotorKinematics(p).W0
+        self.W0 = made.popitem()[1] if len(made) == 1 else np.stack([made[p.gear_ratio, p.r, p.l] for p in robots])
+
+    def speeds_and_rates(
+        self, theta: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """`speeds_and_rates` of each run: theta (B,), velocity and acceleration (B, 3) -> (B, 3) twice."""
+        return speeds_and_rates(self.W0, theta, velocity, acceleration)

@@ -47,6 +47,7 @@ class PlantPlans:
 
     def take(self, msg: Any, now_s: float) -> bool:
         """Offer a plan message received at robot time `now_s`; True when taken (its receipt is reported)."""
+        reason: str | None
         try:
             plan = plan_of_message(msg, self.period_s)
         except PlanMessageError as exc:
@@ -69,6 +70,6 @@ class PlantPlans:
 
     def pop_reports(self) -> list[JointTrajectory]:
         """The reports since the last call as ``command_applied`` messages, oldest first."""
-        return [received_message(r.time_s, r.basis_s, self.interface, r.taken) if r.values is None
-                else applied_message(r.time_s, r.basis_s, r.entry_index, r.values, self.interface)
-                for r in self.follower.pop_reports() if r.values is not None or r.basis_s is not None]
+        return [applied_message(r.time_s, r.basis_s, r.entry_index, r.values, self.interface) if r.basis_s is None
+                or r.values is not None else received_message(r.time_s, r.basis_s, self.interface, r.taken)
+                for r in self.follower.pop_reports()]

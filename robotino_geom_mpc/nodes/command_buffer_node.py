@@ -29,18 +29,16 @@ Parameters: ``control.period_s`` (the plans' period; the config file's value) an
 
 from __future__ import annotations
 
-import math
-
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Twist
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
-from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S, PlanBuffer
+from robotino_geom_mpc.loop.plan_follower import IGNORED, PlanDispatcher, PlanFollower
 from robotino_geom_mpc.params.specs import CONTROL_SPECS, ParamSpec
 from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.plans import IGNORED, applied_message, offer_plan
+from robotino_geom_mpc.ros.plans import PlanMessageError, applied_message, plan_of_message, received_message
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
 from robotino_geom_mpc.ros.spin import run_node
 from robotino_geom_mpc.ros.throttle import warn_throttled
@@ -59,7 +57,9 @@ _ERRORS = ("nan", "length", "times", "future", "past", "stamp")
 
 
 class CommandBufferNode(Node):
-    """The command buffer node (see the module docstring)."""
+    """The command buffer node (see the module docstring): plan messages in, `loop.plan_follower.PlanDispatcher`
+    polled on the node clock, cmd_vel and reports out.
+    """
 
     def __init__(self) -> None:
         super().__init__("robotino_command_buffer")
@@ -67,15 +67,8 @@ class CommandBufferNode(Node):
         self.params = SpecParameters(self, period_spec + BUFFER_SPECS, {**spec_defaults(period_spec), **_DEFAULTS},
                                      fixed=("control.period_s",))
         self.period_s = self.params["control.period_s"]
-        self.buffer = PlanBuffer()
-        self.refused = dict.fromkeys(_ERRORS, 0)
-        self.ignored = 0  # older or duplicate plans
-        self.exhausted_periods = 0
-        self.period_end_s = -math.inf  # when the entry sent last stops running
-        self.next_zero_s = -math.inf  # every plan used up: when the next zero twist goes out
-        self.exhausted_since: float | None = None
-        self.round_trip_s = math.nan
-        self.active = False  # a plan was taken and the idle time has not run out
+        self.follower = PlanFollower(self.period_s)
+        self.dispatcher = PlanDispatcher(self.follower, self.params["idle_after_s"])
         self.cmd_pub = self.create_publisher(Twist, "cmd_vel", CONTROL_QOS)
         self.report_pub = self.create_publisher(JointTrajectory, "command_applied", PUBLISH_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", PUBLISH_QOS)
@@ -89,63 +82,49 @@ class CommandBufferNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _on_plan(self, msg: MultiDOFJointTrajectory) -> None:
-        now = self._now_s()
-        reason, detail, plan, receipt = offer_plan(self.buffer, msg, self.period_s, now, "cmd_vel")
-        if receipt is not None:
-            self.report_pub.publish(receipt)
-        if reason in IGNORED:
-            self.ignored += 1
-            return
-        if reason is not None or plan is None:  # (plan is None only with a reason)
-            self.refused[reason] = self.refused.get(reason, 0) + 1
+        reason: str | None
+        try:
+            plan = plan_of_message(msg, self.period_s)
+        except PlanMessageError as exc:
+            reason, detail = exc.reason, str(exc)
+            self.follower.refuse(reason)
+        else:
+            reason = self.dispatcher.take(plan, self._now_s())
+            detail = f"basis {plan.basis_s:.6f} s, {len(plan.times_s)} entries"
+        self._publish_reports()
+        if reason is not None and reason not in IGNORED:
             warn_throttled(self.get_logger(), f"refused a plan ({reason}: {detail}); the previous plan (or zero) stays "
-                                   f"({sum(self.refused.values())} refused so far)", 1.0)
-            return
-        self.round_trip_s = now - plan.basis_s
-        self.active = True  # the next poll sends what runs now (zero before the plan's first entry)
+                           f"({self.follower.counts['refused_plans']} refused so far)", 1.0)
 
     def _tick(self) -> None:
-        """Each poll: at a period's start, the entry the plans held then give, held to the period's end.
+        """Each poll: what the dispatcher sends now (`PlanDispatcher.poll`)."""
+        if not self.dispatcher.active:
+            return
+        values = self.dispatcher.poll(self._now_s())
+        if values is not None:
+            twist = Twist()
+            twist.linear.x, twist.linear.y, twist.angular.z = values
+            self.cmd_pub.publish(twist)
+            self._publish_reports()
+        elif not self.dispatcher.active:
+            self.get_logger().info("every plan used up: robot stopped, cmd_vel idle until the next plan")
 
-        A plan taken within a period acts from the next one, as the plant's `PlantPlans.period_command` and the
-        controller's `control.plan_history` have it. Every plan used up: a zero twist once a period, for
-        ``idle_after_s``.
-        """
-        if not self.active:
-            return
-        now = self._now_s()
-        if now < self.period_end_s - TIME_TOLERANCE_S:  # the entry sent last still runs
-            return
-        applied = self.buffer.command_at(now)
-        if applied is None:
-            start = now if self.exhausted_since is None else self.exhausted_since
-            self.exhausted_since, self.period_end_s = start, -math.inf  # a plan may start at any poll
-            if now - start >= self.params["idle_after_s"]:
-                self.active = False
-                self.get_logger().info("every plan used up: robot stopped, cmd_vel idle until the next plan")
-            elif now >= self.next_zero_s:
-                self.exhausted_periods += 1
-                self.next_zero_s = now + self.period_s
-                self._send(now, None, -1, (0.0, 0.0, 0.0))
-            return
-        self.exhausted_since, self.next_zero_s = None, -math.inf
-        begin, self.period_end_s = self.buffer.entry_span(applied, self.period_s)
-        self._send(begin, applied.basis_s, applied.entry_index, applied.values)
-
-    def _send(self, time_s: float, basis_s: float | None, index: int, values) -> None:
-        twist = Twist()
-        twist.linear.x, twist.linear.y, twist.angular.z = (float(v) for v in values)
-        self.cmd_pub.publish(twist)
-        self.report_pub.publish(applied_message(time_s, basis_s, index, values, "cmd_vel"))
+    def _publish_reports(self) -> None:
+        for r in self.follower.pop_reports():
+            self.report_pub.publish(applied_message(r.time_s, r.basis_s, r.entry_index, r.values, "cmd_vel")
+                                    if r.basis_s is None or r.values is not None else
+                                    received_message(r.time_s, r.basis_s, "cmd_vel", r.taken))
 
     def _diagnose(self) -> None:
-        refused = sum(self.refused.values())
+        counts = self.follower.counts
+        refused = {**dict.fromkeys(_ERRORS, 0), **self.follower.refused}
         status = DiagnosticStatus(name=STATUS_NAME, hardware_id="robotino",
-                                  level=DiagnosticStatus.WARN if refused else DiagnosticStatus.OK,
-                                  message="active" if self.active else "idle")
-        values = {"refused": refused, **{f"refused_{k}": v for k, v in self.refused.items()},
-                  "ignored_older_or_duplicate": self.ignored, "exhausted_periods": self.exhausted_periods,
-                  "last_round_trip_s": f"{self.round_trip_s:.6f}"}
+                                  level=DiagnosticStatus.WARN if counts["refused_plans"] else DiagnosticStatus.OK,
+                                  message="active" if self.dispatcher.active else "idle")
+        values = {"refused": counts["refused_plans"], **{f"refused_{k}": v for k, v in refused.items()},
+                  "ignored_older_or_duplicate": counts["ignored_plans"],
+                  "exhausted_periods": counts["exhausted_periods"],
+                  "last_round_trip_s": f"{self.dispatcher.round_trip_s:.6f}"}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -153,7 +132,7 @@ class CommandBufferNode(Node):
 
     def on_stop(self) -> None:
         """Leave the robot at zero twist as the node stops (`ros.spin.run_node`)."""
-        if self.active:
+        if self.dispatcher.active:
             self.cmd_pub.publish(Twist())
 
 

@@ -32,7 +32,7 @@ and conversion of a 25-point message cost 0.4 ms a tick).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING
 
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Twist
@@ -42,20 +42,19 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJ
 from robotino_geom_mpc.description.urdf import BASE_LINK, JOINT_NAMES
 from robotino_geom_mpc.loop.events import AppliedReport
 from robotino_geom_mpc.loop.inputs import REPORT_WINDOW_S, report_problem
-from robotino_geom_mpc.network.plan import CommandPlan, PlanBuffer
+from robotino_geom_mpc.network.plan import CommandPlan
 from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.decode import STAMP_FIELDS
 
 if TYPE_CHECKING:
     from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 
-__all__ = ["AppliedReport", "IGNORED", "PLAN_TOPICS", "PlanMessageError", "PlanOffer", "PlanWriter", "TWIST_AXES",
-           "applied_message", "offer_plan", "plan_message", "plan_of_message", "plan_type", "received_message",
+__all__ = ["AppliedReport", "PLAN_TOPICS", "PlanMessageError", "PlanWriter", "TWIST_AXES",
+           "applied_message", "plan_message", "plan_of_message", "plan_type", "received_message",
            "REPORT_WINDOW_S", "report_near", "report_of_message", "take_report"]
 
 PLAN_TOPICS = {"voltages": "wheel_voltage_plan", "cmd_vel": "cmd_vel_plan"}
 TWIST_AXES = ("base_link_x", "base_link_y", "base_link_yaw")  # command_applied's names of a twist's values
-IGNORED = ("older", "duplicate")  # `PlanBuffer.offer`'s refusals that are no fault: counted, not logged
 
 
 class PlanMessageError(ValueError):
@@ -166,42 +165,6 @@ def received_message(receipt_s: float, basis_s: float, interface: str, taken: bo
     msg = _report(basis_s, receipt_s, interface)
     msg.points[0].positions = [1.0 if taken else 0.0]
     return msg
-
-
-class PlanOffer(NamedTuple):
-    """What `offer_plan` made of one plan message.
-
-    Attributes
-    ----------
-    reason
-        None when the buffer took the plan; else the `PlanBuffer.offer` refusal or the `PlanMessageError` reason
-        (`IGNORED` ones are no fault).
-    detail
-        For a log line: the plan's basis and length, or what is wrong with the message.
-    plan
-        The plan read (None: the message is no plan).
-    receipt
-        The ``command_applied`` receipt to report, taken or not (None: the message is no plan).
-    """
-
-    reason: str | None
-    detail: str
-    plan: CommandPlan | None
-    receipt: JointTrajectory | None
-
-
-def offer_plan(buffer: PlanBuffer, msg: JointTrajectory | MultiDOFJointTrajectory, period_s: float, now_s: float,
-               interface: str) -> PlanOffer:
-    """Read a plan message and offer it to `buffer` at robot time `now_s` (the receiver's control period
-    `period_s`); the receipt report of `interface` for a plan read.
-    """
-    try:
-        plan = plan_of_message(msg, period_s)
-    except PlanMessageError as exc:
-        return PlanOffer(exc.reason, str(exc), None, None)
-    reason = buffer.offer(plan, now_s)
-    return PlanOffer(reason, f"basis {plan.basis_s:.6f} s, {len(plan.times_s)} entries", plan,
-                     received_message(now_s, plan.basis_s, interface, reason is None))
 
 
 def report_of_message(msg: JointTrajectory) -> AppliedReport:

@@ -18,7 +18,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from robotino_geom_mpc.loop.link_queue import RobotLink
-from robotino_geom_mpc.loop.plan_follower import ZERO, PlanFollower, PlanReport
+from robotino_geom_mpc.loop.events import AppliedReport
+from robotino_geom_mpc.loop.plan_follower import ZERO, PlanFollower
 from robotino_geom_mpc.network.link import LinkParams
 from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S, CommandPlan
 
@@ -79,6 +80,6 @@ class CommandLink:
             return ZERO
         return self.held[1]
 
-    def pop_reports(self) -> list[PlanReport]:
+    def pop_reports(self) -> list[AppliedReport]:
         """The plan reports since the last packet (none without plans), oldest first."""
         return [] if self.follower is None else self.follower.pop_reports()

@@ -4,8 +4,9 @@ One implementation for the plant (simulated robot, `loop.robot_loop.RobotLoop`) 
 real robot's PC): a plan offered at robot time t is taken or refused (`PlanBuffer.offer`: a malformed one, one far
 in the future or the past; older and duplicate ones are no fault, `IGNORED`), and reported as received; per control
 period the entry the plans held at the period's start give is applied (zero when every plan is used up) and
-reported as applied. The reports (`PlanReport`) wait for the robot's next up-link packet (`pop_reports`); the
-adapters turn them into ``command_applied`` messages (`ros.plans`), the offline loop hands them to the controller.
+reported as applied. The reports (`loop.events.AppliedReport`) wait for the robot's next up-link packet
+(`pop_reports`); the adapters turn them into ``command_applied`` messages (`ros.plans`), the offline loop hands
+them to the controller.
 
 `PlanDispatcher` is the command buffer's side (a real robot's PC, polled on its clock): each period's entry goes
 out once at its start and holds to its end; every plan used up, a zero command once a period for a while, then
@@ -15,28 +16,15 @@ nothing until the next plan.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
+from robotino_geom_mpc.loop.events import AppliedReport
 from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S, AppliedCommand, CommandPlan, PlanBuffer
 
-__all__ = ["IGNORED", "PlanDispatcher", "PlanFollower", "PlanReport", "ZERO"]
+__all__ = ["IGNORED", "PlanDispatcher", "PlanFollower", "ZERO"]
 
 ZERO = (0.0, 0.0, 0.0)
 IGNORED = ("older", "duplicate")
 """`PlanBuffer.offer`'s refusals that are no fault (reordering and duplicates on a link): counted, not logged."""
-
-
-class PlanReport(NamedTuple):
-    """One ``command_applied`` event: `values` None = receipt of plan `basis_s` at `time_s` (`taken` by the buffer or
-    not); else the period starting at `time_s` got `values` (entry `entry_index` of plan `basis_s`; basis None: no
-    plan, zero, index -1).
-    """
-
-    time_s: float
-    basis_s: float | None
-    entry_index: int
-    values: tuple[float, float, float] | None
-    taken: bool = True
 
 
 class PlanFollower:
@@ -55,7 +43,7 @@ class PlanFollower:
         self.buffer = PlanBuffer() if buffer is None else buffer
         self.counts = {"refused_plans": 0, "ignored_plans": 0, "exhausted_periods": 0}
         self.refused: dict[str, int] = {}  # the refused plans per reason (not the ignored ones)
-        self.reports: list[PlanReport] = []  # for the next up-link packet, in order
+        self.reports: list[AppliedReport] = []  # for the next up-link packet, in order
         self._reported: tuple[float | None, int] | None = None  # (basis, index) of the last applied report
         self._period_start_s: float | None = None  # the control period being driven and its command
         self._period_values: tuple[float, float, float] = ZERO
@@ -63,7 +51,7 @@ class PlanFollower:
     def take(self, plan: CommandPlan, now_s: float) -> str | None:
         """Offer `plan` received at robot time `now_s` (its receipt reported); None when taken, else the reason."""
         reason = self.buffer.offer(plan, now_s)
-        self.reports.append(PlanReport(now_s, plan.basis_s, -1, None, reason is None))
+        self.reports.append(AppliedReport(now_s, plan.basis_s, -1, None, reason is None))
         if reason is not None:
             self.refuse(reason)
         return reason
@@ -87,7 +75,7 @@ class PlanFollower:
         values = ZERO if applied is None else applied.values
         if report or key != self._reported:
             self._reported = key
-            self.reports.append(PlanReport(t_s, None if key is None else key[0], -1 if key is None else key[1],
+            self.reports.append(AppliedReport(t_s, None if key is None else key[0], -1 if key is None else key[1],
                                            values))
         return applied, values
 
@@ -101,7 +89,7 @@ class PlanFollower:
             self._period_values = self.command_at(start_s, report=False)[1]
         return self._period_values
 
-    def pop_reports(self) -> list[PlanReport]:
+    def pop_reports(self) -> list[AppliedReport]:
         """The reports since the last call, oldest first."""
         out, self.reports = self.reports, []
         return out
@@ -159,10 +147,10 @@ class PlanDispatcher:
             elif now_s >= self._next_zero_s:
                 follower.counts["exhausted_periods"] += 1
                 self._next_zero_s = now_s + follower.period_s
-                follower.reports.append(PlanReport(now_s, None, -1, ZERO))
+                follower.reports.append(AppliedReport(now_s, None, -1, ZERO))
                 return ZERO
             return None
         self._exhausted_since, self._next_zero_s = None, -math.inf
         begin, self._period_end_s = follower.buffer.entry_span(applied, follower.period_s)
-        follower.reports.append(PlanReport(begin, applied.basis_s, applied.entry_index, applied.values))
+        follower.reports.append(AppliedReport(begin, applied.basis_s, applied.entry_index, applied.values))
         return applied.values

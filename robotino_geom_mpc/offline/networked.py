@@ -49,7 +49,8 @@ import numpy as np
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
 from robotino_geom_mpc.loop.command_link import COMMAND_TIMEOUT_S, CommandLink
-from robotino_geom_mpc.loop.plan_follower import PlanFollower, PlanReport
+from robotino_geom_mpc.loop.events import AppliedReport
+from robotino_geom_mpc.loop.plan_follower import PlanFollower
 from robotino_geom_mpc.network.link import LinkParams
 
 __all__ = ["COMMAND_TIMEOUT_S", "NetworkedLoop", "link_meta"]
@@ -95,7 +96,7 @@ class NetworkedLoop:
         robot.take_due(t)
         return robot.period_command(t)
 
-    def _controller_takes(self, t: float, stamp_k: int, X: tuple, reports: list[PlanReport]) -> None:
+    def _controller_takes(self, t: float, stamp_k: int, X: tuple, reports: list[AppliedReport]) -> None:
         """Step 2 for one up-link packet."""
         Ts, controller = self.period_s, self.controller
         if isinstance(controller, DelayCompensatingController):

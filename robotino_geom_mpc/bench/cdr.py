@@ -72,11 +72,22 @@ def message_cases(period_s: float) -> dict[str, dict[str, Any]]:
     }
 
 
+def _parts(path: str) -> list[tuple[str, str | None]]:
+    """(name, element index or None) of each part of a field path such as ``pose.covariance[3]``."""
+    parts = []
+    for part in path.split("."):
+        match = re.fullmatch(r"(\w+)(?:\[(\d+)\])?", part)
+        if match is None:
+            raise ValueError(f"not a field path: {path!r}")
+        parts.append((match[1], match[2]))
+    return parts
+
+
 def _setter(msg: Any, paths: tuple[str, ...]) -> Callable[[tuple], Any]:
     """Sets the `paths` fields of `msg` to given values and returns it (the fields resolved once)."""
     fields = []
     for path in paths:  # (object holding the field, its name, element index or None), as `CdrTemplate` reads paths
-        *parents, last = [re.fullmatch(r"(\w+)(?:\[(\d+)\])?", part).groups() for part in path.split(".")]
+        *parents, last = _parts(path)
         holder = msg
         for name, index in parents:
             holder = getattr(holder, name) if index is None else getattr(holder, name)[int(index)]

@@ -91,8 +91,9 @@ def compare_step(source_root: str | Path, steps: int = 1000, repeats: int = 15) 
         np.savez(inputs, X=X, previews=previews)
         other = _other_process(root, inputs, theirs)
         try:
-            assert other.stdin is not None and other.stdout is not None
-            if other.stdout.readline().strip() != "ready":
+            stdin, stdout = other.stdin, other.stdout
+            assert stdin is not None and stdout is not None  # (both pipes)
+            if stdout.readline().strip() != "ready":
                 raise BenchmarkError(f"{source_root}: its controller failed (exit {other.wait()})")
             this.reset()
             ours = np.array([this.step(X[k], previews[k]).voltages for k in range(steps)])
@@ -104,9 +105,9 @@ def compare_step(source_root: str | Path, steps: int = 1000, repeats: int = 15) 
                     this.step(X[k], previews[k])
 
             def run_other() -> None:
-                other.stdin.write("pass\n")
-                other.stdin.flush()
-                if other.stdout.readline().strip() != "done":
+                stdin.write("pass\n")
+                stdin.flush()
+                if stdout.readline().strip() != "done":
                     raise BenchmarkError(f"{source_root}: its controller stopped mid-pass")
 
             this_s, other_s = median_per_call([run_this, run_other], steps, repeats)

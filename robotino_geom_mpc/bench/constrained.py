@@ -22,7 +22,7 @@ import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import replace
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import daqp
 import numpy as np
@@ -394,7 +394,9 @@ class _DenseDaqp:
     """DAQP alone on the built QPs min 1/2 z'Pz + f'z, |h + G z| <= 1, warm-started from its last active set."""
 
     def __init__(self, P: np.ndarray) -> None:
-        self.P, self.model, self.data = P, None, None
+        self.P = P
+        self.model: Any = None  # a daqp.Model (daqp has no types) from the first solve on
+        self.data: tuple[np.ndarray, np.ndarray] | None = None
 
     def solve(self, f: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarray:
         """z of the QP."""

@@ -43,7 +43,7 @@ __all__ = ["LOCKSTEP_RUNS", "ROUNDTRIPS", "lockstep_nodes", "bench_lockstep", "b
            "dds_benchmarks", "missed_ticks", "read_timing_report"]
 
 # the keys of the plant's timing report and the types of their values (None: may be null)
-_REPORT_KEYS: dict[str, tuple[type | None, ...]] = {
+_REPORT_KEYS: dict[str, tuple[type, ...]] = {
     "mode": (str,), "ticks": (int,), "loop_ticks": (int,), "simulated_s": (int, float), "wall_s": (int, float),
     "realtime_factor": (int, float, type(None)), "plant_busy_ms_per_tick": (int, float),
     "wait_ms_per_tick": (int, float), "tick0_answer_s": (int, float, type(None)), "answered": (int,),
@@ -136,7 +136,7 @@ def bench_lockstep(scenario: str = "paper-circle", duration_s: float = 10.0, tim
         loop to time (one tick).
     """
     with StealSampler(interval_s=0.1) as steal, NodeGroup() as group:
-        path = group.log_dir / TIMING_REPORT
+        path = group.logs / TIMING_REPORT
         plant = lockstep_nodes(group, scenario, duration_s, timing_report=path)
         wait_for_run(group, plant, timeout_s, f"lockstep run of {duration_s} s")
         report = read_timing_report(path, "lockstep")
@@ -164,7 +164,7 @@ def bench_realtime(duration_s: float = 60.0, scenario: str = "paper-circle", tim
     """
     period_s = load_params()[1].period_s
     with StealSampler() as steal, NodeGroup() as group:
-        path = group.log_dir / TIMING_REPORT
+        path = group.logs / TIMING_REPORT
         plant = lockstep_nodes(group, scenario, duration_s, realtime=True, timing_report=path)
         wait_for_run(group, plant, timeout_s or duration_s + 60.0, f"realtime run of {duration_s} s")
         report = read_timing_report(path, "realtime")

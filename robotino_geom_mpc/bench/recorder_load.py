@@ -117,7 +117,7 @@ def _publisher(args: argparse.Namespace) -> int:
     return 0
 
 
-def _take_all(handle: Any, msg_type: type) -> int:
+def _take_all(handle: Any, msg_type: Any) -> int:
     """Take every sample the reader of subscription `handle` holds; returns the count."""
     count = 0
     while handle.take_message(msg_type, True) is not None:
@@ -138,7 +138,7 @@ def _take(args: argparse.Namespace) -> int:
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node(f"recorder_cpu_{args.role}")
     qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE, depth=100)
-    count = [0]
+    count: list[int] = [0]
 
     def on_message(_data: bytes) -> None:
         count[0] += 1

@@ -85,7 +85,7 @@ def bench_roundtrip(count: int = 2000, warmup: int = 200, timeout_s: float = 120
         If a process fails, the run does not end within `timeout_s` or the report is malformed.
     """
     with NodeGroup() as group:
-        report = group.log_dir / "roundtrip.json"
+        report = group.logs / "roundtrip.json"
         group.start("roundtrip_controller", ["--role", "controller"], module=__name__)
         plant = group.start("roundtrip_plant", ["--role", "plant", "--count", str(count), "--warmup", str(warmup),
                                                 "--report", str(report)], module=__name__)

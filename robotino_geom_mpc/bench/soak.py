@@ -216,7 +216,7 @@ def bag_sequences(bag: str | os.PathLike, topics: tuple[str, ...]) -> dict[str, 
                 entry = seen.setdefault(channel.topic, [0, message.sequence, message.sequence])
                 entry[0] += 1
                 entry[1], entry[2] = min(entry[1], message.sequence), max(entry[2], message.sequence)
-    return {topic: tuple(entry) for topic, entry in seen.items()}
+    return {topic: (count, first, last) for topic, (count, first, last) in seen.items()}
 
 
 def _stop_like_run(group, nodes: dict) -> None:

@@ -80,7 +80,7 @@ def run_once(settle_s: float, duration_s: float, syscalls: set[str]) -> dict:
     or names no first answer.
     """
     with NodeGroup() as group:
-        path = group.log_dir / TIMING_REPORT
+        path = group.logs / TIMING_REPORT
         plant = lockstep_nodes(group, "paper-circle", duration_s, realtime=True,
                                trajectory_overrides={"start_settle_s": settle_s}, timing_report=path)
         sampler = SleepSampler({node.name: node.popen.pid for node in group.nodes}, syscalls)

@@ -49,7 +49,7 @@ def bench_study(quick: bool) -> dict[str, float]:
     one_blas_thread()  # as in the study's workers (OpenBLAS threads only spin on these sizes)
     task = draws[: batch_size(runs, workers)]
     ticks = summary["simulated_s"] / runs / control.period_s
-    cost = {True: [], False: []}
+    cost: dict[bool, list[float]] = {True: [], False: []}
     for _ in range(3):
         for together, chosen in ((True, task), (False, task[:alone])):
             start = time.process_time()

@@ -12,6 +12,7 @@ import importlib
 import math
 import os
 import sys
+from typing import NoReturn
 
 from robotino_geom_mpc.blas import one_blas_thread
 from robotino_geom_mpc.errors import RobotinoError
@@ -64,7 +65,7 @@ def seed_value(text: str) -> int:
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # argparse exits 2 already; keep its one-line form
+    def error(self, message: str) -> NoReturn:  # argparse exits 2 already; keep its one-line form
         self.print_usage(sys.stderr)
         self.exit(2, f"{self.prog}: error: {message}\n")
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 import yaml
@@ -64,7 +65,8 @@ def write_chain_file(path: Path, values: dict, comment: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     """Excite, fit, write; returns the exit status."""
-    from robotino_geom_mpc.control.chain_identification import Excitation, IdentifyError, fit_chain, run_excitation
+    from robotino_geom_mpc.control.chain_identification import Excitation, IdentifyError, RobotIO, fit_chain, \
+        run_excitation
     from robotino_geom_mpc.model.driver_chain import chain_params
     from robotino_geom_mpc.params.files import check_parameter_files
 
@@ -77,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UsageError(f"cannot create output folder {args.out}: {exc.strerror or exc}") from None
     excitation = Excitation()
+    context: AbstractContextManager[RobotIO]
     if args.ros:
         from robotino_geom_mpc.ros.identify_io import ros_robot
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from . import VERBS, UsageError, positive_float, seed_value
 from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_chain_argument, add_link_arguments, \
@@ -79,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--chain gives the firmware's odometry: use it with --odometry ideal")
     robot, control = load_params(args.params)
     link = link_from_args(args)
-    network = ({"link_up": link, "link_down": link, "compensate": not args.no_compensation}
+    network: dict[str, Any] | None = ({"link_up": link, "link_down": link, "compensate": not args.no_compensation}
                if link is not None or args.no_compensation else None)
     if chain is not None:
         if network is not None:

@@ -171,6 +171,11 @@ def _params_problem(values: dict) -> str | None:
     return goal_params_problem(values)
 
 
+def _same_waypoints(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    """Whether two ``waypoints`` values are the same (None: the scenario's default)."""
+    return a is None and b is None or a is not None and b is not None and np.array_equal(a, b)
+
+
 class TrajectoryNode(Node):
     """The trajectory node (see the module docstring for its interface)."""
 
@@ -230,7 +235,7 @@ class TrajectoryNode(Node):
         else:
             self.timer = self.create_timer(self.params["control.period_s"], self._on_timer)
         if self.start_ns is not None:
-            self._publish_path()
+            self._publish_path(self.start_ns)
         starts = ("; starts on the controller's enable" if self.start_on_enable else "") + \
             ("; anchored at the robot's pose" if self.anchor_to_robot else "")
         self.get_logger().info(
@@ -286,7 +291,7 @@ class TrajectoryNode(Node):
 
     def _on_waypoints(self, params: list[Parameter]) -> None:
         """A new reference when ``waypoints`` changed value (checked by `_check_waypoints`)."""
-        if any(p.name == "waypoints" for p in params) and not np.array_equal(self._waypoints(), self.waypoints):
+        if any(p.name == "waypoints" for p in params) and not _same_waypoints(self._waypoints(), self.waypoints):
             self._new_reference()  # (None: the scenario's default)
 
     def _new_reference(self) -> None:
@@ -323,9 +328,9 @@ class TrajectoryNode(Node):
         if self.start_ns is None:
             return
         if isinstance(reference, GoalReference) and reference.pieces:
-            self._publish_path(reference.starts[-1], _GOAL_PATH_STEP)
+            self._publish_path(self.start_ns, reference.starts[-1], _GOAL_PATH_STEP)
         else:
-            self._publish_path()
+            self._publish_path(self.start_ns)
 
     # publishing ---------------------------------------------------------------------------------
     def _grid_values(self, t_ns: int) -> list[float] | None:
@@ -432,15 +437,16 @@ class TrajectoryNode(Node):
     def _start(self, now: int) -> None:
         """Realtime: t = 0 of the reference at `now`, anchored at the robot's pose with ``anchor_to_robot``."""
         self.start_ns, self.holding = now, False
-        if self.anchor_to_robot:
-            self.anchor = self.robot_pose
+        pose = self.robot_pose  # (`_settled` waits for one with anchor_to_robot)
+        if self.anchor_to_robot and pose is not None:
+            self.anchor = pose
             self._use_reference()
-            x, y, theta = self.anchor
+            x, y, theta = pose
             self.get_logger().info(f"reference anchored at the robot's pose ({x:.4f} m, {y:.4f} m, {theta:.4f} rad)")
         if self.start_on_enable:
             self.get_logger().info("the controller is enabled: the reference starts (t = 0)")
         self._publish_preview(now, 0)  # the loop's data first: the path is for the tools
-        self._publish_path()
+        self._publish_path(now)
 
     def _hold(self, now: int) -> None:
         """start_on_enable: the preview of the reference's start point at rest (anchored: at the robot's pose)."""
@@ -493,12 +499,13 @@ class TrajectoryNode(Node):
             return
         self.robot_pose = (x, y, yaw_of(qx, qy, qz, qw))
 
-    def _publish_path(self, from_s: float = 0.0, step: int = 1) -> None:
+    def _publish_path(self, start_ns: int, from_s: float = 0.0, step: int = 1) -> None:
+        """The reference path from `from_s` [s] on, every `step` periods, for a t = 0 at `start_ns` (node clock)."""
         period = self.params["control.period_s"] * step
         times = np.arange(from_s, self.reference.duration_s + 0.5 * period, period)
-        stamps = [self.start_ns + int(round(t * 1e9)) for t in times.tolist()]
+        stamps = [start_ns + int(round(t * 1e9)) for t in times.tolist()]
         odom = self.params["frame_prefix"] + ODOM_FRAME
-        publish_acknowledged(self, self.path_pub, path_cdr(odom, self.start_ns, stamps, self.reference.position(times)))
+        publish_acknowledged(self, self.path_pub, path_cdr(odom, start_ns, stamps, self.reference.position(times)))
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run robotino_geom_mpc trajectory_node``."""

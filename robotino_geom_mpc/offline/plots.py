@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -168,8 +169,9 @@ def _commands(run: RunData, fig: Figure, commands: tuple[np.ndarray, np.ndarray]
         ax.legend(loc="upper right", fontsize="small", ncols=3)
 
 
-# file stem -> drawing function, in the order of `write_plots` (the error plot also takes the settle time)
-_DRAW = {"xy_path": _xy_path, "theta": _theta, "currents": _currents, "voltages": _voltages, "errors": _errors}
+# file stem -> drawing function (``errors`` also takes the settle time, ``commands`` the commands: `_write`)
+_DRAW: dict[str, Callable[[RunData, Figure], None]] = {"xy_path": _xy_path, "theta": _theta, "currents": _currents,
+                                                      "voltages": _voltages}
 
 
 def _write(stem: str, run: RunData, path: Path, settle_time_s: float,
@@ -178,12 +180,15 @@ def _write(stem: str, run: RunData, path: Path, settle_time_s: float,
     if stem == "errors":
         _errors(run, fig, settle_time_s)
     elif stem == "commands":
-        _commands(run, fig, commands)  # type: ignore[arg-type]
+        assert commands is not None  # `write_plots` draws commands.png only with them
+        _commands(run, fig, commands)
     else:
         _DRAW[stem](run, fig)
     # the constrained layout once, then fixed: savefig with a layout engine draws the figure twice (a draw to
     # lay it out, then the one rendered), 10-15 % of a figure's time; the PNG is the same byte for byte
-    fig.get_layout_engine().execute(fig)
+    engine = fig.get_layout_engine()
+    if engine is not None:
+        engine.execute(fig)
     fig.set_layout_engine("none")
     fig.savefig(path, dpi=DPI)
     return path

@@ -353,7 +353,7 @@ def save_run(run: RunData, path: str | os.PathLike) -> Path:
         if getattr(run, name) is not None:
             arrays[name] = getattr(run, name)
     with path.open("wb") as fh:
-        np.savez_compressed(fh, **arrays)
+        np.savez_compressed(fh, allow_pickle=False, **arrays)
     return path
 
 

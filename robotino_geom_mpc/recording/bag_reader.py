@@ -14,7 +14,8 @@ import io
 import os
 import struct
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, cast
 
 import yaml
 from mcap.data_stream import ReadDataStream
@@ -27,12 +28,15 @@ from rosbags.rosbag2.metadata import dump_qos_v9, parse_qos
 from robotino_geom_mpc.recording.bagfile import MCAP_MAGIC, BagError, BagMessage, TopicInfo
 from robotino_geom_mpc.recording.definitions import message_class
 
+if TYPE_CHECKING:
+    from rosbags.rosbag2.metadata import QosDict
+
 __all__ = ["BagReader", "damage_report"]
 
 # libyaml's safe loader where PyYAML has it (the same documents, a tenth of the time: a bag's metadata.yaml
 # lists every topic's QoS, 0.1-0.3 s with the pure-Python loader)
 _SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-_RECORD_READERS = {
+_RECORD_READERS: dict[int, Callable[[ReadDataStream], Any]] = {
     Opcode.HEADER: Header.read,
     Opcode.SCHEMA: Schema.read,
     Opcode.CHANNEL: Channel.read,
@@ -108,7 +112,8 @@ def _read_record(opcode: int, body: bytes) -> Any:
 def _qos(profiles: list[dict[str, Any]] | str | None) -> list[dict[str, Any]]:
     """Offered QoS profiles (YAML text, version-9 names or version-8 integers) in the version-9 form."""
     try:
-        return list(dump_qos_v9(parse_qos(profiles or [])))
+        # (metadata.yaml's own data: parse_qos checks it, its errors caught below)
+        return [dict(profile) for profile in dump_qos_v9(parse_qos(cast("list[QosDict] | str", profiles or [])))]
     except (ReaderError, KeyError, TypeError, AttributeError):
         return []
 

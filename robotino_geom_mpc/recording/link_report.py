@@ -20,6 +20,7 @@ None of them without plans in the recording (``link_figures`` returns None).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -35,8 +36,8 @@ def _ms(values: list[float], *stats: str) -> dict[str, float] | None:
     if not values:
         return None
     a = 1e3 * np.array(values)
-    table = {"mean": a.mean, "std": a.std, "median": lambda: np.median(a), "p99": lambda: np.percentile(a, 99),
-             "max": a.max}
+    table: dict[str, Callable[[], Any]] = {"mean": a.mean, "std": a.std, "median": lambda: np.median(a),
+                                           "p99": lambda: np.percentile(a, 99), "max": a.max}
     return {name: float(table[name]()) for name in stats}
 
 
@@ -60,13 +61,13 @@ def link_figures(bag: BagReader, period_s: float, lockstep: bool) -> dict[str, A
             report = report_of_message(msg)
         except PlanMessageError:
             continue
-        if report.values is None:
+        if report.basis_s is None:  # a period applied without a plan (a receipt always names its plan)
+            without += 1 if any_plan else 0
+        elif report.values is None:  # a receipt
             trips.append(report.time_s - report.basis_s)
             received.add(report.basis_s)
-        elif report.basis_s is not None:
+        else:
             any_plan = True
-        elif any_plan:
-            without += 1
     sent = len({stamp_ns(msg.header.stamp) for _, msg in by_publish_time(bag, found[0])})
     return {
         "odometry_received": len(stamps), "odometry_expected": expected,

@@ -43,7 +43,7 @@ def odometry_timing(bag: BagReader, odom_topic: str, cmd_topic: str | None, lock
     store = _typestore()
     odom = []  # (log time, publish time, stamp, moving)
     for m in bag.messages([odom_topic]):
-        msg = store.deserialize_cdr(m.data, m.type)
+        msg: Any = store.deserialize_cdr(m.data, m.type)
         t = msg.twist.twist
         moving = max(abs(t.linear.x), abs(t.linear.y), abs(t.angular.z)) > MOVING
         odom.append((m.log_time_ns, m.publish_time_ns, stamp_ns(msg.header.stamp), moving))
@@ -64,7 +64,7 @@ def odometry_timing(bag: BagReader, odom_topic: str, cmd_topic: str | None, lock
         pattern[str(n)] = pattern.get(str(n), 0) + 1
     commands = []  # (publish time, non-zero)
     for m in bag.messages([cmd_topic] if cmd_topic else []):
-        msg = store.deserialize_cdr(m.data, m.type)
+        msg = store.deserialize_cdr(m.data, m.type)  # (Any, as above)
         commands.append((m.publish_time_ns, any(v != 0.0 for v in (msg.linear.x, msg.linear.y, msg.angular.z))))
     commands.sort()
     command_times = np.array([p for p, _ in commands], dtype=np.int64)

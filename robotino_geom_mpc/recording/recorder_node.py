@@ -230,7 +230,11 @@ class RecorderNode(Node):
         (`bench.recorder_cpu`). The node's other entities (timers, services, /clock of the time source) are in
         the same wait set; when one is ready, or the wait times out, `executor` runs what is ready.
         """
-        shape, wait_set, own, entries, last_take = None, None, set(), [], 0.0
+        shape: tuple[list[Any], list[Any], list[Any]] | None = None
+        wait_set: Any = None  # an rclpy WaitSet (its C++ module has no types)
+        own: set[int] = set()
+        entries: list[tuple[Any, Any]] = []
+        last_take = 0.0
         with ExitStack() as handles:
             while not stop.is_set():
                 current = (list(self.subscriptions), list(self.timers), list(self.services))
@@ -264,7 +268,10 @@ class RecorderNode(Node):
         entries += [(wait_set.add_service, s.handle) for s in services]
         for _, handle in entries:
             handles.enter_context(handle)
-        handles.enter_context(self.context.handle)
+        context = self.context.handle
+        if context is None:
+            raise RuntimeError("the recorder's ROS context is shut down")
+        handles.enter_context(context)
         return wait_set, {s.handle.pointer for s in self._recording_subs}, entries
 
     def drain(self, limit_s: float) -> int:

@@ -329,7 +329,8 @@ def _path_reference(bag: BagReader) -> Callable[[int], tuple[float, float, float
     def at(stamp: int) -> tuple[float, float, float] | None:
         if not path_t[0] <= stamp <= path_t[-1]:
             return None
-        return tuple(np.interp(stamp, path_t, path_ref[:, j]) for j in range(3))  # type: ignore[return-value]
+        x, y, theta = (float(np.interp(stamp, path_t, path_ref[:, j])) for j in range(3))
+        return x, y, theta
     return at
 
 
@@ -401,12 +402,12 @@ def _odometry_run(bag: BagReader, robot: Any, control: Any, scenario: str, meta:
     rows: list[tuple] = []
     for k, stamp in enumerate(stamps):
         end = begins[stamps[k + 1]] if k + 1 < len(stamps) else None
-        reference = reference_at(stamp)
+        point = reference_at(stamp)
         values = {name: _latest_before(times, items, end) for name, (times, items) in series.items()}
-        if reference is None or any(v is None or len(v) != 3 for v in values.values()):
+        if point is None or any(v is None or len(v) != 3 for v in values.values()):
             continue
         twist = _latest_before(command_t, commands, end) if cmd_topic is not None else None
-        rows.append((stamp, last[stamp], reference, values.get("currents"), values.get("voltages"),
+        rows.append((stamp, last[stamp], point, values.get("currents"), values.get("voltages"),
                      twist or (0.0, 0.0, 0.0)))
     if not rows:
         raise BagError(f"{bag.path}: no odometry tick with a reference (reference_preview or reference_path)"
@@ -492,7 +493,8 @@ def write_report(
     if plots:
         from robotino_geom_mpc.offline.plots import write_plots  # matplotlib: imported only to draw
 
-        commands = None if recorded.twist is None else (recorded.twist, recorded.wheel_speeds)
+        commands = None if recorded.twist is None or recorded.wheel_speeds is None else \
+            (recorded.twist, recorded.wheel_speeds)
         figures = write_plots(run, out, settle_time_s=settle_time_s, commands=commands, voltages=recorded.voltages)
     return Report(metrics, figures, recorded.truth)
 

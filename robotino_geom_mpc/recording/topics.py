@@ -5,7 +5,7 @@ replays (`regress`, `regress_plans`, `regress_chain`) all read a bag with.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal, overload
 
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError, BagMessage
@@ -22,6 +22,14 @@ TRACKING_KEY = "error_x_m"  # the controller's tracking status is the diagnostic
 # the controller's tracking status from a DiagnosticArray's bytes (`ros.cdr.diagnostics_with`) or its message
 read_controller_diagnostics = diagnostics_with(TRACKING_KEY)
 controller_diagnostics_of_message = diagnostics_with_of_message(TRACKING_KEY)
+
+
+@overload
+def find_topic(bag: BagReader, suffix: str, type_name: str, required: Literal[True] = True) -> str: ...
+
+
+@overload
+def find_topic(bag: BagReader, suffix: str, type_name: str, required: bool) -> str | None: ...
 
 
 def find_topic(bag: BagReader, suffix: str, type_name: str, required: bool = True) -> str | None:

@@ -8,7 +8,7 @@ version 8, or their YAML text) is rosbags' (`rosbags.rosbag2.metadata`
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 from rclpy.duration import Duration
 from rclpy.qos import (
@@ -21,6 +21,9 @@ from rclpy.qos import (
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2.errors import ReaderError
 from rosbags.rosbag2.metadata import dump_qos_v9, parse_qos
+
+if TYPE_CHECKING:
+    from rosbags.rosbag2.metadata import QosDict
 
 __all__ = ["profile_to_dict", "dict_to_profile", "adapt_request_to_offers", "adapt_offer_to_recorded"]
 
@@ -57,7 +60,7 @@ def dict_to_profile(item: dict[str, Any]) -> QoSProfile:
         If a policy or duration is missing or not a QoS value.
     """
     try:
-        (qos,) = parse_qos([item])
+        (qos,) = parse_qos([cast("QosDict", item)])  # (any dict: parse_qos checks it, its errors caught below)
     except (ReaderError, KeyError, TypeError, AttributeError) as exc:
         raise ValueError(f"not a rosbag2 QoS profile: {item!r} ({exc.__class__.__name__}: {exc})") from None
     return QoSProfile(

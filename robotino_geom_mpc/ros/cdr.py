@@ -203,7 +203,9 @@ class CdrTemplate:
         self.msg_type = type(msg)
         template, endian, fields, offsets = _locate(msg, self.paths)
         order = sorted(range(len(offsets)), key=offsets.__getitem__)
-        fmt, picks, gaps, end = endian, [], [], offsets[order[0]]
+        fmt, end = endian, offsets[order[0]]
+        picks: list[int] = []
+        gaps: list[bytes] = []
         for i in order:
             if offsets[i] < end:
                 raise CdrTemplateError(f"field paths {self.paths[i]!r} and another overlap")
@@ -309,7 +311,7 @@ class CdrLayout:
         self.paths = tuple(paths)
         template, endian, fields, offsets = _locate(msg, self.paths)
         size, ranges = _structure(msg)
-        items = [(0, 4, "s")] + [(a, b, "s") for a, b in ranges]
+        items: list[tuple[int, int, str | int]] = [(0, 4, "s"), *((a, b, "s") for a, b in ranges)]  # "s": structure
         items += [(off, off + struct.calcsize(endian + field[3]), i)
                   for i, (off, field) in enumerate(zip(offsets, fields))]
         items.sort()
@@ -319,7 +321,7 @@ class CdrLayout:
                 raise CdrTemplateError(f"field paths {self.paths}: a field overlaps a string or sequence count")
             if start > position:
                 fmt += f"{start - position}x"
-            if what == "s":
+            if isinstance(what, str):  # the header, a string or a sequence count
                 fmt += f"{end - start}s"
                 structure.append(index)
             else:

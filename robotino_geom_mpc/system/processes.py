@@ -353,6 +353,12 @@ class NodeGroup:
         self.log_dir = Path(self.log_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
 
+    @property
+    def logs(self) -> Path:
+        """The folder of the nodes' logs: `log_dir`, or the temporary folder made for it."""
+        assert self.log_dir is not None  # (set by __post_init__)
+        return self.log_dir
+
     def start(self, executable: str, args: list[str], module: str | None = None) -> NodeProcess:
         """Start `executable` (a key of `NODE_MODULES`, or any name with the
         `module` to run) in its own process group.
@@ -361,8 +367,8 @@ class NodeGroup:
         9x9, where OpenBLAS's threads only add wake-ups (a 3x3 `expm` took 20 ms instead of 0.12 ms on a
         loaded 2-core machine).
         """
-        out = self.log_dir / f"{executable}.out.log"
-        err = self.log_dir / f"{executable}.err.log"
+        out = self.logs / f"{executable}.out.log"
+        err = self.logs / f"{executable}.err.log"
         env = {"OPENBLAS_NUM_THREADS": "1", **os.environ, "PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0",
                **self.env}
         env.update(dds_environment(env))

@@ -51,10 +51,9 @@ def test_mpc_batch_is_each_runs_mpc(params):
         one = DecoupledMPC(p, control)
         for name in ("A_d", "B_d", "G_p", "F_1p", "F_2p", "gain", "stacked_gain", "prediction_map"):
             np.testing.assert_allclose(getattr(batch, name)[b], getattr(one, name), rtol=RTOL, atol=1e-13, err_msg=name)
-        np.testing.assert_allclose(batch.delta_u(X, u_prev, shared)[b], one.delta_u(X[b], u_prev[b], shared),
-                                   rtol=RTOL, atol=1e-12)
-        np.testing.assert_allclose(batch.delta_u(X, u_prev, own)[b], one.delta_u(X[b], u_prev[b], own[b]),
-                                   rtol=RTOL, atol=1e-12)
+        for Y_d, run in ((shared, shared), (own, own[b])):
+            floats = one.delta_u(X[b].tolist(), u_prev[b].tolist(), run.tolist())
+            np.testing.assert_allclose(batch.delta_u(X, u_prev, Y_d)[b], floats, rtol=RTOL, atol=1e-12)
 
 
 def test_field_batch_is_each_runs_field(params):
@@ -64,7 +63,7 @@ def test_field_batch_is_each_runs_field(params):
     forces = DecouplingFieldBatch(robots).forces(theta, u)
     for b, p in enumerate(robots):
         one = DecouplingField(p)
-        np.testing.assert_allclose(forces[b], one.forces_floats(float(theta[b]), u[b].tolist()), rtol=RTOL)
+        np.testing.assert_allclose(forces[b], one.forces(float(theta[b]), u[b].tolist()), rtol=RTOL)
         np.testing.assert_allclose(forces[b], one.field(theta[b]) @ u[b], rtol=RTOL)
 
 
@@ -78,7 +77,7 @@ def test_kinematics_batch_is_each_runs_kinematics(params, shared_wheels):
     theta, v, a = rng.uniform(-np.pi, np.pi, 3), rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
     omega, rate = batch.speeds_and_rates(theta, v, a)
     for b, p in enumerate(robots):
-        floats = MotorKinematics(p).speeds_and_rates_floats(float(theta[b]), v[b].tolist(), a[b].tolist())
+        floats = MotorKinematics(p).speeds_and_rates(float(theta[b]), v[b].tolist(), a[b].tolist())
         np.testing.assert_allclose(omega[b], floats[0], rtol=RTOL)
         np.testing.assert_allclose(rate[b], floats[1], rtol=RTOL)
 

@@ -34,7 +34,7 @@ def params():
 def _simulated_growth(robot, control, seed=0):
     """Per axis: the norm of (pos, vel, u(k-1)) after STEPS steps over its start, at most GROWN.
 
-    The law is the controller's own (`DecoupledMPC.delta_u_floats`, equal to eq. 56's `delta_u`;
+    The law is the controller's own (`DecoupledMPC.delta_u`, eq. 56's first increment;
     reference zero); the plant is each axis discretised on its own (`discretize_axis`, tested
     against ODE integration). Python floats: a few microseconds per step.
     """
@@ -46,7 +46,7 @@ def _simulated_growth(robot, control, seed=0):
     Y_d = [[0.0, 0.0, 0.0]] * control.horizon
     grown, frozen = GROWN * np.abs(z0).max(), [False] * 3
     for _ in range(STEPS):
-        u_next = [ua + da for ua, da in zip(u, mpc.delta_u_floats(X, u, Y_d))]
+        u_next = [ua + da for ua, da in zip(u, mpc.delta_u(X, u, Y_d))]
         X_next = [
             value
             for ((a00, a01), (a10, a11)), (b0, b1), p, v, ua in zip(*zip(*models), X[0::2], X[1::2], u_next)

@@ -72,7 +72,7 @@ def test_active_limits_hold_and_the_optimum_matches_quadprog(setup):
     # the applied step's voltage from the drive relations with the measured velocity
     zoh = ZOHDrive(robot.resistance_ohm, robot.inductance_h, robot.torque_constant_n_m_per_a, control.period_s)
     v = X[1::2]
-    omega, rate = MotorKinematics(robot).speeds_and_rates(X[4], v, u[0] - axis_dampings(robot) * v)
+    omega, rate = map(np.array, MotorKinematics(robot).speeds_and_rates(X[4], v, u[0] - axis_dampings(robot) * v))
     U0 = zoh.voltage(_currents(robot, theta_mid, u[0]), np.zeros(3), omega, rate)
     assert np.max(np.abs(U0)) <= robot.supply_voltage_v * (1 + 1e-6)
     # on the coupled plant the current stays near the limit all along the period, not only on average
@@ -214,7 +214,7 @@ def test_solve_equals_osqp_on_the_same_qp_and_the_closed_form_where_no_limit_bin
             u_osqp = call.u_prev + reference.solve(*reference.problem(call))[:3]
             np.testing.assert_allclose(call.u, u_osqp, rtol=0, atol=1e-6 * max(1.0, np.abs(u_osqp).max()))
             if call.closed_form:  # bit for bit the closed-form mode's u
-                du = qp.mpc.delta_u_floats(call.X.tolist(), call.u_prev.tolist(), call.Y_d.tolist())
+                du = qp.mpc.delta_u(call.X.tolist(), call.u_prev.tolist(), call.Y_d.tolist())
                 assert call.u.tolist() == [a + b for a, b in zip(call.u_prev.tolist(), du)]
         # the float path (fresh solver, the same sequence: the same warm starts) bit for bit the array path
         qp.reset()

@@ -63,7 +63,7 @@ def test_step_is_mpc_then_decoupling_field_then_currents(params):
     assert not out.saturated and not out.infeasible and out.compute_time_s > 0
     # the voltages are the drive's relation (eq. 10) for these currents, from rest
     v = X0[1::2]
-    omega, rate = ctl.kinematics.speeds_and_rates(X0[4], v, out.u - axis_dampings(robot) * v)
+    omega, rate = map(np.array, ctl.kinematics.speeds_and_rates(X0[4], v, out.u - axis_dampings(robot) * v))
     U = ctl.drive.zoh.voltage(np.array(out.currents), np.zeros(3), omega, rate)
     np.testing.assert_allclose(out.voltages, U, rtol=1e-12, atol=1e-12)
 

@@ -128,13 +128,13 @@ def test_bad_grid_size_raises():
         dec.theta_grid(1)
 
 
-def test_float_path_equals_the_numpy_path(robot):
-    """`forces_floats` (the controller's per-tick path) is field(theta) @ u on Python floats, to 1e-12."""
+def test_forces_are_the_field_times_u(robot):
+    """`forces` (Python floats, the controller's per-tick path) is field(theta) @ u, to 1e-12."""
     field = dec.DecouplingField(robot)
     rng = np.random.default_rng(3)
     for theta in np.concatenate((dec.theta_grid(36), rng.uniform(-50.0, 50.0, 8))):
         u = rng.normal(0.0, 2.0, 3)
-        fast = field.forces_floats(float(theta), u.tolist())
+        fast = field.forces(float(theta), u.tolist())
         reference = field.field(theta) @ u
         assert all(type(v) is float for v in fast)
         np.testing.assert_allclose(fast, reference, rtol=0.0, atol=1e-12 * np.abs(reference).max())

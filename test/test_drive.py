@@ -68,7 +68,7 @@ def test_motor_kinematics_equal_the_model(robot):
     rng = np.random.default_rng(2)
     for theta in (0.0, 0.7, -2.9, 0.5 * np.pi):
         v, a = rng.normal(size=3), rng.normal(size=3)
-        omega, rate = kin.speeds_and_rates(theta, v, a)
+        omega, rate = map(np.array, kin.speeds_and_rates(theta, v, a))
         np.testing.assert_allclose(omega, model.motor_speeds(theta, v, robot), atol=1e-12)
         np.testing.assert_allclose(kin.matrix(theta) @ v, omega, atol=1e-12)
         # d/dt omega along theta(t) = theta + v_theta t, v(t) = v + a t, central difference
@@ -95,7 +95,7 @@ def _run_drive(robot, commands, state, textbook=False):
     for i_cmd in commands:
         X = state[:6]
         acc = model.A_matrix(robot) @ X + model.g_theta(X[4], robot) @ model.wheel_forces(i_cmd, robot)
-        omega, rate = kin.speeds_and_rates(X[4], X[1::2], acc[1::2])
+        omega, rate = map(np.array, kin.speeds_and_rates(X[4], X[1::2], acc[1::2]))
         if textbook:
             U = robot.resistance_ohm * i_cmd + robot.inductance_h * (i_cmd - previous) / Ts
             U = U + robot.torque_constant_n_m_per_a * omega
@@ -154,7 +154,7 @@ def test_float_path_equals_the_numpy_path(robot):
         np.testing.assert_allclose(drive.current_estimate, i_start, rtol=0.0, atol=1e-12)
     forces = rng.normal(0, 20, 3)
     expected = model.currents_from_forces(forces, robot)
-    np.testing.assert_allclose(drive.currents_floats(forces.tolist()), expected, rtol=1e-15)
+    np.testing.assert_allclose(drive.currents(forces.tolist()), expected, rtol=1e-15)
 
 
 @pytest.mark.parametrize("elapsed_s", [1e-9, 0.003, Ts, 0.021])
@@ -183,8 +183,7 @@ def test_advance_predicts_the_start_current_after_the_elapsed_time(robot, satura
     np.testing.assert_allclose(drive.current_estimate, expected, atol=1e-10)
     drive.advance(Ts)  # one period: the prediction of the step itself
     np.testing.assert_allclose(drive.current_estimate, one_period, atol=1e-12)
-    assert drive.current_estimate_floats == drive.current_estimate.tolist()  # the float path: the same values
-    assert all(type(v) is float for v in drive.current_estimate_floats)
+    assert all(type(v) is float for v in drive.current_estimate)  # the per-tick path's floats
 
 
 def test_bad_input_raises(robot):

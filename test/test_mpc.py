@@ -151,15 +151,17 @@ def test_bad_settings_raise():
         prediction_matrices(A_d, np.ones(3), 4)
 
 
-def test_float_path_equals_the_numpy_path(params):
-    """`delta_u_floats` (the controller's per-tick path) is `delta_u` on Python floats, to 1e-12."""
+def test_delta_u_is_the_first_increment_of_eq_56(params):
+    """`delta_u` (Python floats, the controller's per-tick path) is the first row of eq. (56)'s whole sequence
+    (`solve`), to 1e-12.
+    """
     robot, control = params
     mpc = DecoupledMPC(robot, control)
     rng = np.random.default_rng(7)
     for _ in range(20):
         X, u_prev = rng.normal(0.0, 1.0, 6), rng.normal(0.0, 2.0, 3)
         Y_d = rng.normal(0.0, 1.0, (control.horizon, 3))
-        fast = mpc.delta_u_floats(X.tolist(), u_prev.tolist(), Y_d.tolist())
+        fast = mpc.delta_u(X.tolist(), u_prev.tolist(), Y_d.tolist())
         assert type(fast) is list and all(type(v) is float for v in fast)
-        reference = mpc.delta_u(X, u_prev, Y_d)
+        reference = mpc.solve(X.reshape(3, 2), u_prev, Y_d)[0]
         np.testing.assert_allclose(fast, reference, rtol=0.0, atol=1e-12 * max(1.0, np.abs(reference).max()))

@@ -157,9 +157,11 @@ def bench_controller_step(quick: bool) -> dict[str, float]:
 
         return run
 
+    floats = X_used.tolist(), u_prev.tolist(), [p.tolist() for p in previews]  # as the controller's step has them
+
     def closed_form_pass() -> None:
-        for k in range(steps):
-            mpc.delta_u(X_used[k], u_prev[k], previews[k])
+        for X_k, u_k, preview_k in zip(*floats):
+            mpc.delta_u(X_k, u_k, preview_k)
 
     ctrl_s, per_axis_s, stacked_s, closed_s = median_per_call(
         [controller_pass, osqp_pass("per_axis"), osqp_pass("stacked"), closed_form_pass], steps, repeats

@@ -1,12 +1,13 @@
 """Is the per-tick float path needed? One control step and each of its kernels on Python floats beside the array
 kernels that serve a batch (the study's), both on one run, in the same process, passes interleaved.
 
-The array kernels (`DecoupledMPC.delta_u`, `DecouplingField.forces`, `kinematics.speeds_and_rates`,
-`InverseDriveBatch.step`, and the whole step `MotionControllerBatch.step`) take a leading batch axis; run on one
-run (B = 1) they pay numpy's per-call overhead on 3-vectors. The float forms (`delta_u_floats`, `forces_floats`,
-`speeds_and_rates_floats`, `InverseDrive.step`, `MotionController.step`) are what the nodes and `simulate` run
-each tick. Each figure ``float_path_<kernel>_us`` (float form) sits beside ``array_path_<kernel>_us`` and their
-ratio ``array_over_float_<kernel>``; the two sides must give the same numbers (1e-9), or the benchmark fails.
+The array kernels (`DecoupledMPCBatch.delta_u`, `DecouplingFieldBatch.forces`,
+`MotorKinematicsBatch.speeds_and_rates`, `InverseDriveBatch.step`, and the whole step `MotionControllerBatch.step`)
+take a leading batch axis; on one run (B = 1) they pay numpy's per-call overhead on 3-vectors. The one-run
+classes' float forms (`DecoupledMPC.delta_u`, `DecouplingField.forces`, `MotorKinematics.speeds_and_rates`,
+`InverseDrive.step`, `MotionController.step`) are what the nodes and `simulate` run each tick. Each figure
+``float_path_<kernel>_us`` (float form) sits beside ``array_path_<kernel>_us`` and their ratio
+``array_over_float_<kernel>``; the two sides must give the same numbers (1e-9), or the benchmark fails.
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ from robotino_geom_mpc.bench.registry import BenchmarkError, benchmark, median_p
 from robotino_geom_mpc.control.inverse_drive import InverseDrive, InverseDriveBatch
 from robotino_geom_mpc.control.motion_batch import MotionControllerBatch
 from robotino_geom_mpc.control.motion_controller import MotionController
-from robotino_geom_mpc.geometric.decoupling import DecouplingField
-from robotino_geom_mpc.model.kinematics import MotorKinematics
+from robotino_geom_mpc.control.mpc import DecoupledMPCBatch
+from robotino_geom_mpc.geometric.decoupling import DecouplingField, DecouplingFieldBatch
+from robotino_geom_mpc.model.kinematics import MotorKinematics, MotorKinematicsBatch
 
 __all__ = ["bench_float_path"]
 
@@ -44,6 +46,8 @@ def bench_float_path(quick: bool) -> dict[str, float]:
     previews_list = [p.tolist() for p in previews]
     controller = MotionController(robot, control)
     mpc, field, kinematics = controller.mpc, DecouplingField(robot), MotorKinematics(robot)
+    mpcs, fields, kinematics_batch = DecoupledMPCBatch([robot], control), DecouplingFieldBatch([robot]), \
+        MotorKinematicsBatch([robot])
     drive_floats, drive_arrays = InverseDrive(robot, control.period_s), InverseDriveBatch([robot], control.period_s)
     currents, omega = 0.3 * u, 20.0 * velocity
 
@@ -58,14 +62,13 @@ def bench_float_path(quick: bool) -> dict[str, float]:
 
     pairs: dict[str, tuple[Callable[[], object], Callable[[], object]]] = {
         "step": (float_step, batch_step),
-        "mpc": (lambda: [mpc.delta_u_floats(X_list[k], u_list[k], previews_list[k]) for k in range(steps)],
-                lambda: [mpc.delta_u(X[k], u[k], previews[k]) for k in range(steps)]),
-        "field": (lambda: [field.forces_floats(theta[k], u_list[k]) for k in range(steps)],
-                  lambda: [field.forces(theta[k : k + 1], u[k : k + 1])[0] for k in range(steps)]),
+        "mpc": (lambda: [mpc.delta_u(X_list[k], u_list[k], previews_list[k]) for k in range(steps)],
+                lambda: [mpcs.delta_u(X[k : k + 1], u[k : k + 1], previews[k])[0] for k in range(steps)]),
+        "field": (lambda: [field.forces(theta[k], u_list[k]) for k in range(steps)],
+                  lambda: [fields.forces(theta[k : k + 1], u[k : k + 1])[0] for k in range(steps)]),
         "kinematics": (
-            lambda: [kinematics.speeds_and_rates_floats(theta[k], velocity_list[k], u_list[k])[0]
-                     for k in range(steps)],
-            lambda: [kinematics.speeds_and_rates(theta[k : k + 1], velocity[k : k + 1], u[k : k + 1])[0][0]
+            lambda: [kinematics.speeds_and_rates(theta[k], velocity_list[k], u_list[k])[0] for k in range(steps)],
+            lambda: [kinematics_batch.speeds_and_rates(theta[k : k + 1], velocity[k : k + 1], u[k : k + 1])[0][0]
                      for k in range(steps)]),
         "drive": (lambda: [drive_floats.step(currents[k].tolist(), omega[k].tolist(), u_list[k])[0]
                            for k in range(steps)],

@@ -365,11 +365,11 @@ class ConstrainedMPC:
         """u(k) = u(k-1) + Delta u(k) of the constrained optimum, and the infeasible flag.
 
         Where no limit binds, u(k) is the closed-form mode's, bit for bit
-        (`DecoupledMPC.delta_u_floats`, the same floating-point operations).
+        (`DecoupledMPC.delta_u`, the same floating-point operations).
         Not re-entrant: the step works in the instance's buffers.
         """
         if self._closed_form_check(X, u_prev, Y_d, i_start):
-            return u_prev + np.array(self.mpc.delta_u_floats(X.tolist(), u_prev.tolist(), Y_d.tolist())), False
+            return u_prev + np.array(self.mpc.delta_u(X.tolist(), u_prev.tolist(), Y_d.tolist())), False
         d, infeasible = self._solve_qp()
         return u_prev + (self._z_star[:3] + d[:3]), infeasible
 
@@ -390,5 +390,5 @@ class ConstrainedMPC:
                 du_x, du_y, du_theta = (self._z_star[:3] + d[:3]).tolist()
                 return [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta], infeasible
             self._screen.set_reference(X, u_prev, i_start, self._p, self._signals_z, self._rows_max())
-        du_x, du_y, du_theta = self.mpc.delta_u_floats(X, u_prev, Y_d)
+        du_x, du_y, du_theta = self.mpc.delta_u(X, u_prev, Y_d)
         return [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta], False

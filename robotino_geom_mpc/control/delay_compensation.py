@@ -291,7 +291,7 @@ class DelayCompensatingController:
                            else self.inner.next_velocity())
             u = self.inner.u_prev.tolist()
             us.append(u)
-            ends.append(self.inner.drive.current_estimate_floats)
+            ends.append(self.inner.drive.current_estimate)
             state = self._advance(state, u, entries[-1])
         t_a = stamp_s + lead * Ts
         plan = CommandPlan(stamp_s, tuple(t_a + j * Ts for j in range(M)), tuple(entries), Ts)

@@ -174,13 +174,10 @@ class InverseDrive:
         self.reset()
 
     @property
-    def current_estimate(self) -> np.ndarray:
-        """Predicted currents at the start of the next period [A] (one period after the last, or as `advance` set)."""
-        return np.array(self._i0)
-
-    @property
-    def current_estimate_floats(self) -> list[float]:
-        """`current_estimate` as three Python floats (the controller's per-tick path)."""
+    def current_estimate(self) -> list[float]:
+        """Predicted currents at the start of the next period [A] (one period after the last, or as `advance` set),
+        three Python floats (a copy).
+        """
         return list(self._i0)
 
     def reset(self, currents: np.ndarray | None = None) -> None:
@@ -189,7 +186,7 @@ class InverseDrive:
         self._last: tuple[Sequence[float], ...] | None = None  # (i_0, U, omega, omega') of the last period
         self._one_period = self._i0  # the step's own prediction, one period on
 
-    def currents_floats(self, forces: Sequence[float]) -> list[float]:
+    def currents(self, forces: Sequence[float]) -> list[float]:
         """Wheel currents i = F r / (gear Km) [A] for wheel forces F [N] (erratum 4), on Python floats."""
         k = self.current_per_force
         return [k * forces[0], k * forces[1], k * forces[2]]

@@ -91,10 +91,10 @@ class MotionController:
        predicted over dt as well (`drive.InverseDrive.advance`): the last
        voltages were held until now;
     1. u(k) = u(k-1) + Delta u(k), Delta u(k) the first component of eq. (56)
-       (`mpc.DecoupledMPC.delta_u_floats`; or of the constrained QP,
+       (`mpc.DecoupledMPC.delta_u`; or of the constrained QP,
        `constrained.ConstrainedMPC`); the MPC stays discrete at Ts (eq. 49),
        u(k-1) is the input applied last;
-    2. wheel forces F = T(theta_m) u(k) (`decoupling.DecouplingField.forces_floats`)
+    2. wheel forces F = T(theta_m) u(k) (`decoupling.DecouplingField.forces`)
        at the mid-period heading theta_m = theta + theta' Ts / 2 (the
        forces are held while the body turns), currents i = F r / (gear Km);
     3. voltages from `drive.InverseDrive` (eq. 10) with the motor speeds of the
@@ -178,7 +178,7 @@ class MotionController:
         """Motor-speed rate under the acceleration the currents give (used when the voltage saturates)."""
         ax, ay, aw = self._acceleration_of_current(theta_m, current)
         (vx, vy, w), (dx, dy, dw) = velocity, self._damping_rates
-        return self.kinematics.speeds_and_rates_floats(theta, velocity, (ax - dx * vx, ay - dy * vy, aw - dw * w))[1]
+        return self.kinematics.speeds_and_rates(theta, velocity, (ax - dx * vx, ay - dy * vy, aw - dw * w))[1]
 
     def _check(self, X: object, preview: object) -> tuple[list[float], list[list[float]]]:
         """X and the preview as Python floats, or ControllerInputError naming the bad one.
@@ -215,7 +215,7 @@ class MotionController:
         x, vx, y, vy, theta, w = X.tolist()
         if max(abs(x), abs(y)) > MAX_POSITION_M:
             return f"position ({x:.4g}, {y:.4g}) m is beyond {MAX_POSITION_M:g} m"
-        speeds = self.kinematics.speeds_and_rates_floats(theta, (vx, vy, w), (0.0, 0.0, 0.0))[0]
+        speeds = self.kinematics.speeds_and_rates(theta, (vx, vy, w), (0.0, 0.0, 0.0))[0]
         fastest = max(map(abs, speeds))
         if fastest > self.max_motor_speed:
             return (f"velocity ({vx:.4g} m/s, {vy:.4g} m/s, {w:.4g} rad/s) needs a motor speed of {fastest:.4g} rad/s, "
@@ -278,14 +278,14 @@ class MotionController:
         self._last = (x, u_prev, y)
         infeasible = False
         if self.constrained is None:
-            du_x, du_y, du_theta = self.mpc.delta_u_floats(x, u_prev, y)
+            du_x, du_y, du_theta = self.mpc.delta_u(x, u_prev, y)
             u = [u_prev[0] + du_x, u_prev[1] + du_y, u_prev[2] + du_theta]
         else:
-            u, infeasible = self.constrained.solve_floats(x, u_prev, y, self.drive.current_estimate_floats)
-        currents = self.drive.currents_floats(self.field.forces_floats(theta_m, u))
+            u, infeasible = self.constrained.solve_floats(x, u_prev, y, self.drive.current_estimate)
+        currents = self.drive.currents(self.field.forces(theta_m, u))
         ux, uy, uw = u
         dx, dy, dw = self._damping_rates
-        omega, omega_rate = self.kinematics.speeds_and_rates_floats(
+        omega, omega_rate = self.kinematics.speeds_and_rates(
             theta, (vx, vy, w), (ux - dx * vx, uy - dy * vy, uw - dw * w))
         rate_of_current = lambda i: self._rate_of_current(theta, theta_m, (vx, vy, w), i)  # noqa: E731
         if self.current_limit_a > 0.0:
@@ -294,7 +294,7 @@ class MotionController:
                 currents,
                 omega,
                 omega_rate,
-                lambda: self.kinematics.speeds_and_rates_floats(theta, (vx, vy, w), rest)[1],
+                lambda: self.kinematics.speeds_and_rates(theta, (vx, vy, w), rest)[1],
                 self.current_limit_a,
                 rate_of_current,
             )
@@ -318,14 +318,14 @@ class MotionController:
 
         Eq. (50), Y = G_p x(k) + F_1p Delta U + F_2p u(k-1) (F_1p, F_2p with erratum 3), under the optimal
         increments Delta U of eq. (56) for the state (filtered pose), u(k-1) and preview of the last
-        `step`. Computed on demand (`DecoupledMPC.predicted_floats`, one product), so a step does not pay for it.
+        `step`. Computed on demand (`DecoupledMPC.predicted`, one product), so a step does not pay for it.
 
         Raises
         ------
         ControllerInputError
             Before the first step after construction or `reset`.
         """
-        return self.mpc.predicted_floats(*self._last_step())
+        return self.mpc.predicted(*self._last_step())
 
     def next_velocity(self) -> tuple[float, float, float]:
         """The body velocity (v_x, v_y, theta') in base_link the model predicts at t + Ts under the applied u(k).

@@ -202,7 +202,7 @@ class DecoupledMPC:
             K[a, 3 * N + 2 * a : 3 * N + 2 * a + 2] = -k_ref[a] @ self.G_p[a]
             K[a, 3 * N + 6 + a] = -k_ref[a] @ self.F_2p[a]
         self.stacked_gain = K
-        # The same gain per axis as Python floats for `delta_u_floats`: the reference row, and
+        # The same gain per axis as Python floats for `delta_u`: the reference row, and
         # (position, velocity, u(k-1)) of the block-diagonal state part.
         self._reference_gains = tuple(tuple(K[a, a : 3 * N : 3].tolist()) for a in range(3))
         self._state_gains = tuple(
@@ -242,45 +242,22 @@ class DecoupledMPC:
         """The whole optimal increment sequence of eq. (56), shape (N, 3)."""
         return np.einsum("anm,ma->na", self.gain, self.free_error(x, u_prev, Y_d))
 
-    def delta_u(self, X: np.ndarray, u_prev: np.ndarray, Y_d: np.ndarray) -> np.ndarray:
-        """First component Delta u(k) of eq. (56) for the three axes, the array form (any leading axes).
-
-        Parameters
-        ----------
-        X
-            Body states (x, x', y, y', theta, theta') of eq. (2), shape (..., 6).
-        u_prev
-            u(k-1), shape (..., 3).
-        Y_d
-            Reference positions y_d(k+1) .. y_d(k+N), shape (..., N, 3) or (N, 3) shared.
-
-        Returns
-        -------
-        ndarray, shape (..., 3)
-            ``stacked_gain @ (Y_d.ravel(), X, u(k-1))``; B runs each with its own model: `DecoupledMPCBatch`.
-
-        Notes
-        -----
-        Shapes are the caller's (the controller checks its inputs once); `delta_u_floats` is the law on floats.
-        """
-        Y_d, X, n = np.asarray(Y_d, dtype=float), np.asarray(X, dtype=float), 3 * np.shape(Y_d)[-2]
-        z = np.empty((*X.shape[:-1], n + 9))  # (Y_d.ravel(), X, u(k-1)) per run
-        z[..., :n], z[..., n : n + 6], z[..., n + 6 :] = Y_d.reshape(*Y_d.shape[:-2], n), X, u_prev
-        return np.einsum("...ak,...k->...a", self.stacked_gain, z)
-
-    def predicted_floats(
+    def predicted(
         self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]]
     ) -> np.ndarray:
         """`predict` under the increments of `solve` (eq. 50 under eq. 56) from a step's floats, shape (N, 3).
 
-        One product of `prediction_map` (the same numbers up to rounding); the arguments as for `delta_u_floats`.
+        One product of `prediction_map` (the same numbers up to rounding); the arguments as for `delta_u`.
         """
         return (self.prediction_map @ [*chain.from_iterable(Y_d), *X, *u_prev]).reshape(self.horizon, 3)
 
-    def delta_u_floats(
+    def delta_u(
         self, X: Sequence[float], u_prev: Sequence[float], Y_d: Sequence[Sequence[float]]
     ) -> list[float]:
-        """`delta_u` on Python floats, the per-tick path (numpy's per-call overhead would dominate).
+        """First component Delta u(k) of eq. (56) for the three axes, one run on Python floats (the per-tick path).
+
+        ``stacked_gain @ (Y_d.ravel(), X, u(k-1))`` as sums of products: numpy's per-call overhead on one run
+        would cost 2.6 times as much (``bench float_path``); B runs at once: `DecoupledMPCBatch.delta_u`.
 
         Parameters
         ----------
@@ -294,7 +271,7 @@ class DecoupledMPC:
         Returns
         -------
         list of 3 floats
-            Delta u(k) of eq. (56) for (x, y, theta); unchecked, like `delta_u`.
+            Delta u(k) of eq. (56) for (x, y, theta); unchecked (the controller checks its inputs once).
         """
         px, vx, py, vy, pt, vt = X
         upx, upy, upt = u_prev

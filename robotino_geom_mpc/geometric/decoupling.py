@@ -138,22 +138,6 @@ def _acceleration_blocks_of_full_rank(robots: Sequence[RobotinoParams], rtol: fl
     return G3
 
 
-def _body_accelerations(theta: object, u: np.ndarray) -> np.ndarray:
-    """(R(theta)^T (u_x, u_y), u_theta), shape (3, ...) for theta (...,) and u (..., 3): T(theta) u = T(0) of this.
-
-    One contiguous row per component, as `DecouplingField.forces` and `DecouplingFieldBatch.forces` read it.
-    """
-    th = _thetas(theta)
-    u = np.asarray(u, dtype=float)
-    c, s = np.cos(th), np.sin(th)
-    ux, uy = u[..., 0], u[..., 1]  # as `DecouplingField.forces_floats`
-    turned = np.empty((3, *np.shape(c)))
-    np.add(c * ux, s * uy, out=turned[0, ...])
-    np.subtract(c * uy, s * ux, out=turned[1, ...])
-    turned[2, ...] = u[..., 2]
-    return turned
-
-
 class DecouplingField:
     """Fast T(theta) for the control loop: T(theta) = T(0) diag(R(theta)^T, 1).
 
@@ -189,15 +173,11 @@ class DecouplingField:
         rot[..., 2, 2] = 1.0
         return self.T0 @ rot
 
-    def forces(self, theta: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Wheel forces F = T(theta) u [N] (eqs. 36-37), the array form: theta (...,), u (..., 3) -> (..., 3).
+    def forces(self, theta: float, u: Sequence[float]) -> list[float]:
+        """Wheel forces F = T(theta) u [N] (eqs. 36-37) of one run on Python floats (the per-tick path).
 
-        B runs each with its own model: `DecouplingFieldBatch`.
-        """
-        return np.einsum("ij,j...->...i", self.T0, _body_accelerations(theta, u))
-
-    def forces_floats(self, theta: float, u: Sequence[float]) -> list[float]:
-        """Wheel forces F = T(theta) u [N] (eqs. 36-37) on Python floats, the per-tick path of `field`.
+        T(0) (R(theta)^T (u_x, u_y), u_theta) as sums of products: numpy on one run would cost 20 times as much
+        (``bench float_path``); B runs at once: `DecouplingFieldBatch.forces`.
 
         Parameters
         ----------
@@ -228,7 +208,15 @@ class DecouplingFieldBatch:
 
     def forces(self, theta: np.ndarray, u: np.ndarray) -> np.ndarray:
         """`DecouplingField.forces` of each run by its own T(0): theta (B,), u (B, 3) -> (B, 3)."""
-        return np.einsum("ijb,jb->bi", self._T0_entries, _body_accelerations(theta, u))
+        th = _thetas(theta)
+        u = np.asarray(u, dtype=float)
+        c, s = np.cos(th), np.sin(th)
+        ux, uy = u[..., 0], u[..., 1]
+        turned = np.empty((3, *np.shape(c)))  # R(theta)^T (u_x, u_y), u_theta: one contiguous row each
+        np.add(c * ux, s * uy, out=turned[0, ...])
+        np.subtract(c * uy, s * ux, out=turned[1, ...])
+        turned[2, ...] = u[..., 2]
+        return np.einsum("ijb,jb->bi", self._T0_entries, turned)
 
 
 @dataclass(frozen=True)

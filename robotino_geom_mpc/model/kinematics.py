@@ -14,45 +14,7 @@ import numpy as np
 from robotino_geom_mpc.model.dynamics import wheel_directions
 from robotino_geom_mpc.params.specs import RobotinoParams
 
-__all__ = ["MotorKinematics", "MotorKinematicsBatch", "speeds_and_rates"]
-
-
-def speeds_and_rates(
-    W0: np.ndarray, theta: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Motor speeds omega and their rate omega' for a body velocity and acceleration (array form).
-
-    Parameters
-    ----------
-    W0
-        W(0), shape (3, 3) shared by the runs, or (..., 3, 3) one per run.
-    theta
-        Heading [rad], shape (...,) (a batch axis, or none for one run).
-    velocity, acceleration
-        (x', y', theta') and (x'', y'', theta'') in the odom frame, shape (..., 3).
-
-    Returns
-    -------
-    omega, omega_rate : ndarray, shape (..., 3)
-        omega = W(0) R(theta)^T v and omega' = W(theta) a + theta' W'(theta) v, where
-        W'(theta) v = W(theta) (y', -x', 0): both are W(0) applied to body-frame vectors.
-    """
-    theta = np.asarray(theta, dtype=float)
-    v, a = np.asarray(velocity, dtype=float), np.asarray(acceleration, dtype=float)
-    c, s = np.cos(theta), np.sin(theta)
-    vx, vy, w = v[..., 0], v[..., 1], v[..., 2]
-    bx, by = a[..., 0] + w * vy, a[..., 1] - w * vx
-    velocity_body, rate_body = np.empty((2, *c.shape, 3))  # R(theta)^T of the velocity and of the rate
-    np.add(c * vx, s * vy, out=velocity_body[..., 0])
-    np.subtract(c * vy, s * vx, out=velocity_body[..., 1])
-    velocity_body[..., 2] = w
-    np.add(c * bx, s * by, out=rate_body[..., 0])
-    np.subtract(c * by, s * bx, out=rate_body[..., 1])
-    rate_body[..., 2] = a[..., 2]
-    if W0.ndim == 2:  # one W(0) for every run
-        return velocity_body @ W0.T, rate_body @ W0.T
-    return (np.einsum("...ij,...j->...i", W0, velocity_body),
-            np.einsum("...ij,...j->...i", W0, rate_body))
+__all__ = ["MotorKinematics", "MotorKinematicsBatch"]
 
 
 class MotorKinematics:
@@ -79,15 +41,24 @@ class MotorKinematics:
         return self.W0 @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
 
     def speeds_and_rates(
-        self, theta: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Motor speeds omega and their rate omega' (array form, any leading axes): `speeds_and_rates` by W(0)."""
-        return speeds_and_rates(self.W0, theta, velocity, acceleration)
-
-    def speeds_and_rates_floats(
         self, theta: float, velocity: Sequence[float], acceleration: Sequence[float]
     ) -> tuple[list[float], list[float]]:
-        """`speeds_and_rates` on Python floats, for the per-tick path."""
+        """Motor speeds omega and their rate omega' for a body velocity and acceleration, one run on Python floats.
+
+        Parameters
+        ----------
+        theta
+            Heading [rad].
+        velocity, acceleration
+            (x', y', theta') and (x'', y'', theta'') in the odom frame.
+
+        Returns
+        -------
+        omega, omega_rate : lists of 3 floats
+            omega = W(0) R(theta)^T v and omega' = W(theta) a + theta' W'(theta) v, where
+            W'(theta) v = W(theta) (y', -x', 0): both are W(0) applied to body-frame vectors. The per-tick path:
+            numpy on one run would cost 26 times as much (``bench float_path``); B runs: `MotorKinematicsBatch`.
+        """
         vx, vy, w = velocity[0], velocity[1], velocity[2]
         ax, ay, aw = acceleration[0], acceleration[1], acceleration[2]
         c, s = math.cos(theta), math.sin(theta)
@@ -121,5 +92,22 @@ class MotorKinematicsBatch:
     def speeds_and_rates(
         self, theta: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """`speeds_and_rates` of each run: theta (B,), velocity and acceleration (B, 3) -> (B, 3) twice."""
-        return speeds_and_rates(self.W0, theta, velocity, acceleration)
+        """`MotorKinematics.speeds_and_rates` of each run: theta (B,), velocity and acceleration (B, 3) -> omega and
+        omega' (B, 3).
+        """
+        theta = np.asarray(theta, dtype=float)
+        v, a = np.asarray(velocity, dtype=float), np.asarray(acceleration, dtype=float)
+        c, s = np.cos(theta), np.sin(theta)
+        vx, vy, w = v[..., 0], v[..., 1], v[..., 2]
+        bx, by = a[..., 0] + w * vy, a[..., 1] - w * vx
+        velocity_body, rate_body = np.empty((2, *c.shape, 3))  # R(theta)^T of the velocity and of the rate
+        np.add(c * vx, s * vy, out=velocity_body[..., 0])
+        np.subtract(c * vy, s * vx, out=velocity_body[..., 1])
+        velocity_body[..., 2] = w
+        np.add(c * bx, s * by, out=rate_body[..., 0])
+        np.subtract(c * by, s * bx, out=rate_body[..., 1])
+        rate_body[..., 2] = a[..., 2]
+        if self.W0.ndim == 2:  # one W(0) for every run
+            return velocity_body @ self.W0.T, rate_body @ self.W0.T
+        return (np.einsum("...ij,...j->...i", self.W0, velocity_body),
+                np.einsum("...ij,...j->...i", self.W0, rate_body))

@@ -70,7 +70,7 @@ from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.reference.trajectories import shift_preview
 
 __all__ = ["ControllerLoop", "EVERYONE", "LINK_KEYS", "Listeners", "LockstepPairing", "LoopConfigError",
-           "LoopSettings", "RealtimePairing", "TRACKING_KEYS"]
+           "LoopSettings", "QUIET", "RealtimePairing", "TRACKING_KEYS"]
 
 TRACKING_KEYS = ("error_x_m", "error_y_m", "error_theta_rad", "compute_time_ms", "saturated", "infeasible",
                  "preview_stamp_ns", "dt_s")
@@ -138,7 +138,16 @@ class _Everyone:
         return True
 
 
+class _Nobody:
+    def diagnostics(self) -> bool:
+        return False
+
+    def path(self) -> bool:
+        return False
+
+
 EVERYONE: Listeners = _Everyone()
+QUIET: Listeners = _Nobody()  # a replay or an offline run that compares the commands only
 
 
 class RealtimePairing:
@@ -361,6 +370,18 @@ class ControllerLoop:
         self._blend_limits = (s.blend_acceleration_mps2, s.blend_acceleration_radps2)
 
     # inputs -------------------------------------------------------------------------------------------------
+    def on_input(self, event: Odometry | Preview | AppliedReport | Undecodable, now: Now) -> list[Output]:
+        """Any input message (a replay's or an offline loop's single entry): `on_odometry`, `on_preview`,
+        `on_report` or `on_undecodable`.
+        """
+        if isinstance(event, Odometry):
+            return self.on_odometry(event, now)
+        if isinstance(event, Preview):
+            return self.on_preview(event, now)
+        if isinstance(event, AppliedReport):
+            return self.on_report(event, now)
+        return self.on_undecodable(event, now)
+
     def on_odometry(self, odom: Odometry, now: Now) -> list[Output]:
         """One control tick on an odometry (lockstep: once its preview is there)."""
         self._begin(now)

@@ -1,9 +1,9 @@
-"""The controller node's input bookkeeping: its own parameters, refusal and drop counters, reference jumps.
+"""The controller node's own parameters and the refusals they steer (the loop decides: `loop.controller_loop`).
 
-Plain Python (no rclpy), so each piece is a few float operations on values
-the node has already read; `controller_node` wires them to the topics.
+Plain Python (no rclpy): the specs, their defaults, what cannot change while the node runs, and the check of a
+parameter set (`closed_loop_problem`). The input checks are `loop.inputs`'s, made by the controller loop.
 
-Bad input (`ros.decode` and `control.motion_controller.MotionController.state_problem` check the values read):
+Bad input (`loop.inputs` and `control.motion_controller.MotionController.state_problem` check the values read):
 
 * refused, with zero volts, an ERROR diagnostic naming the reason key, a
   throttled warning and ``rejected`` counted: non-finite values
@@ -52,18 +52,14 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numpy as np
-
 from robotino_geom_mpc.control.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2
 from robotino_geom_mpc.control.motion_controller import MotionController
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.control.mpc import check_closed_loop
 from robotino_geom_mpc.params.specs import ParamSpec, params_from_values
-from robotino_geom_mpc.reference.trajectories import shift_preview
-from robotino_geom_mpc.ros.decode import QUATERNION_NORM_TOLERANCE, TILT_TOLERANCE_RAD
+from robotino_geom_mpc.loop.inputs import QUATERNION_NORM_TOLERANCE, TILT_TOLERANCE_RAD
 
-__all__ = ["CONTROLLER_DEFAULTS", "CONTROLLER_SPECS", "FIXED_WHILE_RUNNING", "InputCounters",
-           "closed_loop_problem", "reference_jump"]
+__all__ = ["CONTROLLER_DEFAULTS", "CONTROLLER_SPECS", "FIXED_WHILE_RUNNING", "closed_loop_problem"]
 
 CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("mode", str, "realtime: freshest preview, watchdog outputs zero volts; "
@@ -128,54 +124,3 @@ def closed_loop_problem(values: dict[str, Any]) -> str | None:
     except RobotinoError as exc:  # UnstableClosedLoopError, ParamError, GeometryError, ...
         return str(exc)
     return None
-
-
-def reference_jump(previous: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None, stamp_ns: int,
-                   position: np.ndarray, jump_m: float, jump_rad: float) -> str | None:
-    """How the reference at `stamp_ns` (`position`, x y theta) left the `previous` preview moved there, or None.
-
-    `previous` is (stamp, positions, velocities, accelerations) of the last preview; a jump is a
-    position more than `jump_m` or a heading more than `jump_rad` away from its Taylor step
-    (`reference.trajectories.shift_preview`), e.g. a trajectory node restarted at the origin.
-    """
-    if previous is None:
-        return None
-    stamp, positions, velocities, accelerations = previous
-    expected = shift_preview(positions[0], velocities[0], accelerations[0], (stamp_ns - stamp) * 1e-9)
-    dx, dy, dtheta = (position - expected).tolist()
-    distance = math.hypot(dx, dy)
-    if distance > jump_m or abs(dtheta) > jump_rad:
-        return f"reference jumped by {distance:.4g} m, {dtheta:.4g} rad between previews"
-    return None
-
-
-class InputCounters:
-    """Refused and dropped inputs, counted since the start, with the reason of the last refusal.
-
-    A refused input (bad stamp, quaternion, value or size) gets zero volts; a dropped one (a duplicate
-    or older stamp than the last used) is only counted: a newer input was used already.
-    """
-
-    def __init__(self) -> None:
-        self.rejected = 0
-        self.last_refusal = "none"
-        self.dropped_duplicate = 0
-        self.dropped_old = 0
-
-    def refuse(self, reason: str) -> None:
-        """Count a refusal with its reason key."""
-        self.rejected += 1
-        self.last_refusal = reason
-
-    def drop(self, reason: str) -> None:
-        """Count a drop: `reason` is ``duplicate`` or ``old``."""
-        if reason == "duplicate":
-            self.dropped_duplicate += 1
-        else:
-            self.dropped_old += 1
-
-    def values(self) -> list[str]:
-        """The diagnostic values of `KEYS`."""
-        return [str(self.rejected), self.last_refusal, str(self.dropped_duplicate), str(self.dropped_old)]
-
-    KEYS = ("rejected", "last_refusal", "dropped_duplicate", "dropped_old")

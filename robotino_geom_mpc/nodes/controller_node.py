@@ -31,8 +31,10 @@ publishes  ``controller_enabled`` std_msgs/Bool, `LATCHED_QOS` (reliable, transi
                                   state, at start and on every change (a trajectory node with
                                   ``start_on_enable`` starts its reference when it turns true).
 
-Publishers: `controller_outputs.ControllerOutputs`. Inputs are read in
-place by a `ros.cdr.CdrLayout` (any other layout: `ros.cdr.cdr_reader`).
+The node is an adapter: each callback decodes its message (in place by a `ros.cdr.CdrLayout`, any other layout
+by `ros.cdr.cdr_reader`), hands it with the time (`loop.events.Now`: the node clock and the watchdog's clock) to
+its `loop.controller_loop.ControllerLoop`, which decides everything below, and `controller_outputs.ControllerOutputs`
+publishes what the loop answers. The watchdog's timer, ``~/enable``, a parameter set and the stop do the same.
 
 Each odometry message is one control tick: the node computes on its arrival. The preview used is the one
 whose stamp equals the odometry stamp in ``lockstep`` (the odometry waits for it if it comes first), the
@@ -45,9 +47,22 @@ input to check its stamp. The watchdog counts the node clock under ``use_sim_tim
 steady time otherwise. Frames: a preview not in ``<frame_prefix>odom`` is refused (reason ``frame``).
 
 Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagnostic naming the reason).
-Plans (``plans``, an off-board controller over a network): `controller_plans` (delay-compensated plans on
-``wheel_voltage_plan`` / ``cmd_vel_plan``, the robot's ``command_applied`` read, the link in the diagnostics). In
-lockstep the odometries of a tick are answered in arrival order, each with the preview of its stamp.
+Plans (``plans``, an off-board controller over a network): delay-compensated plans
+(`control.delay_compensation.DelayCompensatingController`) on ``wheel_voltage_plan`` / ``cmd_vel_plan``
+(`ros.plans`), the plain command carrying the plan's first entry; the robot's ``command_applied``
+(trajectory_msgs/JointTrajectory) read and handed to the loop in the order it came (in lockstep held while an
+odometry waits for its preview); a report that cannot be read or lies more than 2 s from the newest odometry is
+refused (``refused_reports``); the link in the diagnostics (`loop.controller_loop.LINK_KEYS`: round trip mean,
+jitter and the lead's quantile [s], the lead [periods], plans sent / received / lost, odometries received /
+missing / stale, ``exhausted_periods``, ``refused_reports``, ``reports_received``). In lockstep the odometries of a
+tick are answered in arrival order, each with the preview of its stamp.
+Chain (``chain.active`` enabled: realtime, cmd_vel): the chain controller (`control.chain_controller`, built from
+``chain.*``: the preset, or `identify`'s file) steps on each odometry instead of the MPC, with the newest preview
+and the node clock at the step; two odometries of one driver pass share a stamp and both are used, an old stamp
+too (a dispatch time); every zero twist the node sends is noted in its command model; disabled, each odometry is
+answered with a zero twist, noted as well, and enabled again it goes on from its model (no blend: the one-move
+plan's braking limit keeps within the firmware's ramps). Its status per tick (message ``chain``) names
+``preview_stamp_ns``, and every status the node clock ``clock_ns``: a recording of it replays exactly.
 
 Bumpless (re)start (`control.blend.BlendEngagement`): at the first tick (except tick t = 0 of a lockstep
 run, where robot and reference start together as in `simulate`), after stale data or ``~/enable`` turned
@@ -58,7 +73,7 @@ preview, taking the reference from the measured pose and velocity to itself with
 whose offset acceleration stays within ``blend_acceleration_mps2`` / ``blend_acceleration_radps2``.
 
 Parameters: the robot/control parameters of config/*.yaml (``/**`` section) plus
-`controller_inputs.CONTROLLER_SPECS`. A set is refused with the reason when the values cannot run
+`controller_inputs.CONTROLLER_SPECS` and ``chain.*``. A set is refused with the reason when the values cannot run
 (`controller_inputs.closed_loop_problem`: a timeout under two periods, an unstable nominal closed loop, a model
 the controller cannot be built on; also at start: exit status 2) and for ``mode``, ``frame_prefix``,
 ``command_interface``, ``control.period_s`` and ``control.horizon`` (the last two must agree with the trajectory
@@ -68,37 +83,31 @@ bumpless restart.
 
 from __future__ import annotations
 
-import traceback
+import time
 
-import numpy as np
-from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from std_msgs.msg import Bool
+from rclpy.timer import Timer
 from std_srvs.srv import SetBool
-from trajectory_msgs.msg import MultiDOFJointTrajectory
+from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
-from robotino_geom_mpc.control.blend import BlendEngagement, BlendError
-from robotino_geom_mpc.control.motion_controller import (MAX_POSITION_M, ControllerInputError, MotionController,
-                                                         step_interval)
-from robotino_geom_mpc.params.specs import ALL_SPECS
-from robotino_geom_mpc.reference.trajectories import shift_preview
 from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_prefix
-from robotino_geom_mpc.nodes.chain_control import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, chain_control
+from robotino_geom_mpc.loop.controller_loop import ControllerLoop, LoopConfigError, LoopSettings
+from robotino_geom_mpc.loop.events import AppliedReport, Now, Odometry as OdometryIn, Preview, Undecodable
+from robotino_geom_mpc.model.driver_chain import (CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, ChainError, ChainParams,
+                                                  chain_params)
 from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, CONTROLLER_SPECS, FIXED_WHILE_RUNNING, \
-    InputCounters, closed_loop_problem, reference_jump
+    closed_loop_problem
 from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
-from robotino_geom_mpc.nodes.controller_plans import LINK_KEYS, ControllerPlans
-from robotino_geom_mpc.nodes.controller_watchdog import ControllerWatchdog
+from robotino_geom_mpc.params.specs import ALL_SPECS, CHAIN_ACTIVE_SPEC, CHAIN_SPECS
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
-from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_of_values, preview_point_values, \
-    stamp_problem, state_of_odometry, time_ns
+from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_point_values, time_ns
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, preview_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.plans import REPORT_WINDOW_S
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, LATCHED_QOS, LOCKSTEP_PUBLISH_QOS
-from robotino_geom_mpc.ros.spin import monotonic, run_node
-from robotino_geom_mpc.ros.throttle import error_throttled, warn_throttled
+from robotino_geom_mpc.ros.plans import PlanMessageError, report_of_message
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, LOCKSTEP_PUBLISH_QOS, publish_qos
+from robotino_geom_mpc.ros.spin import run_node
 
 __all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
 
@@ -106,11 +115,13 @@ __all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
 _read_odom = cdr_reader(Odometry, "nav_msgs/msg/Odometry")
 _read_preview = cdr_reader(MultiDOFJointTrajectory, "trajectory_msgs/msg/MultiDOFJointTrajectory")
 
-_EVENT_KEYS = ("watchdog", *InputCounters.KEYS, "blend_remaining_s", "blend_engagements")
 _ROBOT_CONTROL = frozenset(s.name for s in ALL_SPECS)
+_SETTINGS = ("odom_timeout_s", "reference_timeout_s", "future_tolerance_s", "quaternion_norm_tolerance",
+             "tilt_tolerance_rad", "reference_jump_m", "reference_jump_rad", "blend_acceleration_mps2",
+             "blend_acceleration_radps2")
 
 
-class ControllerNode(ControllerWatchdog, Node):
+class ControllerNode(Node):
     """The controller node (see the module docstring for its interface)."""
 
     def __init__(self) -> None:
@@ -118,85 +129,75 @@ class ControllerNode(ControllerWatchdog, Node):
         defaults = {**spec_defaults(), **CONTROLLER_DEFAULTS, **CHAIN_NODE_DEFAULTS}
         self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS + CHAIN_NODE_SPECS, defaults, self._on_params,
                                      fixed=(*FIXED_WHILE_RUNNING, *CHAIN_NODE_DEFAULTS), check=closed_loop_problem)
-        self.robot, self.control = self.params.robot_control()
-        self.controller = MotionController(self.robot, self.control)
-        self.lockstep = self.params["mode"] == "lockstep"
-        self.period_ns = int(round(self.control.period_s * 1e9))
-        self._read_limits()
-
+        robot, control = self.params.robot_control()
+        lockstep = self.params["mode"] == "lockstep"
+        interface = self.params["command_interface"]
         try:
             prefix = check_frame_prefix(self.params["frame_prefix"])
         except DescriptionError as exc:
             raise NodeStartError(f"parameter 'frame_prefix': {exc}") from None
-        self.plans = ControllerPlans(self, self.robot, self.control, self.params["command_interface"], self.lockstep,
-                                     REPORT_WINDOW_S) if self.params["plans"] else None
-        self.preview_points = self.control.horizon if self.plans is None else self.plans.preview_length
-        self.outputs = ControllerOutputs(self, self.lockstep, _EVENT_KEYS + (LINK_KEYS if self.plans else ()),
-                                         self._event_values, self.control.horizon, prefix,
-                                         self.params["command_interface"])
-        self.odom_frame = prefix + ODOM_FRAME  # the frame of the previews it takes
-        self.chain = chain_control(self)  # chain.active: control through the driver chain (`chain_control`)
-        self.enabled = self.params["start_enabled"]
-        self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
-        self.enabled_pub = self.create_publisher(Bool, "controller_enabled", LATCHED_QOS)
-        self.enabled_pub.publish(Bool(data=self.enabled))
-        self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
-        self.preview_layout = preview_layout(self.control.period_s, self.preview_points, prefix)
-        # lockstep plans: the previews of the ticks before an odometry's late delivery are all kept
-        qos = LOCKSTEP_PUBLISH_QOS if self.plans is not None and self.lockstep else CONTROL_QOS
-        self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, qos, raw=True)
-        self.preview_sub = self.create_subscription(MultiDOFJointTrajectory, "reference_preview", self._on_preview,
-                                                    qos, raw=True)
-
-        self.theta = 0.0  # last measured (continuous) yaw
-        # lockstep: stamp [ns] -> (positions, velocities, accelerations), each (N + 1, 3)
-        self.previews: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        # the newest preview: stamp [ns], positions, velocities, accelerations (realtime: the one used)
-        self.latest_preview: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.pending: tuple[int, np.ndarray, list] | None = None  # lockstep: the first odometry waiting for its preview
-        # lockstep: odometries in arrival order, with that one first, each with the reports held for it (plans)
-        self.waiting: list[tuple[int, np.ndarray, list]] = []
-        if self.plans is not None and self.lockstep:
-            self.plans.hold_into = lambda: self.waiting[-1][2] if self.waiting else None
-        self.pending_since = 0.0
-        self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
         # the watchdog's clock, read at start: the node clock under use_sim_time (a slow simulation is slow, not
         # stale), else steady time
         self.sim_time = bool(self.get_parameter("use_sim_time").value)
-        self._watch_now = (lambda: self.get_clock().now().nanoseconds * 1e-9) if self.sim_time else monotonic
-        self.odom_time = self.preview_time = None  # arrival times of accepted inputs (`_watch_now`)
-        self.start_time = self._watch_now()
-        self.watchdog_state = "waiting"
-        self.counters = InputCounters()
-        self.blend = BlendEngagement(self.control.period_s, self.preview_points)
+        self.outputs = ControllerOutputs(self, lockstep, control.horizon, prefix, interface,
+                                         control.plan_length if self.params["plans"] else None)
+        try:
+            self.loop = ControllerLoop(robot, control, self._now(), self._settings(), lockstep=lockstep,
+                                       interface=interface, plans=self.params["plans"], chain=self._chain(),
+                                       enabled=self.params["start_enabled"], odom_frame=prefix + ODOM_FRAME,
+                                       listeners=self.outputs)
+        except LoopConfigError as exc:
+            raise NodeStartError(str(exc)) from None
+        self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
+        self.outputs.send_enabled(self.loop.enabled)
+        self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
+        self.preview_layout = preview_layout(control.period_s, self.loop.preview_points, prefix)
+        # lockstep plans: the previews of the ticks before an odometry's late delivery are all kept
+        qos = LOCKSTEP_PUBLISH_QOS if self.params["plans"] and lockstep else CONTROL_QOS
+        self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, qos, raw=True)
+        self.preview_sub = self.create_subscription(MultiDOFJointTrajectory, "reference_preview", self._on_preview,
+                                                    qos, raw=True)
+        if self.params["plans"]:  # every report (keep-all in lockstep)
+            self.report_sub = self.create_subscription(JointTrajectory, "command_applied", self._on_report,
+                                                       publish_qos(lockstep))
         self.watchdog = self._start_watchdog()
-        disabled = "" if self.enabled else \
+        disabled = "" if self.loop.enabled else \
             f"; disabled (zero output) until {self.resolve_service_name(self.enable_srv.srv_name)} true"
-        self.get_logger().info(f"controller ready ({self.params['mode']}, mode {self.control.mode}, "
-                               f"N = {self.control.horizon}, Ts = {self.control.period_s:g} s){disabled}")
+        self.get_logger().info(f"controller ready ({self.params['mode']}, mode {control.mode}, "
+                               f"N = {control.horizon}, Ts = {control.period_s:g} s){disabled}")
 
-    # parameters ---------------------------------------------------------------------------------
-    def _read_limits(self) -> None:
-        """The node's own parameters as attributes (read per tick)."""
-        p = self.params
-        self.odom_timeout_ns = int(p["odom_timeout_s"] * 1e9)
-        self.reference_timeout_ns = int(p["reference_timeout_s"] * 1e9)
-        self.future_ns = int(p["future_tolerance_s"] * 1e9)
-        self.tolerances = (p["quaternion_norm_tolerance"], p["tilt_tolerance_rad"])
-        self.jump_limits = (p["reference_jump_m"], p["reference_jump_rad"])
-        self.blend_limits = (p["blend_acceleration_mps2"], p["blend_acceleration_radps2"])
+    # time and parameters ------------------------------------------------------------------------
+    def _now(self) -> Now:
+        """The node clock and the watchdog's clock (the node clock under use_sim_time, else steady time)."""
+        clock = self.get_clock().now().nanoseconds
+        return Now(clock, clock if self.sim_time else time.monotonic_ns())
+
+    def _settings(self) -> LoopSettings:
+        return LoopSettings.of({name: self.params[name] for name in _SETTINGS})
+
+    def _chain(self) -> ChainParams | None:
+        """The chain's parameters when ``chain.active`` is enabled (the chain controller), else None."""
+        if self.params[CHAIN_ACTIVE_SPEC.name] != "enabled":
+            return None
+        try:
+            return chain_params({spec.name: self.params[spec.name] for spec in CHAIN_SPECS},
+                                where="the controller's parameters")
+        except ChainError as exc:
+            raise NodeStartError(str(exc)) from None
+
+    def _start_watchdog(self) -> Timer:
+        """The watchdog's timer, at half the shorter timeout, on the watchdog's clock."""
+        clock = self.get_clock() if self.sim_time else Clock(clock_type=ClockType.STEADY_TIME)
+        return self.create_timer(self.loop.settings.watchdog_period_s, self._on_watchdog, clock=clock)
 
     def _on_params(self, changed: dict) -> None:
-        self._read_limits()
+        rebuild = bool(_ROBOT_CONTROL & changed.keys())
+        robot, control = self.params.robot_control() if rebuild else (self.loop.robot, self.loop.control)
+        self.outputs.send(self.loop.on_parameters(robot, control, self._settings(), rebuild, self._now()))
         if {"odom_timeout_s", "reference_timeout_s"} & changed.keys():
             self.destroy_timer(self.watchdog)
             self.watchdog = self._start_watchdog()
-        if _ROBOT_CONTROL & changed.keys():
-            self.robot, self.control = self.params.robot_control()
-            self.controller = MotionController(self.robot, self.control)
-            if self.plans is not None:
-                self.plans.rebuild(self.robot, self.control)
-            self.blend.request("parameters")  # the new controller starts from u(k-1) = 0: blend from the state
+        if rebuild:
             self.get_logger().info(f"parameters {sorted(changed)} changed: controller rebuilt, bumpless restart")
 
     def on_stop(self) -> None:
@@ -204,267 +205,56 @@ class ControllerNode(ControllerWatchdog, Node):
 
         Lockstep does not: the plant holds the time and pairs every command with its tick.
         """
-        if not self.lockstep:
-            self.outputs.send_zero()
-
-    def _on_enable(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
-        """~/enable: false holds (zero output every tick, the controller untouched); true re-engages bumplessly.
-
-        A node started disabled (``start_enabled`` false) that has never tracked keeps its pending start
-        engagement (bumpless too; at t = 0 of a lockstep run exactly as `simulate` starts).
-        """
-        if request.data != self.enabled:
-            self.enabled = request.data
-            if self.enabled and self.blend.reason != "start":
-                self.blend.request("enable")  # u(k-1) = 0 (the robot held), blend from the measured state
-            self.enabled_pub.publish(Bool(data=self.enabled))
-            self.get_logger().info("enabled: tracking resumes bumplessly" if self.enabled else
-                                   "disabled: zero output, holding")
-        response.success, response.message = True, "enabled" if self.enabled else "disabled"
-        return response
+        self.outputs.send(self.loop.on_stop(self._now()))
 
     # inputs -------------------------------------------------------------------------------------
-    def _reject(self, stamp: int | None, what: str, reason: str, message: str) -> None:
-        """A refused input: counted, logged, zero volts, an ERROR diagnostic naming the reason."""
-        self.counters.refuse(reason)
-        warn_throttled(self.get_logger(), f"refused {what}: {message}; zero volts", 1.0)
-        self.outputs.send_zero()
-        self.outputs.diagnose(stamp, DiagnosticStatus.ERROR, f"refused {what} ({reason}): {message}")
+    def _on_enable(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        """~/enable: false holds (zero output every tick, the controller untouched); true re-engages bumplessly."""
+        self.outputs.send(self.loop.on_enable(request.data, self._now()))
+        response.success, response.message = True, "enabled" if self.loop.enabled else "disabled"
+        return response
 
-    def _drop(self, stamp: int, what: str, reason: str) -> None:
-        """A dropped input (duplicate or older stamp than the last used): counted, logged, a WARN diagnostic."""
-        self.counters.drop(reason)
-        warn_throttled(self.get_logger(), f"dropped {what} of stamp {stamp} ns: {reason}", 1.0)
-        self.outputs.diagnose(stamp, DiagnosticStatus.WARN, f"dropped {what} ({reason})")
+    def _on_watchdog(self) -> None:
+        self.outputs.send(self.loop.on_watchdog(self._now()))
 
-    def _now_ns(self) -> int | None:
-        """The node clock (realtime), None in lockstep (stamps are simulated time there)."""
-        return None if self.lockstep else self.get_clock().now().nanoseconds
+    def _on_odom(self, data: bytes) -> None:
+        now = self._now()
+        try:
+            values = self.odom_layout.read(data)
+            if values is None:
+                values = odometry_values(_read_odom(data))
+            odom = OdometryIn(time_ns(values[0], values[1]), tuple(values[2:]))
+        except (MalformedMessage, InputRejected) as exc:
+            bad = Undecodable("odom", None, getattr(exc, "reason", "malformed"), str(exc))
+            self.outputs.send(self.loop.on_undecodable(bad, now))
+            return
+        self.outputs.send(self.loop.on_odometry(odom, now))
 
     def _on_preview(self, data: bytes) -> None:
+        now = self._now()
         stamp = None
         try:
             values = self.preview_layout.read(data)
             if values is None:
                 msg = _read_preview(data)
-                sec, nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec
-                stamp = time_ns(sec, nanosec)  # first: a wrongly sized preview is refused for its tick
-                if msg.header.frame_id != self.odom_frame:  # another robot's odom, or a prefix mismatch
-                    raise InputRejected(f"reference_preview is in frame '{msg.header.frame_id}', not in the "
-                                        f"controller's '{self.odom_frame}'", "frame")
-                values = (sec, nanosec, *preview_point_values(msg, self.preview_points))
+                stamp = time_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)  # a malformed one: refused for its tick
+                preview = Preview(stamp, msg.header.frame_id, preview_point_values(msg, None))
             else:
-                stamp = time_ns(values[0], values[1])
-            latest = self.latest_preview
-            if not self.lockstep:  # lockstep: the trajectory resends previews on purpose, keyed by stamp
-                problem = stamp_problem(stamp, None if latest is None else latest[0], self._now_ns(),
-                                        self.reference_timeout_ns, self.future_ns)
-                if problem in ("duplicate", "old"):
-                    self._drop(stamp, "reference_preview", problem)
-                    return
-                if problem is not None:
-                    raise InputRejected(f"stamp {stamp} ns is {problem}", problem)
-            arrays = preview_of_values(values[2:], self.theta, *self.tolerances)
-            if np.abs(arrays[0][:, :2]).max() > MAX_POSITION_M:
-                raise InputRejected(f"reference_preview has a position beyond {MAX_POSITION_M:g} m", "implausible")
+                preview = Preview(time_ns(values[0], values[1]), self.loop.odom_frame, tuple(values[2:]))
         except (MalformedMessage, InputRejected) as exc:
-            self._refuse_preview(stamp, getattr(exc, "reason", "malformed"), str(exc))
+            bad = Undecodable("reference_preview", stamp, getattr(exc, "reason", "malformed"), str(exc))
+            self.outputs.send(self.loop.on_undecodable(bad, now))
             return
-        self.preview_time = self._watch_now()
-        if latest is None or stamp > latest[0]:
-            jump = reference_jump(latest, stamp, arrays[0][0], *self.jump_limits)
-            if jump is not None:
-                self.blend.jump_ns = stamp
-                warn_throttled(self.get_logger(), f"{jump}: bumpless restart", 1.0)
-            self.latest_preview = (stamp, *arrays)
-        if not self.lockstep:
-            return
-        self.previews[stamp] = arrays
-        self._drain()
+        self.outputs.send(self.loop.on_preview(preview, now))
 
-    def _drain(self) -> None:
-        """Lockstep: step the waiting odometries in arrival order while the preview of the first is there (over
-        a link several arrive at one tick, each answered in turn).
-        """
-        while self.waiting:
-            stamp, X, held = self.waiting[0]
-            if self.last_odom_ns is not None and stamp <= self.last_odom_ns:  # overtaken while it waited
-                del self.waiting[0]
-                self._drop(stamp, "odom", "old")
-                if held:  # the reports that came after it (only with plans)
-                    self.plans.take(held)
-                continue
-            arrays = self.previews.get(stamp)
-            if arrays is None:
-                break
-            del self.waiting[0]
-            self.pending_since = self._watch_now()
-            if isinstance(arrays, InputRejected):
-                self._reject(stamp, "odom", f"preview_{arrays.reason}", f"the preview of this tick was refused: "
-                             f"{arrays}")
-            else:
-                self._control(stamp, X, *arrays, stamp)
-            if held:
-                self.plans.take(held)
-            for old in [s for s in self.previews if s < stamp]:
-                del self.previews[old]
-        self.pending = self.waiting[0] if self.waiting else None
-
-    def _refuse_preview(self, stamp: int | None, reason: str, message: str) -> None:
-        """Realtime: zero volts now; lockstep: for the tick of its stamp (of none if unknown: only counted)."""
-        if not self.lockstep:
-            self._reject(stamp, "reference_preview", reason, message)
-            return
-        self.counters.refuse(reason)
-        warn_throttled(self.get_logger(), f"refused reference_preview: {message}", 1.0)
-        if stamp is None:
-            return
-        self.previews[stamp] = InputRejected(message, reason)
-        self._drain()
-
-    def _on_odom(self, data: bytes) -> None:
+    def _on_report(self, msg: JointTrajectory) -> None:
+        now = self._now()
+        report: AppliedReport | Undecodable
         try:
-            values = self.odom_layout.read(data)
-            if values is None:
-                values = odometry_values(_read_odom(data))
-            stamp = time_ns(values[0], values[1])
-        except (MalformedMessage, InputRejected) as exc:
-            self._reject(None, "odom", getattr(exc, "reason", "malformed"), str(exc))
-            return
-        problem = stamp_problem(stamp, self.last_odom_ns, self._now_ns(), self.odom_timeout_ns, self.future_ns)
-        problem = None if self.chain is not None and problem in ("duplicate", "stale") else problem  # `chain_control`
-        if problem is not None:
-            if problem == "duplicate" and self.lockstep:
-                self.outputs.deliver_answer()  # the plant resent a tick: answer again only if undelivered
-            if problem in ("duplicate", "old"):
-                self._drop(stamp, "odom", problem)
-            else:
-                self._reject(stamp, "odom", problem, f"stamp {stamp} ns is {problem}")
-            return
-        try:
-            X = state_of_odometry(values[2:], self.theta, *self.tolerances)
-            problem = self.controller.state_problem(X)
-            if problem is not None:
-                raise InputRejected(f"odom {problem}", "implausible")
-        except InputRejected as exc:
-            self._reject(stamp, "odom", exc.reason, str(exc))
-            return
-        self.odom_time = self._watch_now()
-        self.theta = X[4]
-        if not self.enabled and not self.lockstep:  # lockstep: each tick answered with the preview of its stamp
-            self._hold(stamp)
-            return
-        if self.lockstep:
-            if all(waiting != stamp for waiting, _, _ in self.waiting):
-                if not self.waiting:
-                    self.pending_since = self.odom_time
-                self.waiting.append((stamp, X, []))
-            self._drain()
-            return
-        if self.latest_preview is None or self.odom_time - self.preview_time > self.params["reference_timeout_s"]:
-            return  # stale reference: the watchdog outputs zero volts
-        if self.chain is not None:
-            return self.chain.control(self, stamp, X)
-        preview_stamp, positions, velocities, accelerations = self.latest_preview
-        dt = (stamp - preview_stamp) * 1e-9
-        self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt),
-                      velocities + dt * accelerations, accelerations, preview_stamp)
-
-    # control ------------------------------------------------------------------------------------
-    def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
-                 accelerations: np.ndarray, preview_stamp: int) -> None:
-        """One step on the odometry of `stamp` and the preview of `preview_stamp` (moved to `stamp`).
-
-        `positions`, `velocities`, `accelerations` are the reference at `stamp` + j Ts, j = 0..N.
-        """
-        if not self.enabled:
-            self._hold(stamp)
-            return
-        reason = self.blend.due(preview_stamp)
-        first = self.previews.get(0) if self.plans is not None else None  # over a link tick 0 may be lost
-        if reason == "start" and self.lockstep and (stamp == 0 or isinstance(first, tuple)):
-            self.blend.reason = reason = None  # t = 0 of a lockstep run: robot and reference start together
-            start = (positions if stamp == 0 else first[0])[0].tolist()
-            (self.controller if self.plans is None else self.plans.controller).start_at(*start)
-        try:
-            if reason is not None:
-                self._engage(stamp, X, positions[0], velocities[0], accelerations[0], reason)
-                dt_s = None  # the controller starts over
-            else:  # None: one period exactly, or the first tick
-                dt_s = step_interval(stamp, self.last_odom_ns, self.period_ns)
-            preview = positions[1:]
-            offsets = self.blend.offsets(stamp)
-            if offsets is not None:
-                preview = preview + offsets
-            if self.plans is not None:
-                self._plan(stamp, X, preview, X[0::2] - positions[0], preview_stamp)
-                return
-            out = self.controller.step(X, preview, dt_s)
-        except (ControllerInputError, BlendError) as exc:
-            self._reject(stamp, "input", "controller", str(exc))
-            return
-        except Exception as exc:  # a bug must not leave the drives at the last voltages: zero, and start over
-            error_throttled(self.get_logger(), f"control step failed: {exc!r}\n{traceback.format_exc()}", 1.0)
-            self.blend.request("error")
-            self._reject(stamp, "input", "internal_error", repr(exc))
-            return
-        self.last_odom_ns = stamp
-        self.outputs.answer(stamp, list(self.controller.next_velocity() if self.outputs.cmd_vel else out.voltages))
-        if self.outputs.path_wanted():
-            self.outputs.publish_path(stamp, self.period_ns, self.controller.predicted_outputs())
-        if not self.outputs.diagnosing():
-            return
-        error = X[0::2] - positions[0]
-        flags = (out.saturated, out.infeasible)
-        level = DiagnosticStatus.WARN if any(flags) else DiagnosticStatus.OK
-        tracking = [f"{e:.9g}" for e in error.tolist()] + [
-            f"{out.compute_time_s * 1e3:.4f}", str(flags[0]).lower(), str(flags[1]).lower(), str(preview_stamp),
-            f"{self.control.period_s if dt_s is None else dt_s:.9g}"]
-        self.outputs.diagnose(stamp, level, "tracking", tracking)
-
-    def _hold(self, stamp: int) -> None:
-        """Disabled: zero output for the odometry of `stamp` and the diagnostic ``disabled`` (through the chain, the
-        zero twist noted in its controller's command model: the firmware gets it as any other command).
-        """
-        self.last_odom_ns = stamp
-        if self.chain is not None:
-            self.chain.note_zero(self.get_clock().now().nanoseconds)
-        self.outputs.answer(stamp, [0.0, 0.0, 0.0])
-        self.outputs.diagnose(stamp, DiagnosticStatus.OK, "disabled")
-
-    def _plan(self, stamp: int, X: np.ndarray, preview: np.ndarray, error: np.ndarray, preview_stamp: int) -> None:
-        """Plans: the plan of this odometry published, its first entry as the plain command (none for an
-        odometry not newer than one taken: it came reordered or twice over the link).
-        """
-        begin = monotonic()
-        plan = self.plans.plan(stamp, X, preview)
-        if plan is None:
-            self._drop(stamp, "odom", "old")
-            return
-        self.last_odom_ns = stamp
-        self.outputs.answer(stamp, list(plan.entries[0]))
-        if self.outputs.diagnosing():
-            self.outputs.diagnose(stamp, DiagnosticStatus.OK, "tracking", [f"{e:.9g}" for e in error.tolist()] + [
-                f"{(monotonic() - begin) * 1e3:.4f}", "false", "false", str(preview_stamp),
-                f"{self.control.period_s:.9g}"])
-
-    def _engage(self, stamp: int, X: np.ndarray, position: np.ndarray, velocity: np.ndarray,
-                acceleration: np.ndarray, reason: str) -> None:
-        """Bumpless (re)start: reset the controller and blend the reference in from the measured state."""
-        self.controller.reset()
-        if self.plans is not None:
-            self.plans.controller.reset()
-        blend = self.blend.engage(stamp, X, position, velocity, acceleration, *self.blend_limits)
-        if self.blend.blend is not None:
-            limited = " (limit raised: the reference's own acceleration needs more)" if blend.limited else ""
-            self.get_logger().info(
-                f"bumpless restart ({reason}) at stamp {stamp} ns: offset {np.round(blend.dp, 6).tolist()}, "
-                f"rate {np.round(blend.dv, 6).tolist()}, blended in over {blend.duration_s:.3f} s{limited}")
-
-    def _event_values(self, stamp: int) -> list[str]:
-        """The values of `_EVENT_KEYS` at `stamp` [ns] (every diagnostic carries them)."""
-        return [self.watchdog_state, *self.counters.values(), f"{self.blend.remaining_s(stamp):.4f}",
-                str(self.blend.engagements), *(self.plans.values() if self.plans is not None else ())]
+            report = report_of_message(msg)
+        except PlanMessageError as exc:
+            report = Undecodable("command_applied", None, exc.reason, str(exc))
+        self.outputs.send(self.loop.on_report(report, now))
 
 
 def main(args: list[str] | None = None) -> int:

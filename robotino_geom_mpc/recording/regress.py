@@ -1,40 +1,28 @@
-"""Replay regression: a recording's odometry and reference previews through a fresh controller.
+"""Replay regression: a recording's odometry and reference previews through a fresh controller loop.
 
-A fresh `control.motion_controller.MotionController`, built from the run parameters
-the recording stores (or a parameter file), is stepped once per recorded
-control tick with exactly what the controller node got: the ``odom``
-message of the tick converted by the node's own `odometry_state` and the
-``reference_preview`` of the same stamp converted by its
-`preview_arrays` (lockstep; in realtime mode the preview whose stamp the
-node's diagnostics name, else the latest one published before the next
-odometry, moved to the tick's stamp by `reference.trajectories.shift_preview` as
-the node does; the ticks before the first preview, or before the first
-one the diagnostics name, are not stepped: the node had no preview yet).
-Its voltages are compared with the recorded ``wheel_voltages`` answer of
-the tick (paired through the controller's ``diagnostics``, stamped with
-the tick, see `report`). Deterministic code on identical inputs gives
-identical floats, so the tolerance is 1e-12 V. A cmd_vel run (its
-controller sent twists on ``cmd_vel``, no ``wheel_voltages``) is compared
-the same way on the twist the node sends, `MotionController.next_velocity`
-after the step (v_x, v_y [m/s], theta' [rad/s] in base_link; zero where the
-node refused the input), with the same tolerance in those units.
+A fresh `loop.controller_loop.ControllerLoop` (the node's tick protocol), built from the run parameters the
+recording stores (or a parameter file), is given what the controller node got, in the recorded order with the
+recorded times (each message's publish time as the clock): every ``odom`` message once and the
+``reference_preview`` messages the node had by then -- lockstep: the preview of the same stamp (the loop pairs
+them); realtime: the previews up to the one the node's diagnostics name for the tick (``preview_stamp_ns``), else
+those published before the next odometry (the ticks before the first preview the diagnostics name are not
+answered: the node had no preview yet). The loop answers as the node did: the preview moved to the tick's stamp,
+the step interval, the bumpless (re)starts, zero on a refused input. Its commands are compared with the recorded
+``wheel_voltages`` answer of the tick (paired through the controller's ``diagnostics``, stamped with the tick, see
+`report`). Deterministic code on identical inputs gives identical floats, so the tolerance is 1e-12 V. A cmd_vel
+run (its controller sent twists on ``cmd_vel``, no ``wheel_voltages``) is compared the same way on the twist the
+node sends (v_x, v_y [m/s], theta' [rad/s] in base_link; zero where the node refused the input), with the same
+tolerance in those units. Runs with plans: `regress_plans`; chain runs: `regress_chain`.
 
-The controller carries state from tick to tick (u(k-1) of the Delta-u form,
-the pose estimate), so the replay needs every tick's inputs. In a lockstep
-recording (its first tick has a preview of the same stamp; the ticks are
-one control period apart) it stops at the first tick whose odometry (the
-next stamp is more than 1.5 periods on) or preview is missing from the
-recording, and says so (`RegressionResult.gap_at_s`). A recorder that fell
-behind a fast lockstep loop can have lost samples; the ticks before the gap
-are still compared.
+The controller carries state from tick to tick (u(k-1) of the Delta-u form, the pose estimate), so the replay
+needs every tick's inputs. In a lockstep recording (its first tick has a preview of the same stamp; the ticks are
+one control period apart) it stops at the first tick whose odometry (the next stamp is more than 1.5 periods on)
+or preview is missing from the recording, and says so (`RegressionResult.gap_at_s`). A recorder that fell behind
+a fast lockstep loop can have lost samples; the ticks before the gap are still compared.
 
-The node's time steps (``dt_s``: the interval between the odometry stamps
-it used) and its bumpless restarts (`control.blend.BlendEngagement`, engaged
-where the diagnostics' ``blend_engagements`` count goes up) are replayed as
-the node ran them, with the default blend limits (the recording does not
-store the controller node's own parameters). Limits: a parameter change
-during the run (the node rebuilds its controller) is not replayed; such a
-recording shows a deviation from that tick on.
+Limits: the controller node's own parameters are not in the recording (the loop's defaults are used: blend
+limits, timeouts, tolerances); a parameter change during the run (the node rebuilds its controller) and a
+watchdog stop are not replayed; such a recording shows a deviation from that tick on.
 """
 
 from __future__ import annotations
@@ -47,21 +35,15 @@ from typing import Any
 
 import numpy as np
 
-from robotino_geom_mpc.control.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2, BlendEngagement
-from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController, step_interval
-from robotino_geom_mpc.reference.trajectories import shift_preview
-from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
+from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
+from robotino_geom_mpc.loop.events import Command, Now, Zero
+from robotino_geom_mpc.ros.decode import odometry_input, preview_input
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.regress_chain import chain_parameters, regress_chain
 from robotino_geom_mpc.recording.regress_plans import plan_topic, regress_plans
-from robotino_geom_mpc.recording.report import (
-    by_publish_time,
-    controller_diagnostics,
-    find_topic,
-    resolve_parameters,
-    stamp_ns,
-)
+from robotino_geom_mpc.recording.report import resolve_parameters
+from robotino_geom_mpc.recording.topics import by_publish_time, controller_diagnostics, find_topic, stamp_ns
 
 __all__ = ["RegressionResult", "regress_bag"]
 
@@ -152,41 +134,39 @@ def regress_bag(
     diags = by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False))
     if twists and (chain_file is not None or chain_parameters(bag)[2]
                    or not any(controller_diagnostics(msg) is not None for _, msg in diags)):
-        replay = regress_chain(bag, control, tolerance_v, chain_file)
-        return RegressionResult(replay.ticks, replay.compared, replay.max_deviation, replay.worst_stamp_s,
-                                float(tolerance_v), command="cmd_vel", chain_source=replay.chain_source)
+        chain = regress_chain(bag, robot, control, tolerance_v, chain_file)
+        return RegressionResult(chain.ticks, chain.compared, chain.max_deviation, chain.worst_stamp_s,
+                                float(tolerance_v), command="cmd_vel", chain_source=chain.chain_source)
     volt_t = [p for p, _ in voltages]
     answers: dict[int, np.ndarray] = {}  # tick stamp -> recorded voltages
     used: dict[int, int] = {}  # tick stamp -> stamp of the preview the node used (its diagnostics say)
-    engagements: dict[int, int] = {}  # tick stamp -> the node's bumpless restarts so far, that tick's included
     for publish, msg in diags:
         values = controller_diagnostics(msg)
         if values is None:
             continue
         if values.get("preview_stamp_ns", "").isdigit():
             used.setdefault(stamp_ns(msg.header.stamp), int(values["preview_stamp_ns"]))
-            if values.get("blend_engagements", "").isdigit():
-                engagements.setdefault(stamp_ns(msg.header.stamp), int(values["blend_engagements"]))
         i = bisect_left(volt_t, publish) - 1
         if i >= 0:
             answers.setdefault(stamp_ns(msg.header.stamp), _command_values(voltages[i][1], twists))
-    by_stamp: dict[int, object] = {}
-    for _, msg in previews:
-        by_stamp.setdefault(stamp_ns(msg.header.stamp), msg)
+    by_stamp: dict[int, int] = {}  # preview stamp -> index of its first message (publish order)
+    for j, (_, msg) in enumerate(previews):
+        by_stamp.setdefault(stamp_ns(msg.header.stamp), j)
     prev_t = [p for p, _ in previews]
-
-    controller = MotionController(robot, control)
-    blend = BlendEngagement(control.period_s, control.horizon)
-    engaged = 0  # restarts replayed so far
-    last_used = None  # stamp of the last tick stepped (the node's dt_s runs from it)
-    theta = 0.0
+    if not odom:
+        raise BagError(f"{bag.path}: no odometry tick in the recording")
+    first_stamp = stamp_ns(odom[0][1].header.stamp)
+    # the first tick has a preview of its own stamp; realtime stamps follow the plant's timer, late or not,
+    # so only a lockstep recording is tested for gaps
+    lockstep = first_stamp in by_stamp
+    replay = ControllerLoop(robot, control, Now(odom[0][0], odom[0][0]), lockstep=lockstep,
+                            interface="cmd_vel" if twists else "voltages",
+                            odom_frame=previews[0][1].header.frame_id if previews else "odom", listeners=QUIET)
+    fed = -1  # previews handed to the loop so far (publish order)
     seen: set[int] = set()
     ticks = compared = 0
     worst, worst_stamp = 0.0, None
-    first_stamp = previous = None
-    # the first tick has a preview of its own stamp; realtime stamps follow the plant's timer, late or not,
-    # so only a lockstep recording is tested for gaps
-    lockstep = False
+    previous = None
     gap = None
     period_ns = round(control.period_s * 1e9)
     for index, (publish, msg) in enumerate(odom):
@@ -194,50 +174,35 @@ def regress_bag(
         if stamp in seen:
             continue  # a lockstep tick the plant resent: the node answers it once
         seen.add(stamp)
-        if first_stamp is None:
-            first_stamp, lockstep = stamp, stamp in by_stamp
-        elif lockstep and 2 * (stamp - previous) > 3 * period_ns:
+        if lockstep and previous is not None and 2 * (stamp - previous) > 3 * period_ns:
             gap = (previous + period_ns, "odom")
             break
-        elif lockstep and stamp not in by_stamp:
+        if lockstep and stamp not in by_stamp:
             gap = (stamp, "reference_preview")
             break
         previous = stamp
-        try:
-            X = odometry_state(msg, theta)
-            preview = by_stamp.get(used.get(stamp, stamp))
-            if preview is None:
-                answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
-                i = bisect_left(prev_t, answer_publish) - 1
-                if i < 0 or (ticks == 0 and used):  # realtime: the node had no preview yet, it did not step
-                    theta = X[4]
-                    continue
-                preview = previews[i][1]
-            positions, velocities, accelerations = preview_arrays(preview, control.horizon, theta)
-        except InputRejected:  # the node refused the odometry or the preview: zero output, no step
-            expected = np.zeros(3)
+        # the previews the node had by this odometry: lockstep that of its stamp; realtime up to the one its
+        # diagnostics name, else those published before its answer (none before the first one named)
+        if lockstep:
+            j = by_stamp[stamp]
+            replay.on_input(preview_input(previews[j][1]), Now(prev_t[j], prev_t[j]))
         else:
-            dt = (stamp - stamp_ns(preview.header.stamp)) * 1e-9  # lockstep: 0
-            positions = shift_preview(positions, velocities, accelerations, dt)
-            velocities = velocities + dt * accelerations
-            theta = X[4]
-            if engagements.get(stamp, engaged) > engaged:  # the node restarted bumplessly here
-                engaged = engagements[stamp]
-                controller.reset()
-                blend.engage(stamp, X, positions[0], velocities[0], accelerations[0], LINEAR_LIMIT_MPS2,
-                             ANGULAR_LIMIT_RADPS2)
-                dt_s = None
+            if stamp in used:
+                last = by_stamp.get(used[stamp], fed)
+            elif ticks == 0 and used:
+                last = fed
             else:
-                dt_s = step_interval(stamp, last_used, period_ns)
-            offsets = blend.offsets(stamp)
-            Y_d = positions[1:] if offsets is None else positions[1:] + offsets
-            try:
-                expected = controller.step(X, Y_d, dt_s).voltages
-                if twists:  # the node's cmd_vel answer
-                    expected = controller.next_velocity()
-                last_used = stamp
-            except ControllerInputError:
-                expected = np.zeros(3)
+                answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
+                last = bisect_left(prev_t, answer_publish) - 1
+            for j in range(fed + 1, last + 1):
+                replay.on_input(preview_input(previews[j][1]), Now(prev_t[j], prev_t[j]))
+            fed = max(fed, last)
+        out = replay.on_input(odometry_input(msg), Now(publish, publish))
+        expected = next((o.values for o in out if isinstance(o, Command) and o.stamp_ns == stamp), None)
+        if expected is None:
+            if not any(isinstance(o, Zero) for o in out):
+                continue  # no answer: the node had no preview yet, or dropped the odometry
+            expected = (0.0, 0.0, 0.0)  # refused: zero output
         ticks += 1
         recorded = answers.get(stamp)
         if recorded is None or recorded.shape != (3,):

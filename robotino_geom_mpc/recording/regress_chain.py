@@ -1,28 +1,32 @@
 """Replay regression of a chain recording (``chain.active``: the controller through the real driver's chain).
 
-The controller node's chain mode (`nodes.chain_control`) steps a `control.chain_tracking.ChainTracker` on each
-odometry with the newest reference preview it holds and the node clock's time of the step ("now": only the firmware
-tick a command reaches depends on it, through the driver pass it catches), and publishes the twist on ``cmd_vel``
-(no status per tick). A recording holds what the controller received and sent, with each message's publish time,
-but not the node's two private readings: which preview it held (previews come every control period, odometry at
-the driver's passes) and its clock at the step. Both are bounded by the recording: the step follows the odometry's
-publish and precedes its answer's, and the preview it held was published before that answer and is no older than
-the newest one published `RECEIVE_MARGIN_S` before the odometry.
+The controller node's chain mode (`loop.controller_loop.ControllerLoop` with ``chain``) steps a
+`control.chain_tracking.ChainTracker` on each odometry with the newest reference preview it holds and the node
+clock's time of the step ("now": only the firmware tick a command reaches depends on it, through the driver pass it
+catches), and publishes the twist on ``cmd_vel``. Every zero twist it sends (a refused input, its watchdog, while
+disabled) is noted in the tracker's command model at the clock.
 
-`regress_chain` replays the recording through fresh trackers for every reading within those bounds (each preview
-in the window, "now" at either end: within one driver pass both ends give the same tick), keeping the readings
-whose twist equals the recorded answer (within the tolerance): the recorded answers themselves pin the unrecorded
-readings, tick by tick, and a controller that differs, or a recorded twist that was changed, matches no reading
-(the smallest deviation over the readings is reported). The answers are the recorded ``cmd_vel`` messages in the
-order sent; besides them the node sends zero twists of its own (a refused input, its watchdog, its stop), each
-noted in the tracker at its publish time: the node's status says which (each ``refused ...`` or ``watchdog: ...``
-status follows its zero), and a last zero after the last odometry is the one it sends as it stops. While the
-node is disabled (``~/enable`` false, ``start_enabled`` false) its status says ``disabled`` for each odometry: a zero
-twist, noted, no step.
+A recording whose controller statuses carry the clock (``clock_ns``; its status per step, message ``chain``, names
+the preview used, ``preview_stamp_ns``) replays exactly: one fresh `ControllerLoop` gets every odometry at the
+clock its status names, the previews up to the one named, the watchdog where its status says it fired; its
+commands (twists and zeros) are compared, in order, with the recorded ``cmd_vel`` messages.
+
+Older recordings (no statuses: the chain controller of ec8bd99 published none) hold what the controller received
+and sent, with each message's publish time, but not the node's two private readings: which preview it held
+(previews come every control period, odometry at the driver's passes) and its clock at the step. Both are bounded
+by the recording: the step follows the odometry's publish and precedes its answer's, and the preview it held was
+published before that answer and is no older than the newest one published `RECEIVE_MARGIN_S` before the
+odometry. `regress_chain` then replays the recording through fresh controller loops for every reading within
+those bounds (each preview in the window, "now" at either end: within one driver pass both ends give the same
+tick), keeping the readings whose twist equals the recorded answer (within the tolerance): the recorded answers
+themselves pin the unrecorded readings, tick by tick, and a controller that differs, or a recorded twist that was
+changed, matches no reading (the smallest deviation over the readings is reported). A refused odometry's zero is
+noted at the recorded zero's publish time.
 
 The chain's parameters are the controller's own, from its ``/parameter_events`` in the recording, else a
 parameter file (``--chain-params``, `identify`'s), else the robocup-logistics preset (`chain_source` says which).
-Limits: a watchdog that fired mid-run (stale odometry or reference) drops the node's preview; the replay keeps it.
+Limits: the controller node's own parameters are the loop's defaults; the watchdog of an exact replay decides on
+the node clock (the node's on steady time).
 """
 
 from __future__ import annotations
@@ -30,19 +34,20 @@ from __future__ import annotations
 import copy
 import os
 from bisect import bisect_left, bisect_right
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from robotino_geom_mpc.control.chain_controller import ChainControllerError
-from robotino_geom_mpc.control.chain_tracking import ChainTracker
+from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
+from robotino_geom_mpc.loop.events import Command, Now, Output, Zero
 from robotino_geom_mpc.model.driver_chain import ChainError, ChainParams, chain_params
-from robotino_geom_mpc.params.specs import CHAIN_SPECS, ControlParams
+from robotino_geom_mpc.params.specs import CHAIN_SPECS, ControlParams, RobotinoParams
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
-from robotino_geom_mpc.recording.report import by_publish_time, find_topic, stamp_ns
-from robotino_geom_mpc.ros.decode import InputRejected, odometry_state, preview_arrays
+from robotino_geom_mpc.recording.topics import by_publish_time, find_topic, stamp_ns
+from robotino_geom_mpc.ros.decode import odometry_input, preview_input
 
 __all__ = ["BEAM", "RECEIVE_MARGIN_S", "ChainReplay", "chain_parameters", "regress_chain"]
 
@@ -67,13 +72,11 @@ class ChainReplay:
 
 @dataclass
 class _Reading:
-    """One reading of the unrecorded times: the tracker stepped on it and where it stands in the recording."""
+    """One reading of the unrecorded times: a controller loop stepped on it and where it stands in the recording."""
 
-    tracker: ChainTracker
+    loop: ControllerLoop
     command: int = 0  # index of the next recorded cmd_vel not yet accounted for
     preview: int = -1  # index of the newest preview held (-1: none yet)
-    last: int | None = None  # the node's last odometry used [ns]
-    theta: float = 0.0
     ticks: int = 0
     compared: int = 0
     worst: float = 0.0
@@ -82,17 +85,21 @@ class _Reading:
     deviation: float | None = field(default=None, compare=False)  # of this odometry's answer, if compared
 
     def clone(self) -> _Reading:
-        """A copy to step on its own (the chain's parameters and the controller's constants shared)."""
-        c = self.tracker.controller
-        shared = (c.chain, c._decay, c._b, c.clock.__class__)
+        """A copy to step on its own (the parameters, the unused MPC and the chain controller's constants shared)."""
+        loop = self.loop
+        assert loop.chain is not None
+        c = loop.chain.controller
+        shared = (loop.robot, loop.control, loop.controller, c.chain, c._decay, c._b, c.clock.__class__)
         return copy.deepcopy(self, {id(item): item for item in shared})
 
     def key(self) -> tuple:
         """The state the next odometries see; readings that differ only in the preview held merge (the oldest
         kept: the newer ones are among its futures).
         """
-        c = self.tracker.controller
-        return (self.command, self.last, self.tracker.epoch_ns, repr(c.commands), c._plan_prev.tobytes(),
+        assert self.loop.chain is not None
+        tracker = self.loop.chain
+        c = tracker.controller
+        return (self.command, self.loop.last_odom_ns, tracker.epoch_ns, repr(c.commands), c._plan_prev.tobytes(),
                 c.clock.index)
 
 
@@ -131,29 +138,32 @@ def chain_parameters(bag: BagReader, chain_file: str | os.PathLike | None = None
     return chain_params(), "the robocup-logistics preset (the recording holds no chain.* of the controller)", active
 
 
-def _statuses(bag: BagReader, commands: list[tuple[int, Any]]) -> tuple[dict[int, int], set[int]]:
-    """From the node's status: per odometry stamp, how many times it said ``disabled`` (a zero twist, no step);
-    and the indices of the recorded twists that were zeros of its own (each ``refused ...`` or ``watchdog: ...``
-    status follows its zero twist: the last zero published before it).
-    """
-    held: dict[int, int] = {}
-    own: set[int] = set()
-    times = [p for p, _ in commands]
+@dataclass(frozen=True)
+class _Status:
+    """One status of the controller with its clock: publish time, header stamp, message, key/values."""
+
+    publish: int
+    stamp: int
+    message: str
+    values: dict[str, str]
+
+    @property
+    def clock(self) -> int:
+        return int(self.values["clock_ns"])
+
+
+def _statuses(bag: BagReader) -> list[_Status]:
+    """The controller's statuses that carry its clock (``clock_ns``), in publish order."""
+    out = []
     topic = find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False)
     for publish, msg in by_publish_time(bag, topic):
         for status in msg.status:
             if status.name != _STATUS_NAME:
                 continue
-            if status.message == "disabled":
-                stamp = stamp_ns(msg.header.stamp)
-                held[stamp] = held.get(stamp, 0) + 1
-            elif status.message.startswith(("refused", "watchdog")):
-                i = bisect_left(times, publish) - 1
-                while i >= 0 and (commands[i][1].any() or i in own):
-                    i -= 1
-                if i >= 0:
-                    own.add(i)
-    return held, own
+            values = {kv.key: kv.value for kv in status.values}
+            if values.get("clock_ns", "").isdigit():
+                out.append(_Status(publish, stamp_ns(msg.header.stamp), status.message, values))
+    return out
 
 
 def _with_log_times(bag: BagReader, topic: str | None) -> list[tuple[int, Any, int]]:
@@ -162,7 +172,7 @@ def _with_log_times(bag: BagReader, topic: str | None) -> list[tuple[int, Any, i
     return [(publish, msg, log) for (publish, msg), (_, log) in zip(by_publish_time(bag, topic), logs)]
 
 
-def regress_chain(bag: BagReader, control: ControlParams, tolerance: float,
+def regress_chain(bag: BagReader, robot: RobotinoParams, control: ControlParams, tolerance: float,
                   chain_file: str | os.PathLike | None = None) -> ChainReplay:
     """Replay a chain recording (the module docstring); BagError without odometry or ``cmd_vel``."""
     chain, source, _ = chain_parameters(bag, chain_file)
@@ -173,90 +183,144 @@ def regress_chain(bag: BagReader, control: ControlParams, tolerance: float,
                 for p, m in by_publish_time(bag, find_topic(bag, "cmd_vel", "geometry_msgs/msg/Twist"))]
     if not odom:
         raise BagError(f"{bag.path}: no odometry in the recording")
+    frame = previews[0][1].header.frame_id if previews else "odom"
+
+    def fresh() -> ControllerLoop:
+        return ControllerLoop(robot, control, Now(odom[0][0], odom[0][0]), interface="cmd_vel", chain=chain,
+                              odom_frame=frame, listeners=QUIET)
+
+    statuses = _statuses(bag)
+    if statuses:
+        return _exact(fresh(), odom, previews, commands, statuses, source)
+    return _search(fresh(), odom, previews, commands, tolerance, source)
+
+
+def _exact(loop: ControllerLoop, odom: list, previews: list, commands: list, statuses: list[_Status],
+           source: str) -> ChainReplay:
+    """The replay of a recording with the clock in its statuses: one loop, the recorded times."""
+    by_odometry: dict[int, deque[_Status]] = {}  # odometry stamp -> its statuses (two samples of a stamp: two)
+    watchdogs: deque[_Status] = deque()
+    refused_previews: dict[int, int] = {}  # preview stamp -> the clock of its refusal
+    for status in statuses:
+        if status.message.startswith("watchdog"):
+            watchdogs.append(status)
+        elif status.message.startswith("refused reference_preview"):
+            refused_previews.setdefault(status.stamp, status.clock)
+        elif status.message in ("chain", "disabled") or status.message.startswith(("refused odom", "dropped odom",
+                                                                                    "refused input")):
+            by_odometry.setdefault(status.stamp, deque()).append(status)
+    preview_stamps = [stamp_ns(msg.header.stamp) for _, msg, _ in previews]
+    fed = -1
+    answered = ticks = compared = 0
+    worst, worst_stamp = 0.0, None
+
+    def take(outputs: list[Output], stamp: int) -> None:
+        nonlocal answered, ticks, compared, worst, worst_stamp
+        for out in outputs:
+            if not isinstance(out, (Command, Zero)):
+                continue
+            recorded = commands[answered][1] if answered < len(commands) else None
+            answered += 1
+            if not isinstance(out, Command):
+                continue
+            ticks += 1
+            if recorded is None:
+                continue
+            compared += 1
+            deviation = float(np.max(np.abs(np.array(out.values) - recorded)))
+            if worst_stamp is None or deviation > worst:
+                worst, worst_stamp = deviation, stamp
+
+    for publish, msg, _ in odom:
+        stamp = stamp_ns(msg.header.stamp)
+        while watchdogs and watchdogs[0].publish < publish:
+            fired = watchdogs.popleft()
+            take(loop.on_watchdog(Now(fired.clock, fired.clock)), fired.stamp)
+        queue = by_odometry.get(stamp)
+        said = queue.popleft() if queue else None
+        clock = publish if said is None else said.clock
+        if said is not None and said.message in ("chain", "disabled"):
+            enabled = said.message == "chain"
+            if enabled != loop.enabled:
+                loop.on_enable(enabled, Now(clock, clock))
+        named = int(said.values["preview_stamp_ns"]) if said is not None and said.message == "chain" else None
+        last = fed if named is None else max(fed, preview_stamps.index(named) if named in preview_stamps else fed)
+        for j in range(fed + 1, last + 1):
+            at = refused_previews.get(preview_stamps[j], previews[j][0])
+            take(loop.on_input(preview_input(previews[j][1]), Now(at, at)), preview_stamps[j])
+        fed = last
+        take(loop.on_input(odometry_input(msg), Now(clock, clock)), stamp)
+    first = stamp_ns(odom[0][1].header.stamp)
+    return ChainReplay(ticks, compared, worst, None if worst_stamp is None else (worst_stamp - first) * 1e-9, source)
+
+
+def _search(loop: ControllerLoop, odom: list, previews: list, commands: list, tolerance: float,
+            source: str) -> ChainReplay:
+    """The bounded search over the unrecorded readings (the module docstring), each a `ControllerLoop`."""
     preview_t = [p for p, _, _ in previews]
     preview_log = sorted(log for _, _, log in previews)
     margin = round(RECEIVE_MARGIN_S * 1e9)
-    held, own = _statuses(bag, commands)
-    if commands and not commands[-1][1].any() and commands[-1][0] > odom[-1][0]:
-        own.add(len(commands) - 1)  # the zero the node sends as it stops (after the last odometry)
-    arrays: dict[int, Any] = {}  # preview index -> (stamp, positions, velocities, accelerations) or None (refused)
 
-    def preview(j: int, theta: float) -> Any:
-        if j not in arrays:
-            msg = previews[j][1]
-            try:
-                arrays[j] = (stamp_ns(msg.header.stamp), *preview_arrays(msg, control.horizon, theta))
-            except InputRejected:
-                arrays[j] = None
-        return arrays[j]
+    def hold(r: _Reading, j: int) -> _Reading | None:
+        """`r` (a copy) holding the previews up to `j`; None if the loop refused one (the node's zero: no reading)."""
+        s = r.clone()
+        for k in range(r.preview + 1, j + 1):
+            if any(isinstance(o, Zero) for o in s.loop.on_input(preview_input(previews[k][1]),
+                                                               Now(preview_t[k], preview_t[k]))):
+                return None
+        s.preview = max(j, r.preview)
+        return s
 
-    def own_zero(r: _Reading) -> _Reading | None:
-        """`r` with the next recorded twist taken as a zero of the node's own (noted), None if it is not a zero."""
-        if r.command >= len(commands) or commands[r.command][1].any():
-            return None
-        z = r.clone()
-        z.tracker.note_zero(commands[r.command][0])
-        z.command += 1
-        return z
-
-    def expand(r: _Reading, publish: int, stamp: int, msg: Any, recorded_preview: int, disabled: bool
-               ) -> list[_Reading]:
+    def expand(r: _Reading, publish: int, msg: Any, recorded_preview: int) -> list[_Reading]:
         r.deviation = None
-        while r.command in own:  # the zeros the node sent of its own before this odometry
-            r = own_zero(r)  # type: ignore[assignment]
-        if r.last is not None and stamp < r.last:
-            return [r]  # an older stamp than the last used: the node drops it
-        try:
-            X = odometry_state(msg, r.theta)
-        except InputRejected:  # refused: the node sends a zero of its own
-            return [z for z in (own_zero(r),) if z is not None] or [r]
-        if disabled:  # a zero answer, noted, no step
-            z = own_zero(r)
-            if z is None:
-                return []
-            z.last, z.theta = stamp, X[4]
-            return [z]
+        stamp = stamp_ns(msg.header.stamp)
+        odometry = odometry_input(msg)
         out = []
         newest = bisect_right(preview_t, publish - margin) - 1  # held by the node for sure
         if r.preview < 0 and newest < 0:  # perhaps no preview yet: no answer
-            waiting = copy.copy(r)
-            waiting.theta = X[4]
+            waiting = r.clone()
+            waiting.loop.on_input(odometry, Now(publish, publish))
             waiting.unlikely += recorded_preview >= 0  # the recorder had one
             out.append(waiting)
         if r.command < len(commands) and commands[r.command][0] > publish:  # an answer follows its odometry
             answer_t, recorded = commands[r.command]
             for j in range(max(newest, r.preview, 0), bisect_left(preview_t, answer_t)):
-                held_preview = preview(j, r.theta)
-                if held_preview is None:
+                held = hold(r, j)
+                if held is None:
                     continue
                 seen = None
                 for now in (publish, answer_t):
-                    s = r.clone()
-                    try:
-                        twist = np.array(s.tracker.step(stamp, now, X, held_preview))
-                    except ChainControllerError:
-                        continue
-                    if seen is not None and s.tracker.controller.commands == seen:
+                    s = held.clone()
+                    answer = s.loop.on_input(odometry, Now(now, publish))
+                    twists = [o.values for o in answer if isinstance(o, Command)]
+                    if any(isinstance(o, Zero) for o in answer):  # refused: the node's zero, noted when it went out
+                        z = r.clone()
+                        z.loop.on_input(odometry, Now(answer_t, publish))
+                        z.command += 1
+                        return [z] if not recorded.any() else [r]
+                    if not twists:
+                        break  # dropped (an older stamp) or no step: no answer
+                    assert s.loop.chain is not None
+                    if seen is not None and s.loop.chain.controller.commands == seen:
                         continue  # the same tick either way
-                    seen = s.tracker.controller.commands
-                    s.command, s.preview, s.last, s.theta = r.command + 1, j, stamp, X[4]
+                    seen = s.loop.chain.controller.commands
+                    s.command = r.command + 1
                     s.unlikely += abs(j - recorded_preview)  # the recorder's order stands for the node's
                     s.ticks += 1
                     s.compared += 1
-                    s.deviation = float(np.max(np.abs(twist - recorded)))
+                    s.deviation = float(np.max(np.abs(np.array(twists[0]) - recorded)))
                     if s.worst_stamp is None or s.deviation > s.worst:
                         s.worst, s.worst_stamp = s.deviation, stamp
                     out.append(s)
+        if not out:  # no answer expected (e.g. an older stamp the node drops): the loop takes it all the same
+            r.loop.on_input(odometry, Now(publish, publish))
+            return [r]
         return out
 
-    readings = [_Reading(ChainTracker(chain, control.period_s))]
+    readings = [_Reading(loop)]
     for publish, msg, log in odom:
-        stamp = stamp_ns(msg.header.stamp)
         recorded_preview = bisect_left(preview_log, log) - 1
-        disabled = held.get(stamp, 0) > 0  # the node's status said so for this odometry
-        if disabled:
-            held[stamp] -= 1
-        expanded = [e for r in readings for e in expand(r, publish, stamp, msg, recorded_preview, disabled)]
+        expanded = [e for r in readings for e in expand(r, publish, msg, recorded_preview)]
         matching = [e for e in expanded if e.deviation is None or e.deviation <= tolerance]
         if not matching:  # no reading gives the recorded answer: the nearest goes on, its deviation counted
             matching = [min(expanded, key=lambda e: e.deviation if e.deviation is not None else np.inf)] \

@@ -16,15 +16,17 @@ from typing import Any
 
 import numpy as np
 
+from robotino_geom_mpc.loop.events import Odometry, Preview, Undecodable
 from robotino_geom_mpc.loop.inputs import (QUATERNION_NORM_TOLERANCE, TILT_TOLERANCE_RAD, InputRejected,
                                            check_yaw_quaternion, preview_of_values, stamp_problem,
                                            state_of_odometry, time_ns, unwrap_near, yaw_of)
 
 __all__ = [
-    "InputRejected", "ODOM_FIELDS", "POINT_FIELDS", "QUATERNION_NORM_TOLERANCE", "STAMP_FIELDS", "TILT_TOLERANCE_RAD",
-    "check_yaw_quaternion", "diagnostics_with_of_message", "float64_array_of_message", "odometry_pose_of_message",
-    "odometry_state", "odometry_values", "preview_arrays", "preview_of_values", "preview_point_values",
-    "preview_start_of_message", "stamp_ns", "stamp_problem", "state_of_odometry", "time_ns", "unwrap_near", "yaw_of",
+    "check_yaw_quaternion", "diagnostics_with_of_message", "float64_array_of_message", "InputRejected",
+    "ODOM_FIELDS", "odometry_input", "odometry_pose_of_message", "odometry_state", "odometry_values", "POINT_FIELDS",
+    "preview_arrays", "preview_input", "preview_of_values", "preview_point_values", "preview_start_of_message",
+    "QUATERNION_NORM_TOLERANCE", "STAMP_FIELDS", "stamp_ns", "stamp_problem", "state_of_odometry",
+    "TILT_TOLERANCE_RAD", "time_ns", "unwrap_near", "yaw_of",
 ]
 
 STAMP_FIELDS = ("header.stamp.sec", "header.stamp.nanosec")
@@ -48,6 +50,29 @@ def odometry_values(msg) -> tuple:
     p, q, tw = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
     return (msg.header.stamp.sec, msg.header.stamp.nanosec, p.x, p.y, q.x, q.y, q.z, q.w,
             tw.linear.x, tw.linear.y, tw.angular.z)
+
+
+def odometry_input(msg) -> Odometry | Undecodable:
+    """The controller loop's `loop.events.Odometry` of a decoded odometry message (a stamp that is no time:
+    `loop.events.Undecodable`, as the node hands it on).
+    """
+    values = odometry_values(msg)
+    try:
+        return Odometry(time_ns(values[0], values[1]), tuple(values[2:]))
+    except InputRejected as exc:
+        return Undecodable("odom", None, exc.reason, str(exc))
+
+
+def preview_input(msg) -> Preview | Undecodable:
+    """The controller loop's `loop.events.Preview` of a decoded preview (any number of points: the loop checks); a
+    stamp that is no time or a point without its one transform: `loop.events.Undecodable`, as the node hands it on.
+    """
+    stamp = None
+    try:
+        stamp = time_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)
+        return Preview(stamp, msg.header.frame_id, preview_point_values(msg, None))
+    except InputRejected as exc:
+        return Undecodable("reference_preview", stamp, exc.reason, str(exc))
 
 
 def odometry_state(msg, previous_theta: float, norm_tolerance: float = QUATERNION_NORM_TOLERANCE,

@@ -13,9 +13,10 @@ import sys
 import time
 from typing import Any
 
-__all__ = ["error_throttled", "info_throttled", "warn_throttled"]
+__all__ = ["error_throttled", "info_throttled", "log_throttled", "warn_throttled"]
 
 _LAST_S: dict[tuple[str, object, int], float] = {}  # (logger name, caller's code, line) -> last time logged
+_LAST_KEY_S: dict[tuple[str, str], float] = {}  # (logger name, key) -> last time logged
 
 
 def _due(logger: Any, period_s: float) -> bool:
@@ -45,3 +46,21 @@ def error_throttled(logger: Any, message: str, period_s: float = 1.0) -> None:
     """`logger.error(message)` at most once per `period_s` [s] from this call site."""
     if _due(logger, period_s):
         logger.error(message)
+
+
+def log_throttled(logger: Any, level: str, message: str, period_s: float, key: str) -> None:
+    """`logger.<level>(message)` (``INFO``, ``WARN``, ``ERROR``; ``OK`` logs as info) at most once per `period_s`
+    [s] per `key` (a loop's log line names its own key); `period_s` 0: every time.
+    """
+    if period_s > 0.0:
+        now = time.monotonic()
+        last = _LAST_KEY_S.get((logger.name, key))
+        if last is not None and now - last < period_s:
+            return
+        _LAST_KEY_S[(logger.name, key)] = now
+    if level == "WARN":  # one call site per severity (rclpy refuses a site whose severity changes)
+        logger.warn(message)
+    elif level == "ERROR":
+        logger.error(message)
+    else:
+        logger.info(message)

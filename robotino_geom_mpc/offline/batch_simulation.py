@@ -290,8 +290,8 @@ def simulate_batch(
     B = len(settings)
     noises = []
     for s in settings:
-        noise = (spec.noise.position_m, spec.noise.yaw_rad) if s.odometry_noise is None else s.odometry_noise
-        noise = tuple(float(v) for v in noise)
+        given = (spec.noise.position_m, spec.noise.yaw_rad) if s.odometry_noise is None else s.odometry_noise
+        noise = tuple(float(v) for v in given)
         if len(noise) != 2 or not all(math.isfinite(v) and v >= 0.0 for v in noise):
             raise SimulationError(f"odometry_noise must be two non-negative numbers, got {s.odometry_noise!r}")
         if s.odometry not in ODOMETRY_MODELS:
@@ -308,10 +308,10 @@ def simulate_batch(
     normals = None
     if slips.any():  # the slip's own stream per run, default_rng((seed, 1)), drawn ahead: three per update
         normals = np.zeros((n, len(reading), 3))
-        for column, b in enumerate(reading):
+        for column, b in enumerate(reading.tolist()):
             if slips[b]:
                 normals[:, column] = np.random.default_rng((int(settings[b].seed), 1)).standard_normal((n, 3))
-    source = EncoderOdometryBatch(plant, np.array([settings[b].encoder_counts_per_rev for b in reading]),
+    source = EncoderOdometryBatch(plant, np.array([settings[b].encoder_counts_per_rev for b in reading.tolist()]),
                                   slips[reading], normals, reading) if len(reading) else None
     twists = [CONTROLLER_TWIST.get(s.odometry, control.odometry_twist) for s in settings]
     start = reference.position(np.zeros(1))[0]

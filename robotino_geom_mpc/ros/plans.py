@@ -130,7 +130,8 @@ def plan_of_message(msg: JointTrajectory | MultiDOFJointTrajectory, period_s: fl
         else:
             if len(point.effort) != 3:
                 raise PlanMessageError(f"point {i} has {len(point.effort)} voltages (need 3)", "length")
-            entries.append(tuple(float(v) for v in point.effort))
+            u1, u2, u3 = point.effort
+            entries.append((float(u1), float(u2), float(u3)))
         offset = point.time_from_start
         if not 0 <= offset.nanosec < 1_000_000_000:
             raise PlanMessageError(f"point {i}: time_from_start is no duration", "stamp")
@@ -182,7 +183,8 @@ def report_of_message(msg: JointTrajectory) -> AppliedReport:
     if len(values) != 3 or len(point.positions) != 1 or not all(math.isfinite(v) for v in (*values, *point.positions)):
         raise PlanMessageError("an applied report has three finite values and its index", "length")
     index = int(point.positions[0])
-    return AppliedReport(time_s, base if index >= 0 else None, max(index, -1), tuple(float(v) for v in values))
+    v1, v2, v3 = values
+    return AppliedReport(time_s, base if index >= 0 else None, max(index, -1), (float(v1), float(v2), float(v3)))
 
 
 def report_near(msg: JointTrajectory, newest_s: float | None, window_s: float = REPORT_WINDOW_S) -> AppliedReport:
@@ -202,7 +204,7 @@ def take_report(controller: DelayCompensatingController, msg: JointTrajectory, n
     (``report_applied``); `PlanMessageError` for a report refused. The controller node and ``regress`` alike.
     """
     report = report_near(msg, newest_s, window_s)
-    if report.values is None:
+    if report.values is None and report.basis_s is not None:  # a receipt (it always names its plan)
         controller.report_receipt(report.basis_s, report.time_s, report.taken)
     else:
         controller.report_applied(report.time_s, report.basis_s, max(report.entry_index, 0))

@@ -22,8 +22,11 @@ so and the plant runs without /tf.
 wheel-speed PI loops applied over the period the currents of ``wheel_currents`` cover (what
 `simulation.run_scenario` records as a cmd_vel run's voltages), published just before those currents.
 
-All go out only while a subscription is matched, with the plant's other publishers' QoS, through the writer's
-``send(publisher, message)`` (`publish_acknowledged` by default; the plant's link replaces it).
+`PlantOutputs` holds every publisher of the plant node and turns what the robot loop measures
+(`loop.robot_loop.Measurement`, its truth and joints) into the messages of a tick, in their order: odom (then
+/clock in lockstep), the currents of the period just integrated (``applied_voltages`` just before them), the
+ground truth, /tf, the joints; the optional ones only while a subscription is matched. The messages are pairs
+(publisher, bytes): published at once, or put on the emulated link as one packet.
 """
 
 from __future__ import annotations
@@ -33,20 +36,29 @@ from typing import Any
 import numpy as np
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile
+from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+from trajectory_msgs.msg import JointTrajectory
 
 from robotino_geom_mpc.params.specs import ParamSpec
 from robotino_geom_mpc.description.urdf import BASE_LINK, JOINT_NAMES, check_frame_prefix
 from robotino_geom_mpc.ros.cdr import CdrTemplate
 from robotino_geom_mpc.ros.decode import STAMP_FIELDS
-from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, odometry_message, three_values_template, \
-    yaw_quaternion_zw
+from robotino_geom_mpc.loop.robot_loop import Measurement, RobotLoop
+from robotino_geom_mpc.model.encoders import twist_covariance
+from robotino_geom_mpc.params.specs import RobotinoParams
+from robotino_geom_mpc.ros.messages import CURRENT_LABEL, ODOM_FRAME, VOLTAGE_LABEL, odometry_message, \
+    three_values_template, yaw_quaternion_zw
 from robotino_geom_mpc.ros.qos import publish_acknowledged
 
-__all__ = ["AppliedVoltages", "ODOM_FIELDS", "TF_DEFAULTS", "TF_SPECS", "StateOutputs", "joint_template",
-           "odometry_template", "odometry_values", "plant_odometry"]
+__all__ = ["Message", "ODOM_FIELDS", "PlantOutputs", "TF_DEFAULTS", "TF_SPECS", "joint_template", "odometry_template",
+           "odometry_values", "plant_odometry"]
+
+Message = tuple[Publisher, Any]
+"""A message of a tick: its publisher and its bytes (or message)."""
 
 TF_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("publish_tf", bool, "Publish odom -> base_link (the odometry's pose) on /tf, as the drivers do"),
@@ -102,8 +114,8 @@ def joint_template() -> CdrTemplate:
         f"{field}[{j}]" for field in ("position", "velocity", "effort") for j in range(3)))
 
 
-class StateOutputs:
-    """Publishers of ``joint_states`` and ``/tf`` of a plant node (see the module docstring).
+class PlantOutputs:
+    """Every publisher of the plant node and the messages of a tick (module docstring).
 
     Parameters
     ----------
@@ -111,25 +123,97 @@ class StateOutputs:
         The plant node.
     qos
         The writers' QoS (`ros.qos.publish_qos`).
-    publish_tf
-        Whether /tf goes out.
-    frame_prefix
-        Validated (`description.urdf.check_frame_prefix`; a `DescriptionError` otherwise).
+    params
+        The node's parameter values (``publish_tf``, ``frame_prefix``, ``odometry_noise.*``, ``odometry_model``,
+        ``encoder.*``).
+    lockstep
+        /clock is published.
+    cmd_vel
+        ``applied_voltages`` is published.
+    reports
+        ``command_applied`` is published (plans).
     """
 
-    def __init__(self, node: Node, qos: QoSProfile, publish_tf: bool, frame_prefix: str) -> None:
+    def __init__(self, node: Node, qos: QoSProfile, params: Any, lockstep: bool, cmd_vel: bool,
+                 reports: bool) -> None:
         self.node = node
-        self.send = lambda pub, message: publish_acknowledged(node, pub, message)
-        self.odom_frame = check_frame_prefix(frame_prefix) + ODOM_FRAME
-        self.base_frame = frame_prefix + BASE_LINK
+        self.frame_prefix = check_frame_prefix(params["frame_prefix"])
+        self.odom_frame, self.base_frame = self.frame_prefix + ODOM_FRAME, self.frame_prefix + BASE_LINK
+        self.odom_pub = node.create_publisher(Odometry, "odom", qos)
+        self.truth_pub = node.create_publisher(Odometry, "ground_truth/odom", qos)
+        self.current_pub = node.create_publisher(Float64MultiArray, "wheel_currents", qos)
         self.joint_pub = node.create_publisher(JointState, "joint_states", qos)
-        self.joint_cdr = joint_template()
-        self.tf_pub = self.tf_cdr = None
-        if publish_tf:
+        self.tf_pub: Publisher | None = None
+        self.tf_cdr: CdrTemplate | None = None
+        if params["publish_tf"]:
             message = self._tf_message()
             if message is not None:
                 self.tf_pub = node.create_publisher(type(message), "/tf", qos)
                 self.tf_cdr = CdrTemplate(message, _TF_FIELDS)
+        self.clock_pub = node.create_publisher(ClockMsg, "/clock", qos) if lockstep else None
+        self.applied_pub = node.create_publisher(Float64MultiArray, "applied_voltages", qos) if cmd_vel else None
+        self.report_pub = node.create_publisher(JointTrajectory, "command_applied", qos) if reports else None
+        self.joint_cdr = joint_template()
+        self.current_cdr = three_values_template(CURRENT_LABEL)
+        self.voltage_cdr = three_values_template(VOLTAGE_LABEL)
+        self.clock_cdr = CdrTemplate(ClockMsg(), ("clock.sec", "clock.nanosec"))
+
+    def build(self, params: Any, robot: RobotinoParams, period_s: float) -> None:
+        """The odometry templates (frames, covariances from the noise and the odometry model) for `params`."""
+        twist = None if params["odometry_model"] == "ideal" else twist_covariance(
+            robot, params["encoder.counts_per_rev"], params["encoder.wheel_slip_std"], period_s)
+        self.odom_cdr = odometry_template(params["odometry_noise.position_m"], params["odometry_noise.yaw_rad"],
+                                          self.frame_prefix, twist)
+        self.truth_cdr = odometry_template(0.0, 0.0, self.frame_prefix)
+
+    def publishers(self) -> dict[str, Publisher | None]:
+        """The publishers by topic (the lockstep start handshake counts their readers)."""
+        return {"odom": self.odom_pub, "ground_truth/odom": self.truth_pub, "wheel_currents": self.current_pub,
+                "joint_states": self.joint_pub, "/tf": self.tf_pub, "/clock": self.clock_pub,
+                "clock": self.clock_pub, "applied_voltages": self.applied_pub, "command_applied": self.report_pub}
+
+    def odometry(self, m: Measurement) -> Message:
+        """The odometry message of `m`."""
+        return self.odom_pub, self.odom_cdr.pack(*divmod(m.stamp_ns, 1_000_000_000), *odometry_values(m.pose, m.twist))
+
+    def clock(self, stamp_ns: int) -> Message:
+        """/clock at `stamp_ns` (lockstep)."""
+        assert self.clock_pub is not None
+        return self.clock_pub, self.clock_cdr.pack(*divmod(stamp_ns, 1_000_000_000))
+
+    def period(self, currents: tuple[float, ...] | None, voltages: tuple[float, ...] | None) -> list[Message]:
+        """What the drives did over the period just integrated: ``applied_voltages`` then ``wheel_currents``."""
+        out: list[Message] = []
+        if voltages is not None and self.applied_pub is not None and self.applied_pub.get_subscription_count():
+            out.append((self.applied_pub, self.voltage_cdr.pack(*voltages)))
+        if currents is not None and self.current_pub.get_subscription_count():
+            out.append((self.current_pub, self.current_cdr.pack(*currents)))
+        return out
+
+    def state(self, stamp_ns: int, robot: RobotLoop, pose: tuple[float, ...]) -> list[Message]:
+        """Ground truth, /tf (odom -> base_link at `pose`, the odometry's) and the joints at `stamp_ns`."""
+        stamp, out = divmod(stamp_ns, 1_000_000_000), []
+        if self.truth_pub.get_subscription_count():
+            out.append((self.truth_pub, self.truth_cdr.pack(*stamp, *odometry_values(*robot.truth()))))
+        if self.tf_pub is not None and self.tf_cdr is not None and self.tf_pub.get_subscription_count():
+            x, y, theta = pose
+            out.append((self.tf_pub, self.tf_cdr.pack(*stamp, x, y, *yaw_quaternion_zw(theta))))
+        if self.joint_pub.get_subscription_count():
+            angles, speeds, torques = robot.joints()
+            out.append((self.joint_pub, self.joint_cdr.pack(*stamp, *angles, *speeds, *torques)))
+        return out
+
+    def tick(self, m: Measurement, robot: RobotLoop, clock: bool = False) -> list[Message]:
+        """The messages of a fresh measurement in order: odom, (/clock), the period's voltages and currents, the
+        ground truth, /tf, the joints.
+        """
+        return [self.odometry(m), *([self.clock(m.stamp_ns)] if clock else []),
+                *self.period(m.currents, m.applied_voltages), *self.state(m.stamp_ns, robot, m.pose)]
+
+    def publish(self, messages: list[Message]) -> None:
+        """Publish `messages` in order (a full keep-all history waits for its readers, `publish_acknowledged`)."""
+        for pub, data in messages:
+            publish_acknowledged(self.node, pub, data)
 
     def _tf_message(self) -> Any:
         """A TFMessage with one transform odom -> base_link (frames set); None, logged, without tf2_msgs."""
@@ -142,48 +226,3 @@ class StateOutputs:
         transform = TransformStamped(child_frame_id=self.base_frame)
         transform.header.frame_id = self.odom_frame
         return TFMessage(transforms=[transform])
-
-    def publish(self, stamp: tuple[int, int], pose: tuple[float, float, float], wheel_angles: list[float],
-                wheel_speeds: list[float], wheel_torques: list[float]) -> None:
-        """Publish /tf (``pose`` x, y, yaw of the odometry) and the joints, stamped `stamp` (sec, nanosec)."""
-        if self.tf_pub is not None and self.tf_pub.get_subscription_count():
-            x, y, theta = pose
-            self.send(self.tf_pub, self.tf_cdr.pack(*stamp, x, y, *yaw_quaternion_zw(theta)))
-        if self.joint_pub.get_subscription_count():
-            self.send(self.joint_pub, self.joint_cdr.pack(*stamp, *wheel_angles, *wheel_speeds, *wheel_torques))
-
-
-class AppliedVoltages:
-    """``applied_voltages`` of a cmd_vel plant: the time mean of the PI loops' held voltages since the last publish.
-
-    Parameters
-    ----------
-    node
-        The plant node.
-    qos
-        The writers' QoS (`ros.qos.publish_qos`).
-    """
-
-    def __init__(self, node: Node, qos: QoSProfile) -> None:
-        self.node = node
-        self.send = lambda pub, message: publish_acknowledged(node, pub, message)
-        self.pub = node.create_publisher(Float64MultiArray, "applied_voltages", qos)
-        self.cdr = three_values_template(VOLTAGE_LABEL)
-        self.volt_seconds = np.zeros(3)
-        self.seconds = 0.0
-
-    def drive(self, loop: Any, plant: Any, twist_body: tuple[float, ...], duration_s: float) -> np.ndarray:
-        """Run `loop` (a `wheel_speed_loop.WheelSpeedLoop`) on `plant` for `duration_s` towards `twist_body`,
-        account the voltages it held; returns each drive's peak |armature current| [A] over that time.
-        """
-        held, currents = loop.run(plant, twist_body, duration_s)
-        self.volt_seconds += held.mean(axis=0) * duration_s
-        self.seconds += duration_s
-        return np.abs(currents).max(axis=0)
-
-    def publish(self) -> None:
-        """Publish the mean since the last publish (if a reader is matched and time has passed), then restart it."""
-        if self.seconds > 0.0 and self.pub.get_subscription_count():
-            self.send(self.pub, self.cdr.pack(*(self.volt_seconds / self.seconds).tolist()))
-        self.volt_seconds = np.zeros(3)
-        self.seconds = 0.0

@@ -13,7 +13,7 @@ from robotino_geom_mpc.loop.command_link import CommandLink
 from robotino_geom_mpc.loop.events import AppliedReport
 from robotino_geom_mpc.loop.link_queue import LinkQueue, RobotLink
 from robotino_geom_mpc.loop.plan_follower import ZERO, PlanDispatcher, PlanFollower
-from robotino_geom_mpc.loop.robot_loop import PoseNoise, RobotLoop, TwistDrive, VoltageDrive
+from robotino_geom_mpc.loop.robot_loop import PoseNoise, RealtimeGrid, RobotLoop, TwistDrive, VoltageDrive
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import WheelSpeedLoop
 from robotino_geom_mpc.network.link import Link, LinkParams
@@ -185,3 +185,60 @@ def test_the_noise_stream_drawn_ahead_equals_one_draw_per_measurement():
     ahead, per_tick = PoseNoise((0.01, 0.02), 9, ticks=4), PoseNoise((0.01, 0.02), 9)
     assert [ahead.draw() for _ in range(4)] == [per_tick.draw() for _ in range(4)]
     assert PoseNoise((0.0, 0.0), 9).draw() is None
+
+
+# the realtime grid -------------------------------------------------------------------------------------------------
+def _grid(follower=None, timeout_s=0.1):
+    plant = RobotinoPlant(ROBOT)
+    robot = RobotLoop(plant, plant, VoltageDrive(plant), TS, PoseNoise((0.0, 0.0), 0))
+    return robot, RealtimeGrid(robot, 100.0, 1000.0, timeout_s, follower, offset_s=5.0)
+
+
+def test_realtime_measures_each_grid_point_once_so_stamps_increase():
+    """A publish timer that fires again before the grid has advanced (a late timer catching up: CI saw two odometry
+    stamps 210 ns apart, the later one first) measures nothing; each measurement is a new grid point, stamped on the
+    robot clock (steady + the offset handed in).
+    """
+    robot, grid = _grid()
+    stamps = []
+    for after_s in (0.0103, 0.0105, 0.0202):
+        measurement, _ = grid.measure(100.0 + after_s, 7_000_000_000)
+        stamps.append(None if measurement is None else measurement.stamp_ns)
+    assert stamps == [7_000_000_000 + round((100.0 + 0.010) * 1e9), None,
+                      7_000_000_000 + round((100.0 + 0.020) * 1e9)]
+    assert grid.simulated_s == pytest.approx(0.020)
+
+
+def test_realtime_command_holds_from_the_next_grid_point_and_the_watchdog_zeroes_it_once():
+    robot, grid = _grid(timeout_s=0.005)
+    twin = RobotinoPlant(ROBOT)
+    grid.hold_command((3.0, -3.0, 1.0), 100.0025)  # drives 0..3 ms at zero, holds from 3 ms
+    _, logs = grid.advance(100.0125)  # 3..8 ms with the command (stale after 7.5 ms: from the 8 ms point), 8..12 zero
+    twin.step(np.zeros(3), 0.003)
+    twin.step(np.array([3.0, -3.0, 1.0]), 0.005)
+    twin.step(np.zeros(3), 0.004)
+    np.testing.assert_allclose(robot.plant.state, twin.state, rtol=0, atol=1e-12)
+    assert robot.counts["command_timeouts"] == 1 and [log.key for log in logs] == ["timeout"]
+    _, logs = grid.advance(100.02)
+    assert robot.counts["command_timeouts"] == 1 and logs == []  # once per command
+
+
+def test_realtime_stall_is_skipped_not_integrated():
+    robot, grid = _grid()
+    _, logs = grid.advance(102.5)
+    assert robot.plant.time_s == 0.0 and grid.simulated_s == pytest.approx(2.5)
+    assert [log.key for log in logs] == ["behind"]
+
+
+def test_realtime_plans_drive_each_control_period_with_the_entry_chosen_at_its_start():
+    follower = PlanFollower(TS)
+    robot, grid = _grid(follower)
+    origin = 105.0  # robot clock of the grid's origin (steady 100 + offset 5)
+    reason, _ = grid.take_plan(_plan(origin, 3), 100.0)  # at period 0's start, yet after its command was chosen
+    assert reason is None
+    grid.take_plan(_plan(origin + 0.005, 3, first=origin + TS, value=10.0), 100.005)  # within period 0
+    grid.advance(100.0305)
+    twin = RobotinoPlant(ROBOT)
+    for values in (ZERO, (10.0, -10.0, 0.0), (11.0, -11.0, 0.5)):  # period 0: zero; then the newest plan's entries
+        twin.step(np.array(values), TS)
+    np.testing.assert_allclose(robot.plant.state, twin.state, rtol=0, atol=1e-12)

@@ -11,14 +11,16 @@ step sizes (their matrices stay cached).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["MAX_CHUNK", "ZERO_VOLTS", "CommandHold"]
+from robotino_geom_mpc.model.plant import RobotinoPlant
+
+__all__ = ["MAX_CHUNK", "ZERO_VOLTS", "CommandHold", "warm_up"]
 
 MAX_CHUNK = 10  # grid steps per plant step
-ZERO_VOLTS = np.zeros(3)
+ZERO_VOLTS = (0.0, 0.0, 0.0)
 
 
 class CommandHold:
@@ -27,15 +29,16 @@ class CommandHold:
     def __init__(self, started_at: float, dt: float) -> None:
         self.started_at, self.dt = started_at, dt
         self.grid = 0
-        self.voltages = ZERO_VOLTS
+        self.voltages: tuple[float, float, float] = ZERO_VOLTS
         self.command_time = -math.inf  # steady time of the last command
         self._timed_out = -math.inf  # the command_time of the last command the watchdog stopped
 
     def hold(self, voltages: tuple[float, ...], now: float) -> None:
         """Hold `voltages` from steady time `now` (after driving the grid up to it)."""
-        self.voltages, self.command_time = np.array(voltages, dtype=float), now
+        a, b, c = voltages
+        self.voltages, self.command_time = (float(a), float(b), float(c)), now
 
-    def advance(self, target: int, timeout_s: float, drive: Callable[[np.ndarray, float], None]) -> bool:
+    def advance(self, target: int, timeout_s: float, drive: Callable[[Sequence[float], float], None]) -> bool:
         """Drive the grid up to point `target` (`drive(voltages, seconds)` per run); True if the held command
         timed out in it (once per command).
         """
@@ -50,3 +53,13 @@ class CommandHold:
             self._timed_out = self.command_time
             return True
         return False
+
+
+def warm_up(plant: RobotinoPlant, dt: float) -> None:
+    """Compute now the plant's matrices of every step size a hold on a grid of `dt` uses (1 .. `MAX_CHUNK` steps:
+    an uncached step size costs milliseconds of expm), and return it to its state.
+    """
+    state = plant.state
+    for k in range(1, MAX_CHUNK + 1):
+        plant.step(np.zeros(3), k * dt)
+    plant.reset(state)

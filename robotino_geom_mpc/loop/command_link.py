@@ -63,13 +63,18 @@ class CommandLink:
         """Step 2: the controller's answer (a plan, or a plain command) down the link at `now_s`."""
         self.link.down.send(now_s, answer)
 
-    def take_due(self, now_s: float) -> None:
-        """Step 3: what the down link delivers by `now_s`: plans offered to the buffer, or the last plain command."""
+    def take_due(self, now_s: float) -> list[tuple[Any, str | None]]:
+        """Step 3: what the down link delivers by `now_s`: plans offered to the buffer, or the last plain command;
+        each with the buffer's refusal (None: taken).
+        """
+        out: list[tuple[Any, str | None]] = []
         for item in self.link.down.due(now_s):
             if self.follower is not None:
-                self.follower.take(item, now_s)
+                out.append((item, self.follower.take(item, now_s)))
             else:
                 self.held = (now_s, item)
+                out.append((item, None))
+        return out
 
     def period_command(self, now_s: float) -> Triple:
         """Step 4: the command of the period starting at `now_s`."""

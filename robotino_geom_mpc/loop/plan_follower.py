@@ -16,15 +16,24 @@ nothing until the next plan.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 from robotino_geom_mpc.loop.events import AppliedReport
 from robotino_geom_mpc.network.plan import TIME_TOLERANCE_S, AppliedCommand, CommandPlan, PlanBuffer
 
-__all__ = ["IGNORED", "PlanDispatcher", "PlanFollower", "ZERO"]
+__all__ = ["IGNORED", "PlanDispatcher", "PlanFollower", "Unreadable", "ZERO"]
 
 ZERO = (0.0, 0.0, 0.0)
 IGNORED = ("older", "duplicate")
 """`PlanBuffer.offer`'s refusals that are no fault (reordering and duplicates on a link): counted, not logged."""
+
+
+@dataclass(frozen=True)
+class Unreadable:
+    """A plan message that could not be read (`ros.plans.PlanMessageError`: its reason and message)."""
+
+    reason: str
+    detail: str
 
 
 class PlanFollower:
@@ -48,8 +57,13 @@ class PlanFollower:
         self._period_start_s: float | None = None  # the control period being driven and its command
         self._period_values: tuple[float, float, float] = ZERO
 
-    def take(self, plan: CommandPlan, now_s: float) -> str | None:
-        """Offer `plan` received at robot time `now_s` (its receipt reported); None when taken, else the reason."""
+    def take(self, plan: CommandPlan | Unreadable, now_s: float) -> str | None:
+        """Offer `plan` received at robot time `now_s` (its receipt reported); None when taken, else the reason
+        (an unreadable one: its reason, counted, nothing reported).
+        """
+        if isinstance(plan, Unreadable):
+            self.refuse(plan.reason)
+            return plan.reason
         reason = self.buffer.offer(plan, now_s)
         self.reports.append(AppliedReport(now_s, plan.basis_s, -1, None, reason is None))
         if reason is not None:

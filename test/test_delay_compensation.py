@@ -10,10 +10,15 @@ import numpy as np
 import pytest
 
 from robotino_geom_mpc.control.delay_compensation import PLAN_CURRENT_MARGIN, DelayCompensatingController
-from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController
+from robotino_geom_mpc.control.motion_controller import ControllerInputError
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import WheelSpeedLoop
 from robotino_geom_mpc.network.link import LinkParams
+from robotino_geom_mpc.loop.command_link import CommandLink
+from robotino_geom_mpc.loop.controller_loop import ControllerLoop
+from robotino_geom_mpc.loop.events import Now
+from robotino_geom_mpc.loop.plan_follower import PlanFollower
+from robotino_geom_mpc.offline.lockstep import PreviewRows
 from robotino_geom_mpc.offline.networked import NetworkedLoop
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.scenarios import get_scenario
@@ -24,26 +29,26 @@ ROBOT, CONTROL = load_params(None)
 TS = CONTROL.period_s
 
 
-def closed_loop(controller, link_up, link_down, n, seed=0, interface="voltages"):
-    """The offline loop's ticks (`offline.networked`) on a plant; per tick the plant's true body state and, per
-    plan, (tick of its first action, predicted state there). With ``cmd_vel`` the commands are twists held by
-    the plant's wheel-speed loops.
+def closed_loop(model, control, plans, link_up, link_down, n, seed=0, interface="voltages"):
+    """The offline loop's ticks (`offline.networked`: the controller's loop in lockstep, plans if `plans`, and the
+    robot's end of the link) on a plant; per tick the plant's true body state and, per plan, (tick of its first
+    action, predicted state there). With ``cmd_vel`` the commands are twists held by the plant's wheel-speed loops.
     """
     reference = get_scenario("paper-circle").make_reference()
-    extra = controller.preview_length if isinstance(controller, DelayCompensatingController) else controller.horizon
-    targets = reference.position(np.arange(n + extra + 1) * TS)
-    controller.start_at(*targets[0].tolist())
+    controller = ControllerLoop(model, control, Now(0, 0), lockstep=True, interface=interface, plans=plans)
+    previews = PreviewRows(reference, TS, round(TS * 1e9), controller.preview_points, n)
     plant = RobotinoPlant(ROBOT)
     speed_loop = WheelSpeedLoop(ROBOT) if interface == "cmd_vel" else None
-    loop = NetworkedLoop(controller, targets, TS, link_up, link_down, seed, interface)
+    loop = NetworkedLoop(controller, previews, CommandLink(link_up, link_down, seed, PlanFollower(TS) if plans
+                                                           else None))
     states, voltages, predictions = [], [], {}
     for k in range(n):
         pose, twist = plant.odometry_floats()
         states.append(plant.body_state)
-        before = getattr(controller, "prediction", None)
+        before = getattr(controller.plans, "prediction", None)
         command = loop.command(k, pose, twist)
-        if getattr(controller, "prediction", None) is not before:
-            t_a, predicted = controller.prediction
+        if getattr(controller.plans, "prediction", None) is not before:
+            t_a, predicted = controller.plans.prediction
             predictions[round(t_a / TS)] = np.array(predicted)
         voltages.append(command)
         if speed_loop is None:
@@ -56,8 +61,7 @@ def closed_loop(controller, link_up, link_down, n, seed=0, interface="voltages")
 def test_prediction_through_in_flight_commands_matches_the_plant():
     # up 20 ms, down 30-50 ms: round trips of 5-7 periods; a lead of 8 has every plan there before it acts
     control = replace(CONTROL, lead_min_periods=8, lead_max_periods=8)
-    controller = DelayCompensatingController(ROBOT, control)
-    states, _, predictions = closed_loop(controller, LinkParams(0.02), LinkParams(0.03, 0.02), 400)
+    states, _, predictions = closed_loop(ROBOT, control, True, LinkParams(0.02), LinkParams(0.03, 0.02), 400)
     ticks = [k for k in predictions if 100 <= k < 400]
     assert len(ticks) > 250
     predicted = np.array([predictions[k] for k in ticks])
@@ -74,8 +78,8 @@ def test_prediction_through_in_flight_commands_matches_the_plant():
 
 def test_without_delay_the_plans_first_entries_are_the_undelayed_loops_voltages():
     control = replace(CONTROL, lead_min_periods=0, lead_max_periods=0)
-    _, compensated, _ = closed_loop(DelayCompensatingController(ROBOT, control), LinkParams(), LinkParams(), 300)
-    _, undelayed, _ = closed_loop(MotionController(ROBOT, control), LinkParams(), LinkParams(), 300)
+    _, compensated, _ = closed_loop(ROBOT, control, True, LinkParams(), LinkParams(), 300)
+    _, undelayed, _ = closed_loop(ROBOT, control, False, LinkParams(), LinkParams(), 300)
     assert np.abs(compensated - undelayed).max() < 1e-12
     assert np.abs(undelayed).max() > 1.0  # the loop did something
 
@@ -86,13 +90,12 @@ def test_without_delay_the_twist_plans_are_the_undelayed_loops_twists_under_its_
     model = get_scenario("robustness").controller_model(ROBOT)
     control = replace(CONTROL, lead_min_periods=0, lead_max_periods=0)
     perfect = (LinkParams(), LinkParams(), 160)
-    _, compensated, _ = closed_loop(DelayCompensatingController(model, control, "cmd_vel"), *perfect,
-                                    interface="cmd_vel")
-    _, undelayed, _ = closed_loop(MotionController(model, control), *perfect, interface="cmd_vel")
+    _, compensated, _ = closed_loop(model, control, True, *perfect, interface="cmd_vel")
+    _, undelayed, _ = closed_loop(model, control, False, *perfect, interface="cmd_vel")
     assert np.abs(compensated - undelayed).max() < 1e-12
     assert np.abs(undelayed).max() > 0.2  # the loop did something [m/s]
     margin = replace(control, current_limit_a=PLAN_CURRENT_MARGIN * control.current_limit_a)
-    _, throttled, _ = closed_loop(MotionController(model, margin), *perfect, interface="cmd_vel")
+    _, throttled, _ = closed_loop(model, margin, False, *perfect, interface="cmd_vel")
     assert np.abs(throttled - undelayed).max() > 1e-3  # the limit binds: a margin would change the twists
 
 

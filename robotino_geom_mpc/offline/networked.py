@@ -35,7 +35,10 @@ Each tick k (t_k = k Ts), in this order (the lockstep DDS loop reproduces it):
    node's watchdog) or none has;
 
 The robot's side of steps 1, 3 and 4 is `loop.command_link.CommandLink` (the lockstep plant node runs the
-same object); the controller's side of step 2 is here.
+same object); the controller's side of step 2 is a `loop.controller_loop.ControllerLoop` in lockstep (the
+controller node's): each tick it gets the tick's preview (`offline.lockstep.PreviewRows`), then per packet
+delivered the reports (`on_report`) and the odometry (`on_odometry`), and its answer (a `PlanOut`, or the plain
+`Command`) goes down.
 5. record and step the plant as the undelayed loop does (its steps 4-5).
 """
 
@@ -44,14 +47,11 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numpy as np
-
-from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
-from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
 from robotino_geom_mpc.loop.command_link import COMMAND_TIMEOUT_S, CommandLink
-from robotino_geom_mpc.loop.events import AppliedReport
-from robotino_geom_mpc.loop.plan_follower import PlanFollower
+from robotino_geom_mpc.loop.controller_loop import ControllerLoop
+from robotino_geom_mpc.loop.events import Command, Now, PlanOut
 from robotino_geom_mpc.network.link import LinkParams
+from robotino_geom_mpc.offline.lockstep import PreviewRows, odometry_event
 
 __all__ = ["COMMAND_TIMEOUT_S", "NetworkedLoop", "link_meta"]
 
@@ -62,59 +62,33 @@ class NetworkedLoop:
     Parameters
     ----------
     controller
-        A `DelayCompensatingController` (compensated) or a `MotionController` (uncompensated baseline).
-    targets
-        The reference at j Ts, rows j = 0 .. (enough for the largest stamp's preview).
-    period_s
-        Ts [s].
-    link_up, link_down
-        The two directions; None is a perfect link.
-    seed
-        The run's seed (up-link ``seed + 1``, down-link ``seed + 2``).
-    command_interface
-        ``voltages`` or ``cmd_vel`` (what the uncompensated controller sends).
+        The controller's loop in lockstep (``plans``: compensated; else the uncompensated baseline).
+    previews
+        The run's previews.
+    robot
+        The robot's end of the link (a `loop.plan_follower.PlanFollower` with plans).
     """
 
-    def __init__(self, controller: DelayCompensatingController | MotionController, targets: np.ndarray,
-                 period_s: float, link_up: LinkParams | None, link_down: LinkParams | None, seed: int,
-                 command_interface: str) -> None:
-        self.controller = controller
-        self.compensated = isinstance(controller, DelayCompensatingController)
-        self.targets, self.period_s = targets, period_s
-        self.follower = PlanFollower(period_s) if self.compensated else None
-        self.robot = CommandLink(link_up, link_down, seed, self.follower)
-        self.cmd_vel = command_interface == "cmd_vel"
-        self._last_stamp: int | None = None
+    def __init__(self, controller: ControllerLoop, previews: PreviewRows, robot: CommandLink) -> None:
+        self.controller, self.previews, self.robot = controller, previews, robot
+        self.compensated = controller.plans is not None
+        self.period_s = controller.control.period_s
 
     def command(self, k: int, pose: tuple[float, float, float], twist: tuple[float, float, float]
                 ) -> tuple[float, float, float]:
         """Steps 1-4 of tick k for the odometry (pose, twist) measured at t_k: the command for the period."""
-        t = k * self.period_s
-        robot = self.robot
-        for stamp_k, X, reports in robot.send_up(t, (k, odometry_state_floats(pose, twist), robot.pop_reports())):
-            self._controller_takes(t, stamp_k, X, reports)
+        robot, controller = self.robot, self.controller
+        t, t_ns = k * self.period_s, k * self.previews.period_ns
+        now = Now(t_ns, t_ns)
+        controller.on_preview(self.previews.at(k), now)
+        for odometry, reports in robot.send_up(t, (odometry_event(t_ns, pose, twist), robot.pop_reports())):
+            for report in reports:  # the receipts, then what was applied (the robot's order)
+                controller.on_report(report, now)
+            for out in controller.on_odometry(odometry, now):
+                if isinstance(out, PlanOut) or (isinstance(out, Command) and not self.compensated):
+                    robot.send_down(t, out.plan if isinstance(out, PlanOut) else out.values)
         robot.take_due(t)
         return robot.period_command(t)
-
-    def _controller_takes(self, t: float, stamp_k: int, X: tuple, reports: list[AppliedReport]) -> None:
-        """Step 2 for one up-link packet."""
-        Ts, controller = self.period_s, self.controller
-        if isinstance(controller, DelayCompensatingController):
-            for report in reports:  # the receipts, then what was applied (the robot's order)
-                if report.values is not None:
-                    controller.report_applied(report.time_s, report.basis_s, report.entry_index)
-                elif report.basis_s is not None:  # (a receipt always names its plan)
-                    controller.report_receipt(report.basis_s, report.time_s, report.taken)
-            plan = controller.plan(stamp_k * Ts, X, self.targets[stamp_k + 1: stamp_k + 1 + controller.preview_length])
-            if plan is not None:
-                self.robot.send_down(t, plan)
-            return
-        if self._last_stamp is not None and stamp_k <= self._last_stamp:
-            return
-        dt = None if self._last_stamp is None or stamp_k - self._last_stamp == 1 else (stamp_k - self._last_stamp) * Ts
-        self._last_stamp = stamp_k
-        out = controller.step(X, self.targets[stamp_k + 1: stamp_k + 1 + controller.horizon], dt)
-        self.robot.send_down(t, controller.next_velocity() if self.cmd_vel else out.voltages)
 
     def meta(self) -> dict[str, Any]:
         """The link's counts for the run's meta (`RunData.meta`)."""
@@ -124,11 +98,11 @@ class NetworkedLoop:
             "up": {"sent": up.sent, "lost": up.lost, "duplicated": up.duplicated},
             "down": {"sent": down.sent, "lost": down.lost, "duplicated": down.duplicated},
         }
-        if isinstance(self.controller, DelayCompensatingController) and self.follower is not None:
-            stats = self.controller.statistics()
+        plans, follower = self.controller.plans, self.robot.follower
+        if plans is not None and follower is not None:
             out["controller"] = {k: (None if isinstance(v, float) and math.isnan(v) else v)
-                                 for k, v in vars(stats).items()}
-            buffer = self.follower.buffer
+                                 for k, v in vars(plans.statistics()).items()}
+            buffer = follower.buffer
             out["buffer"] = {"accepted": buffer.accepted, "refused": dict(buffer.refused),
                              "exhausted": buffer.exhausted}
         else:

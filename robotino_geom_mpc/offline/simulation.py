@@ -46,14 +46,18 @@ from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import DEFAULT_KI, DEFAULT_KP, DEFAULT_RATE_HZ, WheelSpeedLoop, \
     WheelSpeedLoopError
 
-from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
 from robotino_geom_mpc.network.link import LinkParams
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.model.driver_chain import ChainParams
 from robotino_geom_mpc.offline.chain_loop import run_chain_scenario
+from robotino_geom_mpc.offline.lockstep import PreviewRows
 from robotino_geom_mpc.offline.networked import NetworkedLoop, link_meta
+from robotino_geom_mpc.loop.command_link import CommandLink
+from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
+from robotino_geom_mpc.loop.events import Now
+from robotino_geom_mpc.loop.plan_follower import PlanFollower
 from robotino_geom_mpc.loop.robot_loop import PoseNoise, RobotLoop, TwistDrive, VoltageDrive
 from robotino_geom_mpc.offline.results import RunData
 from robotino_geom_mpc.scenarios import get_scenario
@@ -207,14 +211,18 @@ def run_scenario(config: RunConfig) -> RunData:
     cmd_vel = isinstance(drive, TwistDrive)
     if odometry in CONTROLLER_TWIST:
         control = replace(control, odometry_twist=CONTROLLER_TWIST[odometry])
-    controller: DelayCompensatingController | MotionController
-    if networked and config.compensate:
-        controller = DelayCompensatingController(spec.controller_model(robot), control, command_interface)
-        extra = controller.preview_length
+    loop: NetworkedLoop | None = None
+    if networked:
+        lockstep = ControllerLoop(spec.controller_model(robot), control, Now(0, 0), lockstep=True,
+                                  interface=command_interface, plans=config.compensate, listeners=QUIET)
+        previews = PreviewRows(reference, Ts, round(Ts * 1e9), lockstep.preview_points, n)
+        follower = PlanFollower(Ts) if config.compensate else None
+        loop = NetworkedLoop(lockstep, previews, CommandLink(link_up, link_down, seed, follower))
+        extra = lockstep.preview_points
     else:
         controller = MotionController(spec.controller_model(robot), control)
+        controller.start_at(*reference.position(np.zeros(1))[0].tolist())  # robot and reference start together
         extra = N
-    controller.start_at(*reference.position(np.zeros(1))[0].tolist())  # robot and reference start together
     # The run's pose noise drawn at once: the same values as one `RobotinoPlant.pose_noise` draw per tick.
     robot_loop = RobotLoop(plant, source, drive, Ts, PoseNoise(noise, seed, n))
 
@@ -223,8 +231,7 @@ def run_scenario(config: RunConfig) -> RunData:
     # Only floats and arrays are kept per tick (no tuples): nothing for the garbage collector to scan.
     poses, measured, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], [], []
     measure, drive_period, pose_floats = robot_loop.measure, robot_loop.drive, plant.pose_floats
-    loop = NetworkedLoop(controller, targets, Ts, link_up, link_down, seed, command_interface) if networked else None
-    motion = None if loop is not None or isinstance(controller, DelayCompensatingController) else controller
+    motion = None if loop is not None else controller
     for k in tqdm(range(n), desc=scenario, unit="tick", disable=not config.progress, mininterval=0.5):
         pose_measured, twist_measured = measure()
         if motion is not None:

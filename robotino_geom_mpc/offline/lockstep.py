@@ -1,0 +1,62 @@
+"""The controller's inputs of an offline run, as the nodes would send them in lockstep (no rclpy).
+
+The offline loops (`simulation`, `networked`) drive a `loop.controller_loop.ControllerLoop` in lockstep with
+the inputs the trajectory node and the plant send each tick: the preview of tick k (`PreviewRows.at`: the
+reference's pose, velocity and acceleration at t_k + j Ts, j = 0 .. N, each pose's yaw as a quaternion, as
+``reference_preview`` carries them; sampled for the whole run at once) and the odometry (`odometry_event`: the
+pose with its yaw as a quaternion, the body twist, as ``odom`` carries them).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from robotino_geom_mpc.loop.events import Odometry, Preview
+from robotino_geom_mpc.loop.inputs import POINT_SIZE
+from robotino_geom_mpc.reference.trajectories import Reference
+
+__all__ = ["ODOM_FRAME", "PreviewRows", "odometry_event"]
+
+ODOM_FRAME = "odom"
+"""The frame of the offline previews (the controller's, without a frame prefix)."""
+
+
+class PreviewRows:
+    """The previews of a run: rows j = 0 .. `rows` - 1 of the reference at j Ts, flat, `points` + 1 per preview.
+
+    Parameters
+    ----------
+    reference
+        The scenario's reference.
+    period_s
+        Ts [s].
+    period_ns
+        Ts [ns] (the stamps).
+    points
+        Points after the stamp a preview holds (`ControllerLoop.preview_points`).
+    ticks
+        The run's ticks.
+    """
+
+    def __init__(self, reference: Reference, period_s: float, period_ns: int, points: int, ticks: int) -> None:
+        t = np.arange(ticks + points + 1) * period_s
+        positions, velocities, accelerations, _ = reference.sample(t)
+        half = 0.5 * positions[:, 2]
+        zeros = np.zeros(len(t))
+        rows = np.column_stack([positions[:, :2], zeros, zeros, np.sin(half), np.cos(half), velocities, accelerations])
+        self._flat: list[float] = rows.ravel().tolist()
+        self.positions = positions
+        self.period_ns, self._width = period_ns, (points + 1) * POINT_SIZE
+
+    def at(self, k: int) -> Preview:
+        """The preview of tick k (stamp k Ts)."""
+        start = k * POINT_SIZE
+        return Preview(k * self.period_ns, ODOM_FRAME, tuple(self._flat[start:start + self._width]))
+
+
+def odometry_event(stamp_ns: int, pose: tuple[float, float, float], twist: tuple[float, float, float]) -> Odometry:
+    """The odometry of `pose` (x, y, theta in odom) and `twist` (body) stamped `stamp_ns`."""
+    x, y, theta = pose
+    return Odometry(stamp_ns, (x, y, 0.0, 0.0, math.sin(0.5 * theta), math.cos(0.5 * theta), *twist))

@@ -4,7 +4,8 @@ The offline loops (`simulation`, `networked`) drive a `loop.controller_loop.Cont
 the inputs the trajectory node and the plant send each tick: the preview of tick k (`PreviewRows.at`: the
 reference's pose, velocity and acceleration at t_k + j Ts, j = 0 .. N, each pose's yaw as a quaternion, as
 ``reference_preview`` carries them; sampled for the whole run at once) and the odometry (`odometry_event`: the
-pose with its yaw as a quaternion, the body twist, as ``odom`` carries them).
+pose with its yaw as a quaternion, the body twist, as ``odom`` carries them). `LockstepController` feeds a
+loop both, in the lockstep plant's order, and returns the tick's command.
 """
 
 from __future__ import annotations
@@ -13,11 +14,12 @@ import math
 
 import numpy as np
 
-from robotino_geom_mpc.loop.events import Odometry, Preview
+from robotino_geom_mpc.loop.controller_loop import ControllerLoop
+from robotino_geom_mpc.loop.events import Command, Now, Odometry, Preview
 from robotino_geom_mpc.loop.inputs import POINT_SIZE
 from robotino_geom_mpc.reference.trajectories import Reference
 
-__all__ = ["ODOM_FRAME", "PreviewRows", "odometry_event"]
+__all__ = ["LockstepController", "ODOM_FRAME", "PreviewRows", "odometry_event"]
 
 ODOM_FRAME = "odom"
 """The frame of the offline previews (the controller's, without a frame prefix)."""
@@ -60,3 +62,29 @@ def odometry_event(stamp_ns: int, pose: tuple[float, float, float], twist: tuple
     """The odometry of `pose` (x, y, theta in odom) and `twist` (body) stamped `stamp_ns`."""
     x, y, theta = pose
     return Odometry(stamp_ns, (x, y, 0.0, 0.0, math.sin(0.5 * theta), math.cos(0.5 * theta), *twist))
+
+
+class LockstepController:
+    """A `ControllerLoop` in lockstep on one simulated clock: tick k's preview, then its odometry; the answer.
+
+    Parameters
+    ----------
+    loop
+        The controller's loop (lockstep).
+    previews
+        The run's previews.
+    """
+
+    def __init__(self, loop: ControllerLoop, previews: PreviewRows) -> None:
+        self.loop, self.previews = loop, previews
+
+    def command(self, k: int, pose: tuple[float, float, float], twist: tuple[float, float, float]
+                ) -> tuple[float, float, float]:
+        """The command the loop answers to the odometry (pose, twist) of tick k (zero when it refuses it)."""
+        t_ns = k * self.previews.period_ns
+        now = Now(t_ns, t_ns)
+        self.loop.on_preview(self.previews.at(k), now)
+        for out in self.loop.on_odometry(odometry_event(t_ns, pose, twist), now):
+            if isinstance(out, Command):
+                return out.values
+        return (0.0, 0.0, 0.0)

@@ -186,12 +186,16 @@ class RecordedRun:
     run
         The run; ``run.meta["truth"]`` is ``"ground_truth"`` or ``"odometry"``. Where the recording has no
         currents (or voltages) its ``currents`` (``voltages``) are zeros standing in, never to be read as data:
-        `currents` (`voltages`) say so.
-    currents, voltages
-        Whether the recording holds wheel currents, and voltages (``wheel_voltages`` or ``applied_voltages``).
-    twist, wheel_speeds
+        the flags ``currents`` (``voltages``) say so.
+    currents
+        Whether the recording holds wheel currents.
+    voltages
+        Whether it holds voltages (``wheel_voltages`` or ``applied_voltages``).
+    twist
         Without currents: the commanded body twist (v_x, v_y [m/s], theta' [rad/s] in base_link, from ``cmd_vel``)
-        and the wheel speeds it asks for [rad/s] per tick, shape (n, 3), drawn instead; else None.
+        per tick, shape (n, 3), drawn instead; else None.
+    wheel_speeds
+        Without currents: the wheel speeds that twist asks for [rad/s] per tick, shape (n, 3); else None.
     """
 
     run: RunData

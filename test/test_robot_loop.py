@@ -242,3 +242,44 @@ def test_realtime_plans_drive_each_control_period_with_the_entry_chosen_at_its_s
     for values in (ZERO, (10.0, -10.0, 0.0), (11.0, -11.0, 0.5)):  # period 0: zero; then the newest plan's entries
         twin.step(np.array(values), TS)
     np.testing.assert_allclose(robot.plant.state, twin.state, rtol=0, atol=1e-12)
+
+
+# the chain emulation on a clock handed in -------------------------------------------------------------------------
+def test_the_chain_robot_dispatches_the_emulators_odometry_at_its_passes_stamped_on_the_node_clock():
+    """Against a twin `ChainEmulator` run pass by pass: the same messages, stamped the node clock at the first poll
+    plus their pass time; per pass with firmware ticks, the peaks and the mean voltages of those ticks.
+    """
+    from robotino_geom_mpc.loop.chain_robot import ChainRobot
+    from robotino_geom_mpc.model.chain_emulation import ChainEmulator
+    from robotino_geom_mpc.model.driver_chain import ChainParams
+
+    chain = ChainParams()
+    robot = ChainRobot(ChainEmulator(RobotinoPlant(ROBOT), chain, seed=4))
+    twin = ChainEmulator(RobotinoPlant(ROBOT), chain, seed=4)
+    assert not robot.cmd_vel((0.1, 0.0, 0.0), 50.0)  # before the first poll: nothing to forward it to
+    start_ns = 1_000_000_000
+    assert robot.poll(50.0, start_ns) == []  # starts the emulation at t = 0; the driver's first pass comes later
+    assert robot.cmd_vel((0.2, 0.0, 0.5), 50.0)
+    twin.cmd_vel((0.2, 0.0, 0.5), 0.0)
+    twin_passes = []
+    passes = robot.poll(50.3, start_ns + 10**9)  # a later node clock is not used: stamps count from the start
+    while twin.next_pass_s() <= 0.3:
+        twin_passes.append((twin.run_until(twin.next_pass_s()), len(twin.trace)))
+    assert len(passes) == len(twin_passes)
+    before = 0
+    for got, (messages, ticks) in zip(passes, twin_passes):
+        assert [(m.stamp_ns, m.pose, m.twist) for m in got.odometry] == [
+            (start_ns + int(round(m.stamp_s * 1e9)), m.pose, m.twist) for m in messages]
+        records = twin.trace[before:ticks]
+        assert (got.state is None) == (not records)
+        if records:
+            np.testing.assert_allclose(np.abs(got.state.currents), np.abs([r.currents for r in records]).max(axis=0),
+                                       rtol=0, atol=0)
+            np.testing.assert_allclose(got.state.applied_voltages, np.mean([r.voltages for r in records], axis=0),
+                                       rtol=0, atol=1e-12)
+        before = ticks
+    dispatched = [m for p in passes for m in p.odometry]
+    assert len(dispatched) > 10 and robot.dispatched == len(dispatched) and robot.commands == 1
+    assert dispatched[-1].pose[2] > 0.01  # the forwarded twist turned the robot
+    assert robot.emulator.plant.state.tolist() == twin.plant.state.tolist()
+    assert max(p.late_s for p in passes) > 0.05  # polled 0.3 s late: the passes ran behind their times

@@ -211,6 +211,10 @@ def test_realtime_start_blend_shift_and_stamp_checks():
     offsets = blend.offset(8e-3 + TS * np.arange(1, N + 1))
     expected = truth.step(state(odom2), moved[1:] + offsets, 8e-3).voltages
     np.testing.assert_allclose(commands(out)[0].values, expected, rtol=0, atol=1e-12)
+    kv = status(out)  # the error against the reference at the odometry's stamp (without the blend), the interval
+    error = state(odom2)[0::2] - moved[0]
+    assert [float(kv[k]) for k in ("error_x_m", "error_y_m")] == pytest.approx(error[:2].tolist(), abs=1e-9)
+    assert float(kv["dt_s"]) == pytest.approx(8e-3, abs=1e-12) and kv["preview_stamp_ns"] == str(clock)
     # late (older), duplicate, stale and future stamps
     out = lp.on_odometry(odometry(clock + 5 * MS), at(clock + 13 * MS))
     assert commands(out) == [] and zeros(out) == [] and status(out)["dropped_old"] == "1"
@@ -375,3 +379,77 @@ def test_chain_two_samples_a_stamp_and_noted_zeros():
     out = lp.on_odometry(odometry(clock + 65 * MS), at(clock + 66 * MS))
     assert commands(out) == [Command(clock + 65 * MS, tuple(truth.step(clock + 65 * MS, clock + 66 * MS,
                                                                        state(odometry(clock + 65 * MS)), held)))]
+
+
+# refusals moved here from the DDS tests (test_controller_node, test_controller_hardening) --------------------
+def _speed_bound_mps() -> float:
+    """The forward body speed at which the fastest motor turns at twice its no-load speed U_supply / Km.
+
+    From the geometry alone: the wheels sit at phi_i = 0, 2 pi / 3, 4 pi / 3 and roll along (sin(phi_i),
+    cos(phi_i)) in base_link, so a forward speed v turns motor i at gear / r |sin(phi_i)| v.
+    """
+    phi = np.array([0.0, 2.0 * np.pi / 3.0, 4.0 * np.pi / 3.0])
+    fastest_per_mps = ROBOT.gear_ratio / ROBOT.r * np.abs(np.sin(phi)).max()
+    return 2.0 * ROBOT.supply_voltage_v / ROBOT.torque_constant_n_m_per_a / fastest_per_mps
+
+
+def _with_quaternion(values: tuple[float, ...], offset: int, q) -> tuple[float, ...]:
+    out = list(values)
+    out[offset:offset + 4] = q
+    return tuple(out)
+
+
+@pytest.mark.parametrize("what, q, reason", [
+    ("odom", (0.0, 0.0, 0.0, 0.0), "quaternion_norm"),  # was read as yaw 0
+    ("odom", (0.0, 0.0, 0.5, 0.5), "quaternion_norm"),  # was read as pi/2 (atan2 of an unnormalised quaternion)
+    ("odom", (0.1, 0.0, 0.0, math.sqrt(1 - 0.01)), "quaternion_tilt"),  # 0.2 rad of roll
+    ("reference_preview", (0.0, 0.0, 0.0, 0.0), "preview_quaternion_norm"),
+    ("reference_preview", (0.0, 0.06, 0.0, math.sqrt(1 - 0.0036)), "preview_quaternion_tilt"),
+])
+def test_lockstep_a_quaternion_that_is_no_yaw_is_refused_with_zero(what, q, reason):
+    lp = loop(lockstep=True)
+    stamp = 700 * TS_NS
+    p, o = preview(stamp), odometry(stamp)
+    if what == "odom":
+        o = Odometry(stamp, _with_quaternion(o.values, 2, q))
+    else:  # point 2's rotation
+        p = Preview(stamp, "odom", _with_quaternion(p.values, 2 * 12 + 2, q))
+    out = lp.on_preview(p, at(0)) + lp.on_odometry(o, at(1))
+    assert zeros(out) == [reason] and commands(out) == []
+    diag = [d for d in out if isinstance(d, Diagnostic)][-1]
+    assert diag.level == 2 and reason in diag.message and diag.as_dict()["last_refusal"] == reason
+
+
+@pytest.mark.parametrize("case, reason", [
+    ("twist above the bound", "implausible"), ("position 1000 km out", "implausible"),
+    ("preview 1000 km out", "preview_implausible"), ("twist below the bound", None),
+])
+def test_lockstep_an_input_that_is_no_measurement_is_refused(case, reason):
+    lp = loop(lockstep=True)
+    stamp = 300 * TS_NS
+    p, o = preview(stamp), odometry(stamp, twist=(0.0, 0.0, 0.0))
+    if case == "twist above the bound":
+        o = odometry(stamp, twist=(1.05 * _speed_bound_mps(), 0.0, 0.0))
+    elif case == "twist below the bound":
+        o = odometry(stamp, twist=(0.95 * _speed_bound_mps(), 0.0, 0.0))
+    elif case == "position 1000 km out":
+        o = odometry(stamp, pose=(1.5e6, 0.0, 0.0))
+    else:
+        p = Preview(stamp, "odom", (*p.values[:3 * 12 + 1], -1.5e6, *p.values[3 * 12 + 2:]))  # point 3's y
+    out = lp.on_preview(p, at(0)) + lp.on_odometry(o, at(1))
+    if reason is None:  # tracked
+        assert len(commands(out)) == 1 and zeros(out) == [] and status(out)["rejected"] == "0"
+    else:
+        assert zeros(out) == [reason] and commands(out) == [] and status(out)["last_refusal"] == reason
+
+
+@pytest.mark.parametrize("frame", ["hard/odom", "map", ""])
+def test_lockstep_a_preview_in_another_frame_is_refused_naming_both_frames(frame):
+    lp = loop(lockstep=True)
+    stamp = 500 * TS_NS
+    out = lp.on_preview(preview(stamp, frame=frame), at(0)) + lp.on_odometry(odometry(stamp), at(1))
+    diag = [d for d in out if isinstance(d, Diagnostic)][-1]
+    assert zeros(out) == ["preview_frame"] and diag.as_dict()["last_refusal"] == "preview_frame"
+    assert f"'{frame}'" in diag.message and "'odom'" in diag.message
+    out = lp.on_preview(preview(stamp + TS_NS), at(2)) + lp.on_odometry(odometry(stamp + TS_NS), at(3))
+    assert len(commands(out)) == 1 and status(out)["blend_engagements"] == "1"  # the same in 'odom': tracked

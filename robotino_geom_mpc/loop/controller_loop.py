@@ -27,7 +27,8 @@ tick was refused), ``controller`` (the step refused its inputs), ``internal_erro
 Dropped (counted, a WARN diagnostic, no output): a ``duplicate`` or ``old`` stamp.
 
 Bumpless (re)start (`control.blend.BlendEngagement`): at the first tick, after the watchdog, at ``enable``, at a
-preview whose reference jumped (`loop.inputs.reference_jump`) and after new parameters: the controller is reset
+preview whose reference jumped (more than ``reference_jump_m`` / ``reference_jump_rad`` from the previous
+preview moved to its stamp) and after new parameters: the controller is reset
 and a C^3 offset takes the reference from the measured state to itself.
 
 Plans (``plans``: an off-board controller over a link): per odometry a `network.plan.CommandPlan` of
@@ -44,6 +45,7 @@ that a recording replays exactly.
 
 from __future__ import annotations
 
+import math
 import time
 import traceback
 from collections.abc import Mapping, Sequence
@@ -64,7 +66,7 @@ from robotino_geom_mpc.loop.events import (AppliedReport, Command, Diagnostic, E
                                            Waiting, Zero)
 from robotino_geom_mpc.loop.inputs import (POINT_SIZE, QUATERNION_NORM_TOLERANCE, REPORT_WINDOW_S,
                                            TILT_TOLERANCE_RAD, InputCounters, InputRejected, preview_of_values,
-                                           reference_jump, report_problem, stamp_problem, state_of_odometry)
+                                           report_problem, stamp_problem, state_of_odometry)
 from robotino_geom_mpc.model.driver_chain import ChainParams
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.reference.trajectories import shift_preview
@@ -91,6 +93,25 @@ _Report = AppliedReport | Undecodable
 def _triple(values: Sequence[float]) -> tuple[float, float, float]:
     a, b, c = values
     return (a, b, c)
+
+
+def _reference_jump(previous: _Held | None, stamp_ns: int,
+                   position: np.ndarray, jump_m: float, jump_rad: float) -> str | None:
+    """How the reference at `stamp_ns` (`position`, x y theta) left the `previous` preview moved there, or None.
+
+    `previous` is (stamp, positions, velocities, accelerations) of the last preview; a jump is a
+    position more than `jump_m` or a heading more than `jump_rad` away from its Taylor step
+    (`reference.trajectories.shift_preview`), e.g. a trajectory node restarted at the origin.
+    """
+    if previous is None:
+        return None
+    stamp, positions, velocities, accelerations = previous
+    expected = shift_preview(positions[0], velocities[0], accelerations[0], (stamp_ns - stamp) * 1e-9)
+    dx, dy, dtheta = (position - expected).tolist()
+    distance = math.hypot(dx, dy)
+    if distance > jump_m or abs(dtheta) > jump_rad:
+        return f"reference jumped by {distance:.4g} m, {dtheta:.4g} rad between previews"
+    return None
 
 
 class LoopConfigError(RobotinoError, ValueError):
@@ -440,7 +461,7 @@ class ControllerLoop:
             return self._out
         self._preview_watch_ns = now.watch_ns
         if latest is None or stamp > latest[0]:
-            jump = reference_jump(latest, stamp, arrays[0][0], *self._jump_limits)
+            jump = _reference_jump(latest, stamp, arrays[0][0], *self._jump_limits)
             if jump is not None:
                 self.blend.jump_ns = stamp
                 self._log(Level.WARN, f"{jump}: bumpless restart", "jump")
@@ -582,7 +603,9 @@ class ControllerLoop:
         command = self.controller.next_velocity() if self.interface == "cmd_vel" else out.voltages
         self._out.append(Command(stamp, _triple(command)))
         if self.listeners.path():
-            self._out.append(PredictedPath(stamp, self.period_ns, self.controller.predicted_outputs()))
+            poses = self.controller.predicted_outputs()
+            stamps = tuple(stamp + j * self.period_ns for j in range(1, len(poses) + 1))
+            self._out.append(PredictedPath(stamp, stamps, poses))
         if not self.listeners.diagnostics():
             return
         error = X[0::2] - positions[0]

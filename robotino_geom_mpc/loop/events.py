@@ -141,10 +141,12 @@ class Diagnostic:
 
 @dataclass(frozen=True)
 class PredictedPath:
-    """The MPCs' predicted poses y(k+1) .. y(k+N) (shape (N, 3)) of the tick `stamp_ns`, pose j at + j `period_ns`."""
+    """The MPCs' predicted poses y(k+1) .. y(k+N) (shape (N, 3)) of the tick `stamp_ns`, pose j at `stamps_ns[j-1]`
+    (= `stamp_ns` + j Ts).
+    """
 
     stamp_ns: int
-    period_ns: int
+    stamps_ns: tuple[int, ...]
     poses: np.ndarray = field(compare=False)
 
 

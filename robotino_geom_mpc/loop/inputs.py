@@ -4,8 +4,8 @@ The adapters (`nodes.controller_node`, the replay) read a message's fields; thes
 them: a stamp's problem against the last used one and a clock (`stamp_problem`), a yaw quaternion
 (`check_yaw_quaternion`), the body state of an odometry (`state_of_odometry`, eq. 2) and the arrays of a
 preview (`preview_of_values`). A refused input raises `InputRejected`, whose `reason` is the short key the
-loop counts (`InputCounters`) and reports. `reference_jump` says when a new preview left the previous one;
-`report_problem` when a robot's report is too far from the newest odometry.
+loop counts (`InputCounters`) and reports; `report_problem` says when a robot's report is too far from the newest
+odometry.
 """
 
 from __future__ import annotations
@@ -16,10 +16,9 @@ import numpy as np
 
 from robotino_geom_mpc.control.motion_controller import odometry_state_floats
 from robotino_geom_mpc.errors import RobotinoError
-from robotino_geom_mpc.reference.trajectories import shift_preview
 
 __all__ = ["InputCounters", "InputRejected", "POINT_SIZE", "QUATERNION_NORM_TOLERANCE", "REPORT_WINDOW_S",
-           "TILT_TOLERANCE_RAD", "check_yaw_quaternion", "preview_of_values", "reference_jump", "report_problem",
+           "TILT_TOLERANCE_RAD", "check_yaw_quaternion", "preview_of_values", "report_problem",
            "stamp_problem", "state_of_odometry", "time_ns", "unwrap_near", "yaw_of"]
 
 POINT_SIZE = 12  # per preview point: x, y, the yaw quaternion, velocity and acceleration (x, y, theta)
@@ -40,7 +39,6 @@ class InputRejected(RobotinoError, ValueError):
     def __init__(self, message: str, reason: str = "invalid") -> None:
         super().__init__(message)
         self.reason = reason
-
 
 
 def check_yaw_quaternion(qx: float, qy: float, qz: float, qw: float, what: str,
@@ -69,7 +67,6 @@ def check_yaw_quaternion(qx: float, qy: float, qz: float, qw: float, what: str,
         tilt = math.acos(max(-1.0, 1.0 - 2.0 * xy / norm2))
         raise InputRejected(f"{what} quaternion ({qx:g}, {qy:g}, {qz:g}, {qw:g}) tilts the robot by {tilt:.4g} rad "
                             f"(roll/pitch), more than {tilt_tolerance_rad:g}", "quaternion_tilt")
-
 
 
 def stamp_problem(stamp_ns: int, last_ns: int | None, now_ns: int | None, timeout_ns: int,
@@ -103,7 +100,6 @@ def stamp_problem(stamp_ns: int, last_ns: int | None, now_ns: int | None, timeou
     return None
 
 
-
 def time_ns(sec: int, nanosec: int) -> int:
     """An input's header stamp (sec, nanosec) as integer nanoseconds.
 
@@ -118,17 +114,14 @@ def time_ns(sec: int, nanosec: int) -> int:
     return sec * 1_000_000_000 + nanosec
 
 
-
 def yaw_of(x: float, y: float, z: float, w: float) -> float:
     """Yaw (rad, in (-pi, pi]) of the quaternion (x, y, z, w) (ZYX convention)."""
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-
 def unwrap_near(angle: float, reference: float) -> float:
     """`angle + 2 pi k` closest to `reference` (continuous yaw from a wrapped one)."""
     return angle + 2.0 * math.pi * round((reference - angle) / (2.0 * math.pi))
-
 
 
 def state_of_odometry(values: tuple, previous_theta: float, norm_tolerance: float = QUATERNION_NORM_TOLERANCE,
@@ -150,7 +143,6 @@ def state_of_odometry(values: tuple, previous_theta: float, norm_tolerance: floa
     check_yaw_quaternion(qx, qy, qz, qw, "odom", norm_tolerance, tilt_tolerance_rad)
     theta = unwrap_near(yaw_of(qx, qy, qz, qw), previous_theta)
     return np.array(odometry_state_floats((x, y, theta), (vx, vy, omega)))
-
 
 
 def preview_of_values(values: tuple, theta_near: float, norm_tolerance: float = QUATERNION_NORM_TOLERANCE,
@@ -183,25 +175,6 @@ def preview_of_values(values: tuple, theta_near: float, norm_tolerance: float = 
         theta = unwrap_near(yaw_of(qx, qy, qz, qw), theta)
         positions[j] = (x, y, theta)
     return positions, points[:, 6:9], points[:, 9:12]
-
-
-def reference_jump(previous: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None, stamp_ns: int,
-                   position: np.ndarray, jump_m: float, jump_rad: float) -> str | None:
-    """How the reference at `stamp_ns` (`position`, x y theta) left the `previous` preview moved there, or None.
-
-    `previous` is (stamp, positions, velocities, accelerations) of the last preview; a jump is a
-    position more than `jump_m` or a heading more than `jump_rad` away from its Taylor step
-    (`reference.trajectories.shift_preview`), e.g. a trajectory node restarted at the origin.
-    """
-    if previous is None:
-        return None
-    stamp, positions, velocities, accelerations = previous
-    expected = shift_preview(positions[0], velocities[0], accelerations[0], (stamp_ns - stamp) * 1e-9)
-    dx, dy, dtheta = (position - expected).tolist()
-    distance = math.hypot(dx, dy)
-    if distance > jump_m or abs(dtheta) > jump_rad:
-        return f"reference jumped by {distance:.4g} m, {dtheta:.4g} rad between previews"
-    return None
 
 
 class InputCounters:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import struct
 from collections.abc import Sequence
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Path
@@ -153,7 +152,7 @@ class ControllerOutputs:
             elif isinstance(out, PlanOut):
                 self.publish_plan(out.plan)
             elif isinstance(out, PredictedPath):
-                self.publish_path(out.stamp_ns, out.period_ns, out.poses)
+                self.publish_path(out)
             elif isinstance(out, Resend):
                 self.deliver_answer()
             elif isinstance(out, EnabledChanged):
@@ -198,14 +197,13 @@ class ControllerOutputs:
         """True while a ``predicted_path`` subscription is matched (the prediction is computed only then)."""
         return self.path_pub.get_subscription_count() > 0
 
-    def publish_path(self, stamp: int, period_ns: int, predicted: np.ndarray) -> None:
-        """Publish the predicted poses y(k+1) .. y(k+N) (shape (N, 3), x y theta in odom) of the tick `stamp`.
-
-        The header carries `stamp`, pose j the time `stamp` + j Ts it is predicted for.
+    def publish_path(self, path: PredictedPath) -> None:
+        """Publish the predicted poses y(k+1) .. y(k+N) (x y theta in odom) of a tick: the header carries its
+        stamp, pose j the time it is predicted for.
         """
-        values: list[float] = [*divmod(stamp, 1_000_000_000)]
-        for j, (x, y, theta) in enumerate(predicted.tolist(), start=1):
-            values += (*divmod(stamp + j * period_ns, 1_000_000_000), x, y, *yaw_quaternion_zw(theta))
+        values: list[float] = [*divmod(path.stamp_ns, 1_000_000_000)]
+        for stamp, (x, y, theta) in zip(path.stamps_ns, path.poses.tolist()):
+            values += (*divmod(stamp, 1_000_000_000), x, y, *yaw_quaternion_zw(theta))
         publish_acknowledged(self.node, self.path_pub, self.path_cdr.pack(*values))
 
     # diagnostics --------------------------------------------------------------------------------

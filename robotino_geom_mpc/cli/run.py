@@ -23,7 +23,7 @@ mismatched model and the plant odometry noise. With ``--command-interface cmd_ve
 twists on cmd_vel, the plant holds them with its wheel-speed PI loops, and the metrics' voltages are those
 loops' (the plant's ``applied_voltages``). ``--chain NAME`` (with ``--realtime``; it implies ``--command-interface
 cmd_vel``) puts the real robot's driver + firmware chain in the plant node and has the controller control through
-it (``chain.active``; `robotino_sim_node.chain_driver`, `nodes.chain_control`).
+it (``chain.active``; `robotino_sim_node.chain_driver`, `loop.controller_loop`).
 With ``--foxglove PORT`` the live view (`recording.live_view_node`) starts first and the loop once its server is
 up, so a Foxglove client connected by then sees the run from its first odometry.
 

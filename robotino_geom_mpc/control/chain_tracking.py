@@ -1,7 +1,7 @@
 """One `ChainController` fed with odometry states and reference previews as the controller node gets them.
 
-The plain part of the controller node's chain mode (`nodes.chain_control`), shared with the replay of a chain
-recording (`recording.regress_chain`): times are the stamps' seconds since the first odometry stepped; the
+The plain part of the controller's chain mode (`loop.controller_loop`, which the node and the replay of a chain
+recording, `recording.regress_chain`, drive): times are the stamps' seconds since the first odometry stepped; the
 reference at the future tick times the controller asks for comes from a preview (its point nearest each time,
 carried by its velocity and acceleration: second order; the preview spans N Ts, the chain's command path reaches
 about 0.15 s ahead); each zero twist sent outside the controller's answers (a refused input, the watchdog) is noted

@@ -88,7 +88,7 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
               "controlled base", choices=("voltages", "cmd_vel")),
     ParamSpec("plans", bool, "Off-board over a network: per odometry a delay-compensated plan of control.plan_length "
               "commands on wheel_voltage_plan / cmd_vel_plan (the plain command carries its first entry); reads "
-              "command_applied (controller_plans)"),
+              "command_applied (loop.controller_loop)"),
     ParamSpec("start_enabled", bool, "false: the node starts disabled, as after ~/enable false (zero volts / zero "
               "twist every tick, diagnostic 'disabled') until ~/enable true, then tracks bumplessly"),
 )

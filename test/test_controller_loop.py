@@ -453,3 +453,73 @@ def test_lockstep_a_preview_in_another_frame_is_refused_naming_both_frames(frame
     assert f"'{frame}'" in diag.message and "'odom'" in diag.message
     out = lp.on_preview(preview(stamp + TS_NS), at(2)) + lp.on_odometry(odometry(stamp + TS_NS), at(3))
     assert len(commands(out)) == 1 and status(out)["blend_engagements"] == "1"  # the same in 'odom': tracked
+
+
+# more of the tick ----------------------------------------------------------------------------------------------
+def test_lockstep_previews_resent_answer_each_tick_once():
+    """The trajectory resends previews on purpose (keyed by stamp): no drop, no refusal, one answer a tick."""
+    lp = loop(lockstep=True)
+    truth = MotionController(ROBOT, CONTROL)
+    truth.start_at(*reference(0.0)[0][0])
+    out, expected = [], []
+    for k in range(3):
+        p, o = preview(k * TS_NS), odometry(k * TS_NS)
+        out += lp.on_preview(p, at(4 * k)) + lp.on_preview(p, at(4 * k + 1))  # sent twice before its odometry
+        out += lp.on_odometry(o, at(4 * k + 2)) + lp.on_preview(p, at(4 * k + 3))  # and once after
+        expected.append(truth.step(state(o), reference(k * TS)[0][1:], None).voltages)
+    assert [c.stamp_ns for c in commands(out)] == [0, TS_NS, 2 * TS_NS] and zeros(out) == []
+    for command, values in zip(commands(out), expected):
+        same(command, command.stamp_ns, values)
+    kv = status(out)
+    assert (kv["rejected"], kv["dropped_duplicate"], kv["dropped_old"]) == ("0", "0", "0")
+
+
+def test_lockstep_plans_reordered_odometry_is_dropped_and_its_held_reports_taken():
+    lp = loop(lockstep=True, plans=True)
+    points = lp.preview_points + 1
+    for k in range(3):
+        lp.on_preview(preview(k * TS_NS, points), at(k))
+    lp.on_odometry(odometry(0), at(3))
+    # tick 2 overtakes tick 1 on the up-link: tick 2 is planned, tick 1 dropped as old
+    out = lp.on_odometry(odometry(2 * TS_NS), at(4))
+    assert [c.stamp_ns for c in commands(out)] == [2 * TS_NS]
+    out = lp.on_odometry(odometry(TS_NS), at(5))
+    assert commands(out) == [] and status(out)["dropped_old"] == "1"
+    # an odometry waiting for its preview holds the reports that come meanwhile; planned, it hands them on
+    lp.on_odometry(odometry(3 * TS_NS), at(6))
+    lp.on_report(AppliedReport(0.02, 0.0, 0, (0.1, 0.2, 0.3)), at(7))
+    lp.on_report(Undecodable("command_applied", None, "length", "a report has one point"), at(8))
+    assert (lp.reports_received, lp.refused_reports) == (0, 0)
+    out = lp.on_preview(preview(3 * TS_NS, points), at(9))
+    assert [c.stamp_ns for c in commands(out)] == [3 * TS_NS] and (lp.reports_received, lp.refused_reports) == (2, 1)
+
+
+def test_realtime_watchdog_stale_reference_and_a_clock_that_went_back():
+    lp = loop()
+    t = 1_000 * MS
+    lp.on_preview(preview(t), at(t))
+    lp.on_odometry(odometry(t + MS), at(t + MS))
+    for k in range(2, 20):  # odometry keeps coming, the reference stops
+        out = lp.on_odometry(odometry(t + k * 10 * MS), at(t + k * 10 * MS))
+    assert commands(out) == []  # a reference older than its timeout is not used
+    out = lp.on_watchdog(at(t + 191 * MS))
+    assert zeros(out) == ["watchdog"] and status(out)["watchdog"] == "stale_reference"
+    # the node clock went back (a simulator reset) while the watchdog's steady clock went on: the stamps used so
+    # far are forgotten, an input stamped before them is taken, with a bumpless restart
+    back = Now(t - 500 * MS, t + 300 * MS)
+    lp.on_preview(preview(t - 500 * MS), back)
+    out = lp.on_odometry(odometry(t - 499 * MS), Now(t - 499 * MS, t + 301 * MS))
+    assert [c.stamp_ns for c in commands(out)] == [t - 499 * MS] and status(out)["blend_engagements"] == "2"
+    assert status(out)["watchdog"] == "stale_reference"  # until the next check
+    assert lp.on_watchdog(Now(t - 498 * MS, t + 302 * MS)) == [] and lp.watchdog_state == "ok"
+
+
+def test_chain_drops_an_older_stamp_and_refuses_an_implausible_pose():
+    lp = loop(interface="cmd_vel", chain=chain_params())
+    t = 1_000 * MS
+    lp.on_preview(preview(t), at(t))
+    assert len(commands(lp.on_odometry(odometry(t + 20 * MS), at(t + 21 * MS)))) == 1
+    out = lp.on_odometry(odometry(t + 10 * MS), at(t + 22 * MS))
+    assert commands(out) == [] and zeros(out) == [] and status(out)["dropped_old"] == "1"
+    out = lp.on_odometry(odometry(t + 20 * MS, pose=(1e9, 0.0, 0.0)), at(t + 23 * MS))
+    assert zeros(out) == ["implausible"]

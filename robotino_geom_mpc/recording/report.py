@@ -177,25 +177,17 @@ def _applied_voltages_topic(bag: BagReader) -> str:
     return topic
 
 
+# its fields in prose, not an Attributes section: the docs would link `currents` and `twist` to other classes'
 @dataclass(frozen=True)
 class RecordedRun:
     """A recorded run (`recorded_run`): its `RunData` and what the recording lacked.
 
-    Attributes
-    ----------
-    run
-        The run; ``run.meta["truth"]`` is ``"ground_truth"`` or ``"odometry"``. Where the recording has no
-        currents (or voltages) its ``currents`` (``voltages``) are zeros standing in, never to be read as data:
-        the flags ``currents`` (``voltages``) say so.
-    currents
-        Whether the recording holds wheel currents.
-    voltages
-        Whether it holds voltages (``wheel_voltages`` or ``applied_voltages``).
-    twist
-        Without currents: the commanded body twist (v_x, v_y [m/s], theta' [rad/s] in base_link, from ``cmd_vel``)
-        per tick, shape (n, 3), drawn instead; else None.
-    wheel_speeds
-        Without currents: the wheel speeds that twist asks for [rad/s] per tick, shape (n, 3); else None.
+    ``run`` is the run; ``run.meta["truth"]`` is ``"ground_truth"`` or ``"odometry"``. The flags ``currents`` and
+    ``voltages`` say whether the recording holds wheel currents and voltages (``wheel_voltages`` or
+    ``applied_voltages``); where it has none, the run's series are zeros standing in, never to be read as data.
+    Without currents, ``twist`` is the commanded body twist (v_x, v_y [m/s], theta' [rad/s] in base_link, from
+    ``cmd_vel``) per tick, shape (n, 3), and ``wheel_speeds`` the wheel speeds that twist asks for [rad/s] per tick,
+    shape (n, 3), drawn instead; else both are None.
     """
 
     run: RunData

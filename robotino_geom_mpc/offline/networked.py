@@ -17,14 +17,15 @@ Each tick k (t_k = k Ts), in this order (the lockstep DDS loop reproduces it):
    (period start, plan basis, entry index; or no plan) and the receipts of
    tick k - 1 (basis, receipt time t_{k-1} and whether the buffer took it,
    for every plan it was offered); nothing is sent about tick -1;
-2. the controller takes the up-link packets due by t_k: for each, the
-   receipts (`report_receipt`), then the applied report (`report_applied`),
-   then the odometry: compensated, ``plan = controller.plan(stamp, X,
-   reference rows stamp + Ts ..)`` (None for an odometry not newer than one
-   taken); each plan is sent down, ``down.transmit(t_k)``;
-   uncompensated, ``controller.step(X, preview, dt)`` for each odometry newer
-   than the last (dt from the stamps, `step_interval`) and its voltages (or
-   `next_velocity`) sent down as a one-entry command;
+2. the controller (a `loop.controller_loop.ControllerLoop` in lockstep, the
+   controller node's protocol) takes the tick's preview
+   (`offline.lockstep.PreviewRows`), then the up-link packets due by t_k:
+   for each, the reports (`on_report`: receipts, then the applied report, in
+   the robot's order), then the odometry (`on_odometry`; one not newer than
+   one taken is dropped as old): compensated, its plan (`PlanOut`) is sent
+   down, ``down.transmit(t_k)``; uncompensated, the MPC step's voltages (or
+   twist) (`Command`; dt from the integer-ns stamps, `step_interval`) as a
+   one-entry command;
 3. the robot takes the down-link packets due by t_k: compensated,
    ``buffer.offer(plan, t_k)`` each (`network.plan.PlanBuffer`) and notes
    their receipt for step 1 of the next tick; uncompensated, the last one to
@@ -33,13 +34,10 @@ Each tick k (t_k = k Ts), in this order (the lockstep DDS loop reproduces it):
    ``buffer.command_at(t_k)`` (zero without a plan); uncompensated, the held
    command, zero when it arrived more than `COMMAND_TIMEOUT_S` ago (the plant
    node's watchdog) or none has;
+5. record and step the plant as the undelayed loop does (its steps 4-5).
 
 The robot's side of steps 1, 3 and 4 is `loop.command_link.CommandLink` (the lockstep plant node runs the
-same object); the controller's side of step 2 is a `loop.controller_loop.ControllerLoop` in lockstep (the
-controller node's): each tick it gets the tick's preview (`offline.lockstep.PreviewRows`), then per packet
-delivered the reports (`on_report`) and the odometry (`on_odometry`), and its answer (a `PlanOut`, or the plain
-`Command`) goes down.
-5. record and step the plant as the undelayed loop does (its steps 4-5).
+same object, `robotino_sim_node.plant_lockstep`).
 """
 
 from __future__ import annotations

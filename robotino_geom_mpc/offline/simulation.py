@@ -23,9 +23,14 @@ The loop keeps numpy out of its per-tick bookkeeping (a call on a 3-vector
 costs about as much as a dozen float operations): it collects the ticks'
 values and turns them into arrays once, at the end.
 
-Over an emulated radio link (``link_up`` / ``link_down``) step 3 is replaced by the
-robot's and the controller's sides of the link, in the order `offline.networked`
-writes down (the lockstep DDS loop reproduces it); steps 1, 4 and 5 stay.
+The robot's side (steps 1 and 5: the odometry source, the noise stream, the drive) is a
+`loop.robot_loop.RobotLoop`, the plant node's. Over an emulated radio link (``link_up`` /
+``link_down``) step 3 is replaced by the robot's and the controller's sides of the link, in
+the order `offline.networked` writes down: the controller node's protocol
+(`loop.controller_loop.ControllerLoop`, lockstep) and the robot's end of the link
+(`loop.command_link.CommandLink`), as the lockstep DDS loop runs them; steps 1, 4 and 5 stay.
+Without a link step 3 calls the kernels directly: through `ControllerLoop` the ticks would
+be the same (`test_offline_lockstep`) at 2.7 times the cost (``bench --only offline_loop``).
 
 A scenario (`scenarios.SCENARIOS`) names the reference, the controller's
 model (`scenarios.Scenario.controller_model`: the robot, or a mismatched one in ``robustness``)

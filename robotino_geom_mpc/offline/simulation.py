@@ -30,7 +30,7 @@ the order `offline.networked` writes down: the controller node's protocol
 (`loop.controller_loop.ControllerLoop`, lockstep) and the robot's end of the link
 (`loop.command_link.CommandLink`), as the lockstep DDS loop runs them; steps 1, 4 and 5 stay.
 Without a link step 3 calls the kernels directly: through `ControllerLoop` the ticks would
-be the same (`test_offline_lockstep`) at 2.7 times the cost (``bench --only offline_loop``).
+be the same to rounding (`test_offline_lockstep`) at 2.7 times the cost (``bench --only offline_loop``).
 
 A scenario (`scenarios.SCENARIOS`) names the reference, the controller's
 model (`scenarios.Scenario.controller_model`: the robot, or a mismatched one in ``robustness``)

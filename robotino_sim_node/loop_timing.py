@@ -123,25 +123,25 @@ class LoopTiming:
 
     def published(self, t: float) -> None:
         """The odometry of a new tick went out at steady time `t` [s]."""
-        window = self._window
-        if self._waiting and self.answered:
+        window, sent = self._window, self._sent_at
+        if self._waiting and self.answered and sent is not None:
             self.missed += 1
             if window is not None:
                 window.missed += 1
             if len(self.missed_at) < MISSES_KEPT:
-                self.missed_at.append((self._sent_at, t - self._sent_at))
+                self.missed_at.append((sent, t - sent))
         if window is not None:
             if window.start is None:
                 window.start = t
             elif t - window.start >= self.window_s:
-                self.windows.append(self._window_figures(t))
+                self.windows.append(self._window_figures(window, t))
                 window.reset(t)
             window.ticks += 1
         self._sent_at, self._waiting = t, True
 
     def command(self, t: float) -> None:
         """A valid command arrived at steady time `t` [s] (a second one in the same tick is ignored)."""
-        if not self._waiting:
+        if not self._waiting or self._sent_at is None:
             return
         self._waiting = False
         if not self.answered:
@@ -166,9 +166,8 @@ class LoopTiming:
         index = int(np.searchsorted(np.cumsum(counts), rank))
         return (index + 1) * self.bin_s
 
-    def _window_figures(self, end: float) -> dict[str, Any]:
-        """The figures of the open window, ending at steady time `end` [s] (see the module docstring)."""
-        window = self._window
+    def _window_figures(self, window: _Window, end: float) -> dict[str, Any]:
+        """The figures of the open `window`, ending at steady time `end` [s] (see the module docstring)."""
         latency = None
         if window.answered:
             latency = {f"p{q:g}": 1e3 * self.percentile_s(q, window.counts) for q in (50, 99, 99.9)}
@@ -185,25 +184,27 @@ class LoopTiming:
         line = (f"{self.answered} ticks answered, {self.missed} missed; odometry-to-command latency "
                 f"median {1e3 * self.percentile_s(50):.3f} ms, p99 {1e3 * self.percentile_s(99):.3f} ms, "
                 f"max {1e3 * self.max_latency_s:.3f} ms")
-        if self.first_answer_at is not None:
-            line += f"; first answer at steady time {self.first_answer_at:.6f} s"
-        if self.missed_at:
-            line += "; missed ticks (s after the first answer: ms to the next odometry) " + ", ".join(
-                f"{t - self.first_answer_at:.6f}: {1e3 * gap:.3f}" for t, gap in self.missed_at)
+        first = self.first_answer_at
+        if first is not None:
+            line += f"; first answer at steady time {first:.6f} s"
+            if self.missed_at:  # (a miss is counted after the first answer only)
+                line += "; missed ticks (s after the first answer: ms to the next odometry) " + ", ".join(
+                    f"{t - first:.6f}: {1e3 * gap:.3f}" for t, gap in self.missed_at)
         return line
 
     def figures(self) -> dict[str, Any]:
         """The realtime part of the timing report: answered, missed, latency_ms, first answer, missed_ticks."""
-        answered = self.answered > 0
+        answered, first, window = self.answered > 0, self.first_answer_at or 0.0, self._window
         return {
             "answered": self.answered,
             "missed": self.missed,
             "latency_ms": {"median": 1e3 * self.percentile_s(50), "p99": 1e3 * self.percentile_s(99),
                            "max": 1e3 * self.max_latency_s} if answered else None,
             "first_answer_steady_s": self.first_answer_at,
-            "missed_ticks": [[t - self.first_answer_at, gap] for t, gap in self.missed_at],
-            **({} if self._window is None else {"windows": self.windows + (
-                [self._window_figures(self._sent_at)] if self._window.ticks else [])}),
+            "missed_ticks": [[t - first, gap] for t, gap in self.missed_at],  # (after the first answer only)
+            **({} if window is None else {"windows": self.windows + (
+                [self._window_figures(window, self._sent_at)] if window.ticks and self._sent_at is not None
+                else [])}),
         }
 
 
@@ -216,7 +217,8 @@ class _Window:
 
     def reset(self, start: float | None) -> None:
         self.counts.fill(0)
-        self.start, self.ticks, self.answered, self.missed, self.max_s = start, 0, 0, 0, 0.0
+        self.start: float | None = start
+        self.ticks, self.answered, self.missed, self.max_s = 0, 0, 0, 0.0
 
     def add(self, index: int, latency: float) -> None:
         self.counts[index] += 1

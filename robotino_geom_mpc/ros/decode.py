@@ -95,7 +95,7 @@ def preview_point_values(msg, horizon: int | None) -> tuple:
     """
     if horizon is not None and len(msg.points) != horizon + 1:
         raise InputRejected(f"reference_preview has {len(msg.points)} points, need N + 1 = {horizon + 1}", "size")
-    out = []
+    out: list[float] = []
     for j, point in enumerate(msg.points):
         if len(point.transforms) != 1 or len(point.velocities) > 1 or len(point.accelerations) > 1:
             raise InputRejected(f"reference_preview point {j} has {len(point.transforms)} transforms, "

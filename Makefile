@@ -1,6 +1,6 @@
 # make setup: .venv with the package (editable) and everything it needs; idempotent.
 # make demo:  the main job (see README).   make test: the whole test suite.   make unit: its in-process tier.
-# make check: ruff, mypy on the core, import-linter and the unit tier (under a minute).   make docs: the site.
+# make check: ruff, mypy on both packages, import-linter and the unit tier (under a minute).   make docs: the site.
 PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed

@@ -21,6 +21,7 @@ currents (`trace`): the truth the chain's tests and the controller's time recons
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -72,7 +73,7 @@ class ChainEmulator:
     seed
         Seeds the two links (down: seed, up: seed + 1) and the odometry noise (seed + 2).
     odometry_noise
-        (position [m], yaw [rad]) standard deviations of the firmware odometry's pose noise.
+        (position [m], yaw [rad]) standard deviations of the firmware odometry's pose noise (two numbers).
     source
         What an odometry sample reads (`model.encoders.odometry_source`); the plant itself if None.
     speed_loop_rate_hz
@@ -80,7 +81,7 @@ class ChainEmulator:
     """
 
     def __init__(self, plant: RobotinoPlant, params: ChainParams, seed: int = 0,
-                 odometry_noise: tuple[float, float] = (0.0, 0.0),
+                 odometry_noise: Sequence[float] = (0.0, 0.0),
                  source: RobotinoPlant | EncoderOdometry | None = None,
                  speed_loop_rate_hz: float = DEFAULT_RATE_HZ) -> None:
         self.plant, self.params = plant, params

@@ -170,7 +170,8 @@ class PlantNode(Node):
         noise = PoseNoise((p["odometry_noise.position_m"], p["odometry_noise.yaw_rad"]), p["seed"])
         self.robot = RobotLoop(*self._robot_parts(self.robot_params, lockstep), self.control.period_s, noise)
         up, down = link_params(p.values, "up"), link_params(p.values, "down")
-        follower = PlanFollower(self.control.period_s) if p["plans"] else None
+        # the chain takes cmd_vel as the real driver does (its own link, chain.link.*): no plans there
+        follower = PlanFollower(self.control.period_s) if p["plans"] and chain is None else None
         networked = follower is not None or up.enabled or down.enabled  # else: as without a link
 
         qos = publish_qos(lockstep)
@@ -273,8 +274,8 @@ class PlantNode(Node):
             self.run.command(checked, log is None or log.key != "refused")
 
     def _on_plan(self, msg: Any) -> None:
-        assert not isinstance(self.run, ChainRun)
-        self.run.plan(msg)
+        if not isinstance(self.run, ChainRun):  # (the chain subscribes to cmd_vel, never to plans)
+            self.run.plan(msg)
 
 
 def _all_specs() -> tuple[ParamSpec, ...]:

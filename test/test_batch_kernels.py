@@ -1,9 +1,9 @@
 """Each batch kernel (`DecoupledMPCBatch`, `DecouplingFieldBatch`, `MotorKinematicsBatch`, `InverseDriveBatch`,
-`OdometryFilterBatch`) against its one-run class run by run, for runs with different parameters.
+`OdometryFilterBatch`, `PlantBatch`) against its one-run class run by run, for runs with different parameters.
 
 The one-run classes are checked against independent truths in their own tests (test_mpc, test_decoupling,
-test_drive, test_estimator); here each run of a batch must give its own class's numbers (to rounding, 1e-12
-relative), on the unclipped, the clipped and the current-limited paths of the drive.
+test_drive, test_estimator, test_plant); here each run of a batch must give its own class's numbers (to rounding,
+1e-12 relative), on the unclipped, the clipped and the current-limited paths of the drive.
 """
 
 from __future__ import annotations
@@ -18,6 +18,8 @@ from robotino_geom_mpc.control.inverse_drive import InverseDrive, InverseDriveBa
 from robotino_geom_mpc.control.mpc import DecoupledMPC, DecoupledMPCBatch
 from robotino_geom_mpc.geometric.decoupling import DecouplingField, DecouplingFieldBatch
 from robotino_geom_mpc.model.kinematics import MotorKinematics, MotorKinematicsBatch
+from robotino_geom_mpc.model.plant import RobotinoPlant
+from robotino_geom_mpc.model.plant_batch import PlantBatch
 from robotino_geom_mpc.params.files import load_params
 
 pytestmark = pytest.mark.unit
@@ -130,3 +132,27 @@ def test_filter_batch_is_each_runs_filter(params):
         estimates = batch.update(X)
         for b, one in enumerate(ones):
             np.testing.assert_allclose(estimates[b], one.update(*X[b].tolist()), rtol=RTOL, atol=1e-13)
+
+
+def test_plant_batch_is_each_runs_plant(params):
+    """50 periods of held voltages, a turning run among them (the fast path's heading polynomial) and an
+    anisotropic one (k_y = 1.7 k_x: the exact maps): every run's state and odometry as its own `RobotinoPlant`'s.
+    """
+    robot, control = params
+    robots = [*_robots(robot)[:2], replace(robot, body_friction_y_n_s_per_m=1.7 * robot.body_friction_y_n_s_per_m)]
+    batch, ones = PlantBatch(robots), [RobotinoPlant(p) for p in robots]
+    rng = np.random.default_rng(6)
+    turning = np.array([[4.0, 4.0, 4.0], [0.0, 0.0, 0.0], [3.0, -2.0, -1.0]])  # run 0 spins, run 2 drives
+    for _ in range(50):
+        U = turning + rng.normal(0.0, 1.0, (3, 3))
+        batch.step(U, control.period_s)
+        for b, one in enumerate(ones):
+            one.step(U[b], control.period_s)
+    pose, twist = batch.odometry()
+    assert abs(ones[0].state[5]) > 1.0  # the spinning run turns at more than 1 rad/s
+    for b, one in enumerate(ones):
+        np.testing.assert_allclose(batch.state[b, :9], one.state, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(batch.wheel_angles[b], one.wheel_angles, rtol=1e-12, atol=1e-12)
+        one_pose, one_twist = one.noisy_odometry_floats(None)
+        np.testing.assert_allclose(pose[b], one_pose, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(twist[b], one_twist, rtol=1e-12, atol=1e-12)

@@ -61,7 +61,6 @@ class RealtimeRun:
                  radio: Radio | None = None, plans: PlantPlans | None = None) -> None:
         self.node, self.params, self.grid, self.robot = node, params, grid, grid.robot
         self.outputs, self.end, self.radio, self.plans = outputs, end, radio, plans
-        self.offset_ns = round(grid.offset_s * 1e9)  # the robot clock minus steady, taken at the start (the radio)
         self.ticks = 0  # published
         self.busy_s = 0.0
         self.timing = LoopTiming(window_s=params["timing_window_s"])
@@ -103,7 +102,8 @@ class RealtimeRun:
         if duration > 0.0 and now - self.grid.started_at >= duration:
             self._finish(now)
             return
-        offset_ns = self.offset_ns if self.radio is not None else clock_minus_steady_ns(self.node)
+        # the radio: the robot clock taken at the start; else the node clock read now
+        offset_ns = self.grid.offset_ns if self.radio is not None else clock_minus_steady_ns(self.node)
         measurement, logs = self.grid.measure(now, offset_ns)
         emit(self.node, logs)
         if measurement is None:  # a late timer firing again: no new state
@@ -112,7 +112,7 @@ class RealtimeRun:
         messages = self.outputs.tick(measurement, self.robot)
         if self.radio is not None:  # the tick's packet (the reports first) leaves over the link
             bundle: list[Message] = self._reports() + messages
-            self.radio.send("up", lambda: self.outputs.publish(bundle), measurement.stamp_ns * 1e-9)
+            self.radio.send("up", lambda: self.outputs.publish(bundle), measurement.stamp_s)
         else:
             self.outputs.publish(messages)
         self.ticks += 1

@@ -216,6 +216,11 @@ class Measurement:
     currents: Triple | None
     applied_voltages: Triple | None
 
+    @property
+    def stamp_s(self) -> float:
+        """The stamp [s] (the link's clock)."""
+        return self.stamp_ns * 1e-9
+
 
 class PeriodAccount:
     """What the drives did between two measurements: each drive's peak |current|, the time mean of the voltages.
@@ -314,6 +319,11 @@ class RealtimeGrid:
         self.hold = CommandHold(started_at, 1.0 / rate_hz)
         self.follower, self.offset_s = follower, offset_s
         self.published_grid_s = -math.inf  # the grid point of the last measurement [s, steady]
+
+    @property
+    def offset_ns(self) -> int:
+        """The robot clock minus the steady clock taken at the start [ns]."""
+        return round(self.offset_s * 1e9)
 
     @property
     def simulated_s(self) -> float:

@@ -1,13 +1,14 @@
 """Is the per-tick float path needed? One control step and each of its kernels on Python floats beside the array
 kernels that serve a batch (the study's), both on one run, in the same process, passes interleaved.
 
-The array kernels (`DecoupledMPCBatch.delta_u`, `DecouplingFieldBatch.forces`,
+The array kernels (`OdometryFilterBatch.update`, `DecoupledMPCBatch.delta_u`, `DecouplingFieldBatch.forces`,
 `MotorKinematicsBatch.speeds_and_rates`, `InverseDriveBatch.step`, and the whole step `MotionControllerBatch.step`)
 take a leading batch axis; on one run (B = 1) they pay numpy's per-call overhead on 3-vectors. The one-run
-classes' float forms (`DecoupledMPC.delta_u`, `DecouplingField.forces`, `MotorKinematics.speeds_and_rates`,
-`InverseDrive.step`, `MotionController.step`) are what the nodes and `simulate` run each tick. Each figure
-``float_path_<kernel>_us`` (float form) sits beside ``array_path_<kernel>_us`` and their ratio
-``array_over_float_<kernel>``; the two sides must give the same numbers (1e-9), or the benchmark fails.
+classes' float forms (`OdometryFilter.update`, `DecoupledMPC.delta_u`, `DecouplingField.forces`,
+`MotorKinematics.speeds_and_rates`, `InverseDrive.step`, `MotionController.step`) are what the nodes and
+`simulate` run each tick. Each figure ``float_path_<kernel>_us`` (float form) sits beside
+``array_path_<kernel>_us`` and their ratio ``array_over_float_<kernel>``; the two sides must give the same
+numbers (1e-9), or the benchmark fails.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from robotino_geom_mpc.bench.controller_step import step_inputs
 from robotino_geom_mpc.bench.registry import BenchmarkError, benchmark, median_per_call
+from robotino_geom_mpc.control.estimator import OdometryFilter, OdometryFilterBatch
 from robotino_geom_mpc.control.inverse_drive import InverseDrive, InverseDriveBatch
 from robotino_geom_mpc.control.motion_batch import MotionControllerBatch
 from robotino_geom_mpc.control.motion_controller import MotionController
@@ -55,6 +57,17 @@ def bench_float_path(quick: bool) -> dict[str, float]:
         batch = MotionControllerBatch([robot], control, [control.odometry_twist], X[:1, 0::2])
         return [batch.step(X[k : k + 1], previews[k])[0][0] for k in range(steps)]
 
+    tau = control.odometry_filter_time_constant_s or 0.5  # (the preset's; a filter needs one > 0)
+
+    def float_filter() -> list[tuple[float, float, float]]:
+        estimator = OdometryFilter(control.period_s, tau, control.odometry_twist)
+        estimator.start_at(*X_list[0][0::2])
+        return [estimator.update(*X_list[k]) for k in range(steps)]
+
+    def batch_filter() -> list[np.ndarray]:
+        estimator = OdometryFilterBatch(control.period_s, tau, [control.odometry_twist], X[:1, 0::2])
+        return [estimator.update(X[k : k + 1])[0] for k in range(steps)]
+
     def float_step() -> list[tuple[float, ...]]:
         controller.reset()
         controller.start_at(*X[0, 0::2].tolist())
@@ -62,6 +75,7 @@ def bench_float_path(quick: bool) -> dict[str, float]:
 
     pairs: dict[str, tuple[Callable[[], object], Callable[[], object]]] = {
         "step": (float_step, batch_step),
+        "filter": (float_filter, batch_filter),
         "mpc": (lambda: [mpc.delta_u(X_list[k], u_list[k], previews_list[k]) for k in range(steps)],
                 lambda: [mpcs.delta_u(X[k : k + 1], u[k : k + 1], previews[k])[0] for k in range(steps)]),
         "field": (lambda: [field.forces(theta[k], u_list[k]) for k in range(steps)],

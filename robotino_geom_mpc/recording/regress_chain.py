@@ -53,6 +53,7 @@ __all__ = ["BEAM", "RECEIVE_MARGIN_S", "ChainReplay", "chain_parameters", "regre
 
 RECEIVE_MARGIN_S = 0.01  # a preview published this long before an odometry had reached the node
 BEAM = 32  # readings kept at once: the nearest to the recorded answers, then to the recorder's order
+_WATCHDOG_STALE_NS = 10**12  # a recorded watchdog stop replayed on a watchdog clock this far on: stale for sure
 _CONTROLLER_NODE = "robotino_controller"
 _STATUS_NAME = "robotino_geom_mpc: controller"
 
@@ -197,19 +198,37 @@ def regress_chain(bag: BagReader, robot: RobotinoParams, control: ControlParams,
 
 def _exact(loop: ControllerLoop, odom: list, previews: list, commands: list, statuses: list[_Status],
            source: str) -> ChainReplay:
-    """The replay of a recording with the clock in its statuses: one loop, the recorded times."""
+    """The replay of a recording with the clock in its statuses: one loop, the recorded times.
+
+    The node's inputs in the order of its clock: each odometry at the clock of its status (one without a status
+    had no answer: not replayed), a refused preview at the clock of its refusal, each watchdog stop at its clock
+    (stale by then for sure: the node decided on its steady clock); an accepted preview when a step names it
+    (received by then, its stamp checked at its publish time).
+    """
     by_odometry: dict[int, deque[_Status]] = {}  # odometry stamp -> its statuses (two samples of a stamp: two)
-    watchdogs: deque[_Status] = deque()
-    refused_previews: dict[int, int] = {}  # preview stamp -> the clock of its refusal
-    for status in statuses:
+    preview_stamps = [stamp_ns(msg.header.stamp) for _, msg, _ in previews]
+    first_of: dict[int, int] = {}
+    for j, stamp in enumerate(preview_stamps):
+        first_of.setdefault(stamp, j)
+    # (clock, kind, index): kind 0 a refused preview, 1 an odometry, 2 a watchdog stop
+    timeline: list[tuple[int, int, int]] = []
+    refused: set[int] = set()
+    for k, status in enumerate(statuses):
         if status.message.startswith("watchdog"):
-            watchdogs.append(status)
-        elif status.message.startswith("refused reference_preview"):
-            refused_previews.setdefault(status.stamp, status.clock)
+            timeline.append((status.clock, 2, k))
+        elif status.message.startswith("refused reference_preview") and status.stamp in first_of:
+            refused.add(first_of[status.stamp])
+            timeline.append((status.clock, 0, first_of[status.stamp]))
         elif status.message in ("chain", "disabled") or status.message.startswith(("refused odom", "dropped odom",
                                                                                     "refused input")):
             by_odometry.setdefault(status.stamp, deque()).append(status)
-    preview_stamps = [stamp_ns(msg.header.stamp) for _, msg, _ in previews]
+    said: list[_Status | None] = []
+    for i, (publish, msg, _) in enumerate(odom):
+        queue = by_odometry.get(stamp_ns(msg.header.stamp))
+        entry = queue.popleft() if queue else None
+        said.append(entry)
+        timeline.append((publish if entry is None else entry.clock, 1, i))
+    timeline.sort()
     fed = -1
     answered = ticks = compared = 0
     worst, worst_stamp = 0.0, None
@@ -231,25 +250,29 @@ def _exact(loop: ControllerLoop, odom: list, previews: list, commands: list, sta
             if worst_stamp is None or deviation > worst:
                 worst, worst_stamp = deviation, stamp
 
-    for publish, msg, _ in odom:
-        stamp = stamp_ns(msg.header.stamp)
-        while watchdogs and watchdogs[0].publish < publish:
-            fired = watchdogs.popleft()
-            take(loop.on_watchdog(Now(fired.clock, fired.clock)), fired.stamp)
-        queue = by_odometry.get(stamp)
-        said = queue.popleft() if queue else None
-        clock = publish if said is None else said.clock
-        if said is not None and said.message in ("chain", "disabled"):
-            enabled = said.message == "chain"
-            if enabled != loop.enabled:
-                loop.on_enable(enabled, Now(clock, clock))
-        named = int(said.values["preview_stamp_ns"]) if said is not None and said.message == "chain" else None
-        last = fed if named is None else max(fed, preview_stamps.index(named) if named in preview_stamps else fed)
+    for clock, kind, index in timeline:
+        if kind == 0:
+            take(loop.on_input(preview_input(previews[index][1]), Now(clock, clock)), preview_stamps[index])
+            continue
+        if kind == 2:
+            take(loop.on_watchdog(Now(clock, clock + _WATCHDOG_STALE_NS)), clock)
+            continue
+        publish, msg, _ = odom[index]
+        mine = said[index]
+        if mine is not None and mine.message in ("chain", "disabled") and \
+                loop.enabled != (mine.message == "chain"):
+            loop.on_enable(mine.message == "chain", Now(clock, clock))
+        if mine is None:  # no status: no answer (no preview yet, a stale one, or the node stopping first)
+            continue
+        if mine.message == "chain":
+            last = first_of.get(int(mine.values["preview_stamp_ns"]), fed)
+        else:
+            last = fed
         for j in range(fed + 1, last + 1):
-            at = refused_previews.get(preview_stamps[j], previews[j][0])
-            take(loop.on_input(preview_input(previews[j][1]), Now(at, at)), preview_stamps[j])
-        fed = last
-        take(loop.on_input(odometry_input(msg), Now(clock, clock)), stamp)
+            if j not in refused:
+                take(loop.on_input(preview_input(previews[j][1]), Now(previews[j][0], clock)), preview_stamps[j])
+        fed = max(fed, last)
+        take(loop.on_input(odometry_input(msg), Now(clock, clock)), stamp_ns(msg.header.stamp))
     first = stamp_ns(odom[0][1].header.stamp)
     return ChainReplay(ticks, compared, worst, None if worst_stamp is None else (worst_stamp - first) * 1e-9, source)
 
@@ -261,15 +284,16 @@ def _search(loop: ControllerLoop, odom: list, previews: list, commands: list, to
     preview_log = sorted(log for _, _, log in previews)
     margin = round(RECEIVE_MARGIN_S * 1e9)
 
-    def hold(r: _Reading, j: int) -> _Reading | None:
-        """`r` (a copy) holding the previews up to `j`; None if the loop refused one (the node's zero: no reading)."""
-        s = r.clone()
-        for k in range(r.preview + 1, j + 1):
-            if any(isinstance(o, Zero) for o in s.loop.on_input(preview_input(previews[k][1]),
-                                                               Now(preview_t[k], preview_t[k]))):
-                return None
-        s.preview = max(j, r.preview)
-        return s
+    def hold(base: _Reading, j: int) -> bool:
+        """`base` (a copy of its own) moved on to hold the previews up to `j`; False if the loop refused one (the
+        node's zero: no reading).
+        """
+        for k in range(base.preview + 1, j + 1):
+            base.preview = k
+            if any(isinstance(o, Zero) for o in base.loop.on_input(preview_input(previews[k][1]),
+                                                                  Now(preview_t[k], preview_t[k]))):
+                return False
+        return True
 
     def expand(r: _Reading, publish: int, msg: Any, recorded_preview: int) -> list[_Reading]:
         r.deviation = None
@@ -284,10 +308,10 @@ def _search(loop: ControllerLoop, odom: list, previews: list, commands: list, to
             out.append(waiting)
         if r.command < len(commands) and commands[r.command][0] > publish:  # an answer follows its odometry
             answer_t, recorded = commands[r.command]
+            held = r.clone()
             for j in range(max(newest, r.preview, 0), bisect_left(preview_t, answer_t)):
-                held = hold(r, j)
-                if held is None:
-                    continue
+                if not hold(held, j):
+                    break
                 seen = None
                 for now in (publish, answer_t):
                     s = held.clone()

@@ -277,7 +277,7 @@ def test_diagnostics_bytes_decode_as_the_message_they_stand_for():
     from rclpy.serialization import deserialize_message
     from rosbags.typesys import Stores, get_typestore
 
-    from robotino_geom_mpc.nodes.controller_outputs import STATUS_NAME, diagnostics_cdr
+    from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME, diagnostics_cdr
 
     store, rng = get_typestore(Stores.ROS2_JAZZY), random.Random(4)
     for case in range(40):

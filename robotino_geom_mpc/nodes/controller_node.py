@@ -139,7 +139,7 @@ class ControllerNode(Node):
         # the watchdog's clock, read at start: the node clock under use_sim_time (a slow simulation is slow, not
         # stale), else steady time
         self.sim_time = bool(self.get_parameter("use_sim_time").value)
-        self.outputs = ControllerOutputs(self, lockstep, control.horizon, prefix, interface,
+        self.outputs = ControllerOutputs(self, lockstep, prefix, interface,
                                          control.plan_length if self.params["plans"] else None)
         try:
             self.loop = ControllerLoop(robot, control, self._now(), self._settings(), lockstep=lockstep,

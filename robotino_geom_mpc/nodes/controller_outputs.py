@@ -9,11 +9,10 @@ The topics: `controller_node`'s docstring. Publishers use `ros.qos.publish_qos` 
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, Twist
+from geometry_msgs.msg import Twist
 from nav_msgs.msg import Path
 from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
@@ -24,70 +23,18 @@ from robotino_geom_mpc.loop.controller_loop import TRACKING_KEYS
 from robotino_geom_mpc.loop.events import (Command, Diagnostic, EnabledChanged, Log, Output, PlanOut, PredictedPath,
                                            Resend, Waiting, Zero)
 from robotino_geom_mpc.network.plan import CommandPlan
-
-from robotino_geom_mpc.ros.cdr import CdrTemplate
-from robotino_geom_mpc.ros.decode import STAMP_FIELDS
-from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, three_values_template, yaw_quaternion_zw
+from robotino_geom_mpc.ros.controller_cdr import diagnostics_cdr
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, path_cdr, three_values_template
 from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanWriter, plan_type
 from robotino_geom_mpc.ros.qos import LATCHED_QOS, publish_acknowledged, publish_qos
 from robotino_geom_mpc.ros.throttle import log_throttled
 
-__all__ = ["ControllerOutputs", "STATUS_NAME", "TRACKING_KEYS", "diagnostics_cdr"]
+__all__ = ["ControllerOutputs", "TRACKING_KEYS"]
 
-STATUS_NAME = "robotino_geom_mpc: controller"
 ZERO = (0.0, 0.0, 0.0)
 _WAIT_LOG_PERIOD_S = 5.0  # throttle of the "waiting for ..." log
 # the newest prediction only, kept for a late reader (a display); never blocks the loop
 PATH_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-def _path_template(frame: str, horizon: int) -> CdrTemplate:
-    """nav_msgs/Path of `horizon` poses in `frame` as a template: header stamp, then per pose its stamp, x, y and the
-    yaw quaternion's z, w (`messages.yaw_quaternion_zw`: x = y = 0).
-    """
-    path = Path(poses=[PoseStamped() for _ in range(horizon)])
-    path.header.frame_id = frame
-    for pose in path.poses:
-        pose.header.frame_id = frame
-    return CdrTemplate(path, STAMP_FIELDS + tuple(
-        f"poses[{j}].{field}" for j in range(horizon) for field in STAMP_FIELDS + (
-            "pose.position.x", "pose.position.y", "pose.orientation.z", "pose.orientation.w")))
-
-
-_U32 = struct.Struct("<I")
-_HEADER = struct.Struct("<4siIIb")  # encapsulation (CDR little endian), stamp, frame_id "" (length 1), its NUL
-_ONE_STATUS = _U32.pack(1)
-_STATUS_NAME = STATUS_NAME.encode()
-
-
-def _put_string(out: bytearray, text: bytes) -> None:
-    """Append a CDR string (aligned length with the NUL, the bytes, the NUL) to `out` (4 encapsulation bytes first)."""
-    out += b"\0" * (-len(out) % 4)
-    out += _U32.pack(len(text) + 1)
-    out += text
-    out += b"\0"
-
-
-def diagnostics_cdr(stamp: int, level: bytes, message: str, keys: Sequence[bytes], values: Sequence[str]) -> bytes:
-    """The serialized DiagnosticArray of the controller's status (frame "", one status named `STATUS_NAME`,
-    hardware ``robotino``) with header stamp `stamp` [ns], `level`, `message` and the pairs `keys` (UTF-8) / `values`.
-
-    Plain CDR (XCDR1, little endian) written directly: rclpy's conversion of the 15 key-value pairs cost ~70 us a
-    tick, this ~15 us (strings change length, so a `CdrTemplate` cannot serve).
-    """
-    out = bytearray(_HEADER.pack(b"\0\1\0\0", *divmod(stamp, 1_000_000_000), 1, 0))
-    out += b"\0" * (-len(out) % 4)
-    out += _ONE_STATUS
-    out += level
-    _put_string(out, _STATUS_NAME)
-    _put_string(out, message.encode())
-    _put_string(out, b"robotino")
-    out += b"\0" * (-len(out) % 4)
-    out += _U32.pack(len(keys))
-    for key, value in zip(keys, values):
-        _put_string(out, key)
-        _put_string(out, value.encode())
-    return bytes(out)
 
 
 class ControllerOutputs:
@@ -99,8 +46,6 @@ class ControllerOutputs:
         The controller node (publishers are created on it).
     lockstep
         Keep-all publishers, and an answer that went out before a reader matched is sent again when one does.
-    horizon
-        N, the number of poses of ``predicted_path``.
     frame_prefix
         Prefix of the ``odom`` frame of ``predicted_path`` (a namespaced robot's ``robot1/odom``).
     command_interface
@@ -110,7 +55,7 @@ class ControllerOutputs:
         With plans: the plans' length (``wheel_voltage_plan`` / ``cmd_vel_plan`` are published); None: no plans.
     """
 
-    def __init__(self, node: Node, lockstep: bool, horizon: int, frame_prefix: str = "",
+    def __init__(self, node: Node, lockstep: bool, frame_prefix: str = "",
                  command_interface: str = "voltages", plan_length: int | None = None) -> None:
         self.node = node
         self.lockstep = lockstep
@@ -127,7 +72,7 @@ class ControllerOutputs:
         self.diag_keys: dict[tuple[str, ...], tuple[bytes, ...]] = {}  # the keys of a status, encoded once
         self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, command
         self.path_pub = node.create_publisher(Path, "predicted_path", PATH_QOS)
-        self.path_cdr = _path_template(frame_prefix + ODOM_FRAME, horizon)
+        self.path_frame = frame_prefix + ODOM_FRAME
         self.enabled_pub = node.create_publisher(Bool, "controller_enabled", LATCHED_QOS)
         self.plan_pub, self.plan_writer = None, None
         if plan_length is not None:
@@ -198,13 +143,9 @@ class ControllerOutputs:
         return self.path_pub.get_subscription_count() > 0
 
     def publish_path(self, path: PredictedPath) -> None:
-        """Publish the predicted poses y(k+1) .. y(k+N) (x y theta in odom) of a tick: the header carries its
-        stamp, pose j the time it is predicted for.
-        """
-        values: list[float] = [*divmod(path.stamp_ns, 1_000_000_000)]
-        for stamp, (x, y, theta) in zip(path.stamps_ns, path.poses.tolist()):
-            values += (*divmod(stamp, 1_000_000_000), x, y, *yaw_quaternion_zw(theta))
-        publish_acknowledged(self.node, self.path_pub, self.path_cdr.pack(*values))
+        """Publish the predicted poses y(k+1) .. y(k+N) of a tick (header: its stamp; pose j: its time)."""
+        publish_acknowledged(self.node, self.path_pub, path_cdr(self.path_frame, path.stamp_ns, path.stamps_ns,
+                                                                path.poses))
 
     # diagnostics --------------------------------------------------------------------------------
     def diagnostics(self) -> bool:

@@ -20,9 +20,10 @@ one control period apart) it stops at the first tick whose odometry (the next st
 or preview is missing from the recording, and says so (`RegressionResult.gap_at_s`). A recorder that fell behind
 a fast lockstep loop can have lost samples; the ticks before the gap are still compared.
 
-Limits: the controller node's own parameters are not in the recording (the loop's defaults are used: blend
-limits, timeouts, tolerances); a parameter change during the run (the node rebuilds its controller) and a
-watchdog stop are not replayed; such a recording shows a deviation from that tick on.
+The node's watchdog stops (its ``watchdog: ...`` statuses) are replayed where they came. Limits: the controller
+node's own parameters are not in the recording (the loop's defaults are used: blend limits, timeouts, tolerances);
+a parameter change during the run (the node rebuilds its controller) is not replayed; such a recording shows a
+deviation from that tick on.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from __future__ import annotations
 import math
 import os
 from bisect import bisect_left
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,10 +39,11 @@ import numpy as np
 
 from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
 from robotino_geom_mpc.loop.events import Command, Now, Zero
+from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
 from robotino_geom_mpc.ros.decode import odometry_input, preview_input
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
-from robotino_geom_mpc.recording.regress_chain import chain_parameters, regress_chain
+from robotino_geom_mpc.recording.regress_chain import WATCHDOG_STALE_NS, chain_parameters, regress_chain
 from robotino_geom_mpc.recording.regress_plans import plan_topic, regress_plans
 from robotino_geom_mpc.recording.report import resolve_parameters
 from robotino_geom_mpc.recording.topics import by_publish_time, controller_diagnostics, find_topic, stamp_ns
@@ -149,6 +152,9 @@ def regress_bag(
         i = bisect_left(volt_t, publish) - 1
         if i >= 0:
             answers.setdefault(stamp_ns(msg.header.stamp), _command_values(voltages[i][1], twists))
+    # the node's watchdog stops (realtime: zero, the stamps and the preview forgotten, a restart at the data's return)
+    stops = deque((publish, stamp_ns(msg.header.stamp)) for publish, msg in diags
+                  if any(s.name == STATUS_NAME and s.message.startswith("watchdog") for s in msg.status))
     by_stamp: dict[int, int] = {}  # preview stamp -> index of its first message (publish order)
     for j, (_, msg) in enumerate(previews):
         by_stamp.setdefault(stamp_ns(msg.header.stamp), j)
@@ -181,6 +187,9 @@ def regress_bag(
             gap = (stamp, "reference_preview")
             break
         previous = stamp
+        while stops and stops[0][0] < publish:  # stale by then for sure (the node decided on its steady clock)
+            clock = stops.popleft()[1]
+            replay.on_watchdog(Now(clock, clock + WATCHDOG_STALE_NS))
         # the previews the node had by this odometry: lockstep that of its stamp; realtime up to the one its
         # diagnostics name, else those published before its answer (none before the first one named)
         if lockstep:

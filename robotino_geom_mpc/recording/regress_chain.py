@@ -47,15 +47,15 @@ from robotino_geom_mpc.params.specs import CHAIN_SPECS, ControlParams, RobotinoP
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.topics import by_publish_time, find_topic, stamp_ns
+from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
 from robotino_geom_mpc.ros.decode import odometry_input, preview_input
 
-__all__ = ["BEAM", "RECEIVE_MARGIN_S", "ChainReplay", "chain_parameters", "regress_chain"]
+__all__ = ["BEAM", "RECEIVE_MARGIN_S", "WATCHDOG_STALE_NS", "ChainReplay", "chain_parameters", "regress_chain"]
 
 RECEIVE_MARGIN_S = 0.01  # a preview published this long before an odometry had reached the node
 BEAM = 32  # readings kept at once: the nearest to the recorded answers, then to the recorder's order
-_WATCHDOG_STALE_NS = 10**12  # a recorded watchdog stop replayed on a watchdog clock this far on: stale for sure
+WATCHDOG_STALE_NS = 10**12  # a recorded watchdog stop replayed on a watchdog clock this far on: stale for sure
 _CONTROLLER_NODE = "robotino_controller"
-_STATUS_NAME = "robotino_geom_mpc: controller"
 
 
 @dataclass(frozen=True)
@@ -159,7 +159,7 @@ def _statuses(bag: BagReader) -> list[_Status]:
     topic = find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False)
     for publish, msg in by_publish_time(bag, topic):
         for status in msg.status:
-            if status.name != _STATUS_NAME:
+            if status.name != STATUS_NAME:
                 continue
             values = {kv.key: kv.value for kv in status.values}
             if values.get("clock_ns", "").isdigit():
@@ -255,7 +255,7 @@ def _exact(loop: ControllerLoop, odom: list, previews: list, commands: list, sta
             take(loop.on_input(preview_input(previews[index][1]), Now(clock, clock)), preview_stamps[index])
             continue
         if kind == 2:
-            take(loop.on_watchdog(Now(clock, clock + _WATCHDOG_STALE_NS)), clock)
+            take(loop.on_watchdog(Now(clock, clock + WATCHDOG_STALE_NS)), clock)
             continue
         publish, msg, _ = odom[index]
         mine = said[index]

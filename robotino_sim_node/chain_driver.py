@@ -17,12 +17,11 @@ timing report (the plant's keys, ``mode`` "chain") and ends the run.
 
 from __future__ import annotations
 
-import math
-
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
 from robotino_geom_mpc.loop.chain_robot import LATE_S, ChainRobot
+from robotino_geom_mpc.loop.command_hold import warm_up
 from robotino_geom_mpc.loop.robot_loop import RobotLoop
 from robotino_geom_mpc.model.chain_emulation import ChainEmulator
 from robotino_geom_mpc.model.driver_chain import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, ChainError, ChainParams, \
@@ -32,7 +31,7 @@ from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters
 from robotino_geom_mpc.ros.spin import monotonic
 from robotino_geom_mpc.ros.throttle import warn_throttled
 from robotino_sim_node.outputs import PlantOutputs
-from robotino_sim_node.plant_run import RunEnd
+from robotino_sim_node.plant_run import RunEnd, emit
 
 __all__ = ["CHAIN_NODE_DEFAULTS", "CHAIN_NODE_SPECS", "ChainRun", "chain_of"]  # the specs for the node
 
@@ -90,14 +89,16 @@ class ChainRun:
                                f"on dispatch by a {chain.driver_rate_hz:g} Hz loop, {1e3 * chain.tick_s:g} ms "
                                f"firmware tick, link delay {1e3 * chain.link_delay_s:g} ms")
 
+    def on_params(self) -> None:
+        """After a parameter change: the plant's matrices of every step size of the ``physics_rate_hz`` grid."""
+        warm_up(self.robot.plant, 1.0 / self.params["physics_rate_hz"])
+
     def command(self, values: tuple[float, ...]) -> None:
         """A cmd_vel: refused (not forwarded) unless three finite values; forwarded to the driver now."""
-        if len(values) != 3 or not math.isfinite(sum(values)):
+        refused = self.emulated.command(values, monotonic())
+        if refused is not None:
             self.robot.counts["refused_commands"] += 1
-            warn_throttled(self.node.get_logger(), f"refused cmd_vel {values}: not forwarded", 1.0)
-            return
-        a, b, c = values
-        self.emulated.cmd_vel((a, b, c), monotonic())
+            emit(self.node, [refused])
 
     def _poll(self) -> None:
         begin = monotonic()

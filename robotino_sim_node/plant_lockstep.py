@@ -39,7 +39,7 @@ from robotino_sim_node.lockstep_start import StartHandshake
 from robotino_sim_node.loop_timing import LockstepPace, lockstep_line, lockstep_report
 from robotino_sim_node.outputs import Message, PlantOutputs
 from robotino_sim_node.plant_plans import PlantPlans
-from robotino_sim_node.plant_run import RunEnd, emit
+from robotino_sim_node.plant_run import RunEnd, checked_command, emit
 
 __all__ = ["LockstepRun"]
 
@@ -91,8 +91,8 @@ class LockstepRun:
 
     # the commands -------------------------------------------------------------------------------------------
     def command(self, values: Sequence[float]) -> None:
-        """A checked command of the controller (voltages or twist) for the current tick."""
-        self.answer(tuple(values))
+        """A command of the controller (voltages or twist) for the current tick, checked (`checked_command`)."""
+        self.answer(tuple(checked_command(self.node, self.robot, values)[0]))
 
     def plan(self, msg: Any) -> None:
         """A plan message: read, then over the link like any answer."""

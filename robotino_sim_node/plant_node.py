@@ -105,7 +105,7 @@ from robotino_sim_node.plant_lockstep import LockstepRun
 from robotino_sim_node.plant_plans import PlantPlans
 from robotino_sim_node.plant_realtime import RealtimeRun
 from robotino_sim_node.radio import Radio
-from robotino_sim_node.plant_run import RunEnd, emit
+from robotino_sim_node.plant_run import RunEnd
 
 __all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
 
@@ -168,7 +168,7 @@ class PlantNode(Node):
         chain = chain_of(p, lockstep, cmd_vel)
         self.robot_params, self.control = p.robot_control()
         noise = PoseNoise((p["odometry_noise.position_m"], p["odometry_noise.yaw_rad"]), p["seed"])
-        self.robot = RobotLoop(*self._robot_parts(self.robot_params, lockstep), self.control.period_s, noise)
+        self.robot = RobotLoop(*self._robot_parts(self.robot_params), self.control.period_s, noise)
         up, down = link_params(p.values, "up"), link_params(p.values, "down")
         # the chain takes cmd_vel as the real driver does (its own link, chain.link.*): no plans there
         follower = PlanFollower(self.control.period_s) if p["plans"] and chain is None else None
@@ -191,6 +191,7 @@ class PlantNode(Node):
         check_single_odom_source(self, self.outputs.odom_pub, created, p["odom_publisher_check_s"])
         self.run: LockstepRun | RealtimeRun | ChainRun
         if chain is not None:
+            warm_up(self.robot.plant, 1.0 / p["physics_rate_hz"])
             self.run = ChainRun(self, p, chain, self.robot, self.outputs, self.end)
         elif lockstep:
             duration = p["duration_s"]
@@ -198,9 +199,10 @@ class PlantNode(Node):
             link = CommandLink(up, down, p["seed"], follower, p["command_timeout_s"]) if networked else None
             self.run = LockstepRun(self, p, ticks, self.outputs, handshake, self.end, link, self.plans)
         else:
+            warm_up(self.robot.plant, 1.0 / p["physics_rate_hz"])
             started_at = monotonic()
             grid = RealtimeGrid(self.robot, started_at, p["physics_rate_hz"], p["command_timeout_s"], follower,
-                                clock_minus_steady_ns(self) * 1e-9)  # a refused command: 0 V
+                                clock_minus_steady_ns(self))  # a refused command: 0 V
             radio = Radio(self, up, down, p["seed"]) if networked else None
             self.run = RealtimeRun(self, p, grid, self.outputs, self.end, radio, self.plans)
         self.get_logger().info(f"plant simulator ready ({p['mode']}, Ts = {self.control.period_s:g} s)")
@@ -220,25 +222,21 @@ class PlantNode(Node):
         robot, self.control = self.params.robot_control()
         if robot != self.robot_params:
             self.robot_params = robot
-            self.robot.rebuild(*self._robot_parts(robot, isinstance(self.run, LockstepRun), self.robot),
-                               self.control.period_s)
+            self.robot.rebuild(*self._robot_parts(robot, self.robot), self.control.period_s)
         self.outputs.build(self.params, robot, self.control.period_s)
-        if isinstance(self.run, LockstepRun):
-            self.run.on_params()
+        self.run.on_params()
         if "seed" in changed:
             self.robot.noise.reseed(self.params["seed"])
 
-    def _robot_parts(self, robot: RobotinoParams, lockstep: bool, previous: RobotLoop | None = None
+    def _robot_parts(self, robot: RobotinoParams, previous: RobotLoop | None = None
                      ) -> tuple[RobotinoPlant, OdometrySource, VoltageDrive | TwistDrive]:
         """The plant on `robot` (at `previous`'s state), its odometry (encoders continue from `previous`'s pose) and
-        drive (`previous`'s wheel-speed loops); in realtime with the matrices of every step size of the grid
-        computed now (an uncached step size costs milliseconds of expm).
+        drive (`previous`'s wheel-speed loops). A realtime run computes the plant's matrices of every step size of
+        its grid (`loop.command_hold.warm_up`: at the start here, after a change in its ``on_params``).
         """
         p = self.params
         state = None if previous is None else previous.plant.state
         plant = RobotinoPlant(robot, state0=state)
-        if not lockstep:
-            warm_up(plant, 1.0 / p["physics_rate_hz"])
         source = odometry_source(plant, p["odometry_model"], p["encoder.counts_per_rev"], p["encoder.wheel_slip_std"],
                                  p["seed"], None if previous is None else getattr(previous.source, "pose", None))
         if p["command_interface"] != "cmd_vel":
@@ -262,16 +260,7 @@ class PlantNode(Node):
         self._apply((msg.linear.x, msg.linear.y, msg.angular.z))
 
     def _apply(self, values: tuple[float, ...]) -> None:
-        if isinstance(self.run, ChainRun):
-            self.run.command(values)
-            return
-        checked, log = self.robot.check_command(values)
-        if log is not None:
-            emit(self, [log])
-        if isinstance(self.run, LockstepRun):
-            self.run.command(checked)
-        else:
-            self.run.command(checked, log is None or log.key != "refused")
+        self.run.command(values)  # checked by the run (the chain forwards only valid ones)
 
     def _on_plan(self, msg: Any) -> None:
         if not isinstance(self.run, ChainRun):  # (the chain subscribes to cmd_vel, never to plans)

@@ -22,6 +22,7 @@ from typing import Any
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
+from robotino_geom_mpc.loop.command_hold import warm_up
 from robotino_geom_mpc.loop.plan_follower import Unreadable
 from robotino_geom_mpc.loop.robot_loop import RealtimeGrid
 from robotino_geom_mpc.network.plan import CommandPlan
@@ -31,7 +32,7 @@ from robotino_sim_node.loop_timing import LoopTiming, clock_minus_steady_ns, rea
 from robotino_sim_node.outputs import Message, PlantOutputs
 from robotino_sim_node.plant_plans import PlantPlans
 from robotino_sim_node.radio import Radio
-from robotino_sim_node.plant_run import RunEnd, emit
+from robotino_sim_node.plant_run import RunEnd, checked_command, emit
 
 __all__ = ["RealtimeRun"]
 
@@ -67,8 +68,13 @@ class RealtimeRun:
         self.publish_timer = node.create_timer(self.robot.period_s, self._publish,
                                                clock=Clock(clock_type=ClockType.STEADY_TIME))
 
-    def command(self, values: Sequence[float], valid: bool) -> None:
-        """A checked command (voltages or twist; `valid`: not a refusal's zero), taken when the link delivers it."""
+    def on_params(self) -> None:
+        """After a parameter change: the (new) plant's matrices of every step size of the grid computed now."""
+        warm_up(self.robot.plant, self.grid.hold.dt)
+
+    def command(self, command: Sequence[float]) -> None:
+        """A command (voltages or twist), checked (`checked_command`), taken when the link delivers it."""
+        values, valid = checked_command(self.node, self.robot, command)
         if self.radio is None:
             self._hold(values, valid)
         else:

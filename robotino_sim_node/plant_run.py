@@ -8,12 +8,13 @@ exit status 1), then the node's ``done`` future set (`ros.spin.run_node` ends th
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 from rclpy.node import Node
 from rclpy.task import Future
 
 from robotino_geom_mpc.loop.events import Log
+from robotino_geom_mpc.loop.robot_loop import RobotLoop, Triple
 from robotino_geom_mpc.ros.qos import wait_acknowledged
 from robotino_geom_mpc.ros.spin import FINISHED_ACK_WAIT_S, data_publishers
 from robotino_geom_mpc.ros.throttle import log_throttled
@@ -52,6 +53,16 @@ class RunEnd:
         """`report`, then the run is over."""
         self.report(report)
         self.done.set_result(True)
+
+
+def checked_command(node: Node, robot: RobotLoop, values: Sequence[float]) -> tuple[Triple, bool]:
+    """`RobotLoop.check_command` of a command (its log line printed): what to apply and whether it is not a
+    refusal's zero.
+    """
+    checked, log = robot.check_command(values)
+    if log is not None:
+        emit(node, [log])
+    return checked, log is None or log.key != "refused"
 
 
 def emit(node: Node, logs: Iterable[Log]) -> None:

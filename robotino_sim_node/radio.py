@@ -21,6 +21,7 @@ from rclpy.node import Node
 
 from robotino_geom_mpc.loop.link_queue import LinkQueue
 from robotino_geom_mpc.network.link import LinkParams
+from robotino_geom_mpc.ros.spin import clock_s
 
 __all__ = ["Radio"]
 
@@ -51,7 +52,7 @@ class Radio:
 
     def now_s(self) -> float:
         """The robot clock [s] (the node's clock)."""
-        return self.node.get_clock().now().nanoseconds * 1e-9
+        return clock_s(self.node)
 
     def send(self, way: str, action: Callable[[], None], now_s: float | None = None) -> int:
         """Queue `action` for each delivery of a message sent at `now_s` (default: now) on `way`; the count.

@@ -167,6 +167,9 @@ def test_topics_and_qos(harness, lockstep_controller):
     graph = dict(harness.node.get_topic_names_and_types())
     assert graph["/wheel_voltages"] == ["std_msgs/msg/Float64MultiArray"]
     assert graph["/diagnostics"] == ["diagnostic_msgs/msg/DiagnosticArray"]
+    # the node's name reaches the graph after its endpoints (ros_discovery_info): wait for it
+    assert harness.spin_until(lambda: any(i.node_name == NODE for i in
+                                          harness.node.get_publishers_info_by_topic("/wheel_voltages")), 10.0)
     (info,) = [i for i in harness.node.get_publishers_info_by_topic("/wheel_voltages") if i.node_name == NODE]
     assert info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
     assert info.qos_profile.durability == DurabilityPolicy.VOLATILE

@@ -191,7 +191,7 @@ def test_the_noise_stream_drawn_ahead_equals_one_draw_per_measurement():
 def _grid(follower=None, timeout_s=0.1):
     plant = RobotinoPlant(ROBOT)
     robot = RobotLoop(plant, plant, VoltageDrive(plant), TS, PoseNoise((0.0, 0.0), 0))
-    return robot, RealtimeGrid(robot, 100.0, 1000.0, timeout_s, follower, offset_s=5.0)
+    return robot, RealtimeGrid(robot, 100.0, 1000.0, timeout_s, follower, offset_ns=5_000_000_000)
 
 
 def test_realtime_measures_each_grid_point_once_so_stamps_increase():

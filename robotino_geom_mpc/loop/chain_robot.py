@@ -11,10 +11,13 @@ its time is counted (the host could not keep up).
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from robotino_geom_mpc.loop.events import Level, Log
 from robotino_geom_mpc.loop.robot_loop import Measurement, PeriodAccount
 from robotino_geom_mpc.model.chain_emulation import ChainEmulator
 
@@ -66,6 +69,16 @@ class ChainRobot:
 
     def _stamp_ns(self, t: float) -> int:
         return self.start_ns + int(round(t * 1e9))
+
+    def command(self, values: Sequence[float], now: float) -> Log | None:
+        """A cmd_vel's values at steady time `now`: forwarded to the driver (`cmd_vel`) when three finite values,
+        else refused (not forwarded) with the line to log.
+        """
+        if len(values) != 3 or not math.isfinite(sum(values)):
+            return Log(Level.WARN, f"refused cmd_vel {tuple(values)}: not forwarded", "refused", 1.0)
+        a, b, c = values
+        self.cmd_vel((a, b, c), now)
+        return None
 
     def cmd_vel(self, twist: Triple, now: float) -> bool:
         """A cmd_vel at steady time `now` reaches the driver; False before the chain's first instant (dropped)."""

@@ -308,16 +308,16 @@ class RealtimeGrid:
     timeout_s
         The drive's watchdog (``command_timeout_s``): a plain command older than this gives zero.
     follower
-        With plans: the plan buffer whose entry drives each control period (robot clock = steady + `offset_s`).
-    offset_s
-        The robot clock minus the steady clock [s] (the plans' times).
+        With plans: the plan buffer whose entry drives each control period (robot clock = steady + the offset).
+    offset_ns
+        The robot clock minus the steady clock [ns] (the plans' times).
     """
 
     def __init__(self, robot: RobotLoop, started_at: float, rate_hz: float, timeout_s: float,
-                 follower: PlanFollower | None = None, offset_s: float = 0.0) -> None:
+                 follower: PlanFollower | None = None, offset_ns: int = 0) -> None:
         self.robot, self.started_at, self.timeout_s = robot, started_at, timeout_s
         self.hold = CommandHold(started_at, 1.0 / rate_hz)
-        self.follower, self.offset_s = follower, offset_s
+        self.follower, self.offset_s = follower, offset_ns * 1e-9
         self.published_grid_s = -math.inf  # the grid point of the last measurement [s, steady]
 
     @property

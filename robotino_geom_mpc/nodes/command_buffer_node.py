@@ -40,7 +40,7 @@ from robotino_geom_mpc.params.specs import CONTROL_SPECS, ParamSpec
 from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.plans import PlanMessageError, applied_message, plan_of_message, received_message
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
-from robotino_geom_mpc.ros.spin import run_node
+from robotino_geom_mpc.ros.spin import clock_s, run_node
 from robotino_geom_mpc.ros.throttle import warn_throttled
 
 __all__ = ["BUFFER_SPECS", "CommandBufferNode", "POLL_S", "STATUS_NAME", "main"]
@@ -79,7 +79,7 @@ class CommandBufferNode(Node):
         self.get_logger().info(f"command buffer ready (Ts = {self.period_s:g} s): cmd_vel_plan -> cmd_vel")
 
     def _now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        return clock_s(self)
 
     def _on_plan(self, msg: MultiDOFJointTrajectory) -> None:
         reason: str | None

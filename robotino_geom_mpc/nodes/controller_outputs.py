@@ -58,10 +58,10 @@ class ControllerOutputs:
     def __init__(self, node: Node, lockstep: bool, frame_prefix: str = "",
                  command_interface: str = "voltages", plan_length: int | None = None) -> None:
         self.node = node
-        self.lockstep = lockstep
         self.cmd_vel = command_interface == "cmd_vel"
         qos = publish_qos(lockstep)
-        matched = PublisherEventCallbacks(matched=self._on_command_matched)
+        # lockstep: a newly matched plant gets an answer sent before it matched (realtime: the next tick's)
+        matched = PublisherEventCallbacks(matched=self._on_command_matched) if lockstep else None
         if self.cmd_vel:
             self.command_pub = node.create_publisher(Twist, "cmd_vel", qos, event_callbacks=matched)
             self.twist = Twist()
@@ -129,7 +129,7 @@ class ControllerOutputs:
             self.answered = (self.answered[0], True, self.answered[2])
 
     def _on_command_matched(self, info: QoSPublisherMatchedInfo) -> None:
-        if self.lockstep and info.current_count_change > 0:
+        if info.current_count_change > 0:
             self.deliver_answer()
 
     def publish_plan(self, plan: CommandPlan) -> None:

@@ -22,8 +22,8 @@ from robotino_geom_mpc.ros.parameters import NodeStartError
 from robotino_geom_mpc.ros.qos import wait_acknowledged
 from robotino_geom_mpc.system.signals import STOP, ignore_stop_signals, stop_on_signals
 
-__all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "data_publishers", "monotonic", "params_files", "run_node",
-           "start_rclpy"]
+__all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "clock_s", "data_publishers", "monotonic", "params_files",
+           "run_node", "start_rclpy"]
 
 # before exiting, the longest a node waits for its readers to acknowledge what it published: after a run it
 # ended itself (the lockstep plant; a recorder can be thousands of samples behind), and when stopped by a
@@ -164,4 +164,9 @@ def data_publishers(node: Node) -> list:
 def monotonic() -> float:
     """Steady time in seconds (watchdogs and latency; never the ROS clock)."""
     return time.monotonic()
+
+
+def clock_s(node: Node) -> float:
+    """The node's clock (the ROS clock: /clock under use_sim_time) now, in seconds."""
+    return node.get_clock().now().nanoseconds * 1e-9
 

@@ -117,7 +117,7 @@ class ChainRun:
             state = chain_pass.state
             if state is not None:  # ground truth, currents, voltages and joints of the ticks since the last pass
                 outputs.publish(outputs.period(state.currents, state.applied_voltages) + outputs.state(
-                    state.stamp_ns, self.robot, tuple(self.robot.plant.pose_floats())))
+                    state.stamp_ns, self.robot, tuple(self.robot.plant.pose)))
         self.busy_s += monotonic() - begin
 
     def _finish(self, now: float) -> None:

@@ -153,6 +153,6 @@ def test_plant_batch_is_each_runs_plant(params):
     for b, one in enumerate(ones):
         np.testing.assert_allclose(batch.state[b, :9], one.state, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(batch.wheel_angles[b], one.wheel_angles, rtol=1e-12, atol=1e-12)
-        one_pose, one_twist = one.noisy_odometry_floats(None)
+        one_pose, one_twist = one.noisy_odometry(None)
         np.testing.assert_allclose(pose[b], one_pose, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(twist[b], one_twist, rtol=1e-12, atol=1e-12)

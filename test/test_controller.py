@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from robotino_geom_mpc.model import dynamics as model
-from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController, state_from_odometry
+from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController, states_from_odometry
 from robotino_geom_mpc.geometric.decoupling import DecouplingField
 from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings
 from robotino_geom_mpc.params.files import load_params
@@ -160,12 +160,12 @@ def test_constrained_mode_equals_closed_form_when_limits_are_inactive(params, ta
         assert not out_b.infeasible
 
 
-def test_state_from_odometry_inverts_the_plants_measurement(params):
+def test_states_from_odometry_inverts_the_plants_measurement(params):
     robot, _ = params
     plant = RobotinoPlant(robot, state0=np.concatenate((X0, np.zeros(3))))
-    np.testing.assert_allclose(state_from_odometry(*plant.odometry()), X0, atol=1e-15)
+    np.testing.assert_allclose(states_from_odometry(*plant.odometry()), X0, atol=1e-15)
     with pytest.raises(ControllerInputError, match="twist_body"):
-        state_from_odometry(np.zeros(3), np.zeros(2))
+        states_from_odometry(np.zeros(3), np.zeros(2))
 
 
 def test_filter_off_is_the_raw_pose_and_on_is_the_same_law_on_the_estimate(params):

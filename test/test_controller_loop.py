@@ -18,7 +18,7 @@ import pytest
 from robotino_geom_mpc.control.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2, ReferenceBlend
 from robotino_geom_mpc.control.chain_tracking import ChainTracker
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
-from robotino_geom_mpc.control.motion_controller import MotionController, state_from_odometry
+from robotino_geom_mpc.control.motion_controller import MotionController, states_from_odometry
 from robotino_geom_mpc.loop.controller_loop import ControllerLoop, LoopConfigError, LoopSettings
 from robotino_geom_mpc.loop.events import (AppliedReport, Command, Diagnostic, EnabledChanged, Now, Odometry,
                                            PlanOut, Preview, Resend, Undecodable, Waiting, Zero)
@@ -65,7 +65,7 @@ def odometry(stamp_ns: int, pose=(0.01, -0.02, 0.03), twist=(0.05, 0.0, 0.1)) ->
 
 def state(odom: Odometry) -> np.ndarray:
     x, y, _, _, qz, qw, vx, vy, w = odom.values
-    return state_from_odometry((x, y, 2 * math.atan2(qz, qw)), (vx, vy, w))
+    return states_from_odometry((x, y, 2 * math.atan2(qz, qw)), (vx, vy, w))
 
 
 def same(command: Command, stamp_ns: int, values) -> None:

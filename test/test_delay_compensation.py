@@ -43,7 +43,7 @@ def closed_loop(model, control, plans, link_up, link_down, n, seed=0, interface=
                                                            else None))
     states, voltages, predictions = [], [], {}
     for k in range(n):
-        pose, twist = plant.odometry_floats()
+        pose, twist = plant.odometry()
         states.append(plant.body_state)
         before = getattr(controller.plans, "prediction", None)
         command = loop.command(k, pose, twist)

@@ -205,9 +205,9 @@ def test_pose_noise_is_the_ideal_models_draws():
     plant = RobotinoPlant(ROBOT)
     plant.step(np.array([5.0, -3.0, 1.0]), TS)
     encoders = EncoderOdometry(RobotinoPlant(ROBOT), CPR)
-    clean, _ = encoders.odometry_floats()
-    noisy, _ = encoders.odometry_floats(np.random.default_rng(9), (0.01, 0.02))
-    ideal, _ = plant.odometry_floats(np.random.default_rng(9), (0.01, 0.02))
+    clean, _ = encoders.odometry()
+    noisy, _ = encoders.odometry(np.random.default_rng(9), (0.01, 0.02))
+    ideal, _ = plant.odometry(np.random.default_rng(9), (0.01, 0.02))
     assert np.allclose(np.subtract(noisy, clean), np.subtract(ideal, plant.pose), atol=1e-15)
 
 
@@ -245,7 +245,7 @@ def test_period_mean_filter_reproduces_the_encoder_pose_and_the_trapezoid_lags()
     """Noise-free encoder odometry of a plant under varying voltages: the pose filter with the period_mean
     predictor predicts each dead-reckoned pose exactly (estimate = measured pose to 1e-12), the trapezoid not.
     """
-    from robotino_geom_mpc.control.motion_controller import odometry_state_floats
+    from robotino_geom_mpc.control.motion_controller import state_from_odometry
     from robotino_geom_mpc.control.estimator import OdometryFilter
 
     plant = RobotinoPlant(ROBOT)
@@ -255,7 +255,7 @@ def test_period_mean_filter_reproduces_the_encoder_pose_and_the_trapezoid_lags()
     rng = np.random.default_rng(5)
     for _ in range(300):
         pose, twist = odometry.update()
-        X = odometry_state_floats(pose, twist)
+        X = state_from_odometry(pose, twist)
         for name, filt in filters.items():
             errors[name] = max(errors[name], np.abs(np.subtract(filt.update(*X), pose)).max())
         plant.step(rng.uniform(-8.0, 8.0, 3), TS)

@@ -45,7 +45,7 @@ def _values(diag):
 
 def _odometry(stamp_ns, plant):
     """The plant's odometry message (pose in odom, twist in base_link), as the plant node sends it."""
-    x, y, th = plant.pose.tolist()
+    x, y, th = plant.pose
     vx, vy, w = plant.body_state[[1, 3, 5]].tolist()
     c, s = math.cos(th), math.sin(th)
     msg = Odometry()

@@ -63,8 +63,8 @@ class _Mirrored:
     def __init__(self, plant):
         self.plant = plant
 
-    def noisy_odometry_floats(self, draw):
-        pose, (vx, vy, w) = self.plant.noisy_odometry_floats(draw)
+    def noisy_odometry(self, draw):
+        pose, (vx, vy, w) = self.plant.noisy_odometry(draw)
         return pose, (vy, vx, w)
 
 

@@ -38,7 +38,7 @@ def test_the_lockstep_loop_of_the_two_objects_is_simulate(scenario, interface):
     robot = RobotLoop(plant, plant, drive, Ts, PoseNoise((spec.noise.position_m, spec.noise.yaw_rad), 0))
     poses, voltages = [], []
     for k in range(n):
-        poses.append(plant.pose_floats())
+        poses.append(plant.pose)
         applied, _ = robot.drive(controller.command(k, *robot.measure()))
         voltages.append(applied)
     run = run_scenario(RunConfig(scenario, ROBOT, CONTROL, duration_s=DURATION_S, command_interface=interface))

@@ -260,7 +260,7 @@ def test_substep_currents_and_float_accessors():
         np.testing.assert_array_equal(np.abs(plant.substep_currents).max(axis=0), plant.peak_abs_currents)
         np.testing.assert_array_equal(plant.substep_currents[-1], plant.currents)
     np.testing.assert_array_equal(plant.state, twin.state)
-    pose, twist = plant.odometry_floats()
+    pose, twist = plant.odometry()
     assert all(type(v) is float for v in pose + twist)
     x, vx, y, vy, theta, omega = plant.body_state
     np.testing.assert_array_equal(pose, [x, y, theta])
@@ -297,15 +297,15 @@ def test_pose_noise_is_the_odometrys_draws_and_none_without_noise():
     assert plant.pose_noise(np.random.default_rng(1), (0.0, 0.0)) is None
     noise = plant.pose_noise(np.random.default_rng(5), (1e-3, 2e-3))
     assert noise == tuple(np.random.default_rng(5).normal(0.0, (1e-3, 1e-3, 2e-3)).tolist())
-    pose, _ = plant.odometry_floats(np.random.default_rng(5), (1e-3, 2e-3))
+    pose, _ = plant.odometry(np.random.default_rng(5), (1e-3, 2e-3))
     assert np.allclose(np.subtract(pose, plant.pose), noise, atol=1e-16)
 
 
-def test_pose_floats_is_the_state_pose_and_a_copy():
+def test_pose_is_the_state_pose_as_floats_and_a_copy():
     """The offline loop's per-tick record: x, y, theta of `state` as Python floats, detached from the plant."""
     plant = RobotinoPlant(ROBOT, state0=np.array([0.3, 0.1, -0.2, 0.4, 1.1, 0.5, 0.0, 0.0, 0.0]))
     plant.step((6.0, -3.0, 2.0), 0.01)
-    got = plant.pose_floats()
+    got = plant.pose
     assert got == plant.state[[0, 2, 4]].tolist() and all(type(v) is float for v in got)
     got[0] = 99.0
     assert plant.pose[0] != 99.0

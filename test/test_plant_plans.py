@@ -78,7 +78,7 @@ def test_the_reported_commands_drove_the_plant(plan_run):
         msg = next(m for m in odom if round((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9) / Ts)
                    == round(r.time_s / Ts) + 1)
         p = msg.pose.pose.position
-        np.testing.assert_allclose((p.x, p.y), plant.pose_floats()[:2], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose((p.x, p.y), plant.pose[:2], rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("name, value, message", [
@@ -173,4 +173,4 @@ def test_realtime_reported_commands_drove_the_plant(realtime_plan_run):
         plant.step(np.array(values), Ts)
         if k + 1 in poses:
             p = poses[k + 1]
-            np.testing.assert_allclose((p.x - start.x, p.y - start.y), plant.pose_floats()[:2], rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose((p.x - start.x, p.y - start.y), plant.pose[:2], rtol=1e-9, atol=1e-9)

@@ -18,7 +18,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from harness import DEEP_QOS, Harness
 from robotino_geom_mpc.bench.dds import lockstep_nodes
-from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController, odometry_state_floats
+from robotino_geom_mpc.control.motion_controller import ControllerInputError, MotionController, state_from_odometry
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.messages import quaternion_to_yaw, stamp_to_ns
 from robotino_geom_mpc.system.processes import LOCKSTEP_WAIT_FOR, NodeGroup
@@ -92,7 +92,7 @@ def _offline_predictions(duration_s: float) -> dict[int, np.ndarray]:
     targets = spec.make_reference().position(np.arange(n + N + 1) * T)
     out = {}
     for k in range(n):
-        X = odometry_state_floats(*plant.odometry_floats())
+        X = state_from_odometry(*plant.odometry())
         voltages = controller.step(X, targets[k + 1: k + N + 1]).voltages
         out[round(k * T * 1e9)] = controller.predicted_outputs()
         plant.step(voltages, T)

@@ -168,7 +168,7 @@ def test_a_period_of_the_robot_loop_is_the_plant_stepped_by_hand(interface):
     for k in range(5):
         command = (2.0, -1.0, 0.5 * k) if interface == "voltages" else (0.1, 0.05 * k, 0.2)
         pose, twist = robot.measure()
-        assert (pose, twist) == twin.odometry_floats(rng, (0.001, 0.002))  # one draw per tick, same stream
+        assert (pose, twist) == twin.odometry(rng, (0.001, 0.002))  # one draw per tick, same stream
         applied, trace = robot.drive(command)
         if interface == "voltages":
             twin.step(command, TS)

@@ -11,7 +11,7 @@ behaviour) fails the same bound.
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
+from robotino_geom_mpc.control.motion_controller import MotionController, state_from_odometry
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.reference.trajectories import make_reference
 from robotino_geom_mpc.model.plant import RobotinoPlant
@@ -44,7 +44,7 @@ def _run(robot, control, reference, intervals, tell_interval=True):
         if dt is not None:
             plant.step(voltages[-1], dt)
             times.append(times[-1] + dt)
-        X = odometry_state_floats(*plant.odometry_floats())
+        X = state_from_odometry(*plant.odometry())
         Y_d = reference.position(times[-1] + Ts * np.arange(1, N + 1))
         out = controller.step(X, Y_d, dt if tell_interval else None)
         voltages.append(out.voltages)

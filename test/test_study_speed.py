@@ -47,7 +47,7 @@ def test_encoder_update_is_the_numpy_functions_step_by_step():
     angles = plant.wheel_angles
     seen = angles.copy()
     counts = encoder_counts(seen, ROBOT.gear_ratio, cpr)
-    pose = tuple(plant.pose.tolist())
+    pose = tuple(plant.pose)
     for U in _voltages(rng, 120):
         plant.step(U, TS)
         got_pose, got_twist = odometry.update()

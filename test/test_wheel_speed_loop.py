@@ -21,7 +21,7 @@ def robot():
 
 
 def _body_twist(plant: RobotinoPlant) -> np.ndarray:
-    return np.array(plant.odometry_floats()[1])
+    return np.array(plant.odometry()[1])
 
 
 def test_the_loop_holds_the_commanded_body_twist(robot):

@@ -59,7 +59,7 @@ def bench_offline_loop(quick: bool) -> dict[str, float]:
                                PoseNoise((spec.noise.position_m, spec.noise.yaw_rad), 0, n))
         poses = []
         for k in range(n):
-            poses.append(plant.pose_floats())
+            poses.append(plant.pose)
             robot_loop.drive(controller.command(k, *robot_loop.measure()))
         return np.array(poses)
 

@@ -23,7 +23,7 @@ from robotino_geom_mpc.model.dynamics import acceleration_block, wheel_forces
 from robotino_geom_mpc.control.mpc import DecoupledMPC, axis_dampings
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 
-__all__ = ["ControllerInputError", "ControlOutput", "MotionController", "odometry_state_floats", "state_from_odometry",
+__all__ = ["ControllerInputError", "ControlOutput", "MotionController", "state_from_odometry", "states_from_odometry",
            "step_interval"]
 
 
@@ -354,8 +354,8 @@ class MotionController:
         return self._last
 
 
-def state_from_odometry(pose: object, twist_body: object) -> np.ndarray:
-    """Body states X = (x, x', y, y', theta, theta') of eq. (2) from odometry measurements (the array form).
+def states_from_odometry(pose: object, twist_body: object) -> np.ndarray:
+    """Body states X = (x, x', y, y', theta, theta') of eq. (2) from odometry measurements of B runs (the batch form).
 
     Parameters
     ----------
@@ -368,7 +368,7 @@ def state_from_odometry(pose: object, twist_body: object) -> np.ndarray:
     -------
     ndarray, shape (..., 6)
         The velocity rotated into the odom frame by the *measured* heading
-        (all a controller on the robot knows). `odometry_state_floats` is the float form.
+        (all a controller on the robot knows). `state_from_odometry` is one run's form.
     """
     pose, twist = np.asarray(pose, dtype=float), np.asarray(twist_body, dtype=float)
     if pose.shape[-1:] != (3,) or twist.shape != pose.shape:
@@ -394,10 +394,12 @@ def step_interval(stamp_ns: int, last_ns: int | None, period_ns: int) -> float |
     return None if dt_ns == period_ns else dt_ns * 1e-9
 
 
-def odometry_state_floats(
+def state_from_odometry(
     pose: tuple[float, float, float], twist_body: tuple[float, float, float]
 ) -> tuple[float, float, float, float, float, float]:
-    """`state_from_odometry` on three plus three Python floats, unchecked (for the offline loop's own values)."""
+    """X of eq. (2) from one odometry measurement, on three plus three Python floats, unchecked (the per-tick form;
+    `states_from_odometry` for arrays): the velocity rotated into ``odom`` by the measured heading.
+    """
     x, y, theta = pose
     vx, vy, w = twist_body
     c, s = math.cos(theta), math.sin(theta)

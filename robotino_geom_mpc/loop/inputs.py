@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from robotino_geom_mpc.control.motion_controller import odometry_state_floats
+from robotino_geom_mpc.control.motion_controller import state_from_odometry
 from robotino_geom_mpc.errors import RobotinoError
 
 __all__ = ["InputCounters", "InputRejected", "POINT_SIZE", "QUATERNION_NORM_TOLERANCE", "REPORT_WINDOW_S",
@@ -129,7 +129,7 @@ def state_of_odometry(values: tuple, previous_theta: float, norm_tolerance: floa
     """Body state X = (x, x', y, y', theta, theta') (eq. 2) of `odometry_values` (without the stamp).
 
     theta is unwrapped next to `previous_theta`; the base_link twist is
-    rotated into ``odom`` by the measured heading (`control.motion_controller.odometry_state_floats`).
+    rotated into ``odom`` by the measured heading (`control.motion_controller.state_from_odometry`).
 
     Raises
     ------
@@ -142,7 +142,7 @@ def state_of_odometry(values: tuple, previous_theta: float, norm_tolerance: floa
         raise InputRejected("odom contains non-finite values", "non_finite")
     check_yaw_quaternion(qx, qy, qz, qw, "odom", norm_tolerance, tilt_tolerance_rad)
     theta = unwrap_near(yaw_of(qx, qy, qz, qw), previous_theta)
-    return np.array(odometry_state_floats((x, y, theta), (vx, vy, omega)))
+    return np.array(state_from_odometry((x, y, theta), (vx, vy, omega)))
 
 
 def preview_of_values(values: tuple, theta_near: float, norm_tolerance: float = QUATERNION_NORM_TOLERANCE,

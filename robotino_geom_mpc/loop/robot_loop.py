@@ -50,7 +50,7 @@ Triple = tuple[float, float, float]
 class OdometrySource(Protocol):
     """What a measurement reads (`model.encoders.odometry_source`: the plant itself, or its encoders)."""
 
-    def noisy_odometry_floats(self, noise: Triple | None) -> tuple[Any, Any]: ...
+    def noisy_odometry(self, noise: Triple | None) -> tuple[Any, Any]: ...
 
 
 class Drive(Protocol):
@@ -150,7 +150,7 @@ class RobotLoop:
 
     def measure(self) -> tuple[Any, Any]:
         """The odometry now: (pose, body twist), pose noise of the run's stream added."""
-        return self.source.noisy_odometry_floats(self.noise.draw())
+        return self.source.noisy_odometry(self.noise.draw())
 
     def drive(self, command: Sequence[float]) -> tuple[list[float], np.ndarray]:
         """One control period under `command` (voltages or twist): the voltages applied and the currents' trace."""
@@ -194,7 +194,7 @@ class RobotLoop:
 
     def truth(self) -> tuple[Triple, Triple]:
         """The plant's true pose in odom and body twist (noise-free)."""
-        return self.plant.odometry_floats()
+        return self.plant.odometry()
 
     def joints(self) -> tuple[list[float], list[float], list[float]]:
         """The wheels' angles [rad], speeds [rad/s] and torques gear Km i [N m]."""

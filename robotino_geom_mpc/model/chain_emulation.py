@@ -158,12 +158,12 @@ class ChainEmulator:
         if self._tick % self._ticks_per_odometry == 0:
             draw = self._rng.normal(0.0, (self._noise[0], self._noise[0], self._noise[1])).tolist() \
                 if any(self._noise) else None
-            pose, twist = self._source.noisy_odometry_floats(draw)
+            pose, twist = self._source.noisy_odometry(draw)
             message = OdometryMessage(math.nan, t, pose, twist)
             for arrival in self.up.transmit(t):
                 self._odometry.append((arrival, self._sample, message))
             self._sample += 1
-        pose = float_triple(self.plant.pose_floats())
+        pose = float_triple(self.plant.pose)
         voltages, currents = self.speed_loop.run(self.plant, setpoint, self.params.tick_s)
         peak = np.copysign(np.abs(currents).max(axis=0), currents[-1])
         self.trace.append(TickRecord(t, pose, setpoint, tuple(voltages.mean(axis=0).tolist()), tuple(peak.tolist())))

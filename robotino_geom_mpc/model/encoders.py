@@ -162,7 +162,7 @@ class EncoderOdometry:
             raise EncoderError(f"slip_std must be a number in [0, 1], got {slip_std!r}")
         self.plant, self.counts_per_rev, self.slip_std = plant, int(counts_per_rev), float(slip_std)
         self._rng = np.random.default_rng((int(seed), 1))  # apart from the pose noise stream default_rng(seed)
-        self.pose = cast(Pose, tuple(plant.pose.tolist()) if pose is None else tuple(float(v) for v in pose))
+        self.pose = cast(Pose, tuple(plant.pose) if pose is None else tuple(float(v) for v in pose))
         self.twist: tuple[float, float, float] = (0.0, 0.0, 0.0)  # no count difference yet
         p = plant.params
         # `update` runs `encoder_counts`, `wheel_speeds_from_counts` and `body_twist` on Python floats (numpy's
@@ -204,18 +204,18 @@ class EncoderOdometry:
             self._counts, self._time_s = np.array(counts), self.plant.time_s
         return self.pose, self.twist
 
-    def odometry_floats(
+    def odometry(
         self, rng: np.random.Generator | None = None, noise_std: tuple[float, float] = (0.0, 0.0)
     ) -> tuple[Pose, tuple[float, float, float]]:
-        """As `RobotinoPlant.odometry_floats`, from the encoders: the integrated pose plus the same Gaussian
+        """As `RobotinoPlant.odometry`, from the encoders: the integrated pose plus the same Gaussian
         pose noise (same draws from the generator) and the encoder-derived body twist.
         """
-        return self.noisy_odometry_floats(self.plant.pose_noise(rng, noise_std))
+        return self.noisy_odometry(self.plant.pose_noise(rng, noise_std))
 
-    def noisy_odometry_floats(
+    def noisy_odometry(
         self, noise: tuple[float, float, float] | None
     ) -> tuple[Pose, tuple[float, float, float]]:
-        """`odometry_floats` with the pose noise (x, y, theta) given, None: none (noise drawn ahead, unchecked)."""
+        """`odometry` with the pose noise (x, y, theta) given, None: none (noise drawn ahead, unchecked)."""
         pose, twist = self.update()
         if noise is None:
             return pose, twist
@@ -308,7 +308,7 @@ def odometry_source(plant: RobotinoPlant, model: str = "ideal", counts_per_rev: 
                     slip_std: float = 0.0, seed: int = 0, pose: Pose | None = None) -> RobotinoPlant | EncoderOdometry:
     """What a measurement of `plant` reads: the plant itself (``ideal``) or an `EncoderOdometry` (``encoders``).
 
-    Either has ``odometry_floats(rng, noise_std) -> (pose, body twist)`` and ``noisy_odometry_floats(noise)``.
+    Either has ``odometry(rng, noise_std) -> (pose, body twist)`` and ``noisy_odometry(noise)``.
     `seed` seeds the slip (a stream of its own: the pose noise keeps the draws of the ideal model).
 
     Raises

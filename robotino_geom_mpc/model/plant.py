@@ -343,12 +343,8 @@ class RobotinoPlant:
         return np.array(self._w[:N_PLANT])
 
     @property
-    def pose(self) -> np.ndarray:
-        """(x, y, theta) [m, m, rad], a copy."""
-        return np.array(self.pose_floats())
-
-    def pose_floats(self) -> list[float]:
-        """`RobotinoPlant.pose` as a new list of three Python floats (the offline loop's per-tick record)."""
+    def pose(self) -> list[float]:
+        """(x, y, theta) [m, m, rad] as a new list of three Python floats (the offline loop's per-tick record)."""
         return self._w[0:5:2]
 
     @property
@@ -392,8 +388,8 @@ class RobotinoPlant:
 
     def odometry(
         self, rng: np.random.Generator | None = None, noise_std: tuple[float, float] = (0.0, 0.0)
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """A measurement: pose with Gaussian noise, and the noise-free body-frame twist.
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """A measurement: pose with Gaussian noise, and the noise-free body-frame twist (Python floats).
 
         Parameters
         ----------
@@ -407,19 +403,12 @@ class RobotinoPlant:
         pose, twist_body
             (x, y, theta) + noise; (v_x, v_y, theta') in the robot frame (nav_msgs/Odometry's twist), noise-free.
         """
-        pose, twist = self.odometry_floats(rng, noise_std)
-        return np.array(pose), np.array(twist)
+        return self.noisy_odometry(self.pose_noise(rng, noise_std))
 
-    def odometry_floats(
-        self, rng: np.random.Generator | None = None, noise_std: tuple[float, float] = (0.0, 0.0)
-    ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-        """`odometry` as tuples of Python floats (same values, same draws from the generator)."""
-        return self.noisy_odometry_floats(self.pose_noise(rng, noise_std))
-
-    def noisy_odometry_floats(
+    def noisy_odometry(
         self, noise: tuple[float, float, float] | None
     ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-        """`odometry_floats` with the pose noise (x, y, theta) given, None: none (noise drawn ahead, unchecked)."""
+        """`odometry` with the pose noise (x, y, theta) given, None: none (noise drawn ahead, unchecked)."""
         x, vx, y, vy, theta, w = self._w[:6]
         c, s = math.cos(theta), math.sin(theta)
         twist = (c * vx + s * vy, -s * vx + c * vy, w)

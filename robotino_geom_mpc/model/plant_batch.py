@@ -84,7 +84,7 @@ class PlantBatch:
 
     def odometry(self) -> tuple[np.ndarray, np.ndarray]:
         """The ideal measurement of every run, noise-free: poses (B, 3) and body-frame twists (v_x, v_y, theta')
-        (B, 3), the array form of `RobotinoPlant.noisy_odometry_floats`.
+        (B, 3), the array form of `RobotinoPlant.noisy_odometry`.
         """
         x, vx, y, vy, theta, w = self._columns[:6]
         c, s = np.cos(theta), np.sin(theta)

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from robotino_geom_mpc.control.motion_batch import MotionControllerBatch
-from robotino_geom_mpc.control.motion_controller import state_from_odometry
+from robotino_geom_mpc.control.motion_controller import states_from_odometry
 from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST, DEFAULT_COUNTS_PER_REV, ODOMETRY_MODELS, \
     EncoderOdometryBatch
 from robotino_geom_mpc.model.plant_batch import PlantBatch
@@ -335,7 +335,7 @@ def simulate_batch(
         if source is not None:
             pose_encoders, twist[reading] = source.update()
             pose[reading] = pose_encoders + draws[k, reading]
-        volts, saturated[k] = controller.step(state_from_odometry(pose, twist), targets[k + 1 : k + N + 1])
+        volts, saturated[k] = controller.step(states_from_odometry(pose, twist), targets[k + 1 : k + N + 1])
         voltages[k] = volts
         plant.advance(volts, Ts, currents[k])
 

@@ -8,8 +8,8 @@ tick k (t_k = k Ts, k = 0 .. n-1) does exactly, in this order:
    noise-free body-frame twist;
    with ``odometry="encoders"`` the pose integrated from the wheel-encoder
    counts plus the same noise, and the encoder twist: `encoders`),
-   ``X = state_from_odometry(pose, twist)`` (both on Python floats here:
-   `RobotinoPlant.noisy_odometry_floats`, `odometry_state_floats`);
+   ``X = state_from_odometry(pose, twist)`` (both on Python floats:
+   `RobotinoPlant.noisy_odometry`, `control.motion_controller.state_from_odometry`);
 2. ``Y_d`` = the reference positions at t_{k+1} .. t_{k+N} (eq. 54), sampled
    for the whole run at once: rows k+1 .. k+N of ``reference.position(j Ts)``,
    equal to ``preview(reference, t_k, Ts, N)`` to rounding (1e-14);
@@ -51,7 +51,7 @@ from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import DEFAULT_KI, DEFAULT_KP, DEFAULT_RATE_HZ, WheelSpeedLoop, \
     WheelSpeedLoopError
 
-from robotino_geom_mpc.control.motion_controller import MotionController, odometry_state_floats
+from robotino_geom_mpc.control.motion_controller import MotionController, state_from_odometry
 from robotino_geom_mpc.network.link import LinkParams
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
@@ -235,12 +235,12 @@ def run_scenario(config: RunConfig) -> RunData:
     targets = reference.position(np.arange(n + extra + 1) * Ts)  # row j: the reference at j Ts
     # Only floats and arrays are kept per tick (no tuples): nothing for the garbage collector to scan.
     poses, measured, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], [], []
-    measure, drive_period, pose_floats = robot_loop.measure, robot_loop.drive, plant.pose_floats
+    measure, drive_period = robot_loop.measure, robot_loop.drive
     motion = None if loop is not None else controller
     for k in tqdm(range(n), desc=scenario, unit="tick", disable=not config.progress, mininterval=0.5):
         pose_measured, twist_measured = measure()
         if motion is not None:
-            out = motion.step(odometry_state_floats(pose_measured, twist_measured), targets[k + 1 : k + N + 1])
+            out = motion.step(state_from_odometry(pose_measured, twist_measured), targets[k + 1 : k + N + 1])
             command = motion.next_velocity() if cmd_vel else out.voltages
             flags = (out.saturated, out.infeasible, out.compute_time_s)
         else:
@@ -249,7 +249,7 @@ def run_scenario(config: RunConfig) -> RunData:
             command = loop.command(k, pose_measured, twist_measured)
             flags = (any(abs(v) >= robot.supply_voltage_v for v in command) and not cmd_vel, False,
                      time.perf_counter() - start)
-        poses += pose_floats()
+        poses += plant.pose
         measured += pose_measured
         saturated.append(flags[0])
         infeasible.append(flags[1])

@@ -137,8 +137,12 @@ WIRING = {
     ("robotino_sim_node/plant_lockstep.py", "_period", "delay * 1000000000.0"):
         "the pace timer's period [ns] from the wall-clock delay `LockstepPace` decided (a timer, not a stamp)",
 }
-# where a node may look at the mode: while it is built (the loop's pairing, the run object, QoS and publishers)
-CONSTRUCTION = {"__init__", "chain_of"}
+# where a node may look at the mode: while it is built (the loop's pairing, the run object, QoS and publishers), and
+# when a parameter set is validated (a realtime-only feature refused in lockstep)
+CONSTRUCTION = {"__init__", "chain_of", "_params_problem"}
+# the node modules that run no loop but choose the mode once too (checked for that only)
+MODE_ONLY = ("robotino_geom_mpc/nodes/trajectory_node.py", "robotino_geom_mpc/nodes/goal_inputs.py",
+             "robotino_geom_mpc/nodes/goal_sender.py", "robotino_geom_mpc/nodes/robot_description_node.py")
 
 
 def _subjects(expr: ast.AST) -> set[str]:
@@ -186,16 +190,16 @@ def _functions(tree: ast.AST):
             stack.append((inner, child))
 
 
-def control_decisions(path: str, source: str, wiring: dict | None = None) -> list[str]:
-    """Arithmetic or ordering on a stamp or a state (or a s <-> ns conversion) outside `wiring` (default `WIRING`),
-    and a branch on the mode (``lockstep``) outside construction, in one node module: one line each,
-    ``path:line: code``.
+def control_decisions(path: str, source: str, wiring: dict | None = None, arithmetic: bool = True) -> list[str]:
+    """Arithmetic or ordering on a stamp or a state (or a s <-> ns conversion) outside `wiring` (default `WIRING`;
+    not looked for unless `arithmetic`), and a look at the mode (``lockstep``) outside construction, in one node
+    module: one line each, ``path:line: code``.
     """
     wiring = WIRING if wiring is None else wiring
     found = []
     for where, node in _functions(ast.parse(source)):
         operands = _operands(node)
-        if operands and (path, where, ast.unparse(node)) not in wiring:
+        if arithmetic and operands and (path, where, ast.unparse(node)) not in wiring:
             names = set().union(*(_subjects(o) for o in operands))
             constants = {o.value for o in operands if isinstance(o, ast.Constant)}
             if any(STAMP_OR_STATE.search(n) for n in names) or constants & set(NS_PER_S):
@@ -225,6 +229,8 @@ def test_the_node_modules_hold_no_control_decisions():
     assert {"controller_node.py", "plant_node.py", "command_buffer_node.py", "chain_driver.py"} <= \
         {f.name for f in adapters}
     found = [line for f in adapters for line in control_decisions(str(f.relative_to(ROOT)), f.read_text())]
+    found += [line for path in MODE_ONLY for line in control_decisions(path, (ROOT / path).read_text(),
+                                                                      arithmetic=False)]
     assert found == [], "control decisions in node modules (move them into robotino_geom_mpc/loop):\n" + \
         "\n".join(found)
     # every wiring exception is still needed (an exception nothing needs any more is removed, not kept)

@@ -197,22 +197,23 @@ class TrajectoryNode(Node):
         )
         self.add_on_set_parameters_callback(self._check_waypoints)
         self.add_post_set_parameters_callback(self._on_waypoints)
-        self.lockstep = self.params["mode"] == "lockstep"
+        lockstep = self.params["mode"] == "lockstep"  # the mode, chosen here once
         self.start_on_enable, self.anchor_to_robot = self.params["start_on_enable"], self.params["anchor_to_robot"]
         self.anchor: tuple[float, float, float] | None = None  # anchor_to_robot: the pose at the start
-        self.goals = GoalInputs(self, self.params.values, self._reference_time, self._replanned)
+        self.goals = GoalInputs(self, self.params.values, self._tick_time if lockstep else self._time_since_start,
+                                self._replanned)
         try:
             self._use_reference()
         except TrajectoryError as exc:
             raise NodeStartError(str(exc)) from None
         self.preview_pub = self.create_publisher(
-            MultiDOFJointTrajectory, "reference_preview", publish_qos(self.lockstep),
-            event_callbacks=PublisherEventCallbacks(matched=self._on_preview_matched),
+            MultiDOFJointTrajectory, "reference_preview", publish_qos(lockstep),
+            event_callbacks=PublisherEventCallbacks(matched=self._on_preview_matched) if lockstep else None,
         )
         self.path_pub = self.create_publisher(Path, "reference_path", LATCHED_QOS)
         self.last_clock_ns: int | None = None
         self.last_published_ns: int | None = None
-        self.start_ns: int | None = 0 if self.lockstep else None  # node-clock time of the reference's t = 0
+        self.start_ns: int | None = 0 if lockstep else None  # node-clock time of the reference's t = 0
         self.subscribed_since: int | None = None  # realtime: node-clock time since which the start condition holds
         self.odom_topic = self.resolve_topic_name("odom")  # realtime: its publisher is part of the start condition
         self.robot_pose: tuple[float, float, float] | None = None  # anchor_to_robot: from the newest odometry
@@ -226,7 +227,7 @@ class TrajectoryNode(Node):
             self.enabled_sub = self.create_subscription(Bool, "controller_enabled", self._on_enabled, LATCHED_QOS)
         self.preview_cdr: CdrTemplate | None = None  # built on first use (horizon and period fixed)
         self.grid: np.ndarray | None = None  # lockstep: point values at k Ts (`_grid_values`)
-        if self.lockstep:
+        if lockstep:
             self.clock_layout = CdrLayout(ClockMsg(), ("clock.sec", "clock.nanosec"))  # read in place
             self.clock_sub = self.create_subscription(ClockMsg, "/clock", self._on_clock, CLOCK_SUB_QOS, raw=True)
             self.clock_heard_at = monotonic()  # steady time of the last /clock (of the start before the first)
@@ -310,10 +311,12 @@ class TrajectoryNode(Node):
         self.grid = None
         self.goals.attach(None if self.anchor_to_robot and self.anchor is None else self.reference)
 
-    def _reference_time(self) -> float:
-        """The reference time [s] a goal starts at: the latest tick published (lockstep), now (realtime)."""
-        if self.lockstep:
-            return (self.last_published_ns or 0) * 1e-9
+    def _tick_time(self) -> float:
+        """Lockstep: the reference time [s] a goal starts at, the latest tick published."""
+        return (self.last_published_ns or 0) * 1e-9
+
+    def _time_since_start(self) -> float:
+        """Realtime: the reference time [s] a goal starts at, now (0 before the start)."""
         if self.start_ns is None:
             return 0.0
         return (self.get_clock().now().nanoseconds - self.start_ns) * 1e-9
@@ -352,12 +355,12 @@ class TrajectoryNode(Node):
         return self.params["preview_points"] or self.params["control.horizon"]
 
     def _publish_preview(self, t_ns: int, reference_t_ns: int, values: list[float] | None = None) -> None:
-        """The preview stamped `t_ns` of the reference at `reference_t_ns` (or of the point `values`)."""
+        """The preview stamped `t_ns` of the reference at `reference_t_ns` (or of the point `values`: lockstep, the
+        grid's, `_grid_values`; None off it).
+        """
         period_s, horizon = self.params["control.period_s"], self._preview_points()
         if self.preview_cdr is None:
             self.preview_cdr = preview_template(period_s, horizon, self.params["frame_prefix"])
-        if values is None and self.lockstep:
-            values = self._grid_values(reference_t_ns)
         if values is None:
             values = preview_values(self.reference, reference_t_ns, period_s, horizon)
         publish_acknowledged(self, self.preview_pub, self.preview_cdr.pack(*divmod(t_ns, 1_000_000_000), *values))
@@ -391,7 +394,7 @@ class TrajectoryNode(Node):
 
     def _on_preview_matched(self, info: QoSPublisherMatchedInfo) -> None:
         """Lockstep: a new subscription gets the previews of the current tick (those sent before missed it)."""
-        if self.lockstep and info.current_count_change > 0 and self.last_clock_ns is not None:
+        if info.current_count_change > 0 and self.last_clock_ns is not None:
             self._publish_ahead(self.last_clock_ns, current=True)
 
     def _publish_ahead(self, now: int, current: bool) -> None:
@@ -404,10 +407,10 @@ class TrajectoryNode(Node):
             period, last = self._period_ns(), self.last_published_ns
             if last is not None and now - _GAP_FILL_TICKS * period <= last < now - period:
                 for stamp in range(last + period, now, period):
-                    self._publish_preview(stamp, stamp)
-            self._publish_preview(now, now)
+                    self._publish_preview(stamp, stamp, self._grid_values(stamp))
+            self._publish_preview(now, now, self._grid_values(now))
         after = now + self._period_ns()
-        self._publish_preview(after, after)
+        self._publish_preview(after, after, self._grid_values(after))
 
     def _period_ns(self) -> int:
         return int(round(self.params["control.period_s"] * 1e9))

@@ -22,7 +22,8 @@ import robotino_sim_node
 
 ROOT = Path(__file__).resolve().parents[1]
 # the modules that may import rclpy when imported: the nodes, the recorder node and the ROS plumbing subpackage
-# (the plant node's mixins plant_lockstep / plant_network / plant_plans and its radio are ROS adapters too)
+# (the plant node's runs plant_lockstep / plant_realtime / chain_driver, plant_plans, plant_run and its radio are ROS
+# adapters too)
 ALLOWED_PREFIXES = ("robotino_geom_mpc.nodes.", "robotino_geom_mpc.ros.", "robotino_geom_mpc.recording.recorder_node",
                     "robotino_geom_mpc.recording.live_view_node", "robotino_sim_node.plant_", "robotino_sim_node.radio",
                     "robotino_sim_node.lockstep_start", "robotino_sim_node.outputs", "robotino_sim_node.chain_driver")

@@ -8,8 +8,12 @@ disabled) is noted in the tracker's command model at the clock.
 
 A recording whose controller statuses carry the clock (``clock_ns``; its status per step, message ``chain``, names
 the preview used, ``preview_stamp_ns``) replays exactly: one fresh `ControllerLoop` gets every odometry at the
-clock its status names, the previews up to the one named, the watchdog where its status says it fired; its
-commands (twists and zeros) are compared, in order, with the recorded ``cmd_vel`` messages.
+clock its status names, the previews up to the one named, the watchdog where its status says it fired; each twist it
+answers is compared with the recorded ``cmd_vel`` message of the same input. The node publishes an input's commands
+(twists and zeros), then its status, in one callback, and publish times are the publisher's source times: the last
+commands published before a status are its input's. Matched through the statuses, not counted from the first
+command: the recorder subscribes topic by topic, so a recording may begin with answers to odometries it lacks
+(``cmd_vel`` subscribed before ``odom`` and ``diagnostics``), which no replay gives.
 
 Older recordings (no statuses: the chain controller of ec8bd99 published none) hold what the controller received
 and sent, with each message's publish time, but not the node's two private readings: which preview it held
@@ -196,6 +200,17 @@ def regress_chain(bag: BagReader, robot: RobotinoParams, control: ControlParams,
     return _search(fresh(), odom, previews, commands, tolerance, source)
 
 
+def _commands_of(statuses: list[_Status], commands: list) -> list[list[np.ndarray]]:
+    """Per status: the commands published after the status before it and up to it (its input's are the last)."""
+    times = [publish for publish, _ in commands]
+    out, since = [], 0
+    for status in statuses:
+        upto = bisect_right(times, status.publish, lo=since)
+        out.append([values for _, values in commands[since:upto]])
+        since = upto
+    return out
+
+
 def _exact(loop: ControllerLoop, odom: list, previews: list, commands: list, statuses: list[_Status],
            source: str) -> ChainReplay:
     """The replay of a recording with the clock in its statuses: one loop, the recorded times.
@@ -205,60 +220,59 @@ def _exact(loop: ControllerLoop, odom: list, previews: list, commands: list, sta
     (stale by then for sure: the node decided on its steady clock); an accepted preview when a step names it
     (received by then, its stamp checked at its publish time).
     """
-    by_odometry: dict[int, deque[_Status]] = {}  # odometry stamp -> its statuses (two samples of a stamp: two)
+    by_odometry: dict[int, deque[int]] = {}  # odometry stamp -> its statuses (two samples of a stamp: two)
     preview_stamps = [stamp_ns(msg.header.stamp) for _, msg, _ in previews]
     first_of: dict[int, int] = {}
     for j, stamp in enumerate(preview_stamps):
         first_of.setdefault(stamp, j)
-    # (clock, kind, index): kind 0 a refused preview, 1 an odometry, 2 a watchdog stop
-    timeline: list[tuple[int, int, int]] = []
+    # (clock, kind, index, its status or -1): kind 0 a refused preview, 1 an odometry, 2 a watchdog stop
+    timeline: list[tuple[int, int, int, int]] = []
     refused: set[int] = set()
     for k, status in enumerate(statuses):
         if status.message.startswith("watchdog"):
-            timeline.append((status.clock, 2, k))
+            timeline.append((status.clock, 2, k, k))
         elif status.message.startswith("refused reference_preview") and status.stamp in first_of:
             refused.add(first_of[status.stamp])
-            timeline.append((status.clock, 0, first_of[status.stamp]))
+            timeline.append((status.clock, 0, first_of[status.stamp], k))
         elif status.message in ("chain", "disabled") or status.message.startswith(("refused odom", "dropped odom",
                                                                                     "refused input")):
-            by_odometry.setdefault(status.stamp, deque()).append(status)
-    said: list[_Status | None] = []
+            by_odometry.setdefault(status.stamp, deque()).append(k)
     for i, (publish, msg, _) in enumerate(odom):
         queue = by_odometry.get(stamp_ns(msg.header.stamp))
-        entry = queue.popleft() if queue else None
-        said.append(entry)
-        timeline.append((publish if entry is None else entry.clock, 1, i))
+        entry = queue.popleft() if queue else -1
+        timeline.append((publish if entry < 0 else statuses[entry].clock, 1, i, entry))
     timeline.sort()
+    sent = _commands_of(statuses, commands)
     fed = -1
-    answered = ticks = compared = 0
+    ticks = compared = 0
     worst, worst_stamp = 0.0, None
 
-    def take(outputs: list[Output], stamp: int) -> None:
-        nonlocal answered, ticks, compared, worst, worst_stamp
-        for out in outputs:
-            if not isinstance(out, (Command, Zero)):
-                continue
-            recorded = commands[answered][1] if answered < len(commands) else None
-            answered += 1
+    def take(outputs: list[Output], stamp: int, status: int) -> None:
+        """Compare the twists of an input's `outputs` with the commands recorded before its `status` (-1: none)."""
+        nonlocal ticks, compared, worst, worst_stamp
+        answers = [out for out in outputs if isinstance(out, (Command, Zero))]
+        before = sent[status] if status >= 0 else []
+        recorded = before[len(before) - len(answers):] if len(before) >= len(answers) else []
+        for j, out in enumerate(answers):
             if not isinstance(out, Command):
                 continue
             ticks += 1
-            if recorded is None:
+            if not recorded:
                 continue
             compared += 1
-            deviation = float(np.max(np.abs(np.array(out.values) - recorded)))
+            deviation = float(np.max(np.abs(np.array(out.values) - recorded[j])))
             if worst_stamp is None or deviation > worst:
                 worst, worst_stamp = deviation, stamp
 
-    for clock, kind, index in timeline:
+    for clock, kind, index, k in timeline:
         if kind == 0:
-            take(loop.on_input(preview_input(previews[index][1]), Now(clock, clock)), preview_stamps[index])
+            take(loop.on_input(preview_input(previews[index][1]), Now(clock, clock)), preview_stamps[index], k)
             continue
         if kind == 2:
-            take(loop.on_watchdog(Now(clock, clock + WATCHDOG_STALE_NS)), clock)
+            take(loop.on_watchdog(Now(clock, clock + WATCHDOG_STALE_NS)), clock, k)
             continue
         publish, msg, _ = odom[index]
-        mine = said[index]
+        mine = None if k < 0 else statuses[k]
         if mine is not None and mine.message in ("chain", "disabled") and \
                 loop.enabled != (mine.message == "chain"):
             loop.on_enable(mine.message == "chain", Now(clock, clock))
@@ -270,9 +284,9 @@ def _exact(loop: ControllerLoop, odom: list, previews: list, commands: list, sta
             last = fed
         for j in range(fed + 1, last + 1):
             if j not in refused:
-                take(loop.on_input(preview_input(previews[j][1]), Now(previews[j][0], clock)), preview_stamps[j])
+                take(loop.on_input(preview_input(previews[j][1]), Now(previews[j][0], clock)), preview_stamps[j], -1)
         fed = max(fed, last)
-        take(loop.on_input(odometry_input(msg), Now(clock, clock)), stamp_ns(msg.header.stamp))
+        take(loop.on_input(odometry_input(msg), Now(clock, clock)), stamp_ns(msg.header.stamp), k)
     first = stamp_ns(odom[0][1].header.stamp)
     return ChainReplay(ticks, compared, worst, None if worst_stamp is None else (worst_stamp - first) * 1e-9, source)
 

@@ -88,16 +88,22 @@ def _yaw(q) -> float:
 
 def _odometry_rms(bag_dir, span_s: float) -> tuple[float, int]:
     """(RMS x-y error after SETTLE_S, ticks) straight from the bag by rosbags: per odom stamp its last message,
-    against the newest preview stamped at or before it (within `span_s`), point 0 moved by v dt + a dt^2 / 2.
+    against the newest preview stamped at or before it (within `span_s`), point 0 moved by v dt + a dt^2 / 2;
+    a stamp with no such preview against the last ``reference_path``, linear between its poses' stamps (none
+    outside them).
     """
     odom: dict[int, tuple[float, float]] = {}
     previews: dict[int, np.ndarray] = {}
+    path: list[tuple[int, float, float]] = []
     with AnyReader([bag_dir]) as reader:
-        wanted = [c for c in reader.connections if c.topic in ("/odom", "/reference_preview")]
+        wanted = [c for c in reader.connections if c.topic in ("/odom", "/reference_preview", "/reference_path")]
         for connection, _, raw in reader.messages(wanted):
             msg = reader.deserialize(raw, connection.msgtype)
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            if connection.topic == "/odom":
+            if connection.topic == "/reference_path":
+                path = [(p.header.stamp.sec * 1_000_000_000 + p.header.stamp.nanosec, p.pose.position.x,
+                         p.pose.position.y) for p in msg.poses]
+            elif connection.topic == "/odom":
                 odom[stamp] = (msg.pose.pose.position.x, msg.pose.pose.position.y)  # the last of its stamp
             elif stamp not in previews:
                 point = msg.points[0]
@@ -106,13 +112,18 @@ def _odometry_rms(bag_dir, span_s: float) -> tuple[float, int]:
                                             [a.linear.x, a.linear.y]])
     preview_stamps = sorted(previews)
     rows = []
+    path_t = np.array([t for t, _, _ in path], dtype=np.int64)
     for stamp in sorted(odom):
         i = bisect.bisect_right(preview_stamps, stamp) - 1
         if i < 0 or stamp - preview_stamps[i] > span_s * 1e9:
-            continue
-        p, v, a = previews[preview_stamps[i]]
-        dt = (stamp - preview_stamps[i]) * 1e-9
-        rows.append((stamp, np.hypot(*(np.array(odom[stamp]) - (p + v * dt + 0.5 * a * dt * dt)))))
+            if not path or not path_t[0] <= stamp <= path_t[-1]:
+                continue
+            reference = np.array([np.interp(stamp, path_t, [q[j] for q in path]) for j in (1, 2)])
+        else:
+            p, v, a = previews[preview_stamps[i]]
+            dt = (stamp - preview_stamps[i]) * 1e-9
+            reference = p + v * dt + 0.5 * a * dt * dt
+        rows.append((stamp, np.hypot(*(np.array(odom[stamp]) - reference))))
     t0 = rows[0][0]
     after = np.array([e for s, e in rows if (s - t0) * 1e-9 >= SETTLE_S - 1e-12])
     return float(np.sqrt(np.mean(after**2))), len(rows)

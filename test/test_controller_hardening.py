@@ -8,9 +8,10 @@
 * A preview in another frame (not the fast reader's layout: the general decoder) is refused, naming both
   frames (the other frames: test_controller_loop).
 * Realtime under ``use_sim_time``: the watchdog counts simulated time (no stale data while the clock
-  stands); a clock that goes back (a bag played in a loop, a simulator reset)
-  resumes the tracking once the watchdog has declared the data stale; before, every later input was
-  dropped as older than the last used.
+  stands: the node hands the loop its clock as the watchdog's, the one DDS test of that wiring; the loop given
+  either clock, a slow lockstep loop: test_controller_loop_cases); a clock that goes back (a bag played in a loop,
+  a simulator reset) resumes the tracking once the watchdog has declared the data stale; before, every later
+  input was dropped as older than the last used.
 * Realtime: a controller stopped with SIGINT leaves the drives at zero volts.
 """
 

@@ -12,8 +12,8 @@ Checked against the stand-in's hidden ground truth (``/_standin/ground_truth/odo
 which no node of the page reads): while disabled the controller sends zero twists and the reference holds its
 start at the robot, where identify left it; the reference starts (its path's first pose) at the robot's pose at
 the enable, and from the enable to the disable the robot follows paper-circle (the reference's point 0 of each
-preview) within 3 mm RMS and 6 mm at most (the chain's measured 0.93 mm offline and 0.94 mm over DDS, 1.3 mm
-at most from an enable in test_start_disabled, with room for a loaded 2-core host): no catch-up; after the
+preview) within 3 mm RMS and 6 mm at most (the chain's measured 0.93 mm offline and 0.94 mm over DDS, 1.1 mm
+at most from an enable in test_controller_loop_cases, with room for a loaded 2-core host): no catch-up; after the
 disable every twist is zero and the robot comes to rest. The page's last block reports the recording (which
 holds no ground truth) from odometry and says so, and regress reproduces every twist of it.
 """

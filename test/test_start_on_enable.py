@@ -3,7 +3,8 @@
 The test is the robot (odometry at a pose it chooses) and the controller (a preview subscription and the latched
 ``controller_enabled``). The truths: the pose the test sends, and the scenario's reference moved rigidly by
 complex numbers (z' = z0 + e^{i theta0} z), independent of `reference.anchor`. The whole loop through the
-emulated driver chain: test_start_disabled.
+emulated driver chain: in-process, test_controller_loop_cases (the controller's and the chain's loops, the reference
+anchored and started at the enable); over DDS, test_real_robot_page (the real-robot launch on the stand-in driver).
 """
 
 import math

@@ -76,6 +76,9 @@ setup(
             "robot_description_publisher = robotino_geom_mpc.nodes.robot_description_node:main",
             "command_buffer_node = robotino_geom_mpc.nodes.command_buffer_node:main",
             "live_view_node = robotino_geom_mpc.recording.live_view_node:main",
+            "fleet_plant_node = robotino_sim_node.fleet_plant_node:main",
+            "fleet_controller_node = robotino_geom_mpc.nodes.fleet_controller_node:main",
+            "fleet_trajectory_node = robotino_geom_mpc.nodes.fleet_trajectory_node:main",
         ],
     },
 )

@@ -20,6 +20,10 @@ order of `offline.networked`, so that the DDS loop reproduces the offline loop w
 4. the period's command: the plans' entry (reported), or the held command; one period integrated.
 
 A resend sends /clock and the odometries delivered at the tick again (the controller answers an odometry once).
+
+A fleet (`robotino_sim_node.fleet_plant_node`: N plants in one process, no link) shares one `FleetClock`: a robot's
+next tick is held until every robot's is due, then each robot's odometry and measurements go out and one /clock
+after them, so tick k is the same instant for the whole fleet.
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ from robotino_sim_node.outputs import Message, PlantOutputs
 from robotino_sim_node.plant_plans import PlantPlans
 from robotino_sim_node.plant_run import RunEnd, checked_command, emit
 
-__all__ = ["LockstepRun"]
+__all__ = ["FleetClock", "LockstepRun"]
 
 
 class LockstepRun:
@@ -65,13 +69,19 @@ class LockstepRun:
         The emulated link (None: the commands apply directly).
     plans
         The plan messages' adapter (with plans).
+    fleet
+        The fleet's clock (a fleet of plants in one process; without a link), None: this run's own /clock.
     """
 
     def __init__(self, node: Node, params: SpecParameters, ticks: LockstepTicks, outputs: PlantOutputs,
                  handshake: StartHandshake, end: RunEnd, link: CommandLink | None = None,
-                 plans: PlantPlans | None = None) -> None:
+                 plans: PlantPlans | None = None, fleet: FleetClock | None = None) -> None:
         self.node, self.params, self.ticks, self.robot, self.outputs = node, params, ticks, ticks.robot, outputs
         self.handshake, self.end, self.link, self.plans = handshake, end, link, plans
+        self.fleet = fleet
+        self.held = False  # a fleet's: the next tick waits for the other robots' (no resend meanwhile)
+        if fleet is not None:
+            fleet.join(self)
         self.pace = LockstepPace(self.params["lockstep_max_realtime_factor"], self.robot.period_s)
         self.measurement: Measurement | None = None  # of the current tick (a resend sends its odometry again)
         self.delivered: list[tuple[int, list[Message]]] = []  # over the link: this tick's packets (stamp, messages)
@@ -106,7 +116,7 @@ class LockstepRun:
         begin = monotonic()
         if self.link is None:
             if self._period(item):
-                self._publish_tick(fresh=True)
+                self._tick_due()
         elif self.answers < self.expected:  # else none is due (a repeat)
             self.link.send_down(self.ticks.time_s, item)
             self.answers += 1
@@ -121,11 +131,11 @@ class LockstepRun:
             self.start_timer.cancel()
             self.started = True
             self.started_at = now
-            self._publish_tick(fresh=True)
+            self._tick_due()
 
     def _resend(self) -> None:
         now = monotonic()
-        if self.started and not self.end.done.done() and self.pace_timer.is_canceled() \
+        if self.started and not self.end.done.done() and self.pace_timer.is_canceled() and not self.held \
                 and now - self.published_at > self.params["lockstep_resend_s"]:
             self.resent += 1
             warn_throttled(self.node.get_logger(), f"no command for tick {self.ticks.tick} (t = "
@@ -135,6 +145,19 @@ class LockstepRun:
 
     def _paced_tick(self) -> None:  # the tick `lockstep_max_realtime_factor` held back, at its slot
         self.pace_timer.cancel()
+        self._tick_due()
+
+    def _tick_due(self) -> None:
+        """The next tick may go out: now, or in a fleet once every robot's may (`FleetClock.due`)."""
+        if self.fleet is None:
+            self._publish_tick(fresh=True)
+        else:
+            self.held = True
+            self.fleet.due(self)
+
+    def publish_held(self) -> None:
+        """A fleet's: publish the held tick (its odometry and measurements; the fleet sends /clock)."""
+        self.held = False
         self._publish_tick(fresh=True)
 
     def _publish_tick(self, fresh: bool) -> None:
@@ -149,7 +172,7 @@ class LockstepRun:
             return
         if fresh or self.measurement is None:
             self.measurement = self.ticks.measurement()
-            self.outputs.publish(self.outputs.tick(self.measurement, self.robot, clock=True))
+            self.outputs.publish(self.outputs.tick(self.measurement, self.robot, clock=self.fleet is None))
         else:
             self.outputs.publish([self.outputs.odometry(self.measurement), self.outputs.clock(self.ticks.time_ns)])
         self.published_at = monotonic()
@@ -226,3 +249,32 @@ class LockstepRun:
             if self.plans is not None:
                 emit(self.node, self.plans.refusal(item, reason))
         return self._period(self.link.period_command(t))
+
+
+class FleetClock:
+    """One /clock for the lockstep runs of a fleet in one process: a tick goes out when every robot's is due.
+
+    Each run calls `due` when its next tick may go out (tick 0 after its start handshake, then after its answer
+    and pace); once every run has, each publishes its tick (`LockstepRun.publish_held`: odometry first) and the
+    first run's /clock publisher sends the tick's time once. The runs share the period and the run length
+    (`fleet_plant_node` checks), so their ticks are the same instants.
+    """
+
+    def __init__(self) -> None:
+        self.runs: list[LockstepRun] = []
+        self.waiting = 0  # runs whose next tick is due
+
+    def join(self, run: LockstepRun) -> None:
+        """`run` is one of the fleet's."""
+        self.runs.append(run)
+
+    def due(self, run: LockstepRun) -> None:
+        """`run`'s next tick may go out (it holds it: `LockstepRun.held`); the last one due sends them all."""
+        self.waiting += 1
+        if self.waiting < len(self.runs):
+            return
+        self.waiting = 0
+        for each in self.runs:
+            each.publish_held()
+        first = self.runs[0]
+        first.outputs.publish([first.outputs.clock(first.ticks.time_ns)])

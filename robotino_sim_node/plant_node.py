@@ -101,7 +101,7 @@ from robotino_sim_node.lockstep_start import StartHandshake
 from robotino_sim_node.loop_timing import clock_minus_steady_ns
 from robotino_sim_node.odom_sources import ODOM_CHECK_DEFAULTS, ODOM_CHECK_SPECS, check_single_odom_source
 from robotino_sim_node.outputs import TF_DEFAULTS, TF_SPECS, PlantOutputs
-from robotino_sim_node.plant_lockstep import LockstepRun
+from robotino_sim_node.plant_lockstep import FleetClock, LockstepRun
 from robotino_sim_node.plant_plans import PlantPlans
 from robotino_sim_node.plant_realtime import RealtimeRun
 from robotino_sim_node.radio import Radio
@@ -146,8 +146,11 @@ _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray") 
 class PlantNode(Node):
     """The plant simulator node (see the module docstring for its interface)."""
 
-    def __init__(self) -> None:
-        super().__init__("robotino_plant")
+    def __init__(self, fleet: FleetClock | None = None, **node_options: Any) -> None:
+        """`fleet`: the lockstep clock of a fleet in one process (`fleet_plant_node`; no link there), used in
+        lockstep; `node_options`: rclpy's `Node` options (a fleet's robot: its ``namespace``, parameter overrides).
+        """
+        super().__init__("robotino_plant", **node_options)
         created = monotonic()  # the odometry sources' check counts its window from here (`odom_sources`)
         self.params = SpecParameters(
             self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params,
@@ -196,8 +199,10 @@ class PlantNode(Node):
         elif lockstep:
             duration = p["duration_s"]
             ticks = LockstepTicks(self.robot, round(duration / self.control.period_s) if duration > 0 else None)
+            if fleet is not None and networked:
+                raise NodeStartError("a fleet's lockstep plants share one clock without a link: no link.*, no plans")
             link = CommandLink(up, down, p["seed"], follower, p["command_timeout_s"]) if networked else None
-            self.run = LockstepRun(self, p, ticks, self.outputs, handshake, self.end, link, self.plans)
+            self.run = LockstepRun(self, p, ticks, self.outputs, handshake, self.end, link, self.plans, fleet)
         else:
             warm_up(self.robot.plant, 1.0 / p["physics_rate_hz"])
             started_at = monotonic()

@@ -38,6 +38,7 @@ class RunEnd:
         self.node, self.path = node, path
         self.done: Future = Future()
         self.exit_status = 0
+        self.summary: dict | None = None  # the timing report once the run is over (a fleet gathers them)
 
     def report(self, report: dict) -> None:
         """Write the timing report (if a file is set) when the readers have the run's samples."""
@@ -51,6 +52,7 @@ class RunEnd:
 
     def finish(self, report: dict) -> None:
         """`report`, then the run is over."""
+        self.summary = report
         self.report(report)
         self.done.set_result(True)
 

@@ -26,7 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # adapters too)
 ALLOWED_PREFIXES = ("robotino_geom_mpc.nodes.", "robotino_geom_mpc.ros.", "robotino_geom_mpc.recording.recorder_node",
                     "robotino_geom_mpc.recording.live_view_node", "robotino_sim_node.plant_", "robotino_sim_node.radio",
-                    "robotino_sim_node.lockstep_start", "robotino_sim_node.outputs", "robotino_sim_node.chain_driver")
+                    "robotino_sim_node.lockstep_start", "robotino_sim_node.outputs", "robotino_sim_node.chain_driver",
+                    "robotino_sim_node.fleet_plant_node")
 # modules of ros/ that load no ROS at import (the report reads bags with them): the CDR readers, decoded values
 PLAIN_ROS_MODULES = ("robotino_geom_mpc.ros.cdr", "robotino_geom_mpc.ros.decode")
 

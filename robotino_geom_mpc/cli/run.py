@@ -27,6 +27,13 @@ it (``chain.active``; `robotino_sim_node.chain_driver`, `loop.controller_loop`).
 With ``--foxglove PORT`` the live view (`recording.live_view_node`) starts first and the loop once its server is
 up, so a Foxglove client connected by then sees the run from its first odometry.
 
+``--robots N``: a fleet of N robots (namespaces ``robot1`` .. ``robotN``, `ros.fleet`), the same scenario each,
+in three processes (`nodes.fleet_trajectory_node`, `nodes.fleet_controller_node`,
+`robotino_sim_node.fleet_plant_node`: one node per robot in each) and one recorder: the whole fleet in one bag
+(DIR/bag); each robot's metrics and figures from its namespace in it (`BagReader.in_namespace`) in
+DIR/robot<k>/, and the fleet plant's timing in DIR/timing.json (per robot its timing report: ``ticks``,
+``missed``, ...). In lockstep the fleet shares one /clock, so each robot's metrics equal a single robot's run.
+
 Over a radio link (``--link-delay-ms D --link-jitter-ms J --link-loss P --link-burst B``, each way, or the
 ``wifi`` scenario's own link) the plant emulates it (``link.up.*`` / ``link.down.*``: everything it publishes
 reaches the controller and the recorder when the link delivers it; commands and plans reach it so), the
@@ -109,6 +116,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
                         "and paths a sender publishes on goal_pose and plan; the run lasts until they end + 3 s")
+    parser.add_argument("--robots", type=_robot_count, default=None, metavar="N",
+                        help="a fleet of N robots (robot1 .. robotN) through one controller, one plant and one "
+                        "trajectory process; DIR/robot<k>/metrics.json and DIR/timing.json")
     parser.add_argument("--foxglove", type=_port, nargs="?", const=8765, default=None, metavar="PORT",
                         help="serve the run's topics live to Foxglove on ws://localhost:PORT (default 8765; needs "
                         "the [viz] extra); the loop starts once it serves; a lockstep run then goes at real time")
@@ -125,6 +135,26 @@ def _port(text: str) -> int:
     if not 1 <= port <= 65535:
         raise argparse.ArgumentTypeError(f"port {port} is not in 1..65535")
     return port
+
+
+def _robot_count(text: str) -> int:
+    """A fleet's size (>= 1) for argparse."""
+    try:
+        count = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of robots") from None
+    if count < 1:
+        raise argparse.ArgumentTypeError(f"--robots {count}: at least 1")
+    return count
+
+
+def _fleet_problem(args: argparse.Namespace) -> str | None:
+    """Why `args` cannot run as a fleet (`--robots`), None when they can."""
+    if args.chain is not None or args.goals is not None or args.foxglove is not None or args.plans:
+        return "--robots runs without --chain, --goals, --foxglove and --plans"
+    if link_from_args(args) is not None:  # (a scenario's own link: the fleet plant refuses it at its start)
+        return "--robots runs without a link (a fleet's lockstep plants share one clock)"
+    return None
 
 
 def _raise_interrupt(*_: object) -> None:
@@ -219,8 +249,14 @@ def run(args: argparse.Namespace) -> int:
     """Run the nodes, stop them, write the metrics and figures; returns the exit status."""
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.params.presets import default_params_file
-    from robotino_geom_mpc.system.processes import TIMING_REPORT, NodeFailed, NodeGroup, node_arguments
+    from robotino_geom_mpc.system.processes import TIMING_REPORT, NodeFailed, NodeGroup, fleet_arguments, \
+        node_arguments, robot_names
 
+    fleet = args.robots is not None
+    if fleet:
+        problem = _fleet_problem(args)
+        if problem is not None:
+            raise UsageError(problem)
     chain = chain_from_args(args)
     command_interface = command_interface_from_args(args, chain)
     overrides: dict = {}
@@ -239,7 +275,7 @@ def run(args: argparse.Namespace) -> int:
         duration = _goals_duration(args, params_file) if args.duration is None else duration
     out = args.out if args.out is not None else Path("out") / f"run-{args.scenario}"
     bag = None if args.no_record else out.resolve() / "bag"
-    report = out.resolve() / "logs" / TIMING_REPORT
+    report = out.resolve() / ("timing.json" if fleet else Path("logs") / TIMING_REPORT)
     try:
         out.mkdir(parents=True, exist_ok=True)
         if bag is not None and bag.exists():
@@ -248,7 +284,10 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UsageError(f"cannot prepare output folder {out}: {exc.strerror or exc}") from None
 
-    node_args = node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
+    node_args = fleet_arguments(args.scenario, params_file, duration, args.lockstep, args.robots, args.seed, bag,
+                                odometry=args.odometry, command_interface=command_interface,
+                                overrides={"plant_node": {"timing_report": str(report)}}) if fleet else \
+        node_arguments(args.scenario, params_file, duration, args.lockstep, args.seed, bag,
                                odometry=args.odometry, command_interface=command_interface, link=link,
                                plans=False if args.no_compensation else (True if args.plans else None),
                                goals_file=None if args.goals is None else args.goals.resolve(),
@@ -258,7 +297,10 @@ def run(args: argparse.Namespace) -> int:
     if args.foxglove is not None:
         _check_viz()
     mode = "lockstep" if args.lockstep else "realtime"
-    print(f"run {args.scenario} over DDS ({mode}, {duration:g} s, Ts = {control.period_s:g} s); logs in {out / 'logs'}")
+    robots = f", {args.robots} robots" if fleet else ""
+    print(f"run {args.scenario} over DDS ({mode}{robots}, {duration:g} s, Ts = {control.period_s:g} s); logs in "
+          f"{out / 'logs'}")
+    plant = "fleet_plant_node" if fleet else "plant_node"
     if args.foxglove is not None:
         print(f"  live view: connect Foxglove to ws://localhost:{args.foxglove}")
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
@@ -274,17 +316,17 @@ def run(args: argparse.Namespace) -> int:
         # the plant ends the run; lockstep may be slower than real time on a loaded machine
         limit = duration + 60.0 if not args.lockstep else 60.0 + 20.0 * duration
         # the end: the plant's timing report (written once every reader has acknowledged its samples), or its exit
-        if not group.wait(nodes["plant_node"], limit, done=report.exists, poll_s=RUN_END_POLL_S):
+        if not group.wait(nodes[plant], limit, done=report.exists, poll_s=RUN_END_POLL_S):
             print(f"robotino-geom-mpc run: error: the run did not end within {limit:g} s", file=sys.stderr)
             return 1
         ended = time.monotonic()
         group.check()
         # every reader has the plant's samples, and each other node waits for its readers' acknowledgements on
         # SIGINT before it exits (`ros.spin.run_node`): once they are gone, the recorder holds every message
-        others = [name for name in nodes if name not in ("plant_node", "recorder_node")]
+        others = [name for name in nodes if name not in (plant, "recorder_node")]
         for name in others:
             nodes[name].popen.send_signal(signal.SIGINT)  # all at once; `stop_node` escalates per node
-        for name in [*others, "plant_node"]:  # the plant ends by itself (a SIGINT in its exit is ignored)
+        for name in [*others, plant]:  # the plant ends by itself (a SIGINT in its exit is ignored)
             _stopped_cleanly(group, nodes[name], GRACE_S)
         if bag is not None:
             _close_recording(group, nodes["recorder_node"], bag)
@@ -302,7 +344,11 @@ def run(args: argparse.Namespace) -> int:
         try:
             reader = BagReader(bag)
             warn_damage("run", damage_report(reader))
-            metrics = report_bag(reader, out, params_file, plots=not args.no_plots)
+            if fleet:
+                fleet_metrics = {ns: report_bag(reader.in_namespace(ns), out / ns, params_file, plots=not args.no_plots)
+                                 for ns in robot_names(args.robots)}
+            else:
+                metrics = report_bag(reader, out, params_file, plots=not args.no_plots)
         except BagError as exc:
             print(f"robotino-geom-mpc run: error: {exc}", file=sys.stderr)
             return 1
@@ -313,6 +359,9 @@ def run(args: argparse.Namespace) -> int:
     finally:
         group.stop(GRACE_S)
         signal.signal(signal.SIGTERM, previous)
+    if fleet:
+        _print_fleet(fleet_metrics, report, out)
+        return 0
     print(f"  position error after settle: rms {metrics['rms_position_error_m']:.3g} m, "
           f"max {metrics['max_position_error_m']:.3g} m; peak current {metrics['peak_current_a']:.3g} A, "
           f"peak voltage {metrics['peak_voltage_v']:.3g} V")
@@ -326,3 +375,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"  wrote {out / 'metrics.json'}{'' if args.no_plots else ' and the figures'} in "
           f"{time.monotonic() - stopped:.1f} s; recording in {bag}")
     return 0
+
+
+def _print_fleet(metrics: dict[str, dict], timing: Path, out: Path) -> None:
+    """Per robot: the tracking figures and the ticks the plant counted (answered, missed)."""
+    import json
+
+    ticks = json.loads(timing.read_text())
+    for namespace, m in metrics.items():
+        t = ticks.get(namespace) or {}
+        print(f"  {namespace}: rms {m['rms_position_error_m']:.3g} m, max {m['max_position_error_m']:.3g} m, peak "
+              f"current {m['peak_current_a']:.3g} A; ticks {t.get('ticks')}, missed {t.get('missed')}")
+    print(f"  wrote {out}/robot<k>/metrics.json and {timing}")

@@ -84,6 +84,7 @@ bumpless restart.
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
@@ -124,8 +125,9 @@ _SETTINGS = ("odom_timeout_s", "reference_timeout_s", "future_tolerance_s", "qua
 class ControllerNode(Node):
     """The controller node (see the module docstring for its interface)."""
 
-    def __init__(self) -> None:
-        super().__init__("robotino_controller")
+    def __init__(self, **node_options: Any) -> None:
+        """`node_options`: rclpy's `Node` options (a fleet's robot: its ``namespace`` and parameter overrides)."""
+        super().__init__("robotino_controller", **node_options)
         defaults = {**spec_defaults(), **CONTROLLER_DEFAULTS, **CHAIN_NODE_DEFAULTS}
         self.params = SpecParameters(self, ALL_SPECS + CONTROLLER_SPECS + CHAIN_NODE_SPECS, defaults, self._on_params,
                                      fixed=(*FIXED_WHILE_RUNNING, *CHAIN_NODE_DEFAULTS), check=closed_loop_problem)

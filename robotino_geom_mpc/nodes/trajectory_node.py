@@ -101,6 +101,8 @@ noise are the controller's and the plant's parameters).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from nav_msgs.msg import Path
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -179,8 +181,9 @@ def _same_waypoints(a: np.ndarray | None, b: np.ndarray | None) -> bool:
 class TrajectoryNode(Node):
     """The trajectory node (see the module docstring for its interface)."""
 
-    def __init__(self) -> None:
-        super().__init__("robotino_trajectory")
+    def __init__(self, **node_options: Any) -> None:
+        """`node_options`: rclpy's `Node` options (a fleet's robot: its ``namespace`` and parameter overrides)."""
+        super().__init__("robotino_trajectory", **node_options)
         specs = ALL_SPECS + TRAJECTORY_SPECS + GOAL_SPECS
         self.params = SpecParameters(
             self, specs, {**spec_defaults(ALL_SPECS), **_DEFAULTS, **GOAL_DEFAULTS}, self._on_params, fixed=_FIXED,

@@ -10,6 +10,8 @@ a corrupt chunk and drops the records after it).
 
 from __future__ import annotations
 
+import copy
+
 import io
 import os
 import struct
@@ -320,6 +322,16 @@ class BagReader:
         for msg in self.messages(topics):
             cls = classes.get(msg.type) or classes.setdefault(msg.type, message_class(msg.type))
             yield msg, deserialize_message(msg.data, cls)
+
+    def in_namespace(self, namespace: str) -> BagReader:
+        """This recording as one robot of a fleet's (`ros.fleet`) sees it: the topics in `namespace` (``robot1``) and
+        the global ones (``/clock``, ``/tf``, ...), not the other robots'; what the report reads of one robot.
+        """
+        prefix = "/" + namespace.strip("/") + "/"
+        view = copy.copy(self)
+        view.topics = {n: t for n, t in self.topics.items() if n.startswith(prefix) or n.count("/") == 1}
+        view._messages = [m for m in self._messages if m.topic in view.topics]
+        return view
 
     def __enter__(self) -> BagReader:
         return self

@@ -23,7 +23,7 @@ from robotino_geom_mpc.ros.qos import wait_acknowledged
 from robotino_geom_mpc.system.signals import STOP, ignore_stop_signals, stop_on_signals
 
 __all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "clock_s", "data_publishers", "monotonic", "params_files",
-           "run_node", "start_rclpy"]
+           "run_node", "run_nodes", "start_rclpy"]
 
 # before exiting, the longest a node waits for its readers to acknowledge what it published: after a run it
 # ended itself (the lockstep plant; a recorder can be thousands of samples behind), and when stopped by a
@@ -101,30 +101,44 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     A bad parameter file (see `start_rclpy`) or a `NodeStartError` (bad
     parameter) is reported in one line on stderr with exit status 2.
     """
+    return run_nodes(lambda: [factory()], args)
+
+
+def run_nodes(factory: Callable[[], list[Node]], args: list[str] | None = None) -> int:
+    """`run_node` for several nodes in one process (a fleet: one node per robot), on one events executor.
+
+    The spin ends on a signal or once every node that has a ``done`` future has it set (none: only a signal);
+    the status is the largest ``exit_status``; each node's ``on_stop`` runs, then the acknowledgement wait of
+    all their publishers.
+    """
     from rclpy.experimental import EventsExecutor
 
     status = start_rclpy(args)
     if status is not None:
         return status
-    node, executor, status, stopped = None, None, 0, False
+    nodes: list[Node] = []
+    executor, status, stopped = None, 0, False
     try:
         if STOP.is_set():  # a signal during rclpy.init
             return 0
-        node = factory()
+        nodes = factory()
         one_blas_thread()  # also under `ros2 run`: OpenBLAS threads only spin on a node's 3x3-9x9 matrices
         gc.collect()
         gc.freeze()
         executor = EventsExecutor()
-        executor.add_node(node)
-        done = getattr(node, "done", None)
-        while not STOP.is_set() and rclpy.ok() and not (done is not None and done.done()):
+        for node in nodes:
+            executor.add_node(node)
+        dones = [done for done in (getattr(node, "done", None) for node in nodes) if done is not None]
+        while not STOP.is_set() and rclpy.ok() and not (dones and all(done.done() for done in dones)):
             executor.spin_once(timeout_sec=0.1)
-        status = getattr(node, "exit_status", 0)
-        _stopping(node)
+        status = max((getattr(node, "exit_status", 0) for node in nodes), default=0)
+        for node in nodes:
+            _stopping(node)
         stopped = True
         # the last samples die with the process: let every reader (a recorder behind the loop) acknowledge them
-        finished = done is not None and done.done()
-        wait_acknowledged(node, data_publishers(node), FINISHED_ACK_WAIT_S if finished else STOPPED_ACK_WAIT_S)
+        finished = bool(dones) and all(done.done() for done in dones)
+        wait_acknowledged(nodes[0], [pub for node in nodes for pub in data_publishers(node)],
+                          FINISHED_ACK_WAIT_S if finished else STOPPED_ACK_WAIT_S)
     except NodeStartError as exc:
         print(f"{_prog()}: error: {exc}", file=sys.stderr)
         status = 2
@@ -132,14 +146,15 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         pass
     finally:
         ignore_stop_signals()
-        if node is not None and not stopped:  # the loop ended by an exception (a failed callback)
-            _stopping(node)
+        if not stopped:  # the loop ended by an exception (a failed callback)
+            for node in nodes:
+                _stopping(node)
         if executor is not None:
-            # the executor lets go of the node's entities while they are still alive: left to its destructor
+            # the executor lets go of the nodes' entities while they are still alive: left to its destructor
             # (after destroy_node and rclpy's shutdown) it finalized QoS events of destroyed publishers, and
             # hung there (CI: trajectory_node stuck in rclpy.event_handler's __exit__ as run_node returned)
             executor.shutdown(timeout_sec=_EXECUTOR_SHUTDOWN_S)
-        if node is not None:
+        for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
     return status

@@ -28,7 +28,8 @@ __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "TIMING_RE
            "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
            "dds_environment",
            "wait_for_exit",
-           "frame_prefix", "namespace_remaps", "node_arguments", "ros_args", "ros_namespace"]
+           "FLEET_NODES", "fleet_arguments", "frame_prefix", "namespace_remaps", "node_arguments", "robot_names",
+           "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.system.shm import remove_zombie_segments
@@ -229,6 +230,40 @@ def node_arguments(
         args["live_view_node"] = ros_args(None, {"port": int(live_view_port), **extra.get("live_view_node", {})},
                                           remaps)
     return args
+
+
+# a fleet's processes (one node per robot in each, `ros.fleet`): the single-robot node -> the fleet's executable
+FLEET_NODES = {"recorder_node": "recorder_node", "trajectory_node": "fleet_trajectory_node",
+               "controller_node": "fleet_controller_node", "plant_node": "fleet_plant_node"}
+
+
+def robot_names(count: int) -> list[str]:
+    """The namespaces of a fleet of `count` robots: ``robot1`` .. ``robot<count>``."""
+    return [f"robot{k}" for k in range(1, count + 1)]
+
+
+def fleet_arguments(scenario: str, params_file: str | os.PathLike, duration_s: float, lockstep: bool, robots: int,
+                    seed: int = 0, bag: str | os.PathLike | None = None, odometry: str = "ideal",
+                    command_interface: str = "voltages", overrides: dict[str, dict[str, Any]] | None = None,
+                    environ: Mapping[str, str] | None = None) -> dict[str, list[str]]:
+    """The ``--ros-args`` of a fleet's processes (`FLEET_NODES`: executable -> arguments), recorder first when `bag`.
+
+    `robots` robots ``robot1`` .. ``robot<robots>``, each with the nodes' arguments of a single robot's run
+    (`node_arguments`: the scenario, the mode, the seed, ...; `overrides` by the single node's executable name),
+    as ``robots`` of each fleet process; the recorder at the root records them all. A lockstep plant waits for
+    the loop's subscriptions per robot, and on the fleet's one /clock for every robot's trajectory node (and the
+    recorder); no robot description publisher.
+    """
+    waits = list(LOCKSTEP_WAIT_FOR) if bag is None else [
+        w.replace("joint_states:2", "joint_states:1") for w in recorder_wait_for(command_interface)]
+    clock_readers = robots + (0 if bag is None else 1)
+    waits = [f"/clock:{clock_readers}" if w.startswith("/clock:") else w for w in waits]
+    single = node_arguments(scenario, params_file, duration_s, lockstep, seed, bag, wait_for=waits,
+                            overrides=overrides, odometry=odometry, command_interface=command_interface,
+                            environ=environ)
+    fleet = ["-p", f"robots:={_format(robot_names(robots))}"]
+    return {FLEET_NODES[name]: argv + ([] if name == "recorder_node" else fleet) for name, argv in single.items()
+            if name in FLEET_NODES}
 
 
 def dds_environment(environ: Mapping[str, str]) -> dict[str, str]:

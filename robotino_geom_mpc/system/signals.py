@@ -37,6 +37,9 @@ NODE_MODULES: dict[str, str] = {
     "goal_sender": "robotino_geom_mpc.nodes.goal_sender",
     "command_buffer_node": "robotino_geom_mpc.nodes.command_buffer_node",
     "live_view_node": "robotino_geom_mpc.recording.live_view_node",
+    "fleet_plant_node": "robotino_sim_node.fleet_plant_node",
+    "fleet_controller_node": "robotino_geom_mpc.nodes.fleet_controller_node",
+    "fleet_trajectory_node": "robotino_geom_mpc.nodes.fleet_trajectory_node",
 }
 
 class StopFlag:

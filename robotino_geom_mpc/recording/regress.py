@@ -12,7 +12,8 @@ the step interval, the bumpless (re)starts, zero on a refused input. Its command
 `report`). Deterministic code on identical inputs gives identical floats, so the tolerance is 1e-12 V. A cmd_vel
 run (its controller sent twists on ``cmd_vel``, no ``wheel_voltages``) is compared the same way on the twist the
 node sends (v_x, v_y [m/s], theta' [rad/s] in base_link; zero where the node refused the input), with the same
-tolerance in those units. Runs with plans: `regress_plans`; chain runs: `regress_chain`.
+tolerance in those units. Runs with plans: `regress_plans`; chain runs: `regress_chain`; what all of them read
+from a recording and how they hand it to the loop: `replay_inputs`.
 
 The controller carries state from tick to tick (u(k-1) of the Delta-u form, the pose estimate), so the replay
 needs every tick's inputs. In a lockstep recording (its first tick has a preview of the same stamp; the ticks are
@@ -37,16 +38,16 @@ from typing import Any
 
 import numpy as np
 
-from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
 from robotino_geom_mpc.loop.events import Command, Now, Zero
-from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
-from robotino_geom_mpc.ros.decode import odometry_input, preview_input
+from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.regress_chain import WATCHDOG_STALE_NS, chain_parameters, regress_chain
-from robotino_geom_mpc.recording.regress_plans import plan_topic, regress_plans
+from robotino_geom_mpc.recording.regress_plans import regress_plans
+from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviations, PreviewFeed, diagnostics
 from robotino_geom_mpc.recording.report import resolve_parameters
-from robotino_geom_mpc.recording.topics import by_publish_time, controller_diagnostics, find_topic, stamp_ns
+from robotino_geom_mpc.recording.topics import by_publish_time, controller_diagnostics, find_topic, plan_topic, stamp_ns
+from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
 
 __all__ = ["RegressionResult", "regress_bag"]
 
@@ -123,57 +124,59 @@ def regress_bag(
     if not isinstance(bag, BagReader):
         bag = BagReader(bag)
     robot, control, _, _ = resolve_parameters(bag, params_file)
+    diags = diagnostics(bag)
     if plan_topic(bag) is not None:  # a run with plans (over a link): its plans recomputed (`regress_plans`)
-        ticks, compared, worst, worst_time, topic = regress_plans(bag, robot, control, tolerance_v)
-        return RegressionResult(ticks, compared, worst, worst_time, float(tolerance_v), command=topic)
-    odom = by_publish_time(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry"))
-    previews = by_publish_time(bag, find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory"))
+        inputs = ControllerInputs.read(bag, diags)
+        count, topic = regress_plans(bag, inputs, robot, control)
+        return _result(inputs, count, tolerance_v, command=topic)
     command = find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray", False)
     twists = command is None  # a cmd_vel run: the controller's twists
     if twists and find_topic(bag, "cmd_vel", "geometry_msgs/msg/Twist", False) is None:
         raise BagError(f"{bag.path}: no 'wheel_voltages' (std_msgs/msg/Float64MultiArray) nor 'cmd_vel' "
                        "(geometry_msgs/msg/Twist) topic in the recording: no controller command to compare")
     voltages = by_publish_time(bag, command or find_topic(bag, "cmd_vel", "geometry_msgs/msg/Twist"))
-    diags = by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False))
     if twists and (chain_file is not None or chain_parameters(bag)[2]
                    or not any(controller_diagnostics(msg) is not None for _, msg in diags)):
-        chain = regress_chain(bag, robot, control, tolerance_v, chain_file)
-        return RegressionResult(chain.ticks, chain.compared, chain.max_deviation, chain.worst_stamp_s,
-                                float(tolerance_v), command="cmd_vel", chain_source=chain.chain_source)
-    volt_t = [p for p, _ in voltages]
+        inputs = ControllerInputs.read(bag, diags, log_times=True)
+        count, source = regress_chain(bag, inputs, voltages, diags, robot, control, tolerance_v, chain_file)
+        return _result(inputs, count, tolerance_v, command="cmd_vel", chain_source=source)
+    inputs = ControllerInputs.read(bag, diags)
+    count, gap = _replay(inputs, voltages, diags, robot, control, twists)
+    return _result(inputs, count, tolerance_v, gap_at_s=inputs.seconds(None if gap is None else gap[0]),
+                   gap=None if gap is None else gap[1], command="cmd_vel" if twists else "wheel_voltages")
+
+
+def _result(inputs: ControllerInputs, count: Deviations, tolerance_v: float, **outcome: Any) -> RegressionResult:
+    return RegressionResult(count.ticks, count.compared, count.worst, inputs.seconds(count.worst_stamp),
+                            float(tolerance_v), **outcome)
+
+
+def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: list[tuple[int, Any]],
+            robot: RobotinoParams, control: ControlParams, twists: bool) -> tuple[Deviations, tuple[int, str] | None]:
+    """The replay of a run without plans nor the chain (the module docstring): the count, and the first tick
+    (stamp, the missing topic) whose input a lockstep recording lacks, or None.
+    """
+    volt_t = [p for p, _ in commands]
     answers: dict[int, np.ndarray] = {}  # tick stamp -> recorded voltages
-    used: dict[int, int] = {}  # tick stamp -> stamp of the preview the node used (its diagnostics say)
     for publish, msg in diags:
-        values = controller_diagnostics(msg)
-        if values is None:
+        if controller_diagnostics(msg) is None:
             continue
-        if values.get("preview_stamp_ns", "").isdigit():
-            used.setdefault(stamp_ns(msg.header.stamp), int(values["preview_stamp_ns"]))
         i = bisect_left(volt_t, publish) - 1
         if i >= 0:
-            answers.setdefault(stamp_ns(msg.header.stamp), _command_values(voltages[i][1], twists))
+            answers.setdefault(stamp_ns(msg.header.stamp), _command_values(commands[i][1], twists))
     # the node's watchdog stops (realtime: zero, the stamps and the preview forgotten, a restart at the data's return)
     stops = deque((publish, stamp_ns(msg.header.stamp)) for publish, msg in diags
                   if any(s.name == STATUS_NAME and s.message.startswith("watchdog") for s in msg.status))
-    by_stamp: dict[int, int] = {}  # preview stamp -> index of its first message (publish order)
-    for j, (_, msg) in enumerate(previews):
-        by_stamp.setdefault(stamp_ns(msg.header.stamp), j)
-    prev_t = [p for p, _ in previews]
-    if not odom:
-        raise BagError(f"{bag.path}: no odometry tick in the recording")
-    first_stamp = stamp_ns(odom[0][1].header.stamp)
+    odom, by_stamp, used = inputs.odom, inputs.first_of, inputs.used
+    prev_t = [p for p, _ in inputs.previews]
     # the first tick has a preview of its own stamp; realtime stamps follow the plant's timer, late or not,
     # so only a lockstep recording is tested for gaps
-    lockstep = first_stamp in by_stamp
-    replay = ControllerLoop(robot, control, Now(odom[0][0], odom[0][0]), lockstep=lockstep,
-                            interface="cmd_vel" if twists else "voltages",
-                            odom_frame=previews[0][1].header.frame_id if previews else "odom", listeners=QUIET)
-    fed = -1  # previews handed to the loop so far (publish order)
+    lockstep = inputs.first_stamp in by_stamp
+    replay = inputs.loop(robot, control, lockstep=lockstep, interface="cmd_vel" if twists else "voltages")
+    previews = PreviewFeed(replay, inputs)
     seen: set[int] = set()
-    ticks = compared = 0
-    worst, worst_stamp = 0.0, None
-    previous = None
-    gap = None
+    count = Deviations()
+    previous = gap = None
     period_ns = round(control.period_s * 1e9)
     for index, (publish, msg) in enumerate(odom):
         stamp = stamp_ns(msg.header.stamp)
@@ -193,39 +196,25 @@ def regress_bag(
         # the previews the node had by this odometry: lockstep that of its stamp; realtime up to the one its
         # diagnostics name, else those published before its answer (none before the first one named)
         if lockstep:
-            j = by_stamp[stamp]
-            replay.on_input(preview_input(previews[j][1]), Now(prev_t[j], prev_t[j]))
-        else:
-            if stamp in used:
-                last = by_stamp.get(used[stamp], fed)
-            elif ticks == 0 and used:
-                last = fed
-            else:
-                answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
-                last = bisect_left(prev_t, answer_publish) - 1
-            for j in range(fed + 1, last + 1):
-                replay.on_input(preview_input(previews[j][1]), Now(prev_t[j], prev_t[j]))
-            fed = max(fed, last)
-        out = replay.on_input(odometry_input(msg), Now(publish, publish))
+            previews.give(by_stamp[stamp])
+        elif stamp in used:
+            previews.feed(by_stamp.get(used[stamp], previews.fed))
+        elif count.ticks > 0 or not used:
+            answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
+            previews.feed(bisect_left(prev_t, answer_publish) - 1)
+        out = replay.on_input(inputs.odometries[index], Now(publish, publish))
         expected = next((o.values for o in out if isinstance(o, Command) and o.stamp_ns == stamp), None)
         if expected is None:
             if not any(isinstance(o, Zero) for o in out):
                 continue  # no answer: the node had no preview yet, or dropped the odometry
             expected = (0.0, 0.0, 0.0)  # refused: zero output
-        ticks += 1
+        count.ticks += 1
         recorded = answers.get(stamp)
-        if recorded is None or recorded.shape != (3,):
-            continue
-        compared += 1
-        deviation = float(np.max(np.abs(np.asarray(expected) - recorded)))
-        if worst_stamp is None or deviation > worst:
-            worst, worst_stamp = deviation, stamp
-    if ticks == 0:
-        raise BagError(f"{bag.path}: no odometry tick in the recording")
-    worst_time = None if worst_stamp is None else (worst_stamp - first_stamp) * 1e-9
-    gap_at = None if gap is None else (gap[0] - first_stamp) * 1e-9
-    return RegressionResult(ticks, compared, worst, worst_time, float(tolerance_v), gap_at,
-                            None if gap is None else gap[1], "cmd_vel" if twists else "wheel_voltages")
+        if recorded is not None and recorded.shape == (3,):
+            count.compare(stamp, float(np.max(np.abs(np.asarray(expected) - recorded))))
+    if count.ticks == 0:
+        raise BagError(f"{inputs.path}: no odometry tick in the recording")
+    return count, gap
 
 
 def _command_values(msg: Any, twist: bool) -> np.ndarray:

@@ -44,35 +44,22 @@ from typing import Any
 
 import numpy as np
 
-from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
+from robotino_geom_mpc.loop.controller_loop import ControllerLoop
 from robotino_geom_mpc.loop.events import Command, Now, Output, Zero
 from robotino_geom_mpc.model.driver_chain import ChainError, ChainParams, chain_params
 from robotino_geom_mpc.params.specs import CHAIN_SPECS, ControlParams, RobotinoParams
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
+from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviations, PreviewFeed
 from robotino_geom_mpc.recording.topics import by_publish_time, find_topic, stamp_ns
 from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
-from robotino_geom_mpc.ros.decode import odometry_input, preview_input
 
-__all__ = ["BEAM", "RECEIVE_MARGIN_S", "WATCHDOG_STALE_NS", "ChainReplay", "chain_parameters", "regress_chain"]
+__all__ = ["BEAM", "RECEIVE_MARGIN_S", "WATCHDOG_STALE_NS", "chain_parameters", "regress_chain"]
 
 RECEIVE_MARGIN_S = 0.01  # a preview published this long before an odometry had reached the node
 BEAM = 32  # readings kept at once: the nearest to the recorded answers, then to the recorder's order
 WATCHDOG_STALE_NS = 10**12  # a recorded watchdog stop replayed on a watchdog clock this far on: stale for sure
 _CONTROLLER_NODE = "robotino_controller"
-
-
-@dataclass(frozen=True)
-class ChainReplay:
-    """Outcome of `regress_chain`: odometries stepped, answers compared, the largest deviation [m/s, rad/s] and
-    its stamp, and where the chain's parameters came from.
-    """
-
-    ticks: int
-    compared: int
-    max_deviation: float
-    worst_stamp_s: float | None
-    chain_source: str
 
 
 @dataclass
@@ -82,19 +69,19 @@ class _Reading:
     loop: ControllerLoop
     command: int = 0  # index of the next recorded cmd_vel not yet accounted for
     preview: int = -1  # index of the newest preview held (-1: none yet)
-    ticks: int = 0
-    compared: int = 0
-    worst: float = 0.0
-    worst_stamp: int | None = None
+    count: Deviations = field(default_factory=Deviations)
     unlikely: int = 0  # how far its previews are from those the recorder had received (its order)
     deviation: float | None = field(default=None, compare=False)  # of this odometry's answer, if compared
 
     def clone(self) -> _Reading:
-        """A copy to step on its own (the parameters, the unused MPC and the chain controller's constants shared)."""
+        """A copy to step on its own (the parameters, the settings, the unused MPC, the stateless pairing and the
+        chain controller's constants shared).
+        """
         loop = self.loop
         assert loop.chain is not None
         c = loop.chain.controller
-        shared = (loop.robot, loop.control, loop.controller, c.chain, c._decay, c._b, c.clock.__class__)
+        shared = (loop.robot, loop.control, loop.controller, loop.settings, loop.listeners, loop.pairing, c.chain,
+                  c._decay, c._b, c.clock.__class__)
         return copy.deepcopy(self, {id(item): item for item in shared})
 
     def key(self) -> tuple:
@@ -157,11 +144,10 @@ class _Status:
         return int(self.values["clock_ns"])
 
 
-def _statuses(bag: BagReader) -> list[_Status]:
-    """The controller's statuses that carry its clock (``clock_ns``), in publish order."""
+def _statuses(diags: list[tuple[int, Any]]) -> list[_Status]:
+    """The controller's statuses among `diags` that carry its clock (``clock_ns``), in publish order."""
     out = []
-    topic = find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False)
-    for publish, msg in by_publish_time(bag, topic):
+    for publish, msg in diags:
         for status in msg.status:
             if status.name != STATUS_NAME:
                 continue
@@ -171,33 +157,19 @@ def _statuses(bag: BagReader) -> list[_Status]:
     return out
 
 
-def _with_log_times(bag: BagReader, topic: str | None) -> list[tuple[int, Any, int]]:
-    """(publish time, message, the recorder's receive time) of a topic, in publish-time order."""
-    logs = sorted((m.publish_time_ns, m.log_time_ns) for m in bag.messages([topic] if topic else []))
-    return [(publish, msg, log) for (publish, msg), (_, log) in zip(by_publish_time(bag, topic), logs)]
-
-
-def regress_chain(bag: BagReader, robot: RobotinoParams, control: ControlParams, tolerance: float,
-                  chain_file: str | os.PathLike | None = None) -> ChainReplay:
-    """Replay a chain recording (the module docstring); BagError without odometry or ``cmd_vel``."""
+def regress_chain(bag: BagReader, inputs: ControllerInputs, twists: list[tuple[int, Any]],
+                  diags: list[tuple[int, Any]], robot: RobotinoParams, control: ControlParams, tolerance: float,
+                  chain_file: str | os.PathLike | None = None) -> tuple[Deviations, str]:
+    """Replay a chain recording (the module docstring) whose recorded ``cmd_vel`` are `twists` and diagnostics
+    `diags`: the count and where the chain's parameters came from.
+    """
     chain, source, _ = chain_parameters(bag, chain_file)
-    odom = _with_log_times(bag, find_topic(bag, "odom", "nav_msgs/msg/Odometry"))
-    previews = _with_log_times(bag, find_topic(bag, "reference_preview",
-                                               "trajectory_msgs/msg/MultiDOFJointTrajectory"))
-    commands = [(p, np.array((m.linear.x, m.linear.y, m.angular.z)))
-                for p, m in by_publish_time(bag, find_topic(bag, "cmd_vel", "geometry_msgs/msg/Twist"))]
-    if not odom:
-        raise BagError(f"{bag.path}: no odometry in the recording")
-    frame = previews[0][1].header.frame_id if previews else "odom"
-
-    def fresh() -> ControllerLoop:
-        return ControllerLoop(robot, control, Now(odom[0][0], odom[0][0]), interface="cmd_vel", chain=chain,
-                              odom_frame=frame, listeners=QUIET)
-
-    statuses = _statuses(bag)
+    commands = [(p, np.array((m.linear.x, m.linear.y, m.angular.z))) for p, m in twists]
+    loop = inputs.loop(robot, control, interface="cmd_vel", chain=chain)
+    statuses = _statuses(diags)
     if statuses:
-        return _exact(fresh(), odom, previews, commands, statuses, source)
-    return _search(fresh(), odom, previews, commands, tolerance, source)
+        return _exact(loop, inputs, commands, statuses), source
+    return _search(loop, inputs, commands, tolerance), source
 
 
 def _commands_of(statuses: list[_Status], commands: list) -> list[list[np.ndarray]]:
@@ -211,8 +183,7 @@ def _commands_of(statuses: list[_Status], commands: list) -> list[list[np.ndarra
     return out
 
 
-def _exact(loop: ControllerLoop, odom: list, previews: list, commands: list, statuses: list[_Status],
-           source: str) -> ChainReplay:
+def _exact(loop: ControllerLoop, inputs: ControllerInputs, commands: list, statuses: list[_Status]) -> Deviations:
     """The replay of a recording with the clock in its statuses: one loop, the recorded times.
 
     The node's inputs in the order of its clock: each odometry at the clock of its status (one without a status
@@ -221,10 +192,8 @@ def _exact(loop: ControllerLoop, odom: list, previews: list, commands: list, sta
     (received by then, its stamp checked at its publish time).
     """
     by_odometry: dict[int, deque[int]] = {}  # odometry stamp -> its statuses (two samples of a stamp: two)
-    preview_stamps = [stamp_ns(msg.header.stamp) for _, msg, _ in previews]
-    first_of: dict[int, int] = {}
-    for j, stamp in enumerate(preview_stamps):
-        first_of.setdefault(stamp, j)
+    preview_stamps = [stamp_ns(msg.header.stamp) for _, msg in inputs.previews]
+    first_of = inputs.first_of
     # (clock, kind, index, its status or -1): kind 0 a refused preview, 1 an odometry, 2 a watchdog stop
     timeline: list[tuple[int, int, int, int]] = []
     refused: set[int] = set()
@@ -237,65 +206,53 @@ def _exact(loop: ControllerLoop, odom: list, previews: list, commands: list, sta
         elif status.message in ("chain", "disabled") or status.message.startswith(("refused odom", "dropped odom",
                                                                                     "refused input")):
             by_odometry.setdefault(status.stamp, deque()).append(k)
-    for i, (publish, msg, _) in enumerate(odom):
+    for i, (publish, msg) in enumerate(inputs.odom):
         queue = by_odometry.get(stamp_ns(msg.header.stamp))
         entry = queue.popleft() if queue else -1
         timeline.append((publish if entry < 0 else statuses[entry].clock, 1, i, entry))
     timeline.sort()
     sent = _commands_of(statuses, commands)
-    fed = -1
-    ticks = compared = 0
-    worst, worst_stamp = 0.0, None
+    previews = PreviewFeed(loop, inputs)
+    count = Deviations()
 
     def take(outputs: list[Output], stamp: int, status: int) -> None:
         """Compare the twists of an input's `outputs` with the commands recorded before its `status` (-1: none)."""
-        nonlocal ticks, compared, worst, worst_stamp
         answers = [out for out in outputs if isinstance(out, (Command, Zero))]
         before = sent[status] if status >= 0 else []
         recorded = before[len(before) - len(answers):] if len(before) >= len(answers) else []
         for j, out in enumerate(answers):
             if not isinstance(out, Command):
                 continue
-            ticks += 1
-            if not recorded:
-                continue
-            compared += 1
-            deviation = float(np.max(np.abs(np.array(out.values) - recorded[j])))
-            if worst_stamp is None or deviation > worst:
-                worst, worst_stamp = deviation, stamp
+            count.ticks += 1
+            if recorded:
+                count.compare(stamp, float(np.max(np.abs(np.array(out.values) - recorded[j]))))
 
     for clock, kind, index, k in timeline:
         if kind == 0:
-            take(loop.on_input(preview_input(previews[index][1]), Now(clock, clock)), preview_stamps[index], k)
+            take(loop.on_input(inputs.preview_events[index], Now(clock, clock)), preview_stamps[index], k)
             continue
         if kind == 2:
             take(loop.on_watchdog(Now(clock, clock + WATCHDOG_STALE_NS)), clock, k)
             continue
-        publish, msg, _ = odom[index]
+        msg = inputs.odom[index][1]
         mine = None if k < 0 else statuses[k]
         if mine is not None and mine.message in ("chain", "disabled") and \
                 loop.enabled != (mine.message == "chain"):
             loop.on_enable(mine.message == "chain", Now(clock, clock))
         if mine is None:  # no status: no answer (no preview yet, a stale one, or the node stopping first)
             continue
-        if mine.message == "chain":
-            last = first_of.get(int(mine.values["preview_stamp_ns"]), fed)
-        else:
-            last = fed
-        for j in range(fed + 1, last + 1):
-            if j not in refused:
-                take(loop.on_input(preview_input(previews[j][1]), Now(previews[j][0], clock)), preview_stamps[j], -1)
-        fed = max(fed, last)
-        take(loop.on_input(odometry_input(msg), Now(clock, clock)), stamp_ns(msg.header.stamp), k)
-    first = stamp_ns(odom[0][1].header.stamp)
-    return ChainReplay(ticks, compared, worst, None if worst_stamp is None else (worst_stamp - first) * 1e-9, source)
+        last = first_of.get(int(mine.values["preview_stamp_ns"]), previews.fed) if mine.message == "chain" \
+            else previews.fed
+        for j, outputs in previews.up_to(last, clock, refused):
+            take(outputs, preview_stamps[j], -1)
+        take(loop.on_input(inputs.odometries[index], Now(clock, clock)), stamp_ns(msg.header.stamp), k)
+    return count
 
 
-def _search(loop: ControllerLoop, odom: list, previews: list, commands: list, tolerance: float,
-            source: str) -> ChainReplay:
+def _search(loop: ControllerLoop, inputs: ControllerInputs, commands: list, tolerance: float) -> Deviations:
     """The bounded search over the unrecorded readings (the module docstring), each a `ControllerLoop`."""
-    preview_t = [p for p, _, _ in previews]
-    preview_log = sorted(log for _, _, log in previews)
+    preview_t = [p for p, _ in inputs.previews]
+    preview_log = sorted(inputs.preview_log_ns)
     margin = round(RECEIVE_MARGIN_S * 1e9)
 
     def hold(base: _Reading, j: int) -> bool:
@@ -304,15 +261,16 @@ def _search(loop: ControllerLoop, odom: list, previews: list, commands: list, to
         """
         for k in range(base.preview + 1, j + 1):
             base.preview = k
-            if any(isinstance(o, Zero) for o in base.loop.on_input(preview_input(previews[k][1]),
+            if any(isinstance(o, Zero) for o in base.loop.on_input(inputs.preview_events[k],
                                                                   Now(preview_t[k], preview_t[k]))):
                 return False
         return True
 
-    def expand(r: _Reading, publish: int, msg: Any, recorded_preview: int) -> list[_Reading]:
+    def expand(r: _Reading, index: int, recorded_preview: int) -> list[_Reading]:
         r.deviation = None
+        publish, msg = inputs.odom[index]
         stamp = stamp_ns(msg.header.stamp)
-        odometry = odometry_input(msg)
+        odometry = inputs.odometries[index]
         out = []
         newest = bisect_right(preview_t, publish - margin) - 1  # held by the node for sure
         if r.preview < 0 and newest < 0:  # perhaps no preview yet: no answer
@@ -344,11 +302,9 @@ def _search(loop: ControllerLoop, odom: list, previews: list, commands: list, to
                     seen = s.loop.chain.controller.commands
                     s.command = r.command + 1
                     s.unlikely += abs(j - recorded_preview)  # the recorder's order stands for the node's
-                    s.ticks += 1
-                    s.compared += 1
+                    s.count.ticks += 1
                     s.deviation = float(np.max(np.abs(np.array(twists[0]) - recorded)))
-                    if s.worst_stamp is None or s.deviation > s.worst:
-                        s.worst, s.worst_stamp = s.deviation, stamp
+                    s.count.compare(stamp, s.deviation)
                     out.append(s)
         if not out:  # no answer expected (e.g. an older stamp the node drops): the loop takes it all the same
             r.loop.on_input(odometry, Now(publish, publish))
@@ -356,18 +312,15 @@ def _search(loop: ControllerLoop, odom: list, previews: list, commands: list, to
         return out
 
     readings = [_Reading(loop)]
-    for publish, msg, log in odom:
+    for index, log in enumerate(inputs.odom_log_ns):
         recorded_preview = bisect_left(preview_log, log) - 1
-        expanded = [e for r in readings for e in expand(r, publish, msg, recorded_preview)]
+        expanded = [e for r in readings for e in expand(r, index, recorded_preview)]
         matching = [e for e in expanded if e.deviation is None or e.deviation <= tolerance]
         if not matching:  # no reading gives the recorded answer: the nearest goes on, its deviation counted
             matching = [min(expanded, key=lambda e: e.deviation if e.deviation is not None else np.inf)] \
                 if expanded else readings
         unique: dict[tuple, _Reading] = {}
-        for e in sorted(matching, key=lambda e: (e.worst, e.unlikely, e.preview)):
+        for e in sorted(matching, key=lambda e: (e.count.worst, e.unlikely, e.preview)):
             unique.setdefault(e.key(), e)
         readings = list(unique.values())[:BEAM]
-    best = min(readings, key=lambda r: (r.worst, -r.compared))
-    first = stamp_ns(odom[0][1].header.stamp)
-    return ChainReplay(best.ticks, best.compared, best.worst,
-                       None if best.worst_stamp is None else (best.worst_stamp - first) * 1e-9, source)
+    return min(readings, key=lambda r: (r.count.worst, -r.count.compared)).count

@@ -1,0 +1,156 @@
+"""What every replay of a recording (`regress`: voltages and cmd_vel, `regress_plans`, `regress_chain`) reads and
+how it hands it to a fresh `loop.controller_loop.ControllerLoop`: written once here, the pairing of each recorded
+answer with its input being the one thing each mode does its own way.
+
+`ControllerInputs` holds the controller's recorded inputs in publish order, decoded once into the loop's events
+(`ros.decode.odometry_input`, `preview_input`): the ``odom`` and ``reference_preview`` messages with their publish
+times (and the recorder's receive times, which the chain's search reads), each preview stamp's first message, and
+what the controller's tracking statuses say per odometry stamp (the preview it used, ``preview_stamp_ns``; the
+robot's reports it had received, ``reports_received``). It builds the loop the node was (`loop`), and hands the
+previews on in publish order, each once, up to an index (`PreviewFeed`). `Deviations` counts the ticks answered
+and the answers compared, and keeps the largest deviation and its stamp.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
+from robotino_geom_mpc.loop.events import Now, Odometry, Output, Preview, Undecodable
+from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.recording.bag_reader import BagReader
+from robotino_geom_mpc.recording.bagfile import BagError
+from robotino_geom_mpc.recording.topics import by_publish_time, controller_diagnostics, find_topic, stamp_ns
+from robotino_geom_mpc.ros.decode import odometry_input, preview_input
+
+__all__ = ["ControllerInputs", "Deviations", "PreviewFeed", "diagnostics"]
+
+
+def diagnostics(bag: BagReader) -> list[tuple[int, Any]]:
+    """(publish time, DiagnosticArray) of the recording's ``diagnostics``, in publish order ([] without)."""
+    return by_publish_time(bag, find_topic(bag, "diagnostics", "diagnostic_msgs/msg/DiagnosticArray", False))
+
+
+@dataclass(frozen=True)
+class ControllerInputs:
+    """The controller's recorded inputs (module docstring); `read` builds it from a recording.
+
+    Attributes
+    ----------
+    odom, previews
+        (publish time [ns], message) of ``odom`` and ``reference_preview``, in publish order.
+    odometries, preview_events
+        The same messages as the loop's input events.
+    odom_log_ns, preview_log_ns
+        The recorder's receive times [ns], the publish times' order (`read` with ``log_times``; else empty).
+    first_of
+        Preview stamp [ns] -> index of its first message.
+    used, received
+        Odometry stamp [ns] -> the preview stamp its status names, the reports it had received.
+    """
+
+    path: str
+    odom: list[tuple[int, Any]]
+    previews: list[tuple[int, Any]]
+    odometries: list[Odometry | Undecodable]
+    preview_events: list[Preview | Undecodable]
+    first_of: dict[int, int]
+    used: dict[int, int]
+    received: dict[int, int]
+    odom_log_ns: list[int] = field(default_factory=list)
+    preview_log_ns: list[int] = field(default_factory=list)
+
+    @classmethod
+    def read(cls, bag: BagReader, diags: list[tuple[int, Any]], log_times: bool = False) -> ControllerInputs:
+        """The inputs of `bag` (`diags`: its `diagnostics`); BagError without odometry or previews' topic."""
+        odom_topic = find_topic(bag, "odom", "nav_msgs/msg/Odometry")
+        preview_topic = find_topic(bag, "reference_preview", "trajectory_msgs/msg/MultiDOFJointTrajectory")
+        odom, previews = by_publish_time(bag, odom_topic), by_publish_time(bag, preview_topic)
+        if not odom:
+            raise BagError(f"{bag.path}: no odometry tick in the recording")
+        first_of: dict[int, int] = {}
+        for j, (_, msg) in enumerate(previews):
+            first_of.setdefault(stamp_ns(msg.header.stamp), j)
+        used: dict[int, int] = {}
+        received: dict[int, int] = {}
+        for _, msg in diags:
+            values = controller_diagnostics(msg)
+            if values is None:
+                continue
+            stamp = stamp_ns(msg.header.stamp)
+            if values.get("preview_stamp_ns", "").isdigit():
+                used.setdefault(stamp, int(values["preview_stamp_ns"]))
+            if values.get("reports_received", "").isdigit():
+                received.setdefault(stamp, int(values["reports_received"]))
+        return cls(str(bag.path), odom, previews, [odometry_input(msg) for _, msg in odom],
+                   [preview_input(msg) for _, msg in previews], first_of, used, received,
+                   _log_times(bag, odom_topic) if log_times else [],
+                   _log_times(bag, preview_topic) if log_times else [])
+
+    @property
+    def first_stamp(self) -> int:
+        """The first odometry's stamp [ns] (the origin of the reported times)."""
+        return stamp_ns(self.odom[0][1].header.stamp)
+
+    def loop(self, robot: RobotinoParams, control: ControlParams, **mode: Any) -> ControllerLoop:
+        """A fresh loop as the node was: started at the first odometry's publish time, in the previews' frame,
+        quiet (only the commands are compared); `mode`: the loop's keywords (lockstep, interface, plans, chain).
+        """
+        start = self.odom[0][0]
+        frame = self.previews[0][1].header.frame_id if self.previews else "odom"
+        return ControllerLoop(robot, control, Now(start, start), odom_frame=frame, listeners=QUIET, **mode)
+
+    def seconds(self, stamp: int | None) -> float | None:
+        """`stamp` [ns] as seconds after the first odometry's stamp (None stays None)."""
+        return None if stamp is None else (stamp - self.first_stamp) * 1e-9
+
+
+def _log_times(bag: BagReader, topic: str) -> list[int]:
+    """The recorder's receive times of `topic`'s messages, in the order of their publish times."""
+    return [log for _, log in sorted((m.publish_time_ns, m.log_time_ns) for m in bag.messages([topic]))]
+
+
+class PreviewFeed:
+    """Hands a loop the recorded previews in publish order, each once (`up_to`), or one by its index (`give`)."""
+
+    def __init__(self, loop: ControllerLoop, inputs: ControllerInputs) -> None:
+        self.loop, self.inputs = loop, inputs
+        self.fed = -1  # index of the last preview handed on
+
+    def up_to(self, last: int, clock: int | None = None,
+              skip: frozenset[int] | set[int] = frozenset()) -> Iterator[tuple[int, list[Output]]]:
+        """(index, the loop's outputs) of each preview after those fed up to index `last` but those in `skip`, each
+        at its publish time on the watch clock and at `clock` on the node's (None: its publish time).
+        """
+        for j in range(self.fed + 1, last + 1):
+            self.fed = j
+            if j not in skip:
+                yield j, self.give(j, clock)
+
+    def give(self, j: int, clock: int | None = None) -> list[Output]:
+        """The loop's outputs to preview `j` (lockstep: a tick's own, by stamp), at `clock` as in `up_to`."""
+        publish = self.inputs.previews[j][0]
+        return self.loop.on_input(self.inputs.preview_events[j], Now(publish, publish if clock is None else clock))
+
+    def feed(self, last: int, clock: int | None = None) -> None:
+        """`up_to` whose outputs nobody reads."""
+        for _ in self.up_to(last, clock):
+            pass
+
+
+@dataclass
+class Deviations:
+    """The replay's count: ticks answered, answers compared, the largest deviation and the stamp [ns] of its tick."""
+
+    ticks: int = 0
+    compared: int = 0
+    worst: float = 0.0
+    worst_stamp: int | None = None
+
+    def compare(self, stamp: int, deviation: float) -> None:
+        """One compared answer of the tick of `stamp`."""
+        self.compared += 1
+        if self.worst_stamp is None or deviation > self.worst:
+            self.worst, self.worst_stamp = deviation, stamp

@@ -31,7 +31,7 @@ from rclpy.task import Future
 from robotino_geom_mpc.ros.fleet import FleetHost, run_fleet
 from robotino_geom_mpc.ros.parameters import NodeStartError
 from robotino_geom_mpc.ros.qos import wait_acknowledged
-from robotino_geom_mpc.ros.spin import FINISHED_ACK_WAIT_S, data_publishers
+from robotino_geom_mpc.ros.spin import FINISHED_ACK_WAIT_S, data_publishers, monotonic
 from robotino_sim_node.loop_timing import write_report
 from robotino_sim_node.plant_lockstep import FleetClock
 from robotino_sim_node.plant_node import PlantNode
@@ -55,13 +55,14 @@ class FleetPlant(FleetHost):
         if self.path and not Path(self.path).resolve().parent.is_dir():
             raise NodeStartError(f"parameter 'timing_report': folder of {self.path!r} does not exist")
         self.clock = FleetClock()
+        self.created = monotonic()  # every robot's odometry sources' check counts its window from here
         self.robots: list[PlantNode] = []
         self.done: Future = Future()
         self.exit_status = 0
 
     def _plant(self, namespace: str, overrides: list[Parameter]) -> PlantNode:
         """A robot's plant on the fleet's clock (its own timing report not written: the fleet's gathers them)."""
-        return PlantNode(self.clock, namespace=namespace,
+        return PlantNode(self.clock, self.created, namespace=namespace,
                          parameter_overrides=[*overrides, Parameter("timing_report", value="")])
 
     def robot_nodes(self) -> list[Node]:

@@ -146,12 +146,13 @@ _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray") 
 class PlantNode(Node):
     """The plant simulator node (see the module docstring for its interface)."""
 
-    def __init__(self, fleet: FleetClock | None = None, **node_options: Any) -> None:
+    def __init__(self, fleet: FleetClock | None = None, created: float | None = None, **node_options: Any) -> None:
         """`fleet`: the lockstep clock of a fleet in one process (`fleet_plant_node`; no link there), used in
-        lockstep; `node_options`: rclpy's `Node` options (a fleet's robot: its ``namespace``, parameter overrides).
+        lockstep; `created`: the steady time the odometry sources' check counts its window from (a fleet's start;
+        None: now); `node_options`: rclpy's `Node` options (a fleet's robot: its ``namespace``, parameter overrides).
         """
         super().__init__("robotino_plant", **node_options)
-        created = monotonic()  # the odometry sources' check counts its window from here (`odom_sources`)
+        created = monotonic() if created is None else created  # (`odom_sources`)
         self.params = SpecParameters(
             self, _all_specs(), {**spec_defaults(), **_PLANT_DEFAULTS}, self._on_params,
             # the realtime grid (steps of 1 / physics_rate_hz), the odometry model

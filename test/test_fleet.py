@@ -1,0 +1,165 @@
+"""The fleet (issue 40): N robots through one controller, one plant and one trajectory process (`ros.fleet`).
+
+Lockstep: ``run --robots N`` records the fleet in one bag; each robot's metrics (its namespace of the bag) equal
+the offline loop's of the same scenario and seed (`simulation.run_scenario`, the truth `run` is held to) to 1e-9,
+and the plant counts every tick of every robot answered. Faults: the fleet controller in realtime fed by the
+test, one robot's odometry stopped -> that robot's controller sends zero volts within its watchdog time while the
+others go on tracking every odometry; one robot's ``~/enable`` (``/<ns>/robotino_controller/enable``) false ->
+that robot zero, the others tracking.
+"""
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import pytest
+from std_srvs.srv import SetBool
+
+from harness import Harness
+from robotino_geom_mpc.offline.results import compute_metrics
+from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
+from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.reference.trajectories import make_reference
+from robotino_geom_mpc.system.processes import NodeGroup, robot_names, ros_args
+from test_controller_node import _rig, odometry, stamped_preview, values
+
+pytestmark = pytest.mark.ros
+
+DURATION_S = 2.0
+SEED = 3
+SCENARIO = "robustness"  # a mismatched controller model and odometry noise: the seed matters
+
+
+def _run_fleet(out, robots: int) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "run", "--robots", str(robots), "--scenario",
+                           SCENARIO, "--duration", str(DURATION_S), "--seed", str(SEED), "--out", str(out),
+                           "--no-plots"], capture_output=True, text=True, timeout=600, env=os.environ.copy())
+
+
+def _assert_each_robot_is_the_single_run(out, robots: int) -> None:
+    robot, control = load_params()
+    want = compute_metrics(run_scenario(RunConfig(SCENARIO, robot, control, duration_s=DURATION_S, seed=SEED)))
+    timing = json.loads((out / "timing.json").read_text())
+    assert sorted(timing) == sorted(robot_names(robots))
+    for namespace in robot_names(robots):
+        assert timing[namespace]["ticks"] == round(DURATION_S / control.period_s), namespace
+        assert timing[namespace]["missed"] == 0, namespace
+        metrics = json.loads((out / namespace / "metrics.json").read_text())
+        for key, value in want.items():
+            if key.startswith("compute_time"):
+                continue  # wall-clock measurements
+            if isinstance(value, float) and math.isfinite(value):
+                assert metrics[key] == pytest.approx(value, rel=0.0, abs=1e-9), (namespace, key)
+            else:
+                assert metrics[key] == value, (namespace, key)
+
+
+@pytest.mark.parametrize("robots", [1, 2, 5])
+def test_lockstep_fleet_each_robot_is_the_single_robot_run(tmp_path, robots):
+    out = tmp_path / f"fleet{robots}"
+    proc = _run_fleet(out, robots)
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    _assert_each_robot_is_the_single_run(out, robots)
+
+
+@pytest.mark.slow
+def test_lockstep_fleet_of_20_each_robot_is_the_single_robot_run(tmp_path):
+    out = tmp_path / "fleet20"
+    proc = _run_fleet(out, 20)
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    _assert_each_robot_is_the_single_run(out, 20)
+
+
+ROBOTS = ("robot1", "robot2", "robot3")
+
+
+def test_one_robots_stale_odometry_or_disable_zeroes_that_robot_only(tmp_path):
+    _, control = load_params()
+    reference = make_reference("paper-circle")
+    period_ns = round(control.period_s * 1e9)
+    with Harness("fleet_fault_test") as h, NodeGroup(log_dir=tmp_path) as group:
+        rigs = {ns: _rig(h, f"/{ns}") for ns in ROBOTS}
+        args = ros_args(None, {"mode": "realtime", "odom_timeout_s": 0.2, "reference_timeout_s": 0.2,
+                               "robots": list(ROBOTS)})
+        node = group.start("fleet_controller_node", args)
+        assert h.spin_until(lambda: all(
+            odom.get_subscription_count() >= 1 and preview.get_subscription_count() >= 1
+            and h.node.count_publishers(f"/{ns}/wheel_voltages") >= 1
+            for ns, (_, _, odom, preview) in rigs.items()), 60.0), node.stderr_tail()
+        h.spin_for(0.2)
+
+        def tracking(ns):
+            return sum(values(d)[0].message == "tracking" for d in rigs[ns][1])
+
+        def feed(robots, ticks, start):
+            for k in range(start, start + ticks):
+                stamp = h.node.get_clock().now().nanoseconds
+                for ns in robots:
+                    _, _, odom, preview = rigs[ns]
+                    msg = stamped_preview(reference, k * period_ns, stamp, control)
+                    msg.header.frame_id = f"{ns}/odom"  # each robot's frames carry its prefix
+                    preview.publish(msg)
+                    msg = odometry(stamp, 0.001, 0.0, 0.0)
+                    msg.header.frame_id, msg.child_frame_id = f"{ns}/odom", f"{ns}/base_link"
+                    odom.publish(msg)
+                h.spin_for(0.02)
+            return start + ticks
+
+        k = 0
+        while min(tracking(ns) for ns in ROBOTS) < 5 and k < 400:  # the first can arrive late (discovery)
+            k = feed(ROBOTS, 1, k)
+        assert min(tracking(ns) for ns in ROBOTS) >= 5, node.stderr_tail()
+
+        # robot2's odometry stops; robot1 and robot3 go on
+        counts = {ns: (len(rigs[ns][0]), tracking(ns)) for ns in ROBOTS}
+        k = feed(("robot1", "robot3"), 40, k)  # 0.8 s: robot2 stale after 0.2 s
+        volts = {ns: [list(m.data) for m in rigs[ns][0]][counts[ns][0]:] for ns in ROBOTS}
+        assert len(volts["robot2"]) >= 2 and all(v == [0.0, 0.0, 0.0] for v in volts["robot2"])
+        assert "stale_odom" in [values(d)[1]["watchdog"] for d in rigs["robot2"][1]]
+        for ns in ("robot1", "robot3"):  # every odometry answered with a tracking command, no zero
+            assert tracking(ns) - counts[ns][1] >= 35, ns
+            assert volts[ns] and all(v != [0.0, 0.0, 0.0] for v in volts[ns]), ns
+            assert "stale_odom" not in [values(d)[1]["watchdog"] for d in rigs[ns][1]], ns
+
+        # robot3 disabled through its own ~/enable; robot1 goes on
+        client = h.node.create_client(SetBool, "/robot3/robotino_controller/enable")
+        assert client.wait_for_service(timeout_sec=10.0)
+        future = client.call_async(SetBool.Request(data=False))
+        assert h.spin_until(future.done, 10.0) and future.result().success
+        counts = {ns: len(rigs[ns][0]) for ns in ("robot1", "robot3")}
+        k = feed(("robot1", "robot3"), 20, k)
+        assert all(list(m.data) == [0.0, 0.0, 0.0] for m in list(rigs["robot3"][0])[counts["robot3"]:])
+        assert len(rigs["robot3"][0]) - counts["robot3"] >= 15
+        assert all(list(m.data) != [0.0, 0.0, 0.0] for m in list(rigs["robot1"][0])[counts["robot1"]:])
+        assert "Traceback" not in node.stderr_tail(200)
+
+
+def test_robot_topics_and_parameters_are_per_robot(tmp_path):
+    """Each robot's controller is ``/<ns>/robotino_controller`` with its own parameters (set on one: the others
+    keep theirs) and its topics in its namespace.
+    """
+    with Harness("fleet_graph_test") as h, NodeGroup(log_dir=tmp_path) as group:
+        node = group.start("fleet_controller_node", ros_args(None, {"mode": "realtime", "robots": list(ROBOTS)}))
+        assert h.spin_until(lambda: all(h.node.count_publishers(f"/{ns}/wheel_voltages") >= 1 for ns in ROBOTS),
+                            60.0), node.stderr_tail()
+        names = {f"/{ns}/robotino_controller" for ns in ROBOTS} | {"/robotino_fleet_controller"}
+        assert h.spin_until(lambda: names <= set(h.node.get_fully_qualified_node_names()), 30.0)
+        (done,) = h.set_parameters("robot2/robotino_controller", {"control.q_x": 2.0e6})
+        assert done.successful
+        assert [h.get_parameters(f"{ns}/robotino_controller", ["control.q_x"])[0] for ns in ROBOTS][1] == 2.0e6
+        others = [h.get_parameters(f"{ns}/robotino_controller", ["control.q_x", "frame_prefix"]) for ns in
+                  ("robot1", "robot3")]
+        assert others[0][0] == others[1][0] != 2.0e6
+        assert [o[1] for o in others] == ["robot1/", "robot3/"]
+        for ns in ROBOTS:
+            subs = h.node.get_subscriptions_info_by_topic(f"/{ns}/odom")
+            assert [(i.node_namespace, i.node_name) for i in subs] == [(f"/{ns}", "robotino_controller")]
+
+
+def test_a_bad_robots_parameter_stops_the_fleet_with_status_2(tmp_path):
+    with NodeGroup(log_dir=tmp_path) as group:
+        node = group.start("fleet_controller_node", ros_args(None, {"robots": ["robot1", "robot1"]}))
+        assert node.popen.wait(timeout=60) == 2
+        assert "named twice" in node.stderr_tail()

@@ -41,6 +41,11 @@ command_buffer true: also start the robot-side command buffer (``command_buffer_
                buffer alone (docs/howto/real_robot_buffer.md)
 record         true: also start the MCAP recorder (bag in ``bag``)
 bag            recording directory (default: rosbag2_<date> in the working directory)
+robots         N > 0: a fleet of N robots, ``robot1`` .. ``robotN`` (`ros.fleet`): the trajectory, the controller and
+               the plant as one process each for the whole fleet (``fleet_trajectory_node``,
+               ``fleet_controller_node``, ``fleet_plant_node``: one node per robot in its namespace, its frames
+               prefixed ``robot<k>/``; in lockstep one /clock for the fleet), no description publisher; with no
+               ``namespace``, ``frame_prefix`` auto and no command buffer. 0 (default): one robot
 rviz           true: also start rviz2 with config/robotino.rviz (fixed frame odom, the robot model, TF, the
                reference and predicted paths, the odometry) where rviz2 is installed; where it is not, the
                launch says so in its log and runs without it (docs/howto/views.md)
@@ -67,8 +72,8 @@ from launch_ros.substitutions import FindPackageShare
 
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
-from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, frame_prefix, namespace_remaps, recorder_wait_for, \
-    ros_namespace
+from robotino_geom_mpc.system.processes import FLEET_NODES, FRAME_PREFIX_NODES, fleet_wait_for, frame_prefix, \
+    namespace_remaps, recorder_wait_for, robot_names, ros_namespace
 from robotino_geom_mpc.scenarios import node_parameters
 from robotino_geom_mpc.system.launch_arguments import flag, node_environment, number
 
@@ -133,25 +138,37 @@ def _nodes(context) -> list:
     remappings = [(old, new) for old, new in namespace_remaps(namespace, lockstep).items() if old != "__ns"]
     common = {"namespace": namespace, "remappings": remappings, "additional_env": env, "output": "screen"}
 
-    def own(name: str) -> dict:  # the frame prefix for the nodes that declare it
-        return frames if name in FRAME_PREFIX_NODES else {}
+    robots = int(number(config, "robots", int))
+    if robots and (namespace or config["frame_prefix"] != "auto" or flag(config, "command_buffer")):
+        raise ValueError("launch argument 'robots': a fleet's robots are robot1 .. robotN, each its namespace and "
+                         "frame prefix (no 'namespace', 'frame_prefix' auto, no 'command_buffer')")
 
+    def own(name: str) -> dict:  # the frame prefix for the nodes that declare it (a fleet's robots: their own)
+        return frames if name in FRAME_PREFIX_NODES and not robots else {}
+
+    def kind(name: str, node_name: str) -> dict:  # the executable: one robot's, or the fleet's (its nodes named)
+        return {"executable": FLEET_NODES[name]} if robots else {"executable": name, "name": node_name}
+
+    fleet = {"robots": robot_names(robots)} if robots else {}
     plant = {**overrides["plant_node"], "mode": mode, "duration_s": number(config, "duration"),
-             "seed": number(config, "seed", int), **command, **own("plant_node")}
-    if record:  # the lockstep plant also waits for the recorder's subscriptions
+             "seed": number(config, "seed", int), **command, **own("plant_node"), **fleet}
+    if robots:  # every robot's loop (and the recorder's) subscriptions, the fleet's /clock read by each robot's
+        plant["lockstep_wait_for"] = fleet_wait_for(robots, record, interface)
+    elif record:  # the lockstep plant also waits for the recorder's subscriptions
         plant["lockstep_wait_for"] = recorder_wait_for(interface)
-    plant_node = Node(package=PACKAGE, executable="plant_node", name="robotino_plant",
+    plant_node = Node(package=PACKAGE, **kind("plant_node", "robotino_plant"),
                       parameters=[config["plant_params"], plant], **common)
     nodes = [
-        Node(package=PACKAGE, executable="trajectory_node", name="robotino_trajectory",
-             parameters=[params_file, {**overrides["trajectory_node"], "mode": mode, **own("trajectory_node")}],
+        Node(package=PACKAGE, **kind("trajectory_node", "robotino_trajectory"),
+             parameters=[params_file, {**overrides["trajectory_node"], "mode": mode, **own("trajectory_node"),
+                                       **fleet}],
              **common),
-        Node(package=PACKAGE, executable="controller_node", name="robotino_controller",
+        Node(package=PACKAGE, **kind("controller_node", "robotino_controller"),
              parameters=[params_file, {**overrides["controller_node"], "mode": mode, **command,
-                                       **own("controller_node")}],
+                                       **own("controller_node"), **fleet}],
              **common),
         plant_node,
-        _description(config["plant_params"], prefix, mode, **common),
+        *([] if robots else [_description(config["plant_params"], prefix, mode, **common)]),
     ]
     if flag(config, "command_buffer"):
         nodes.append(Node(package=PACKAGE, executable="command_buffer_node", name="robotino_command_buffer",
@@ -192,6 +209,8 @@ def generate_launch_description() -> LaunchDescription:
                               description="start the robot-side command buffer (cmd_vel_plan -> cmd_vel)"),
         DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),
         DeclareLaunchArgument("bag", default_value="", description="recording directory"),
+        DeclareLaunchArgument("robots", default_value="0",
+                              description="N > 0: a fleet of N robots robot1 .. robotN, one process per node kind"),
         DeclareLaunchArgument("rviz", default_value="false",
                               description="true: also start rviz2 with rviz_config (a log line where not installed)"),
         DeclareLaunchArgument("rviz_config", default_value=default_rviz, description="the RViz view of rviz:=true"),

@@ -154,6 +154,8 @@ def test_with_record_the_recorder_starts_and_the_plant_waits_for_its_subscriptio
     ({"namespace": "robot-1"}, NamespaceError, "robot-1"),
     ({"frame_prefix": "/robot1"}, DescriptionError, "/robot1"),
     ({"command_interface": "twist"}, ValueError, "command_interface"),
+    ({"robots": "2", "namespace": "team"}, ValueError, "robots"),
+    ({"robots": "-2"}, ValueError, "robots"),
 ])
 def test_bad_arguments_stop_the_launch_with_a_clear_error(description, arguments, error, match):
     with pytest.raises(error, match=match):
@@ -345,3 +347,24 @@ def test_rviz_starts_rviz2_with_the_packages_view_where_installed_and_says_so_wh
     assert not _of("LogInfo", off) and "rviz2" not in {n.kwargs["executable"] for n in _of("Node", off)}
     (declared,) = [a for a in _of("DeclareLaunchArgument", description) if a.args[0] == "rviz_config"]
     assert declared.kwargs["default_value"].args[0][1:] == ["config", "robotino.rviz"]
+
+
+def test_robots_starts_the_fleets_processes_as_run_does(description):
+    """``robots:=N``: the fleet executables (their nodes named by the fleet, so no name remap), each with the robots
+    robot1 .. robotN and the single robot's parameters; the plant waits as `run --robots` makes it wait.
+    """
+    from robotino_geom_mpc.system.processes import FLEET_NODES, fleet_wait_for
+
+    single, _ = _launch(description, lockstep="true", record="true", bag="/tmp/b")
+    fleet, _ = _launch(description, lockstep="true", record="true", bag="/tmp/b", robots="3")
+    assert set(fleet) == {FLEET_NODES[name] for name in LOOP} | {"recorder_node"}
+    for name in LOOP:
+        node = fleet[FLEET_NODES[name]]
+        assert "name" not in node.kwargs and node.kwargs["namespace"] == ""
+        got, want = _overrides(node), _overrides(single[name])
+        assert got.pop("robots") == ["robot1", "robot2", "robot3"]
+        want.pop("frame_prefix", None)  # each robot's own, set by the fleet
+        if name == "plant_node":
+            assert got.pop("lockstep_wait_for") == fleet_wait_for(3, True)
+            want.pop("lockstep_wait_for")
+        assert got == want, name

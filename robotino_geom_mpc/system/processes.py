@@ -28,7 +28,7 @@ __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "TIMING_RE
            "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
            "dds_environment",
            "wait_for_exit",
-           "FLEET_NODES", "fleet_arguments", "frame_prefix", "namespace_remaps", "node_arguments", "robot_names",
+           "FLEET_NODES", "fleet_arguments", "fleet_wait_for", "frame_prefix", "namespace_remaps", "node_arguments", "robot_names",
            "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.errors import RobotinoError
@@ -242,6 +242,17 @@ def robot_names(count: int) -> list[str]:
     return [f"robot{k}" for k in range(1, count + 1)]
 
 
+def fleet_wait_for(robots: int, record: bool, command_interface: str = "voltages") -> list[str]:
+    """A fleet plant's ``lockstep_wait_for`` (each robot's): the loop's subscriptions in its namespace (with the
+    recorder's: `recorder_wait_for`, no description publisher), and on the fleet's one /clock every robot's
+    trajectory node (and the recorder).
+    """
+    waits = [w.replace("joint_states:2", "joint_states:1") for w in recorder_wait_for(command_interface)] if record \
+        else list(LOCKSTEP_WAIT_FOR)
+    clock_readers = robots + (1 if record else 0)
+    return [f"/clock:{clock_readers}" if w.startswith("/clock:") else w for w in waits]
+
+
 def fleet_arguments(scenario: str, params_file: str | os.PathLike, duration_s: float, lockstep: bool, robots: int,
                     seed: int = 0, bag: str | os.PathLike | None = None, odometry: str = "ideal",
                     command_interface: str = "voltages", overrides: dict[str, dict[str, Any]] | None = None,
@@ -250,15 +261,11 @@ def fleet_arguments(scenario: str, params_file: str | os.PathLike, duration_s: f
 
     `robots` robots ``robot1`` .. ``robot<robots>``, each with the nodes' arguments of a single robot's run
     (`node_arguments`: the scenario, the mode, the seed, ...; `overrides` by the single node's executable name),
-    as ``robots`` of each fleet process; the recorder at the root records them all. A lockstep plant waits for
-    the loop's subscriptions per robot, and on the fleet's one /clock for every robot's trajectory node (and the
-    recorder); no robot description publisher.
+    as ``robots`` of each fleet process; the recorder at the root records them all. A lockstep plant waits as
+    `fleet_wait_for` says; no robot description publisher.
     """
-    waits = list(LOCKSTEP_WAIT_FOR) if bag is None else [
-        w.replace("joint_states:2", "joint_states:1") for w in recorder_wait_for(command_interface)]
-    clock_readers = robots + (0 if bag is None else 1)
-    waits = [f"/clock:{clock_readers}" if w.startswith("/clock:") else w for w in waits]
-    single = node_arguments(scenario, params_file, duration_s, lockstep, seed, bag, wait_for=waits,
+    single = node_arguments(scenario, params_file, duration_s, lockstep, seed, bag,
+                            wait_for=fleet_wait_for(robots, bag is not None, command_interface),
                             overrides=overrides, odometry=odometry, command_interface=command_interface,
                             environ=environ)
     fleet = ["-p", f"robots:={_format(robot_names(robots))}"]

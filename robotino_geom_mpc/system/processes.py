@@ -28,8 +28,8 @@ __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "TIMING_RE
            "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
            "dds_environment",
            "wait_for_exit",
-           "FLEET_NODES", "fleet_arguments", "fleet_wait_for", "frame_prefix", "namespace_remaps", "node_arguments", "robot_names",
-           "ros_args", "ros_namespace"]
+           "FLEET_NODES", "fleet_arguments", "fleet_wait_for", "frame_prefix", "namespace_remaps", "node_arguments",
+           "robot_names", "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.system.shm import remove_zombie_segments

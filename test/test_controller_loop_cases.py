@@ -245,7 +245,7 @@ def test_realtime_a_restarted_trajectory_gives_zero_then_a_bumpless_restart_that
     """
     loop = ControllerLoop(ROBOT, CONTROL, Now(T0_NS, T0_NS))
     robot = _robot()
-    kill, restart, end = 500, 600, 1600  # ticks
+    kill, restart, end = 500, 600, 1400  # ticks: the blend after the restart lasts 5 s
     U, zero_at, rows = (0.0, 0.0, 0.0), None, []
     for k in range(end):
         stamp = T0_NS + k * TS_NS

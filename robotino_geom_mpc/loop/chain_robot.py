@@ -42,11 +42,14 @@ class ChainState:
 
 @dataclass(frozen=True)
 class ChainPass:
-    """One driver pass: the odometry it dispatched, the plant's state after it (None: no tick ran), how late [s]."""
+    """One driver pass: the odometry it dispatched, the plant's state after it (None: no tick ran), how late [s], and
+    the emulation's true measurement time of each odometry [s] (the offline run's timing figures).
+    """
 
     odometry: list[Measurement]
     state: ChainState | None
     late_s: float
+    measured_s: list[float]
 
 
 class ChainRobot:
@@ -100,10 +103,10 @@ class ChainRobot:
         elapsed = self.elapsed_s(now, clock_ns)
         while emulator.next_pass_s() <= elapsed:
             t_pass = emulator.next_pass_s()
-            odometry = [Measurement(self._stamp_ns(m.stamp_s), m.pose, m.twist, None, None)
-                        for m in emulator.run_until(t_pass)]
+            messages = emulator.run_until(t_pass)
+            odometry = [Measurement(self._stamp_ns(m.stamp_s), m.pose, m.twist, None, None) for m in messages]
             self.dispatched += len(odometry)
-            out.append(ChainPass(odometry, self._state(), elapsed - t_pass))
+            out.append(ChainPass(odometry, self._state(), elapsed - t_pass, [m.measured_s for m in messages]))
         return out
 
     def _state(self) -> ChainState | None:

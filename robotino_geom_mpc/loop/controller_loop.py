@@ -58,8 +58,8 @@ from robotino_geom_mpc.control.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_M
 from robotino_geom_mpc.control.chain_controller import ChainControllerError
 from robotino_geom_mpc.control.chain_tracking import ChainTracker
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
-from robotino_geom_mpc.control.motion_controller import (MAX_POSITION_M, ControllerInputError, MotionController,
-                                                         step_interval)
+from robotino_geom_mpc.control.motion_controller import (MAX_POSITION_M, ControlOutput, ControllerInputError,
+                                                         MotionController, step_interval)
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.loop.events import (AppliedReport, Command, Diagnostic, EnabledChanged, Level, Log, Now,
                                            Odometry, Output, PlanOut, PredictedPath, Preview, Resend, Undecodable,
@@ -95,19 +95,19 @@ def _triple(values: Sequence[float]) -> tuple[float, float, float]:
     return (a, b, c)
 
 
-def _reference_jump(previous: _Held | None, stamp_ns: int,
-                   position: np.ndarray, jump_m: float, jump_rad: float) -> str | None:
-    """How the reference at `stamp_ns` (`position`, x y theta) left the `previous` preview moved there, or None.
+def _reference_jump(previous: Sequence[float], dt_s: float, current: Sequence[float], jump_m: float,
+                    jump_rad: float) -> str | None:
+    """How the reference's first point `current` left the `previous` preview's first point moved by `dt_s`, or None.
 
-    `previous` is (stamp, positions, velocities, accelerations) of the last preview; a jump is a
-    position more than `jump_m` or a heading more than `jump_rad` away from its Taylor step
-    (`reference.trajectories.shift_preview`), e.g. a trajectory node restarted at the origin.
+    Each point is (x, y, theta, their velocities, their accelerations); a jump is a position more than `jump_m` or a
+    heading more than `jump_rad` away from the previous point's Taylor step (`reference.trajectories.shift_preview`,
+    here on floats: numpy's per-call cost dominates on one point), e.g. a trajectory node restarted at the origin.
     """
-    if previous is None:
-        return None
-    stamp, positions, velocities, accelerations = previous
-    expected = shift_preview(positions[0], velocities[0], accelerations[0], (stamp_ns - stamp) * 1e-9)
-    dx, dy, dtheta = (position - expected).tolist()
+    x, y, theta, vx, vy, w, ax, ay, aw = previous
+    half_dt2 = 0.5 * dt_s * dt_s
+    dx = current[0] - (x + dt_s * vx + half_dt2 * ax)
+    dy = current[1] - (y + dt_s * vy + half_dt2 * ay)
+    dtheta = current[2] - (theta + dt_s * w + half_dt2 * aw)
     distance = math.hypot(dx, dy)
     if distance > jump_m or abs(dtheta) > jump_rad:
         return f"reference jumped by {distance:.4g} m, {dtheta:.4g} rad between previews"
@@ -229,10 +229,12 @@ class LockstepPairing:
         return None  # stamps are simulated time
 
     def take_odometry(self, loop: ControllerLoop, stamp: int, X: np.ndarray) -> None:
-        if all(waiting != stamp for waiting, _, _ in self.waiting):
-            if not self.waiting:
-                self.pending_since_ns = loop._now.watch_ns  # the odometry's arrival
-            self.waiting.append((stamp, X, []))
+        waiting = self.waiting
+        if not waiting:
+            self.pending_since_ns = loop._now.watch_ns  # the odometry's arrival
+            waiting.append((stamp, X, []))
+        elif all(other != stamp for other, _, _ in waiting):
+            waiting.append((stamp, X, []))
         self._drain(loop)
 
     def take_preview(self, loop: ControllerLoop, stamp: int, arrays: _Arrays) -> None:
@@ -292,9 +294,11 @@ class LockstepPairing:
                              f"the preview of this tick was refused: {arrays}")
             else:
                 loop._control(stamp, X, *arrays, stamp)
-            loop._take_reports(held)
-            for old in [s for s in self.previews if s < stamp]:
-                del self.previews[old]
+            if held:
+                loop._take_reports(held)
+            if len(self.previews) > 1:
+                for old in [s for s in self.previews if s < stamp]:
+                    del self.previews[old]
 
 
 _Pairing = RealtimePairing | LockstepPairing
@@ -355,6 +359,7 @@ class ControllerLoop:
         self.settings = settings
         self.theta = 0.0  # last measured (continuous) yaw
         self.latest_preview: _Held | None = None  # the newest preview (realtime: the one used)
+        self._latest_first: tuple[float, ...] = ()  # its first point's 9 values (position, velocity, acceleration)
         self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
         self.counters = InputCounters()
         self.blend = BlendEngagement(control.period_s, self.preview_points)
@@ -362,6 +367,7 @@ class ControllerLoop:
         self.newest_stamp_s: float | None = None  # plans: the newest odometry stamp planned from [s]
         self.refused_reports = 0
         self.reports_received = 0  # reports handed on, taken or refused (the replay hands them on so)
+        self.last_step: ControlOutput | None = None  # the output of the last MotionController.step (its flags)
         self._start_watch_ns = now.watch_ns
         self._odom_watch_ns: int | None = None  # arrival times of accepted inputs (watch clock)
         self._preview_watch_ns: int | None = None
@@ -428,7 +434,7 @@ class ControllerLoop:
             self._reject(stamp, "odom", exc.reason, str(exc))
             return self._out
         self._odom_watch_ns = now.watch_ns
-        self.theta = X[4]
+        self.theta = float(X[4])  # a Python float: numpy scalars would slow every unwrap after
         self.pairing.take_odometry(self, stamp, X)
         return self._out
 
@@ -453,19 +459,22 @@ class ControllerLoop:
                     return self._out
                 if problem is not None:
                     raise InputRejected(f"stamp {stamp} ns is {problem}", problem)
-            arrays = preview_of_values(preview.values, self.theta, *self._tolerances)
-            if np.abs(arrays[0][:, :2]).max() > MAX_POSITION_M:
+            values = preview.values
+            arrays = preview_of_values(values, self.theta, *self._tolerances)
+            if max(max(map(abs, values[0::POINT_SIZE])), max(map(abs, values[1::POINT_SIZE]))) > MAX_POSITION_M:
                 raise InputRejected(f"reference_preview has a position beyond {MAX_POSITION_M:g} m", "implausible")
         except InputRejected as exc:
             self.pairing.refuse_preview(self, stamp, exc.reason, str(exc))
             return self._out
         self._preview_watch_ns = now.watch_ns
         if latest is None or stamp > latest[0]:
-            jump = _reference_jump(latest, stamp, arrays[0][0], *self._jump_limits)
+            first = (values[0], values[1], float(arrays[0][0, 2]), *values[6:POINT_SIZE])
+            jump = None if latest is None else _reference_jump(self._latest_first, (stamp - latest[0]) * 1e-9, first,
+                                                               *self._jump_limits)
             if jump is not None:
                 self.blend.jump_ns = stamp
                 self._log(Level.WARN, f"{jump}: bumpless restart", "jump")
-            self.latest_preview = (stamp, *arrays)
+            self.latest_preview, self._latest_first = (stamp, *arrays), first
         self.pairing.take_preview(self, stamp, arrays)
         return self._out
 
@@ -599,7 +608,7 @@ class ControllerLoop:
             self.blend.request("error")
             self._reject(stamp, "input", "internal_error", repr(exc))
             return
-        self.last_odom_ns = stamp
+        self.last_odom_ns, self.last_step = stamp, out
         command = self.controller.next_velocity() if self.interface == "cmd_vel" else out.voltages
         self._out.append(Command(stamp, _triple(command)))
         if self.listeners.path():

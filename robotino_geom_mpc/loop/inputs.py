@@ -159,22 +159,22 @@ def preview_of_values(values: tuple, theta_near: float, norm_tolerance: float = 
     """
     if not math.isfinite(sum(values)):
         raise InputRejected("reference_preview contains non-finite values", "non_finite")
-    points = np.array(values, dtype=float).reshape(-1, POINT_SIZE)
-    quaternions = points[:, 2:6]
-    squares = quaternions * quaternions
-    norm2 = squares.sum(axis=1)
     half = math.sin(0.5 * tilt_tolerance_rad)
-    bad = (np.abs(np.sqrt(norm2) - 1.0) > norm_tolerance) | (squares[:, 0] + squares[:, 1] > half * half * norm2)
-    if bad.any():  # the vectorised test found one: name it with the scalar check
-        j = int(np.argmax(bad))
-        qx, qy, qz, qw = quaternions[j].tolist()
-        check_yaw_quaternion(qx, qy, qz, qw, f"reference_preview point {j}", norm_tolerance, tilt_tolerance_rad)
-    positions = np.empty((len(points), 3))
+    tilt_bound = half * half
+    rows = list(values)  # each point's yaw quaternion becomes its unwrapped theta (x, y, theta at 0..2)
     theta = theta_near
-    for j, (x, y, qx, qy, qz, qw) in enumerate(points[:, :6].tolist()):
+    # Python floats per point: numpy's per-call cost on a handful of points outweighs the arithmetic.
+    for start in range(2, len(rows) - POINT_SIZE + 3, POINT_SIZE):
+        qx, qy, qz, qw = rows[start:start + 4]
+        xy = qx * qx + qy * qy
+        norm2 = xy + qz * qz + qw * qw
+        if not abs(math.sqrt(norm2) - 1.0) <= norm_tolerance or xy > tilt_bound * norm2:
+            check_yaw_quaternion(qx, qy, qz, qw, f"reference_preview point {start // POINT_SIZE}", norm_tolerance,
+                                 tilt_tolerance_rad)  # names the refusal
         theta = unwrap_near(yaw_of(qx, qy, qz, qw), theta)
-        positions[j] = (x, y, theta)
-    return positions, points[:, 6:9], points[:, 9:12]
+        rows[start] = theta
+    points = np.array(rows, dtype=float).reshape(-1, POINT_SIZE)
+    return points[:, :3], points[:, 6:9], points[:, 9:12]
 
 
 class InputCounters:

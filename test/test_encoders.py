@@ -282,9 +282,9 @@ def test_encoder_odometry_gives_the_controller_the_period_mean_predictor(monkeyp
     from robotino_geom_mpc.system.processes import node_arguments
 
     seen = []
-    real = simulation.MotionController
-    spy = lambda robot, control: seen.append(control) or real(robot, control)  # noqa: E731
-    monkeypatch.setattr(simulation, "MotionController", spy)
+    real = simulation.ControllerLoop
+    spy = lambda robot, control, *args, **kwargs: seen.append(control) or real(robot, control, *args, **kwargs)  # noqa: E731
+    monkeypatch.setattr(simulation, "ControllerLoop", spy)
     for odometry in ("encoders", "ideal"):
         simulation.run_scenario(simulation.RunConfig("paper-circle", ROBOT, CONTROL, duration_s=0.05,
                                                      odometry=odometry))

@@ -75,7 +75,7 @@ def test_stamps_going_back_are_refused():
 
 def test_in_the_closed_loop_over_a_lossy_link_the_times_stay_reconstructed(robot):
     chain = chain_params({"chain.link.delay_s": 0.01, "chain.link.jitter_s": 0.01, "chain.link.loss": 0.05})
-    run = run_chain_scenario("paper-circle", robot, chain, duration_s=6.0)
+    run = run_chain_scenario("paper-circle", robot, load_params()[1], chain, duration_s=6.0)
     # the controller's pose chooser places the samples after a loss; without it a lost sample shifts all later
     # times by a period (20 ms)
     assert run.meta["measurement_time_error_rms_s"] < 0.005

@@ -105,9 +105,9 @@ def test_each_tick_measures_then_previews_then_steps(params, monkeypatch):
     seen = []
     original = controller_module.MotionController.step
 
-    def spy(self, X, Y_d):
+    def spy(self, X, Y_d, dt_s=None):
         seen.append((np.array(X), np.array(Y_d)))
-        return original(self, X, Y_d)
+        return original(self, X, Y_d, dt_s)
 
     monkeypatch.setattr(controller_module.MotionController, "step", spy)
     run = run_scenario(RunConfig("lemniscate", robot, control, duration_s=0.3, progress=True))
@@ -127,9 +127,9 @@ def test_encoder_odometry_is_what_the_controller_tracks(params, monkeypatch):
     seen = []
     original = controller_module.MotionController.step
 
-    def spy(self, X, Y_d):
+    def spy(self, X, Y_d, dt_s=None):
         seen.append(np.array(X))
-        return original(self, X, Y_d)
+        return original(self, X, Y_d, dt_s)
 
     monkeypatch.setattr(controller_module.MotionController, "step", spy)
     run = run_scenario(RunConfig("paper-circle", robot, control, duration_s=2.0, odometry="encoders"))

@@ -28,50 +28,69 @@ def bench_offline_sim(quick: bool) -> dict[str, float]:
 
 
 @benchmark("offline_loop", "the offline plain loop's ticks through the controller's protocol (ControllerLoop in "
-           "lockstep) beside the kernels alone (run_scenario), paper-circle: wall times, ratio, pose difference")
+           "lockstep, as simulate drives it) beside the kernels alone (MotionController.step), on the same RobotLoop, "
+           "paper-circle: wall times, ratio, pose difference")
 def bench_offline_loop(quick: bool) -> dict[str, float]:
-    """What driving `loop.controller_loop.ControllerLoop` costs per tick against `simulation.run_scenario`'s loop,
-    on the same `loop.robot_loop.RobotLoop`; the two runs' poses must agree (max |diff| reported).
+    """What driving `loop.controller_loop.ControllerLoop` (`offline.lockstep.LockstepController`, `simulate`'s plain
+    tick) costs per tick against the kernels called directly (`MotionController.step` on the exact reference rows),
+    each with the same `loop.robot_loop.RobotLoop` and loop body; the two runs' poses must agree (max |diff|
+    reported; paper-circle's heading stays 0, so exactly). Medians of alternating repeats.
     """
     import time
+    from collections.abc import Callable, Sequence
 
     import numpy as np
 
+    from robotino_geom_mpc.control.motion_controller import MotionController, state_from_odometry
     from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
     from robotino_geom_mpc.loop.events import Now
     from robotino_geom_mpc.loop.robot_loop import PoseNoise, RobotLoop, VoltageDrive
     from robotino_geom_mpc.model.plant import RobotinoPlant
     from robotino_geom_mpc.offline.lockstep import LockstepController, PreviewRows
-    from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario, run_ticks
+    from robotino_geom_mpc.offline.simulation import run_ticks
     from robotino_geom_mpc.scenarios import get_scenario
 
-    duration_s = 5.0 if quick else 22.0
+    duration_s, repeats = (5.0, 1) if quick else (22.0, 5)
     robot, control = load_params()
     spec = get_scenario("paper-circle")
-    n, period_ns = run_ticks(duration_s, control.period_s), round(control.period_s * 1e9)
+    Ts, N = control.period_s, control.horizon
+    n = run_ticks(duration_s, Ts)
+    Triple = tuple[float, float, float]
+    Controller = Callable[[int, Triple, Triple], Sequence[float]]  # tick k's command for its odometry
 
-    def through_the_loop() -> np.ndarray:
+    def kernels() -> Controller:
+        targets = spec.make_reference().position(np.arange(n + N + 1) * Ts)
+        controller = MotionController(spec.controller_model(robot), control)
+        controller.start_at(*targets[0].tolist())  # robot and reference start together
+        return lambda k, pose, twist: controller.step(state_from_odometry(pose, twist), targets[k + 1:k + N + 1]
+                                                      ).voltages
+
+    def protocol() -> Controller:
         loop = ControllerLoop(spec.controller_model(robot), control, Now(0, 0), lockstep=True, listeners=QUIET)
-        controller = LockstepController(loop, PreviewRows(spec.make_reference(), control.period_s, period_ns,
-                                                          loop.preview_points, n))
-        plant = RobotinoPlant(robot)
-        robot_loop = RobotLoop(plant, plant, VoltageDrive(plant), control.period_s,
-                               PoseNoise((spec.noise.position_m, spec.noise.yaw_rad), 0, n))
-        poses = []
-        for k in range(n):
-            poses.append(plant.pose)
-            robot_loop.drive(controller.command(k, *robot_loop.measure()))
-        return np.array(poses)
+        return LockstepController(loop, PreviewRows(spec.make_reference(), Ts, round(Ts * 1e9), loop.preview_points,
+                                                    n)).command
 
-    begin = time.perf_counter()
-    kernels = run_scenario(RunConfig("paper-circle", robot, control, duration_s=duration_s))
-    kernels_s = time.perf_counter() - begin
-    begin = time.perf_counter()
-    poses = through_the_loop()
-    loop_s = time.perf_counter() - begin
-    difference = float(np.abs(poses - kernels.pose).max())
-    return {"offline_loop_kernels_s": kernels_s, "offline_loop_controller_loop_s": loop_s,
-            "offline_loop_ratio": loop_s / kernels_s, "offline_loop_max_pose_diff_m": difference}
+    def run(controller: Callable[[], Controller]) -> tuple[float, np.ndarray]:
+        begin = time.perf_counter()
+        command = controller()
+        plant = RobotinoPlant(robot)
+        robot_loop = RobotLoop(plant, plant, VoltageDrive(plant), Ts,
+                               PoseNoise((spec.noise.position_m, spec.noise.yaw_rad), 0, n))
+        measure, drive, poses = robot_loop.measure, robot_loop.drive, []
+        for k in range(n):
+            poses += plant.pose
+            drive(command(k, *measure()))
+        return time.perf_counter() - begin, np.array(poses)
+
+    kernels_s, loop_s = [], []
+    for _ in range(repeats):
+        wall, alone = run(kernels)
+        kernels_s.append(wall)
+        wall, through = run(protocol)
+        loop_s.append(wall)
+    kernel, loop = float(np.median(kernels_s)), float(np.median(loop_s))
+    return {"offline_loop_kernels_s": kernel, "offline_loop_controller_loop_s": loop,
+            "offline_loop_ratio": loop / kernel, "offline_loop_max_pose_diff_m": float(np.abs(through - alone).max())}
 
 
 @benchmark("dds", "the nodes over DDS: lockstep real-time factor, realtime missed ticks and latency, "

@@ -1,11 +1,11 @@
 """The controller's inputs of an offline run, as the nodes would send them in lockstep (no rclpy).
 
 The offline loops (`simulation`, `networked`) drive a `loop.controller_loop.ControllerLoop` in lockstep with
-the inputs the trajectory node and the plant send each tick: the preview of tick k (`PreviewRows.at`: the
-reference's pose, velocity and acceleration at t_k + j Ts, j = 0 .. N, each pose's yaw as a quaternion, as
-``reference_preview`` carries them; sampled for the whole run at once) and the odometry (`odometry_event`: the
-pose with its yaw as a quaternion, the body twist, as ``odom`` carries them). `LockstepController` feeds a
-loop both, in the lockstep plant's order, and returns the tick's command.
+the inputs the trajectory node and the plant send each tick (`chain_loop` the same previews in realtime): the
+preview of tick k (`PreviewRows.at`: the reference's pose, velocity and acceleration at t_k + j Ts, j = 0 .. N,
+each pose's yaw as a quaternion, as ``reference_preview`` carries them; sampled for the whole run at once) and
+the odometry (`odometry_event`: the pose with its yaw as a quaternion, the body twist, as ``odom`` carries them).
+`LockstepController` feeds a loop both, in the lockstep plant's order, and returns the tick's command.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from robotino_geom_mpc.control.motion_controller import ControlOutput
 from robotino_geom_mpc.loop.controller_loop import ControllerLoop
 from robotino_geom_mpc.loop.events import Command, Now, Odometry, Preview
 from robotino_geom_mpc.loop.inputs import POINT_SIZE
@@ -73,18 +74,28 @@ class LockstepController:
         The controller's loop (lockstep).
     previews
         The run's previews.
+
+    Attributes
+    ----------
+    step
+        The `MotionController.step` output of the last tick answered (its flags and compute time); None when the
+        loop refused that tick.
     """
 
     def __init__(self, loop: ControllerLoop, previews: PreviewRows) -> None:
         self.loop, self.previews = loop, previews
+        self.step: ControlOutput | None = None
 
     def command(self, k: int, pose: tuple[float, float, float], twist: tuple[float, float, float]
                 ) -> tuple[float, float, float]:
         """The command the loop answers to the odometry (pose, twist) of tick k (zero when it refuses it)."""
         t_ns = k * self.previews.period_ns
         now = Now(t_ns, t_ns)
-        self.loop.on_preview(self.previews.at(k), now)
-        for out in self.loop.on_odometry(odometry_event(t_ns, pose, twist), now):
+        loop = self.loop
+        loop.on_preview(self.previews.at(k), now)
+        for out in loop.on_odometry(odometry_event(t_ns, pose, twist), now):
             if isinstance(out, Command):
+                self.step = loop.last_step
                 return out.values
+        self.step = None
         return (0.0, 0.0, 0.0)

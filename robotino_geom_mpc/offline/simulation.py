@@ -1,36 +1,32 @@
 """Offline closed loop (Fig. 3): reference -> controller -> simulated Robotino, one control period at a time.
 
-This engine is the reference the ROS 2 nodes reproduce (to 1e-6), so each
-tick k (t_k = k Ts, k = 0 .. n-1) does exactly, in this order:
+This engine is the reference the ROS 2 nodes reproduce (to 1e-6): it drives the same two loops as the nodes, the
+controller node's protocol (`loop.controller_loop.ControllerLoop`, lockstep) and the plant node's robot
+(`loop.robot_loop.RobotLoop`), on one simulated clock. Each tick k (t_k = k Ts, k = 0 .. n-1) does, in this order:
 
-1. measure: ``pose, twist = plant.odometry(rng, noise)`` (pose plus Gaussian
-   noise drawn from the run's seeded generator, all ticks' at once,
-   noise-free body-frame twist;
-   with ``odometry="encoders"`` the pose integrated from the wheel-encoder
-   counts plus the same noise, and the encoder twist: `encoders`),
-   ``X = state_from_odometry(pose, twist)`` (both on Python floats:
-   `RobotinoPlant.noisy_odometry`, `control.motion_controller.state_from_odometry`);
-2. ``Y_d`` = the reference positions at t_{k+1} .. t_{k+N} (eq. 54), sampled
-   for the whole run at once: rows k+1 .. k+N of ``reference.position(j Ts)``,
-   equal to ``preview(reference, t_k, Ts, N)`` to rounding (1e-14);
-3. ``out = controller.step(X, Y_d)``;
-4. record t_k, the true pose, the measured pose, the reference at t_k, ``out.voltages``;
-5. ``plant.step(out.voltages, Ts)`` and record the largest |current| of each
-   drive over that period (the plant's substeps), signed like the current
-   at the period's end.
+1. measure: ``pose, twist = RobotLoop.measure()`` (the pose plus Gaussian noise drawn from the run's seeded
+   generator, all ticks' at once, and the noise-free body-frame twist; with ``odometry="encoders"`` the pose
+   integrated from the wheel-encoder counts plus the same noise, and the encoder twist: `encoders`);
+2. the controller's inputs as the nodes send them (`offline.lockstep`): the preview of tick k (the reference's
+   pose, velocity and acceleration at t_k + j Ts, j = 0 .. N, eq. 54, sampled for the whole run at once), then
+   the odometry stamped t_k (the yaw as a quaternion, as ``odom`` carries it);
+3. the loop's answer (`offline.lockstep.LockstepController`): the checks, X of eq. 2, and at t = 0 robot and
+   reference started together, then ``MotionController.step(X, Y_d)`` (three MPCs -> T(theta) -> inverse drive);
+   its voltages, or with ``cmd_vel`` its base_link velocity for the next period;
+4. record t_k, the true pose, the measured pose, the reference at t_k and the step's flags;
+5. ``RobotLoop.drive(command)`` (the plant over Ts, or the wheels' PI speed loops holding the twist) and record
+   the largest |current| of each drive over that period (the plant's substeps), signed like the current at the
+   period's end.
 
-The loop keeps numpy out of its per-tick bookkeeping (a call on a 3-vector
-costs about as much as a dozen float operations): it collects the ticks'
-values and turns them into arrays once, at the end.
+Over an emulated radio link (``link_up`` / ``link_down``) step 3 is replaced by the robot's and the controller's
+sides of the link, in the order `offline.networked` writes down: the same loop with plans (or without, the
+uncompensated baseline) and the robot's end of the link (`loop.command_link.CommandLink`), as the lockstep DDS
+loop runs them. Through the driver's chain the run is `offline.chain_loop`'s (the loop's chain mode, realtime).
 
-The robot's side (steps 1 and 5: the odometry source, the noise stream, the drive) is a
-`loop.robot_loop.RobotLoop`, the plant node's. Over an emulated radio link (``link_up`` /
-``link_down``) step 3 is replaced by the robot's and the controller's sides of the link, in
-the order `offline.networked` writes down: the controller node's protocol
-(`loop.controller_loop.ControllerLoop`, lockstep) and the robot's end of the link
-(`loop.command_link.CommandLink`), as the lockstep DDS loop runs them; steps 1, 4 and 5 stay.
-Without a link step 3 calls the kernels directly: through `ControllerLoop` the ticks would
-be the same to rounding (`test_offline_lockstep`) at 2.7 times the cost (``bench --only offline_loop``).
+Against the kernels called directly on the exact reference rows the ticks are the same (to rounding where the yaw
+turns: the quaternions, `test_offline_lockstep`); ``bench --only offline_loop`` measures what the protocol costs
+over them. The loop keeps numpy out of its per-tick bookkeeping: it collects the ticks' values and turns them into
+arrays once, at the end.
 
 A scenario (`scenarios.SCENARIOS`) names the reference, the controller's
 model (`scenarios.Scenario.controller_model`: the robot, or a mismatched one in ``robustness``)
@@ -51,13 +47,12 @@ from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import DEFAULT_KI, DEFAULT_KP, DEFAULT_RATE_HZ, WheelSpeedLoop, \
     WheelSpeedLoopError
 
-from robotino_geom_mpc.control.motion_controller import MotionController, state_from_odometry
 from robotino_geom_mpc.network.link import LinkParams
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.model.driver_chain import ChainParams
 from robotino_geom_mpc.offline.chain_loop import run_chain_scenario
-from robotino_geom_mpc.offline.lockstep import PreviewRows
+from robotino_geom_mpc.offline.lockstep import LockstepController, PreviewRows
 from robotino_geom_mpc.offline.networked import NetworkedLoop, link_meta
 from robotino_geom_mpc.loop.command_link import CommandLink
 from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
@@ -182,7 +177,7 @@ def run_scenario(config: RunConfig) -> RunData:
         if command_interface != "cmd_vel" or odometry != "ideal":
             raise SimulationError("a chain takes cmd_vel and gives the firmware's odometry: command_interface "
                                   f"must be cmd_vel and odometry ideal, got {command_interface!r}, {odometry!r}")
-        return run_chain_scenario(scenario, robot, chain, duration_s=config.duration_s, seed=seed,
+        return run_chain_scenario(scenario, robot, control, chain, duration_s=config.duration_s, seed=seed,
                                   progress=config.progress, plant_robot=plant_robot,
                                   odometry_noise=config.odometry_noise, controller_chain=config.controller_chain)
     spec = get_scenario(scenario)
@@ -216,37 +211,33 @@ def run_scenario(config: RunConfig) -> RunData:
     cmd_vel = isinstance(drive, TwistDrive)
     if odometry in CONTROLLER_TWIST:
         control = replace(control, odometry_twist=CONTROLLER_TWIST[odometry])
-    loop: NetworkedLoop | None = None
+    loop = ControllerLoop(spec.controller_model(robot), control, Now(0, 0), lockstep=True,
+                          interface=command_interface, plans=networked and config.compensate, listeners=QUIET)
+    previews = PreviewRows(reference, Ts, round(Ts * 1e9), loop.preview_points, n)
+    over_link: NetworkedLoop | None = None
+    plain: LockstepController | None = None
     if networked:
-        lockstep = ControllerLoop(spec.controller_model(robot), control, Now(0, 0), lockstep=True,
-                                  interface=command_interface, plans=config.compensate, listeners=QUIET)
-        previews = PreviewRows(reference, Ts, round(Ts * 1e9), lockstep.preview_points, n)
         follower = PlanFollower(Ts) if config.compensate else None
-        loop = NetworkedLoop(lockstep, previews, CommandLink(link_up, link_down, seed, follower))
-        extra = lockstep.preview_points
+        over_link = NetworkedLoop(loop, previews, CommandLink(link_up, link_down, seed, follower))
     else:
-        controller = MotionController(spec.controller_model(robot), control)
-        controller.start_at(*reference.position(np.zeros(1))[0].tolist())  # robot and reference start together
-        extra = N
+        plain = LockstepController(loop, previews)
     # The run's pose noise drawn at once: the same values as one `RobotinoPlant.pose_noise` draw per tick.
     robot_loop = RobotLoop(plant, source, drive, Ts, PoseNoise(noise, seed, n))
 
     t = np.arange(n) * Ts
-    targets = reference.position(np.arange(n + extra + 1) * Ts)  # row j: the reference at j Ts
     # Only floats and arrays are kept per tick (no tuples): nothing for the garbage collector to scan.
     poses, measured, voltages, saturated, infeasible, compute, substep_currents = [], [], [], [], [], [], []
     measure, drive_period = robot_loop.measure, robot_loop.drive
-    motion = None if loop is not None else controller
     for k in tqdm(range(n), desc=scenario, unit="tick", disable=not config.progress, mininterval=0.5):
         pose_measured, twist_measured = measure()
-        if motion is not None:
-            out = motion.step(state_from_odometry(pose_measured, twist_measured), targets[k + 1 : k + N + 1])
-            command = motion.next_velocity() if cmd_vel else out.voltages
-            flags = (out.saturated, out.infeasible, out.compute_time_s)
+        if plain is not None:
+            command = plain.command(k, pose_measured, twist_measured)
+            step = plain.step
+            flags = (False, False, 0.0) if step is None else (step.saturated, step.infeasible, step.compute_time_s)
         else:
-            assert loop is not None
+            assert over_link is not None
             start = time.perf_counter()
-            command = loop.command(k, pose_measured, twist_measured)
+            command = over_link.command(k, pose_measured, twist_measured)
             flags = (any(abs(v) >= robot.supply_voltage_v for v in command) and not cmd_vel, False,
                      time.perf_counter() - start)
         poses += plant.pose
@@ -265,7 +256,7 @@ def run_scenario(config: RunConfig) -> RunData:
         scenario=scenario,
         t=t,
         pose=pose,
-        reference=targets[:n],
+        reference=reference.position(t),
         odometry=np.array(measured).reshape(n, 3),
         currents=currents,
         voltages=np.array(voltages).reshape(n, 3),
@@ -286,6 +277,7 @@ def run_scenario(config: RunConfig) -> RunData:
                if odometry == "encoders" else {}),
             "controller_mismatch": None if spec.mismatch is None else asdict(spec.mismatch),
             "plant_params": "plant_robot" if plant_robot is not None else "robot",
-            **({"link": {"up": link_meta(link_up), "down": link_meta(link_down), **loop.meta()}} if loop else {}),
+            **({"link": {"up": link_meta(link_up), "down": link_meta(link_down), **over_link.meta()}}
+               if over_link else {}),
         },
     )

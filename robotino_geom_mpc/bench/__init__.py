@@ -28,6 +28,8 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
 * `soak` (only by name: ``bench --only soak [--duration S]``): the realtime
   loop with the recorder for 30 minutes, per 5-minute window; the controller
   killed and restarted 200 times (`restarts`); ``run`` 100 times in a row.
+* `fleet` (only by name: ``bench --only fleet``): N robots in realtime at 100 Hz (N = 1, 5, 10, 20) through the
+  fleet's three processes (`ros.fleet`) beside N separate loops: per-robot CPU and missed ticks.
 * `host_steal` samples the hypervisor's steal beside the realtime run;
   `startup_stalls` is a script (``python -m robotino_geom_mpc.bench.startup_stalls``).
 """
@@ -42,6 +44,7 @@ from robotino_geom_mpc.bench import end_to_end  # noqa: F401
 from robotino_geom_mpc.bench import recorder_cpu  # noqa: F401
 from robotino_geom_mpc.bench import networked  # noqa: F401
 from robotino_geom_mpc.bench import soak  # noqa: F401
+from robotino_geom_mpc.bench import fleet  # noqa: F401
 from robotino_geom_mpc.bench.registry import REGISTRY, BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
 
 __all__ = ["REGISTRY", "BenchmarkError", "BenchmarkSkipped", "benchmark", "run_benchmarks"]

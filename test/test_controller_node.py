@@ -175,8 +175,31 @@ def test_topics_and_qos(harness, lockstep_controller):
     assert info.qos_profile.durability == DurabilityPolicy.VOLATILE
 
 
+def _engagements_after_a_tick(h: Harness, stamp_ns: int) -> int:
+    """One lockstep tick of paper-circle at `stamp_ns` (its preview, then an odometry near it): the count of bumpless
+    (re)starts its ``tracking`` status reports.
+    """
+    _, control = load_params()
+    reference = make_reference("paper-circle")
+    start = len(h.diagnostics)
+    h.preview_pub.publish(preview_message(reference, stamp_ns, control.period_s, control.horizon))
+    h.spin_for(0.1)
+    h.odom_pub.publish(odometry(stamp_ns, *(reference.position(stamp_ns * 1e-9) + [0.001, 0.0, 0.0])))
+
+    def answered() -> list:
+        return [kv for d in h.diagnostics[start:] for status, kv in [values(d)]
+                if status.message == "tracking" and stamp_to_ns(d.header.stamp) == stamp_ns]
+    assert h.spin_until(lambda: answered(), 10.0), [values(d)[0].message for d in h.diagnostics[start:]]
+    return int(answered()[-1]["blend_engagements"])
+
+
 def test_parameter_set_is_validated_and_refusal_keeps_the_old_value(harness, lockstep_controller):
+    """Refused sets keep the old values; an accepted control parameter rebuilds the controller: the next tick
+    restarts bumplessly (one engagement more; the restart itself: test_controller_loop_cases).
+    """
     h = harness
+    Ts_ns = round(load_params()[1].period_s * 1e9)
+    before = _engagements_after_a_tick(h, 5000 * Ts_ns)  # (stamps after every other test's of this controller)
     (bad,) = h.set_parameters(NODE, {"control.horizon": 0})
     assert not bad.successful and "control.horizon" in bad.reason
     (bad_choice,) = h.set_parameters(NODE, {"control.mode": "fuzzy"})
@@ -187,9 +210,11 @@ def test_parameter_set_is_validated_and_refusal_keeps_the_old_value(harness, loc
     assert not exclusive.successful and "> 0" in exclusive.reason
     assert h.get_parameters(NODE, ["control.horizon", "control.mode", "robot.mass_kg", "mode"]) == [
         4, "closed_form", 21.4, "lockstep"]
+    assert _engagements_after_a_tick(h, 5001 * Ts_ns) == before  # refused sets: no rebuild
     (good,) = h.set_parameters(NODE, {"control.q_x": 2.0e6})
     assert good.successful
     assert h.get_parameters(NODE, ["control.q_x"]) == [2.0e6]
+    assert _engagements_after_a_tick(h, 5002 * Ts_ns) == before + 1  # rebuilt: a bumpless restart
 
 
 def _rig(h, namespace: str):

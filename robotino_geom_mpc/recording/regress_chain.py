@@ -24,8 +24,11 @@ odometry. `regress_chain` then replays the recording through fresh controller lo
 those bounds (each preview in the window, "now" at either end: within one driver pass both ends give the same
 tick), keeping the readings whose twist equals the recorded answer (within the tolerance): the recorded answers
 themselves pin the unrecorded readings, tick by tick, and a controller that differs, or a recorded twist that was
-changed, matches no reading (the smallest deviation over the readings is reported). A refused odometry's zero is
-noted at the recorded zero's publish time.
+changed, matches no reading (the smallest deviation over the readings is reported; a reading that left a recorded
+answer behind, sent before its odometry, matches no more). A refused odometry's zero is noted at the recorded zero's
+publish time. The readings are stepped best first (`_kept`): while many match (a robot at rest answers zero whatever
+the reading), the search stops stepping once the `BEAM` it keeps are known, and keeps those that stepping every
+reading would keep.
 
 The chain's parameters are the controller's own, from its ``/parameter_events`` in the recording, else a
 parameter file (``--chain-params``, `identify`'s), else the robocup-logistics preset (`chain_source` says which).
@@ -36,6 +39,8 @@ the node clock (the node's on steady time).
 from __future__ import annotations
 
 import copy
+import heapq
+import math
 import os
 from bisect import bisect_left, bisect_right
 from collections import deque
@@ -249,78 +254,214 @@ def _exact(loop: ControllerLoop, inputs: ControllerInputs, commands: list, statu
     return count
 
 
+@dataclass(frozen=True)
+class _Tick:
+    """One odometry of a search: its place in the recording, publish time, stamp, event, the newest preview the
+    node held for sure and the newest the recorder had received (indices).
+    """
+
+    index: int
+    publish: int
+    stamp: int
+    newest: int
+    recorded_preview: int
+
+
+_ZERO = "zero"  # a slot whose odometry the loop refused
+
+
+class _Successors:
+    """The readings one reading leads to at one odometry (`_search`), each stepped when the search asks for it.
+
+    In the search's order: the reading still waiting (perhaps no preview yet), then per preview j it may hold (the
+    previews after its last one fed in publish order) the step with "now" at either end (the odometry's publish
+    time, its answer's), kept if it answers and, at the answer's end, reaches another tick. A refused odometry (the
+    node's zero) gives the reading's zero instead of all of them; no answer at all, the reading itself stepped on.
+    Every successor's sort key (its worst deviation, how unlikely, its preview) is at least the slot's bound
+    (`bound`: the reading's worst deviation and its own likelihood and preview), so that the search can leave
+    slots unstepped once the readings it keeps are known.
+    """
+
+    def __init__(self, r: _Reading, tick: _Tick, inputs: ControllerInputs, preview_t: list[int],
+                 commands: list[tuple[int, np.ndarray]]) -> None:
+        self.r, self.tick, self.inputs = r, tick, inputs
+        r.deviation = None
+        self.waits = r.preview < 0 and tick.newest < 0  # perhaps no preview yet: no answer
+        self.commands = len(commands)
+        recorded: tuple[int, np.ndarray] = commands[r.command] if r.command < len(commands) else (tick.publish,
+                                                                                                    np.zeros(3))
+        self.answer_t, self.recorded = recorded
+        answers = r.command < len(commands) and self.answer_t > tick.publish  # an answer follows its odometry
+        self.slots = [(j, end) for j in range(max(tick.newest, r.preview, 0), bisect_left(preview_t, self.answer_t))
+                      for end in (0, 1)] if answers else []
+        self.held: _Reading | None = None  # a copy of `r` holding the previews up to its `preview`
+        self.refused_from: int | None = None  # the first j whose previews the loop refused (none held)
+        self.first: dict[int, list | None] = {}  # j -> the commands after the step at the publish end (None: none)
+        self.zero: _Reading | None = None
+
+    def bound(self, slot: int) -> tuple[float, int, int]:
+        """The least sort key of the successor of `slot` (-1: the waiting one)."""
+        if slot < 0:
+            return self.r.count.worst, self.r.unlikely + (self.tick.recorded_preview >= 0), self.r.preview
+        j = self.slots[slot][0]
+        return self.r.count.worst, self.r.unlikely + abs(j - self.tick.recorded_preview), j
+
+    def waiting(self) -> _Reading:
+        waiting = self.r.clone()
+        waiting.loop.on_input(self.inputs.odometries[self.tick.index], Now(self.tick.publish, self.tick.publish))
+        waiting.unlikely += self.tick.recorded_preview >= 0  # the recorder had one
+        return waiting
+
+    def step(self, slot: int) -> _Reading | str | None:
+        """The successor of answer `slot` (j, end), `_ZERO` if the loop refused the odometry, None if none."""
+        j, end = self.slots[slot]
+        if self.refused_from is not None and j >= self.refused_from or end == 1 and self.first.get(j) is None:
+            return None  # no preview to hold, or no answer at the publish end: none at the answer's either
+        held = self._holding(j)
+        if held is None:
+            return None
+        tick = self.tick
+        s = held.clone()
+        answer = s.loop.on_input(self.inputs.odometries[tick.index], Now((tick.publish, self.answer_t)[end],
+                                                                           tick.publish))
+        twists = [o.values for o in answer if isinstance(o, Command)]
+        if any(isinstance(o, Zero) for o in answer):
+            return _ZERO
+        if not twists:
+            return None  # dropped (an older stamp) or no step: no answer
+        assert s.loop.chain is not None
+        commands = s.loop.chain.controller.commands
+        if end == 0:
+            self.first[j] = commands
+        elif commands == self.first[j]:
+            return None  # the same tick either way
+        s.command = self.r.command + 1
+        s.unlikely += abs(j - tick.recorded_preview)  # the recorder's order stands for the node's
+        s.count.ticks += 1
+        s.deviation = float(np.max(np.abs(np.array(twists[0]) - self.recorded)))
+        s.count.compare(tick.stamp, s.deviation)
+        return s
+
+    def _holding(self, j: int) -> _Reading | None:
+        """A copy of the reading holding the previews up to `j` (None if the loop refused one: the node's zero)."""
+        if self.held is None or self.held.preview > j:
+            self.held = self.r.clone()
+        held, previews = self.held, self.inputs.previews
+        for k in range(held.preview + 1, j + 1):
+            held.preview = k
+            if any(isinstance(o, Zero) for o in held.loop.on_input(self.inputs.preview_events[k],
+                                                                  Now(previews[k][0], previews[k][0]))):
+                self.refused_from, self.held = j, None
+                return None
+        return held
+
+    def refused(self) -> _Reading:
+        """The reading's zero: noted when the recorded one went out; the reading unstepped if that was not zero."""
+        if self.recorded.any():
+            return self.r
+        z = self.r.clone()
+        z.loop.on_input(self.inputs.odometries[self.tick.index], Now(self.answer_t, self.tick.publish))
+        z.command += 1
+        return z
+
+    def alone(self) -> _Reading:
+        """No answer expected (e.g. an older stamp the node drops): the reading takes the odometry all the same. One
+        whose next recorded answer went out before this odometry has left it behind: it matches no more (else it
+        would stand for the recording wherever the recorded answers stop matching, comparing nothing).
+        """
+        self.r.loop.on_input(self.inputs.odometries[self.tick.index], Now(self.tick.publish, self.tick.publish))
+        if self.r.command < self.commands and self.answer_t <= self.tick.publish:
+            self.r.deviation = math.inf
+        return self.r
+
+
 def _search(loop: ControllerLoop, inputs: ControllerInputs, commands: list, tolerance: float) -> Deviations:
-    """The bounded search over the unrecorded readings (the module docstring), each a `ControllerLoop`."""
+    """The bounded search over the unrecorded readings (the module docstring), each a `ControllerLoop`.
+
+    Per odometry the successors of the readings kept are sorted by (worst deviation, how unlikely, preview held),
+    those that match the recorded answer kept, one per state, the first `BEAM`. They are stepped best bound first
+    (`_Successors.bound`), and the search stops stepping once `BEAM` states of matching successors lie before every
+    slot left: the readings kept are those of stepping every slot, at a fraction of the steps while many readings
+    match (a robot at rest answers zero whatever the preview and the clock).
+    """
     preview_t = [p for p, _ in inputs.previews]
     preview_log = sorted(inputs.preview_log_ns)
     margin = round(RECEIVE_MARGIN_S * 1e9)
-
-    def hold(base: _Reading, j: int) -> bool:
-        """`base` (a copy of its own) moved on to hold the previews up to `j`; False if the loop refused one (the
-        node's zero: no reading).
-        """
-        for k in range(base.preview + 1, j + 1):
-            base.preview = k
-            if any(isinstance(o, Zero) for o in base.loop.on_input(inputs.preview_events[k],
-                                                                  Now(preview_t[k], preview_t[k]))):
-                return False
-        return True
-
-    def expand(r: _Reading, index: int, recorded_preview: int) -> list[_Reading]:
-        r.deviation = None
-        publish, msg = inputs.odom[index]
-        stamp = stamp_ns(msg.header.stamp)
-        odometry = inputs.odometries[index]
-        out = []
-        newest = bisect_right(preview_t, publish - margin) - 1  # held by the node for sure
-        if r.preview < 0 and newest < 0:  # perhaps no preview yet: no answer
-            waiting = r.clone()
-            waiting.loop.on_input(odometry, Now(publish, publish))
-            waiting.unlikely += recorded_preview >= 0  # the recorder had one
-            out.append(waiting)
-        if r.command < len(commands) and commands[r.command][0] > publish:  # an answer follows its odometry
-            answer_t, recorded = commands[r.command]
-            held = r.clone()
-            for j in range(max(newest, r.preview, 0), bisect_left(preview_t, answer_t)):
-                if not hold(held, j):
-                    break
-                seen = None
-                for now in (publish, answer_t):
-                    s = held.clone()
-                    answer = s.loop.on_input(odometry, Now(now, publish))
-                    twists = [o.values for o in answer if isinstance(o, Command)]
-                    if any(isinstance(o, Zero) for o in answer):  # refused: the node's zero, noted when it went out
-                        z = r.clone()
-                        z.loop.on_input(odometry, Now(answer_t, publish))
-                        z.command += 1
-                        return [z] if not recorded.any() else [r]
-                    if not twists:
-                        break  # dropped (an older stamp) or no step: no answer
-                    assert s.loop.chain is not None
-                    if seen is not None and s.loop.chain.controller.commands == seen:
-                        continue  # the same tick either way
-                    seen = s.loop.chain.controller.commands
-                    s.command = r.command + 1
-                    s.unlikely += abs(j - recorded_preview)  # the recorder's order stands for the node's
-                    s.count.ticks += 1
-                    s.deviation = float(np.max(np.abs(np.array(twists[0]) - recorded)))
-                    s.count.compare(stamp, s.deviation)
-                    out.append(s)
-        if not out:  # no answer expected (e.g. an older stamp the node drops): the loop takes it all the same
-            r.loop.on_input(odometry, Now(publish, publish))
-            return [r]
-        return out
-
     readings = [_Reading(loop)]
     for index, log in enumerate(inputs.odom_log_ns):
-        recorded_preview = bisect_left(preview_log, log) - 1
-        expanded = [e for r in readings for e in expand(r, index, recorded_preview)]
-        matching = [e for e in expanded if e.deviation is None or e.deviation <= tolerance]
-        if not matching:  # no reading gives the recorded answer: the nearest goes on, its deviation counted
-            matching = [min(expanded, key=lambda e: e.deviation if e.deviation is not None else np.inf)] \
-                if expanded else readings
-        unique: dict[tuple, _Reading] = {}
-        for e in sorted(matching, key=lambda e: (e.count.worst, e.unlikely, e.preview)):
-            unique.setdefault(e.key(), e)
-        readings = list(unique.values())[:BEAM]
+        publish, msg = inputs.odom[index]
+        tick = _Tick(index, publish, stamp_ns(msg.header.stamp), bisect_right(preview_t, publish - margin) - 1,
+                     bisect_left(preview_log, log) - 1)
+        readings = _kept([_Successors(r, tick, inputs, preview_t, commands) for r in readings], tolerance)
     return min(readings, key=lambda r: (r.count.worst, -r.count.compared)).count
+
+
+def _kept(successors: list[_Successors], tolerance: float) -> list[_Reading]:
+    """The readings kept of the `successors` of each reading (`_search`)."""
+    # per reading in order: its successors so far as (sort key, order, successor, its state); order: the reading's
+    # and the slot's (0: the waiting one, or the reading's only successor)
+    found: list[list[_Found]] = []
+    pending: list[tuple[tuple, tuple[int, int], int, int]] = []  # (bound, order, reading, slot) not yet stepped
+
+    def add(i: int, slot: int, successor: _Reading) -> None:
+        """The successor of reading `i`'s `slot` (-1: the waiting one, or its only successor)."""
+        key = (successor.count.worst, successor.unlikely, successor.preview)
+        found[i].append((key, (i, slot + 1), successor, successor.key()))
+
+    for i, each in enumerate(successors):
+        found.append([])
+        # the first answer decides for all: a refused odometry is refused whatever the preview (its checks come
+        # before the pairing) and at the publish end too if at the answer's; no answer anywhere: the reading alone
+        first = 0
+        while first < len(each.slots):
+            out = each.step(first)
+            if out is not None:
+                break
+            first += 1
+        else:
+            out = None
+        if out == _ZERO:
+            add(i, -1, each.refused())
+            continue
+        if out is None and not each.waits:
+            add(i, -1, each.alone())
+            continue
+        if each.waits:
+            pending.append((each.bound(-1), (i, 0), i, -1))
+        if isinstance(out, _Reading):
+            add(i, first, out)
+            pending += [(each.bound(slot), (i, slot + 1), i, slot) for slot in range(first + 1, len(each.slots))]
+    heapq.heapify(pending)
+    while pending and not _settled(found, pending[0][:2], tolerance):
+        _, _, i, slot = heapq.heappop(pending)
+        each = successors[i]
+        out = each.waiting() if slot < 0 else each.step(slot)
+        if out == _ZERO:  # not after an answer (see above): kept for a bug's sake, as stepping every slot would
+            found[i] = []
+            add(i, -1, each.refused())
+            pending = [p for p in pending if p[2] != i]
+            heapq.heapify(pending)
+        elif isinstance(out, _Reading):
+            add(i, slot, out)
+    expanded = sorted((item for items in found for item in items), key=lambda item: item[1])
+    matching = [item for item in expanded if _matches(item[2], tolerance)]
+    if not matching:  # no reading gives the recorded answer: the nearest goes on, its deviation counted
+        matching = [min(expanded, key=lambda item: item[2].deviation if item[2].deviation is not None else np.inf)]
+    unique: dict[tuple, _Reading] = {}
+    for _, _, e, state in sorted(matching, key=lambda item: item[0]):
+        unique.setdefault(state, e)
+    return list(unique.values())[:BEAM]
+
+
+_Found = tuple[tuple[float, int, int], tuple[int, int], _Reading, tuple]
+
+
+def _matches(reading: _Reading, tolerance: float) -> bool:
+    return reading.deviation is None or reading.deviation <= tolerance
+
+
+def _settled(found: list[list[_Found]], frontier: tuple, tolerance: float) -> bool:
+    """Whether `BEAM` states of matching successors sort before `frontier` (the least bound and order left)."""
+    states = {state for items in found for key, order, e, state in items
+              if (key, order) < frontier and _matches(e, tolerance)}
+    return len(states) >= BEAM

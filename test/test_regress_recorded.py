@@ -4,7 +4,9 @@ ec8bd99 (its README.md: the commands), never re-recorded.
 Each recording, read by rosbags (a reader independent of the package's), holds the topics the replay reads, with
 their types, every message decodable, and the run's parameters in its metadata (read by mcap), so that the replay
 does not depend on today's preset. Today's `regress` reproduces each replayed mode's recorded commands to 1e-12:
-every recorded answer of the lockstep run, at most one compared tick per recorded command otherwise.
+every recorded answer of the lockstep run, at most one compared tick per recorded command otherwise; and fails on
+a copy of the chain recording (the search over its unrecorded readings) whose one twist was changed by 1e-6,
+written by the mcap library.
 """
 
 from __future__ import annotations
@@ -14,11 +16,12 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
+from mcap.writer import Writer
 from rosbags.highlevel import AnyReader
 
 from robotino_geom_mpc.cli import main
+from robotino_geom_mpc.recording import regress
 from robotino_geom_mpc.recording.bagfile import RUN_METADATA
-from robotino_geom_mpc.recording.regress import regress_bag
 
 pytestmark = pytest.mark.unit
 
@@ -38,8 +41,7 @@ RECORDINGS = {
 }
 # the modes today's regress replays: every one (the chain's by `regress_chain`: its parameters from the preset, as
 # the recording holds none of the controller's)
-REPLAYED = ("lockstep_demo", "realtime_wifi_plans", "realtime_cmd_vel",
-            pytest.param("realtime_chain", marks=pytest.mark.slow))  # readings of its unrecorded times: 5-10 s
+REPLAYED = ("lockstep_demo", "realtime_wifi_plans", "realtime_cmd_vel", "realtime_chain")
 
 
 def _counts(folder: str) -> dict[str, tuple[str, int]]:
@@ -66,15 +68,62 @@ def test_recording_holds_what_the_replay_reads(folder):
     assert parameters["control.period_s"] > 0
 
 
+def _regress(bag: Path, monkeypatch) -> tuple[int, regress.RegressionResult]:
+    """The exit status of the ``regress`` verb on `bag` and the result it printed (one replay)."""
+    results = []
+    real = regress.regress_bag
+
+    def keep(*args, **kwargs):
+        results.append(real(*args, **kwargs))
+        return results[-1]
+
+    monkeypatch.setattr(regress, "regress_bag", keep)
+    status = main(["regress", str(bag)])
+    assert len(results) == 1
+    return status, results[0]
+
+
 @pytest.mark.parametrize("folder", REPLAYED)
-def test_regress_replays_a_recording_of_older_code(folder, capsys):
+def test_regress_replays_a_recording_of_older_code(folder, capsys, monkeypatch):
     command = RECORDINGS[folder][0]
     recorded = _counts(folder)[command][1]
-    result = regress_bag(DATA / folder)
+    status, result = _regress(DATA / folder, monkeypatch)
     assert result.command == command.lstrip("/")
     assert 0 < result.compared <= recorded
     if folder == "lockstep_demo":  # lockstep: every tick's answer is compared
         assert result.compared == result.ticks == recorded
     assert result.gap is None and result.max_deviation_v <= 1e-12 and result.passed
-    assert main(["regress", str(DATA / folder)]) == 0
+    assert status == 0
     assert capsys.readouterr().out.startswith(f"PASS: {result.compared} of {result.ticks} ticks compared")
+
+
+@pytest.mark.slow  # the search over the readings: 1-2 s per case
+@pytest.mark.parametrize("twist", [10, 80])  # the robot at rest (the reference's start), on the move
+def test_regress_fails_on_a_changed_twist_of_the_older_chain_recording(twist, tmp_path, capsys, monkeypatch):
+    from geometry_msgs.msg import Twist
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    copy = tmp_path / "changed.mcap"
+    with open(next((DATA / "realtime_chain").glob("*.mcap")), "rb") as source, open(copy, "wb") as target:
+        reader, writer = make_reader(source), Writer(target)
+        writer.start()
+        summary = reader.get_summary()
+        schemas = {sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
+        channels = {cid: writer.register_channel(c.topic, c.message_encoding, schemas[c.schema_id], c.metadata)
+                    for cid, c in summary.channels.items()}
+        for record in reader.iter_metadata():
+            writer.add_metadata(record.name, record.metadata)
+        index = -1
+        for _, channel, message in reader.iter_messages(log_time_order=True):
+            data = message.data
+            if channel.topic == "/cmd_vel":
+                index += 1
+                if index == twist:
+                    msg = deserialize_message(data, Twist)
+                    msg.linear.x += 1e-6
+                    data = serialize_message(msg)
+            writer.add_message(channels[channel.id], message.log_time, data, message.publish_time, message.sequence)
+        writer.finish()
+    status, result = _regress(copy, monkeypatch)
+    assert status == 1 and not result.passed and 0.5e-6 < result.max_deviation_v < 2e-6
+    assert capsys.readouterr().out.startswith(f"FAIL: {result.compared} of {result.ticks} ticks compared")

@@ -121,7 +121,10 @@ def yaw_of(x: float, y: float, z: float, w: float) -> float:
 
 def unwrap_near(angle: float, reference: float) -> float:
     """`angle + 2 pi k` closest to `reference` (continuous yaw from a wrapped one)."""
-    return angle + 2.0 * math.pi * round((reference - angle) / (2.0 * math.pi))
+    difference = reference - angle
+    if -math.pi < difference < math.pi:  # k = 0 (the common case): the same float, without the division and round
+        return angle + 0.0
+    return angle + 2.0 * math.pi * round(difference / (2.0 * math.pi))
 
 
 def state_of_odometry(values: tuple, previous_theta: float, norm_tolerance: float = QUATERNION_NORM_TOLERANCE,

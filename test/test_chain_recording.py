@@ -22,6 +22,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 from rosbags.highlevel import AnyReader
 
+from regress_helpers import regress_verb
 from robotino_geom_mpc.cli import main
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.regress import regress_bag
@@ -156,9 +157,9 @@ def test_report_without_ground_truth_uses_odometry_and_says_so(chain_run, real_l
 
 
 @pytest.mark.parametrize("which", ["recorded", "real_like"])
-def test_regress_replays_the_chain(chain_run, real_like, which, capsys):
+def test_regress_replays_the_chain(chain_run, real_like, which, capsys, monkeypatch):
     bag = chain_run / "bag" if which == "recorded" else real_like
-    result = regress_bag(bag)
+    status, result = regress_verb(bag, monkeypatch)
     with AnyReader([chain_run / "bag"]) as reader:
         twists = sum(1 for c in reader.connections if c.topic == "/cmd_vel" for _ in reader.messages([c]))
     # the chain's parameters: the controller's, where the recorder caught its /parameter_events, else the preset
@@ -166,11 +167,11 @@ def test_regress_replays_the_chain(chain_run, real_like, which, capsys):
     assert result.command == "cmd_vel" and result.chain_source is not None
     # each recorded twist but the stop's zero is an answer compared
     assert twists - 2 <= result.compared <= twists and result.max_deviation_v <= 1e-12 and result.passed
-    assert main(["regress", str(bag)]) == 0
+    assert status == 0
     assert capsys.readouterr().out.startswith(f"PASS: {result.compared} of {result.ticks} ticks compared")
 
 
-def test_regress_fails_on_a_changed_twist(chain_run, tmp_path, capsys):
+def test_regress_fails_on_a_changed_twist(chain_run, tmp_path, capsys, monkeypatch):
     from rclpy.serialization import deserialize_message, serialize_message
     from geometry_msgs.msg import Twist
 
@@ -188,9 +189,9 @@ def test_regress_fails_on_a_changed_twist(chain_run, tmp_path, capsys):
         return serialize_message(msg)
 
     _rewrite(source, tmp_path / "changed.mcap", change=change)
-    result = regress_bag(tmp_path / "changed.mcap")
+    status, result = regress_verb(tmp_path / "changed.mcap", monkeypatch)
     assert not result.passed and 0.5e-6 < result.max_deviation_v < 2e-6
-    assert main(["regress", str(tmp_path / "changed.mcap")]) == 1
+    assert status == 1
     assert capsys.readouterr().out.startswith("FAIL")
 
 

@@ -19,8 +19,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 from rosbags.highlevel import AnyReader
 
-from robotino_geom_mpc.cli import main
-from robotino_geom_mpc.recording import regress
+from regress_helpers import regress_verb
 from robotino_geom_mpc.recording.bagfile import RUN_METADATA
 
 pytestmark = pytest.mark.unit
@@ -68,26 +67,11 @@ def test_recording_holds_what_the_replay_reads(folder):
     assert parameters["control.period_s"] > 0
 
 
-def _regress(bag: Path, monkeypatch) -> tuple[int, regress.RegressionResult]:
-    """The exit status of the ``regress`` verb on `bag` and the result it printed (one replay)."""
-    results = []
-    real = regress.regress_bag
-
-    def keep(*args, **kwargs):
-        results.append(real(*args, **kwargs))
-        return results[-1]
-
-    monkeypatch.setattr(regress, "regress_bag", keep)
-    status = main(["regress", str(bag)])
-    assert len(results) == 1
-    return status, results[0]
-
-
 @pytest.mark.parametrize("folder", REPLAYED)
 def test_regress_replays_a_recording_of_older_code(folder, capsys, monkeypatch):
     command = RECORDINGS[folder][0]
     recorded = _counts(folder)[command][1]
-    status, result = _regress(DATA / folder, monkeypatch)
+    status, result = regress_verb(DATA / folder, monkeypatch)
     assert result.command == command.lstrip("/")
     assert 0 < result.compared <= recorded
     if folder == "lockstep_demo":  # lockstep: every tick's answer is compared
@@ -124,6 +108,6 @@ def test_regress_fails_on_a_changed_twist_of_the_older_chain_recording(twist, tm
                     data = serialize_message(msg)
             writer.add_message(channels[channel.id], message.log_time, data, message.publish_time, message.sequence)
         writer.finish()
-    status, result = _regress(copy, monkeypatch)
+    status, result = regress_verb(copy, monkeypatch)
     assert status == 1 and not result.passed and 0.5e-6 < result.max_deviation_v < 2e-6
     assert capsys.readouterr().out.startswith(f"FAIL: {result.compared} of {result.ticks} ticks compared")

@@ -32,15 +32,19 @@ SEED = 3
 SCENARIO = "robustness"  # a mismatched controller model and odometry noise: the seed matters
 
 
-def _run_fleet(out, robots: int) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "robotino_geom_mpc", "run", "--robots", str(robots), "--scenario",
-                           SCENARIO, "--duration", str(DURATION_S), "--seed", str(SEED), "--out", str(out),
-                           "--no-plots"], capture_output=True, text=True, timeout=600, env=os.environ.copy())
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "robotino_geom_mpc", *args], capture_output=True, text=True,
+                          timeout=600, env=os.environ.copy())
 
 
-def _assert_each_robot_is_the_single_run(out, robots: int) -> None:
+def _run_fleet(out, robots: int, scenario: str = SCENARIO) -> subprocess.CompletedProcess:
+    return _cli("run", "--robots", str(robots), "--scenario", scenario, "--duration", str(DURATION_S), "--seed",
+                str(SEED), "--out", str(out), "--no-plots")
+
+
+def _assert_each_robot_is_the_single_run(out, robots: int, scenario: str = SCENARIO) -> None:
     robot, control = load_params()
-    want = compute_metrics(run_scenario(RunConfig(SCENARIO, robot, control, duration_s=DURATION_S, seed=SEED)))
+    want = compute_metrics(run_scenario(RunConfig(scenario, robot, control, duration_s=DURATION_S, seed=SEED)))
     timing = json.loads((out / "timing.json").read_text())
     assert sorted(timing) == sorted(robot_names(robots))
     for namespace in robot_names(robots):
@@ -56,12 +60,43 @@ def _assert_each_robot_is_the_single_run(out, robots: int) -> None:
                 assert metrics[key] == value, (namespace, key)
 
 
-@pytest.mark.parametrize("robots", [1, 2, 5])
+@pytest.fixture(scope="module")
+def fleet_of_two(tmp_path_factory):
+    """A lockstep fleet of two on paper-circle (the nominal loop: `regress` replays it to 0 V)."""
+    out = tmp_path_factory.mktemp("fleet") / "fleet2"
+    proc = _run_fleet(out, 2, "paper-circle")
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    return out
+
+
+@pytest.mark.parametrize("robots", [1, 5])
 def test_lockstep_fleet_each_robot_is_the_single_robot_run(tmp_path, robots):
     out = tmp_path / f"fleet{robots}"
     proc = _run_fleet(out, robots)
     assert proc.returncode == 0, proc.stderr + proc.stdout
     _assert_each_robot_is_the_single_run(out, robots)
+
+
+def test_lockstep_fleet_of_two_each_robot_is_the_single_robot_run(fleet_of_two):
+    _assert_each_robot_is_the_single_run(fleet_of_two, 2, "paper-circle")
+
+
+def test_report_and_regress_read_one_robot_of_a_fleet_bag(fleet_of_two, tmp_path):
+    """``report --namespace`` gives the robot's metrics as ``run`` wrote them; ``regress --namespace`` replays that
+    robot's controller against its recorded commands; without a namespace the bag's two robots are ambiguous.
+    """
+    bag = fleet_of_two / "bag"
+    for namespace in robot_names(2):
+        proc = _cli("report", str(bag), "--namespace", namespace, "--out", str(tmp_path / namespace), "--no-plots")
+        assert proc.returncode == 0, proc.stderr
+        assert json.loads((tmp_path / namespace / "metrics.json").read_text()) == \
+            json.loads((fleet_of_two / namespace / "metrics.json").read_text())
+        proc = _cli("regress", str(bag), "--namespace", namespace)
+        assert proc.returncode == 0 and proc.stdout.startswith("PASS"), proc.stderr + proc.stdout
+    proc = _cli("report", str(bag), "--out", str(tmp_path / "all"), "--no-plots")
+    assert proc.returncode == 2 and "several" in proc.stderr
+    proc = _cli("report", str(bag), "--namespace", "robot3", "--out", str(tmp_path / "none"), "--no-plots")
+    assert proc.returncode == 2 and "robot1, robot2" in proc.stderr
 
 
 @pytest.mark.slow

@@ -40,6 +40,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "controller and compare its voltages (or cmd_vel twists) with the recorded ones (exit 1 beyond --tol).",
     )
     parser.add_argument("bag", type=Path, metavar="BAG", help="bag directory or .mcap file")
+    parser.add_argument("--namespace", default=None, metavar="NS",
+                        help="one robot of a fleet's bag: its namespace, e.g. robot2")
     parser.add_argument("--params", type=Path, default=None,
                         help="ROS 2 parameter file (default: the parameters stored in the recording)")
     parser.add_argument("--chain-params", type=Path, default=None, metavar="FILE",
@@ -60,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         bag = BagReader(args.bag)
         warn_damage("regress", damage_report(bag))
+        if args.namespace is not None:  # the robot's topics and the global ones
+            bag = bag.in_namespace(args.namespace)
         result = regress_bag(bag, params_file=args.params, tolerance_v=args.tol, chain_file=args.chain_params)
     except BagError as exc:
         raise UsageError(str(exc)) from None

@@ -32,6 +32,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "(a real robot's recording) the pose is the odometry's, and the report says so.",
     )
     parser.add_argument("bag", type=Path, metavar="BAG", help="bag directory or .mcap file")
+    parser.add_argument("--namespace", default=None, metavar="NS",
+                        help="one robot of a fleet's bag: its namespace, e.g. robot2")
     parser.add_argument("--out", type=Path, default=None, metavar="DIR",
                         help="output folder (default: BAG-report beside the bag)")
     parser.add_argument("--params", type=Path, default=None,
@@ -88,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         bag = BagReader(args.bag)
         warn_damage("report", damage_report(bag))
+        if args.namespace is not None:  # the robot's topics and the global ones
+            bag = bag.in_namespace(args.namespace)
         report = write_report(bag, out, params_file=args.params, plots=not args.no_plots)
     except BagError as exc:
         raise UsageError(str(exc)) from None

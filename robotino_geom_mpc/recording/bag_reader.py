@@ -326,8 +326,13 @@ class BagReader:
     def in_namespace(self, namespace: str) -> BagReader:
         """This recording as one robot of a fleet's (`ros.fleet`) sees it: the topics in `namespace` (``robot1``) and
         the global ones (``/clock``, ``/tf``, ...), not the other robots'; what the report reads of one robot.
+        BagError if no topic is in `namespace`.
         """
         prefix = "/" + namespace.strip("/") + "/"
+        if not any(name.startswith(prefix) for name in self.topics):
+            namespaces = sorted({n.split("/")[1] for n in self.topics if n.count("/") > 1})
+            raise BagError(f"{self.path}: no topic in namespace {prefix[:-1]!r} (the recording's: "
+                           f"{', '.join(namespaces) or 'none'})")
         view = copy.copy(self)
         view.topics = {n: t for n, t in self.topics.items() if n.startswith(prefix) or n.count("/") == 1}
         view._messages = [m for m in self._messages if m.topic in view.topics]

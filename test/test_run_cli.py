@@ -15,6 +15,7 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
+from robotino_geom_mpc.recording.regress import regress_bag
 
 pytestmark = pytest.mark.ros
 
@@ -53,6 +54,8 @@ def test_run_robustness_is_simulates_robustness_with_its_mismatch_and_noise(tmp_
     assert not list(out.glob("*.png"))  # --no-plots: the metrics only
     metrics = _assert_metrics_of_simulate(out, "robustness", duration_s=2.0, seed=4)
     assert metrics["rms_position_error_m"] > 2e-5
+    result = regress_bag(out / "bag")  # the replay builds the controller the run had: the mismatched model
+    assert result.passed and result.compared == result.ticks == 200, result
 
 
 def _assert_metrics_of_simulate(out, scenario, duration_s=DURATION_S, seed=0) -> dict:

@@ -48,6 +48,7 @@ from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviatio
 from robotino_geom_mpc.recording.report import resolve_parameters
 from robotino_geom_mpc.recording.topics import by_publish_time, controller_diagnostics, find_topic, plan_topic, stamp_ns
 from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
+from robotino_geom_mpc.scenarios import SCENARIOS
 
 __all__ = ["RegressionResult", "regress_bag"]
 
@@ -111,7 +112,8 @@ def regress_bag(
 
     A chain recording (the controller's recorded parameters say ``chain.active`` enabled, or `chain_file`, the
     chain's parameter file, is given, or a cmd_vel recording holds no tracking status of the controller: the
-    chain mode publishes none) is replayed by `regress_chain`.
+    chain mode publishes none) is replayed by `regress_chain`. The controller is the recording's robot (or
+    `params_file`'s) as `run` gave it to the node: under the stored scenario's model mismatch, if any.
 
     Raises
     ------
@@ -123,7 +125,9 @@ def regress_bag(
         raise BagError(f"tolerance must be finite and >= 0, got {tolerance_v!r}")
     if not isinstance(bag, BagReader):
         bag = BagReader(bag)
-    robot, control, _, _ = resolve_parameters(bag, params_file)
+    robot, control, scenario, _ = resolve_parameters(bag, params_file)
+    if scenario in SCENARIOS:  # `run` gave the controller the scenario's model (`scenarios.node_parameters`)
+        robot = SCENARIOS[scenario].controller_model(robot)
     diags = diagnostics(bag)
     if plan_topic(bag) is not None:  # a run with plans (over a link): its plans recomputed (`regress_plans`)
         inputs = ControllerInputs.read(bag, diags)

@@ -62,11 +62,12 @@ from robotino_geom_mpc.control.motion_controller import (MAX_POSITION_M, Control
                                                          MotionController, step_interval)
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.loop.events import (AppliedReport, Command, Diagnostic, EnabledChanged, Level, Log, Now,
-                                           Odometry, Output, PlanOut, PredictedPath, Preview, Resend, Undecodable,
-                                           Waiting, Zero)
-from robotino_geom_mpc.loop.inputs import (POINT_SIZE, QUATERNION_NORM_TOLERANCE, REPORT_WINDOW_S,
-                                           TILT_TOLERANCE_RAD, InputCounters, InputRejected, preview_of_values,
-                                           report_problem, stamp_problem, state_of_odometry)
+                                           Odometry, Output, PlanarOdometry, PlanarPreview, PlanOut, PredictedPath,
+                                           Preview, Resend, Undecodable, Waiting, Zero)
+from robotino_geom_mpc.loop.inputs import (PLANAR_POINT_SIZE, POINT_SIZE, QUATERNION_NORM_TOLERANCE, REPORT_WINDOW_S,
+                                           TILT_TOLERANCE_RAD, InputCounters, InputRejected, planar_preview_arrays,
+                                           planar_state, preview_of_values, report_problem, stamp_problem,
+                                           state_of_odometry)
 from robotino_geom_mpc.model.driver_chain import ChainParams
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.reference.trajectories import shift_preview
@@ -397,20 +398,21 @@ class ControllerLoop:
         self._blend_limits = (s.blend_acceleration_mps2, s.blend_acceleration_radps2)
 
     # inputs -------------------------------------------------------------------------------------------------
-    def on_input(self, event: Odometry | Preview | AppliedReport | Undecodable, now: Now) -> list[Output]:
+    def on_input(self, event: Odometry | PlanarOdometry | Preview | PlanarPreview | AppliedReport | Undecodable,
+                 now: Now) -> list[Output]:
         """Any input message (a replay's or an offline loop's single entry): `on_odometry`, `on_preview`,
         `on_report` or `on_undecodable`.
         """
-        if isinstance(event, Odometry):
+        if isinstance(event, (Odometry, PlanarOdometry)):
             return self.on_odometry(event, now)
-        if isinstance(event, Preview):
+        if isinstance(event, (Preview, PlanarPreview)):
             return self.on_preview(event, now)
         if isinstance(event, AppliedReport):
             return self.on_report(event, now)
         return self.on_undecodable(event, now)
 
-    def on_odometry(self, odom: Odometry, now: Now) -> list[Output]:
-        """One control tick on an odometry (lockstep: once its preview is there)."""
+    def on_odometry(self, odom: Odometry | PlanarOdometry, now: Now) -> list[Output]:
+        """One control tick on an odometry (lockstep: once its preview is there); a planar one's theta as given."""
         self._begin(now)
         stamp = odom.stamp_ns
         problem = stamp_problem(stamp, self.last_odom_ns, self.pairing.stamp_clock(now), self._odom_timeout_ns,
@@ -426,7 +428,8 @@ class ControllerLoop:
                 self._reject(stamp, "odom", problem, f"stamp {stamp} ns is {problem}")
             return self._out
         try:
-            X = state_of_odometry(odom.values, self.theta, *self._tolerances)
+            X = (planar_state(odom.pose, odom.twist) if isinstance(odom, PlanarOdometry) else
+                 state_of_odometry(odom.values, self.theta, *self._tolerances))
             implausible = self.controller.state_problem(X)
             if implausible is not None:
                 raise InputRejected(f"odom {implausible}", "implausible")
@@ -438,17 +441,21 @@ class ControllerLoop:
         self.pairing.take_odometry(self, stamp, X)
         return self._out
 
-    def on_preview(self, preview: Preview, now: Now) -> list[Output]:
-        """A reference preview: checked, kept (lockstep: the ticks waiting for it stepped)."""
+    def on_preview(self, preview: Preview | PlanarPreview, now: Now) -> list[Output]:
+        """A reference preview: checked, kept (lockstep: the ticks waiting for it stepped); a planar one's theta as
+        given.
+        """
         self._begin(now)
         stamp = preview.stamp_ns
         latest = self.latest_preview
+        planar = isinstance(preview, PlanarPreview)
+        size = PLANAR_POINT_SIZE if planar else POINT_SIZE
         try:
             if preview.frame != self.odom_frame:  # another robot's odom, or a prefix mismatch
                 raise InputRejected(f"reference_preview is in frame '{preview.frame}', not in the controller's "
                                     f"'{self.odom_frame}'", "frame")
-            if len(preview.values) != (self.preview_points + 1) * POINT_SIZE:
-                raise InputRejected(f"reference_preview has {len(preview.values) // POINT_SIZE} points, need N + 1 "
+            if len(preview.values) != (self.preview_points + 1) * size:
+                raise InputRejected(f"reference_preview has {len(preview.values) // size} points, need N + 1 "
                                     f"= {self.preview_points + 1}", "size")
             clock = self.pairing.stamp_clock(now)
             if clock is not None:  # lockstep: the trajectory resends previews on purpose, keyed by stamp
@@ -460,15 +467,17 @@ class ControllerLoop:
                 if problem is not None:
                     raise InputRejected(f"stamp {stamp} ns is {problem}", problem)
             values = preview.values
-            arrays = preview_of_values(values, self.theta, *self._tolerances)
-            if max(max(map(abs, values[0::POINT_SIZE])), max(map(abs, values[1::POINT_SIZE]))) > MAX_POSITION_M:
+            arrays = (planar_preview_arrays(values) if planar else
+                      preview_of_values(values, self.theta, *self._tolerances))
+            if max(max(map(abs, values[0::size])), max(map(abs, values[1::size]))) > MAX_POSITION_M:
                 raise InputRejected(f"reference_preview has a position beyond {MAX_POSITION_M:g} m", "implausible")
         except InputRejected as exc:
             self.pairing.refuse_preview(self, stamp, exc.reason, str(exc))
             return self._out
         self._preview_watch_ns = now.watch_ns
         if latest is None or stamp > latest[0]:
-            first = (values[0], values[1], float(arrays[0][0, 2]), *values[6:POINT_SIZE])
+            first = (values[:PLANAR_POINT_SIZE] if planar else
+                     (values[0], values[1], float(arrays[0][0, 2]), *values[6:POINT_SIZE]))
             jump = None if latest is None else _reference_jump(self._latest_first, (stamp - latest[0]) * 1e-9, first,
                                                                *self._jump_limits)
             if jump is not None:

@@ -3,7 +3,9 @@
 A loop method (`loop.controller_loop.ControllerLoop`, `loop.robot_loop.RobotLoop`) takes one input and the
 time (`Now`), decides, and returns a list of `Output`: the node publishes them, the replay compares them, the
 offline loop applies them. Inputs carry their stamps and already-decoded floats (decoding CDR stays in the
-adapters); an input that could not be decoded is an `Undecodable` (a refusal the loop counts and answers).
+adapters); an input that could not be decoded is an `Undecodable` (a refusal the loop counts and answers). An
+in-process driver (the offline runs) hands its odometry and previews over with the yaw as it is
+(`PlanarOdometry`, `PlanarPreview`) instead of the messages' quaternions.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ import numpy as np
 from robotino_geom_mpc.network.plan import CommandPlan
 
 __all__ = ["AppliedReport", "Command", "Diagnostic", "EnabledChanged", "Level", "Log", "Now", "Odometry", "Output",
-           "PlanOut", "PredictedPath", "Preview", "Resend", "Undecodable", "Waiting", "Zero"]
+           "PlanOut", "PlanarOdometry", "PlanarPreview", "PredictedPath", "Preview", "Resend", "Undecodable", "Waiting",
+           "Zero"]
 
 
 class Level(IntEnum):
@@ -57,9 +60,34 @@ class Odometry:
 
 
 @dataclass(frozen=True)
+class PlanarOdometry:
+    """An odometry of an in-process robot (the offline runs): its stamp, the pose (x, y, theta) in odom with theta
+    continuous, and the base_link twist (v_x, v_y, omega). The yaw an `Odometry` carries as a quaternion, without
+    it: nothing to decode, unwrap or check but finiteness (building a quaternion only for the loop to take it
+    apart would be a conversion, not protocol).
+    """
+
+    stamp_ns: int
+    pose: tuple[float, float, float]
+    twist: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
 class Preview:
     """A reference preview: its stamp, frame and per point (x, y, q_x, q_y, q_z, q_w, velocity and acceleration
     (x, y, theta)), flat (`loop.inputs.POINT_SIZE` values a point, any number of points: the loop checks).
+    """
+
+    stamp_ns: int
+    frame: str
+    values: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class PlanarPreview:
+    """A reference preview of an in-process reference (the offline runs): its stamp, frame and per point (x, y,
+    theta, their velocities, their accelerations), flat (`loop.inputs.PLANAR_POINT_SIZE` values a point), theta
+    continuous: a `Preview` without the quaternions.
     """
 
     stamp_ns: int

@@ -3,9 +3,10 @@
 The adapters (`nodes.controller_node`, the replay) read a message's fields; these functions check and convert
 them: a stamp's problem against the last used one and a clock (`stamp_problem`), a yaw quaternion
 (`check_yaw_quaternion`), the body state of an odometry (`state_of_odometry`, eq. 2) and the arrays of a
-preview (`preview_of_values`). A refused input raises `InputRejected`, whose `reason` is the short key the
-loop counts (`InputCounters`) and reports; `report_problem` says when a robot's report is too far from the newest
-odometry.
+preview (`preview_of_values`); an in-process robot's planar odometry and preview (the yaw without a quaternion:
+`planar_state`, `planar_preview_arrays`) are only checked for finiteness. A refused input raises
+`InputRejected`, whose `reason` is the short key the loop counts (`InputCounters`) and reports; `report_problem`
+says when a robot's report is too far from the newest odometry.
 """
 
 from __future__ import annotations
@@ -17,11 +18,13 @@ import numpy as np
 from robotino_geom_mpc.control.motion_controller import state_from_odometry
 from robotino_geom_mpc.errors import RobotinoError
 
-__all__ = ["InputCounters", "InputRejected", "POINT_SIZE", "QUATERNION_NORM_TOLERANCE", "REPORT_WINDOW_S",
-           "TILT_TOLERANCE_RAD", "check_yaw_quaternion", "preview_of_values", "report_problem",
-           "stamp_problem", "state_of_odometry", "time_ns", "unwrap_near", "yaw_of"]
+__all__ = ["InputCounters", "InputRejected", "PLANAR_POINT_SIZE", "POINT_SIZE", "QUATERNION_NORM_TOLERANCE",
+           "REPORT_WINDOW_S", "TILT_TOLERANCE_RAD", "check_yaw_quaternion", "planar_preview_arrays", "planar_state",
+           "preview_of_values", "report_problem", "stamp_problem", "state_of_odometry", "time_ns", "unwrap_near",
+           "yaw_of"]
 
 POINT_SIZE = 12  # per preview point: x, y, the yaw quaternion, velocity and acceleration (x, y, theta)
+PLANAR_POINT_SIZE = 9  # per planar preview point (in-process): x, y, theta, velocity and acceleration (x, y, theta)
 # defaults of the controller's quaternion checks (its parameters quaternion_norm_tolerance, tilt_tolerance_rad)
 QUATERNION_NORM_TOLERANCE = 1e-3  # relative: | |q| - 1 | above this is refused
 TILT_TOLERANCE_RAD = 0.05  # roll/pitch: the body z axis tilted more than this from the odom z axis is refused
@@ -178,6 +181,33 @@ def preview_of_values(values: tuple, theta_near: float, norm_tolerance: float = 
         rows[start] = theta
     points = np.array(rows, dtype=float).reshape(-1, POINT_SIZE)
     return points[:, :3], points[:, 6:9], points[:, 9:12]
+
+
+def planar_state(pose: tuple[float, float, float], twist: tuple[float, float, float]) -> np.ndarray:
+    """Body state X (eq. 2) of a `loop.events.PlanarOdometry`'s pose (theta continuous) and body twist.
+
+    Raises
+    ------
+    InputRejected
+        If any value is not finite (reason ``non_finite``).
+    """
+    if not math.isfinite(sum(pose) + sum(twist)):
+        raise InputRejected("odom contains non-finite values", "non_finite")
+    return np.array(state_from_odometry(pose, twist))
+
+
+def planar_preview_arrays(values: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Positions (x, y, theta), velocities and accelerations of a `loop.events.PlanarPreview`'s values, each (N + 1, 3).
+
+    Raises
+    ------
+    InputRejected
+        If a value is not finite (reason ``non_finite``).
+    """
+    if not math.isfinite(sum(values)):
+        raise InputRejected("reference_preview contains non-finite values", "non_finite")
+    points = np.array(values, dtype=float).reshape(-1, PLANAR_POINT_SIZE)
+    return points[:, :3], points[:, 3:6], points[:, 6:9]
 
 
 class InputCounters:

@@ -31,11 +31,11 @@ from tqdm import tqdm
 
 from robotino_geom_mpc.loop.chain_robot import ChainRobot
 from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
-from robotino_geom_mpc.loop.events import Command, Now, Zero
+from robotino_geom_mpc.loop.events import Command, Now, PlanarOdometry, Zero
 from robotino_geom_mpc.model.chain_emulation import ChainEmulator
 from robotino_geom_mpc.model.driver_chain import ChainParams
 from robotino_geom_mpc.model.plant import RobotinoPlant
-from robotino_geom_mpc.offline.lockstep import PreviewRows, odometry_event
+from robotino_geom_mpc.offline.lockstep import PreviewRows
 from robotino_geom_mpc.offline.results import RunData
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.scenarios import get_scenario
@@ -94,7 +94,7 @@ def run_chain_scenario(scenario: str, robot: RobotinoParams, control: ControlPar
         while next_preview * period_ns <= pass_ns or next_check <= pass_ns:  # step 1, in time order
             if next_preview * period_ns <= next_check:
                 stamp = next_preview * period_ns
-                loop.on_preview(previews.at(next_preview), Now(stamp, stamp))
+                loop.on_preview(previews.planar(next_preview), Now(stamp, stamp))
                 next_preview += 1
             else:
                 _send(emulated, loop.on_watchdog(Now(next_check, next_check)), t_pass)
@@ -105,7 +105,7 @@ def run_chain_scenario(scenario: str, robot: RobotinoParams, control: ControlPar
         bar.update(len(emulator.trace) - before)
         for chain_pass in chain_passes:
             for m, measured_s in zip(chain_pass.odometry, chain_pass.measured_s):
-                if _send(emulated, loop.on_odometry(odometry_event(m.stamp_ns, m.pose, m.twist),
+                if _send(emulated, loop.on_odometry(PlanarOdometry(m.stamp_ns, m.pose, m.twist),
                                                     Now(m.stamp_ns, m.stamp_ns)), t_pass):
                     clock = tracker.controller.clock
                     assert tracker.epoch_ns is not None

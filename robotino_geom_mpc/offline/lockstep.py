@@ -2,10 +2,13 @@
 
 The offline loops (`simulation`, `networked`) drive a `loop.controller_loop.ControllerLoop` in lockstep with
 the inputs the trajectory node and the plant send each tick (`chain_loop` the same previews in realtime): the
-preview of tick k (`PreviewRows.at`: the reference's pose, velocity and acceleration at t_k + j Ts, j = 0 .. N,
-each pose's yaw as a quaternion, as ``reference_preview`` carries them; sampled for the whole run at once) and
-the odometry (`odometry_event`: the pose with its yaw as a quaternion, the body twist, as ``odom`` carries them).
-`LockstepController` feeds a loop both, in the lockstep plant's order, and returns the tick's command.
+preview of tick k (`PreviewRows`: the reference's pose, velocity and acceleration at t_k + j Ts, j = 0 .. N,
+sampled for the whole run at once) and the odometry (the pose and the body twist). In process they travel as
+`loop.events.PlanarPreview` and `PlanarOdometry` (`PreviewRows.planar`): the yaw as it is, not a quaternion for the
+loop to take apart again (a conversion, not protocol: ``bench --only offline_loop``); `PreviewRows.at` and
+`odometry_event` give the messages as ``reference_preview`` and ``odom`` carry them (the yaw as a quaternion), for
+driving the loop as the nodes do. `LockstepController` feeds a loop both, in the lockstep plant's order, and
+returns the tick's command.
 """
 
 from __future__ import annotations
@@ -16,8 +19,8 @@ import numpy as np
 
 from robotino_geom_mpc.control.motion_controller import ControlOutput
 from robotino_geom_mpc.loop.controller_loop import ControllerLoop
-from robotino_geom_mpc.loop.events import Command, Now, Odometry, Preview
-from robotino_geom_mpc.loop.inputs import POINT_SIZE
+from robotino_geom_mpc.loop.events import Command, Now, Odometry, PlanarOdometry, PlanarPreview, Preview
+from robotino_geom_mpc.loop.inputs import PLANAR_POINT_SIZE, POINT_SIZE
 from robotino_geom_mpc.reference.trajectories import Reference
 
 __all__ = ["LockstepController", "ODOM_FRAME", "PreviewRows", "odometry_event"]
@@ -50,13 +53,20 @@ class PreviewRows:
         zeros = np.zeros(len(t))
         rows = np.column_stack([positions[:, :2], zeros, zeros, np.sin(half), np.cos(half), velocities, accelerations])
         self._flat: list[float] = rows.ravel().tolist()
+        self._planar: list[float] = np.column_stack([positions, velocities, accelerations]).ravel().tolist()
         self.positions = positions
-        self.period_ns, self._width = period_ns, (points + 1) * POINT_SIZE
+        self.period_ns, self._points = period_ns, points + 1
 
     def at(self, k: int) -> Preview:
-        """The preview of tick k (stamp k Ts)."""
+        """The preview message of tick k (stamp k Ts), the yaw as a quaternion."""
         start = k * POINT_SIZE
-        return Preview(k * self.period_ns, ODOM_FRAME, tuple(self._flat[start:start + self._width]))
+        return Preview(k * self.period_ns, ODOM_FRAME, tuple(self._flat[start:start + self._points * POINT_SIZE]))
+
+    def planar(self, k: int) -> PlanarPreview:
+        """The preview of tick k (stamp k Ts) in process: the yaw as it is."""
+        start = k * PLANAR_POINT_SIZE
+        return PlanarPreview(k * self.period_ns, ODOM_FRAME,
+                             tuple(self._planar[start:start + self._points * PLANAR_POINT_SIZE]))
 
 
 def odometry_event(stamp_ns: int, pose: tuple[float, float, float], twist: tuple[float, float, float]) -> Odometry:
@@ -92,8 +102,8 @@ class LockstepController:
         t_ns = k * self.previews.period_ns
         now = Now(t_ns, t_ns)
         loop = self.loop
-        loop.on_preview(self.previews.at(k), now)
-        for out in loop.on_odometry(odometry_event(t_ns, pose, twist), now):
+        loop.on_preview(self.previews.planar(k), now)
+        for out in loop.on_odometry(PlanarOdometry(t_ns, pose, twist), now):
             if isinstance(out, Command):
                 self.step = loop.last_step
                 return out.values

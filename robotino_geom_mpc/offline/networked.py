@@ -47,9 +47,9 @@ from typing import Any
 
 from robotino_geom_mpc.loop.command_link import COMMAND_TIMEOUT_S, CommandLink
 from robotino_geom_mpc.loop.controller_loop import ControllerLoop
-from robotino_geom_mpc.loop.events import Command, Now, PlanOut
+from robotino_geom_mpc.loop.events import Command, Now, PlanarOdometry, PlanOut
 from robotino_geom_mpc.network.link import LinkParams
-from robotino_geom_mpc.offline.lockstep import PreviewRows, odometry_event
+from robotino_geom_mpc.offline.lockstep import PreviewRows
 
 __all__ = ["COMMAND_TIMEOUT_S", "NetworkedLoop", "link_meta"]
 
@@ -78,8 +78,8 @@ class NetworkedLoop:
         robot, controller = self.robot, self.controller
         t, t_ns = k * self.period_s, k * self.previews.period_ns
         now = Now(t_ns, t_ns)
-        controller.on_preview(self.previews.at(k), now)
-        for odometry, reports in robot.send_up(t, (odometry_event(t_ns, pose, twist), robot.pop_reports())):
+        controller.on_preview(self.previews.planar(k), now)
+        for odometry, reports in robot.send_up(t, (PlanarOdometry(t_ns, pose, twist), robot.pop_reports())):
             for report in reports:  # the receipts, then what was applied (the robot's order)
                 controller.on_report(report, now)
             for out in controller.on_odometry(odometry, now):

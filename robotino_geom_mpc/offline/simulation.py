@@ -9,7 +9,8 @@ controller node's protocol (`loop.controller_loop.ControllerLoop`, lockstep) and
    integrated from the wheel-encoder counts plus the same noise, and the encoder twist: `encoders`);
 2. the controller's inputs as the nodes send them (`offline.lockstep`): the preview of tick k (the reference's
    pose, velocity and acceleration at t_k + j Ts, j = 0 .. N, eq. 54, sampled for the whole run at once), then
-   the odometry stamped t_k (the yaw as a quaternion, as ``odom`` carries it);
+   the odometry stamped t_k; in process both carry the yaw as it is (`loop.events.PlanarPreview`,
+   `PlanarOdometry`), not as the quaternion of the messages;
 3. the loop's answer (`offline.lockstep.LockstepController`): the checks, X of eq. 2, and at t = 0 robot and
    reference started together, then ``MotionController.step(X, Y_d)`` (three MPCs -> T(theta) -> inverse drive);
    its voltages, or with ``cmd_vel`` its base_link velocity for the next period;
@@ -23,10 +24,10 @@ sides of the link, in the order `offline.networked` writes down: the same loop w
 uncompensated baseline) and the robot's end of the link (`loop.command_link.CommandLink`), as the lockstep DDS
 loop runs them. Through the driver's chain the run is `offline.chain_loop`'s (the loop's chain mode, realtime).
 
-Against the kernels called directly on the exact reference rows the ticks are the same (to rounding where the yaw
-turns: the quaternions, `test_offline_lockstep`); ``bench --only offline_loop`` measures what the protocol costs
-over them. The loop keeps numpy out of its per-tick bookkeeping: it collects the ticks' values and turns them into
-arrays once, at the end.
+Against the kernels called directly on the exact reference rows the ticks are the same to the last bit
+(`test_offline_lockstep`); ``bench --only offline_loop`` measures what the protocol costs over them. The loop
+keeps numpy out of its per-tick bookkeeping: it collects the ticks' values and turns them into arrays once, at
+the end.
 
 A scenario (`scenarios.SCENARIOS`) names the reference, the controller's
 model (`scenarios.Scenario.controller_model`: the robot, or a mismatched one in ``robustness``)

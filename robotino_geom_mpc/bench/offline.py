@@ -28,13 +28,16 @@ def bench_offline_sim(quick: bool) -> dict[str, float]:
 
 
 @benchmark("offline_loop", "the offline plain loop's ticks through the controller's protocol (ControllerLoop in "
-           "lockstep, as simulate drives it) beside the kernels alone (MotionController.step), on the same RobotLoop, "
-           "paper-circle: wall times, ratio, pose difference")
+           "lockstep, as simulate drives it: planar inputs; and fed the messages, the yaw as quaternions, as the nodes "
+           "feed it) beside the kernels alone (MotionController.step), on the same RobotLoop, paper-circle: wall "
+           "times, ratios, pose difference")
 def bench_offline_loop(quick: bool) -> dict[str, float]:
-    """What driving `loop.controller_loop.ControllerLoop` (`offline.lockstep.LockstepController`, `simulate`'s plain
-    tick) costs per tick against the kernels called directly (`MotionController.step` on the exact reference rows),
-    each with the same `loop.robot_loop.RobotLoop` and loop body; the two runs' poses must agree (max |diff|
-    reported; paper-circle's heading stays 0, so exactly). Medians of alternating repeats.
+    """What driving `loop.controller_loop.ControllerLoop` costs per tick against the kernels called directly
+    (`MotionController.step` on the exact reference rows), each with the same `loop.robot_loop.RobotLoop` and loop
+    body: fed in process (`offline.lockstep.LockstepController`, `simulate`'s plain tick: `PlanarPreview`,
+    `PlanarOdometry`) and fed the messages as the nodes get them (`PreviewRows.at`, `odometry_event`: the yaw as
+    a quaternion), the case for the planar inputs. The runs' poses must agree (max |diff| reported; paper-circle's
+    heading stays 0, so exactly). Medians of alternating repeats.
     """
     import time
     from collections.abc import Callable, Sequence
@@ -43,10 +46,10 @@ def bench_offline_loop(quick: bool) -> dict[str, float]:
 
     from robotino_geom_mpc.control.motion_controller import MotionController, state_from_odometry
     from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
-    from robotino_geom_mpc.loop.events import Now
+    from robotino_geom_mpc.loop.events import Command, Now
     from robotino_geom_mpc.loop.robot_loop import PoseNoise, RobotLoop, VoltageDrive
     from robotino_geom_mpc.model.plant import RobotinoPlant
-    from robotino_geom_mpc.offline.lockstep import LockstepController, PreviewRows
+    from robotino_geom_mpc.offline.lockstep import LockstepController, PreviewRows, odometry_event
     from robotino_geom_mpc.offline.simulation import run_ticks
     from robotino_geom_mpc.scenarios import get_scenario
 
@@ -54,7 +57,7 @@ def bench_offline_loop(quick: bool) -> dict[str, float]:
     robot, control = load_params()
     spec = get_scenario("paper-circle")
     Ts, N = control.period_s, control.horizon
-    n = run_ticks(duration_s, Ts)
+    Ts_ns, n = round(Ts * 1e9), run_ticks(duration_s, Ts)
     Triple = tuple[float, float, float]
     Controller = Callable[[int, Triple, Triple], Sequence[float]]  # tick k's command for its odometry
 
@@ -65,10 +68,22 @@ def bench_offline_loop(quick: bool) -> dict[str, float]:
         return lambda k, pose, twist: controller.step(state_from_odometry(pose, twist), targets[k + 1:k + N + 1]
                                                       ).voltages
 
-    def protocol() -> Controller:
+    def loop_and_previews() -> tuple[ControllerLoop, PreviewRows]:
         loop = ControllerLoop(spec.controller_model(robot), control, Now(0, 0), lockstep=True, listeners=QUIET)
-        return LockstepController(loop, PreviewRows(spec.make_reference(), Ts, round(Ts * 1e9), loop.preview_points,
-                                                    n)).command
+        return loop, PreviewRows(spec.make_reference(), Ts, Ts_ns, loop.preview_points, n)
+
+    def planar() -> Controller:
+        return LockstepController(*loop_and_previews()).command
+
+    def messages() -> Controller:
+        loop, previews = loop_and_previews()
+
+        def command(k: int, pose: Triple, twist: Triple) -> Sequence[float]:
+            now = Now(k * Ts_ns, k * Ts_ns)
+            loop.on_preview(previews.at(k), now)
+            return next(o.values for o in loop.on_odometry(odometry_event(k * Ts_ns, pose, twist), now)
+                        if isinstance(o, Command))
+        return command
 
     def run(controller: Callable[[], Controller]) -> tuple[float, np.ndarray]:
         begin = time.perf_counter()
@@ -82,15 +97,20 @@ def bench_offline_loop(quick: bool) -> dict[str, float]:
             drive(command(k, *measure()))
         return time.perf_counter() - begin, np.array(poses)
 
-    kernels_s, loop_s = [], []
+    run(kernels)  # the plant's matrices cached before any run is timed
+    walls: dict[str, list[float]] = {"kernels": [], "planar": [], "messages": []}
+    difference = 0.0
     for _ in range(repeats):
         wall, alone = run(kernels)
-        kernels_s.append(wall)
-        wall, through = run(protocol)
-        loop_s.append(wall)
-    kernel, loop = float(np.median(kernels_s)), float(np.median(loop_s))
+        walls["kernels"].append(wall)
+        for name, side in (("planar", planar), ("messages", messages)):
+            wall, through = run(side)
+            walls[name].append(wall)
+            difference = max(difference, float(np.abs(through - alone).max()))
+    kernel, loop, message = (float(np.median(walls[name])) for name in ("kernels", "planar", "messages"))
     return {"offline_loop_kernels_s": kernel, "offline_loop_controller_loop_s": loop,
-            "offline_loop_ratio": loop / kernel, "offline_loop_max_pose_diff_m": float(np.abs(through - alone).max())}
+            "offline_loop_ratio": loop / kernel, "offline_loop_messages_s": message,
+            "offline_loop_messages_ratio": message / kernel, "offline_loop_max_pose_diff_m": difference}
 
 
 @benchmark("dds", "the nodes over DDS: lockstep real-time factor, realtime missed ticks and latency, "

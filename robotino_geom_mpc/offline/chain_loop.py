@@ -97,7 +97,7 @@ def run_chain_scenario(scenario: str, robot: RobotinoParams, control: ControlPar
                 loop.on_preview(previews.planar(next_preview), Now(stamp, stamp))
                 next_preview += 1
             else:
-                _send(emulated, loop.on_watchdog(Now(next_check, next_check)), t_pass)
+                _send(emulated, loop.on_watchdog(Now(next_check, next_check)), next_check * 1e-9)
                 next_check += watchdog_ns
         before = len(emulator.trace)
         chain_passes = emulated.poll(t_pass, pass_ns)  # step 2: the one pass at t_pass

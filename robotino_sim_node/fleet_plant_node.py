@@ -6,6 +6,10 @@
 frames ``robot1/odom``, ``robot1/base_link``; its parameters its own, e.g. a seed per robot from a parameter
 file's ``/robot1/robotino_plant:`` section), each over its own `loop.robot_loop.RobotLoop`.
 
+Optional outputs: the fleet's own ``publish_tf`` and ``publish_joint_states`` (default false; a parameter file's
+``/**`` section sets them too) are every robot's (`ros.fleet`): the report reads neither, and each costs every
+robot a message a tick (published, and taken by a recorder). The rest of a robot's outputs is the single plant's.
+
 Lockstep: one global ``/clock`` for the fleet (`plant_lockstep.FleetClock`): tick k + 1 goes out when every robot
 has answered tick k, so the trajectory nodes (`nodes.fleet_trajectory_node`) follow one clock and each robot's run
 is the single plant's run with its parameters. The robots share ``control.period_s`` and ``duration_s`` (checked
@@ -39,6 +43,9 @@ from robotino_sim_node.plant_node import PlantNode
 __all__ = ["FleetPlant", "main"]
 
 _SHARED = ("mode", "control.period_s", "duration_s")  # one value for the whole fleet
+# off by default: the report reads neither
+_FLEET_WIDE = {"publish_tf": (False, "Publish odom -> base_link on /tf"),
+               "publish_joint_states": (False, "Publish the wheels on joint_states")}
 
 
 class FleetPlant(FleetHost):
@@ -47,7 +54,7 @@ class FleetPlant(FleetHost):
     """
 
     def __init__(self) -> None:
-        super().__init__("robotino_fleet_plant", self._plant)
+        super().__init__("robotino_fleet_plant", self._plant, _FLEET_WIDE)
         self.declare_parameter("timing_report", "", ParameterDescriptor(
             description="File the fleet's timing goes to (per robot its timing report, one JSON object) once every "
             "robot's run is over; its folder must exist; empty: none", read_only=True))

@@ -6,9 +6,10 @@ The odometry (`odometry_template`, `odometry_values`): frames ``<frame_prefix>od
 whose drift grows with the path: its covariance does not follow it (fuse the twist, as robot_localization
 advises for wheel odometry).
 
-``joint_states`` (sensor_msgs/JointState): joints ``wheel0_joint`` .. ``wheel2_joint`` of the URDF
-(`description.urdf`): angle [rad] (rim distance / r integrated by the plant, positive rolling along the
-wheel's rolling direction), angular velocity [rad/s], effort = wheel torque gear Km i [N m].
+``joint_states`` (sensor_msgs/JointState, when ``publish_joint_states``): joints ``wheel0_joint`` ..
+``wheel2_joint`` of the URDF (`description.urdf`): angle [rad] (rim distance / r integrated by the plant,
+positive rolling along the wheel's rolling direction), angular velocity [rad/s], effort = wheel torque gear
+Km i [N m].
 
 ``/tf`` (tf2_msgs/TFMessage, when ``publish_tf``): ``<frame_prefix>odom`` -> ``<frame_prefix>base_link``,
 the pose the odometry message of the same tick carries, with its stamp, as the Robotino drivers publish
@@ -64,8 +65,10 @@ TF_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("publish_tf", bool, "Publish odom -> base_link (the odometry's pose) on /tf, as the drivers do"),
     ParamSpec("frame_prefix", str, "Prefix of the frame ids odom and base_link (odometry, /tf), e.g. 'robot1/' "
               "for several robots in one domain; empty: none"),
+    ParamSpec("publish_joint_states", bool, "Publish the wheels' angles, speeds and torques on joint_states (what "
+              "a robot description's wheel frames follow; the report does not read them)"),
 )
-TF_DEFAULTS = {"publish_tf": True, "frame_prefix": ""}
+TF_DEFAULTS = {"publish_tf": True, "frame_prefix": "", "publish_joint_states": True}
 
 # variance for the planar-motion axes (z, roll, pitch known to be 0) and for noise-free quantities
 _CERTAIN = 1e-12
@@ -124,8 +127,8 @@ class PlantOutputs:
     qos
         The writers' QoS (`ros.qos.publish_qos`).
     params
-        The node's parameter values (``publish_tf``, ``frame_prefix``, ``odometry_noise.*``, ``odometry_model``,
-        ``encoder.*``).
+        The node's parameter values (``publish_tf``, ``publish_joint_states``, ``frame_prefix``,
+        ``odometry_noise.*``, ``odometry_model``, ``encoder.*``).
     lockstep
         /clock is published.
     cmd_vel
@@ -142,7 +145,8 @@ class PlantOutputs:
         self.odom_pub = node.create_publisher(Odometry, "odom", qos)
         self.truth_pub = node.create_publisher(Odometry, "ground_truth/odom", qos)
         self.current_pub = node.create_publisher(Float64MultiArray, "wheel_currents", qos)
-        self.joint_pub = node.create_publisher(JointState, "joint_states", qos)
+        self.joint_pub = node.create_publisher(JointState, "joint_states", qos) \
+            if params["publish_joint_states"] else None
         self.tf_pub: Publisher | None = None
         self.tf_cdr: CdrTemplate | None = None
         if params["publish_tf"]:
@@ -198,7 +202,7 @@ class PlantOutputs:
         if self.tf_pub is not None and self.tf_cdr is not None and self.tf_pub.get_subscription_count():
             x, y, theta = pose
             out.append((self.tf_pub, self.tf_cdr.pack(*stamp, x, y, *yaw_quaternion_zw(theta))))
-        if self.joint_pub.get_subscription_count():
+        if self.joint_pub is not None and self.joint_pub.get_subscription_count():
             angles, speeds, torques = robot.joints()
             out.append((self.joint_pub, self.joint_cdr.pack(*stamp, *angles, *speeds, *torques)))
         return out

@@ -81,6 +81,27 @@ def test_lockstep_fleet_of_two_each_robot_is_the_single_robot_run(fleet_of_two):
     _assert_each_robot_is_the_single_run(fleet_of_two, 2, "paper-circle")
 
 
+def test_a_fleet_records_what_the_report_reads_without_the_optional_outputs(fleet_of_two):
+    """The fleet's default leaves each robot's joint_states, /tf and predicted_path out (every robot's extra
+    messages a tick; the report reads none of them: the metrics above came from this bag); each robot's loop
+    topics are recorded, as the recording's own channel list (the mcap reader's) shows.
+    """
+    from mcap.reader import make_reader
+
+    topics = set()
+    for path in (fleet_of_two / "bag").glob("*.mcap"):
+        with path.open("rb") as stream:
+            summary = make_reader(stream).get_summary()
+            assert summary is not None
+            topics |= {channel.topic for channel in summary.channels.values()}
+    assert "/tf" not in topics
+    for namespace in robot_names(2):
+        assert f"/{namespace}/joint_states" not in topics and f"/{namespace}/predicted_path" not in topics
+        for topic in ("odom", "ground_truth/odom", "wheel_currents", "wheel_voltages", "reference_preview",
+                      "diagnostics"):
+            assert f"/{namespace}/{topic}" in topics, topic
+
+
 def test_report_and_regress_read_one_robot_of_a_fleet_bag(fleet_of_two, tmp_path):
     """``report --namespace`` gives the robot's metrics as ``run`` wrote them; ``regress --namespace`` replays that
     robot's controller against its recorded commands; without a namespace the bag's two robots are ambiguous.

@@ -1,5 +1,8 @@
-"""The fleet's plain parts: the ``robots`` parameter, the processes' arguments, the lockstep fleet's one clock."""
+"""The fleet's plain parts: the ``robots`` parameter, the processes' arguments, the lockstep fleet's one clock, the
+realtime preview's values (the fleet trajectory's cost a robot and tick).
+"""
 
+import numpy as np
 import pytest
 
 from robotino_geom_mpc.params.presets import default_params_file
@@ -36,7 +39,8 @@ def test_fleet_arguments_are_the_single_runs_plus_the_robots():
         if name == "plant_node":  # the fleet's one /clock: three trajectory readers and the recorder's
             waits, single_waits = got.pop("lockstep_wait_for"), want.pop("lockstep_wait_for")
             assert '"/clock:4"' in waits and '"/clock:2"' in single_waits
-            assert '"joint_states:1"' in waits  # no description publisher in a fleet
+            # no description publisher in a fleet, and its plant's joint_states are off (publish_joint_states)
+            assert "joint_states" not in waits and '"joint_states:2"' in single_waits
         assert got == want, name
     assert robot_names(3) == ["robot1", "robot2", "robot3"]
 
@@ -84,3 +88,27 @@ def test_the_fleet_clock_sends_a_tick_once_every_robot_is_due():
         assert log[before:] == [("tick", "a", k * 10_000_000), ("tick", "b", k * 10_000_000),
                                 ("tick", "c", k * 10_000_000), ("clock", "a", k * 10_000_000)]
     assert sum(entry[0] == "clock" for entry in log) == 3
+
+
+@pytest.mark.parametrize("scenario", ["paper-circle", "lemniscate", "point-to-point", "robustness"])
+def test_realtime_preview_values_are_the_reference_sampled_at_once(scenario):
+    """`preview_values` (one scalar sample per point) against the reference sampled over the points' times in one
+    vectorised call and eq. 54's positions: the same values to an ulp, before, during and after the reference.
+    """
+    from robotino_geom_mpc.params.files import load_params as load
+    from robotino_geom_mpc.reference.trajectories import preview
+    from robotino_geom_mpc.ros.messages import preview_values
+    from robotino_geom_mpc.scenarios import get_scenario
+
+    _, control = load()
+    period, horizon = control.period_s, control.horizon
+    reference = get_scenario(scenario).make_reference()
+    end_ns = int(reference.duration_s * 1e9)
+    for t_ns in (-30_000_000, 0, 1_234_567_891, end_ns // 2 + 7, end_ns - 15_000_000, end_ns + 40_000_000):
+        t = t_ns * 1e-9
+        pos, vel, acc, _ = reference.sample(t + period * np.arange(horizon + 1))
+        pos[1:] = preview(reference, t, period, horizon)
+        half = 0.5 * pos[:, 2]
+        want = np.column_stack((pos[:, :2], np.sin(half), np.cos(half), vel, acc))
+        got = np.reshape(preview_values(reference, t_ns, period, horizon), want.shape)
+        np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-12, err_msg=f"{scenario} at {t_ns} ns")

@@ -89,6 +89,8 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("plans", bool, "Off-board over a network: per odometry a delay-compensated plan of control.plan_length "
               "commands on wheel_voltage_plan / cmd_vel_plan (the plain command carries its first entry); reads "
               "command_applied (loop.controller_loop)"),
+    ParamSpec("publish_predicted_path", bool, "Publish predicted_path (the MPCs' predicted poses, computed only while "
+              "a subscription is matched; the report does not read it)"),
     ParamSpec("start_enabled", bool, "false: the node starts disabled, as after ~/enable false (zero volts / zero "
               "twist every tick, diagnostic 'disabled') until ~/enable true, then tracks bumplessly"),
 )
@@ -98,11 +100,13 @@ CONTROLLER_DEFAULTS: dict[str, Any] = {
     "reference_jump_m": 0.005, "reference_jump_rad": 0.02,
     "blend_acceleration_mps2": LINEAR_LIMIT_MPS2, "blend_acceleration_radps2": ANGULAR_LIMIT_RADPS2,
     "frame_prefix": "", "command_interface": "voltages", "plans": False, "start_enabled": True,
+    "publish_predicted_path": True,
 }
 # the mode, the outputs, and what must agree with the trajectory node (the preview's layout)
 FIXED_WHILE_RUNNING = ("mode", "frame_prefix", "command_interface", "control.period_s", "control.horizon", "plans",
                        "control.plan_length", "control.lead_max_periods",
-                       "start_enabled")  # (a start value: ~/enable switches a running node)
+                       "start_enabled",  # (a start value: ~/enable switches a running node)
+                       "publish_predicted_path")
 
 
 def closed_loop_problem(values: dict[str, Any]) -> str | None:

@@ -22,7 +22,8 @@ publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layo
                                   sent only while a subscription is matched.
            ``predicted_path``     nav_msgs/Path in ``<frame_prefix>odom``: the MPCs' y(k+1) .. y(k+N) (eq. 50
                                   under the optimal increments of eq. 56), pose j stamped t_k + j Ts; computed
-                                  and sent only while a subscription is matched.
+                                  and sent only while a subscription is matched (``publish_predicted_path``
+                                  false: no publisher).
 services   ``~/enable``           std_srvs/SetBool. Disabled: zero output every tick (diagnostic message
                                   ``disabled``; realtime: on every odometry, with or without a reference), the
                                   controller holds its state; enabled again: bumpless restart. ``start_enabled``
@@ -142,7 +143,8 @@ class ControllerNode(Node):
         # stale), else steady time
         self.sim_time = bool(self.get_parameter("use_sim_time").value)
         self.outputs = ControllerOutputs(self, lockstep, prefix, interface,
-                                         control.plan_length if self.params["plans"] else None)
+                                         control.plan_length if self.params["plans"] else None,
+                                         self.params["publish_predicted_path"])
         try:
             self.loop = ControllerLoop(robot, control, self._now(), self._settings(), lockstep=lockstep,
                                        interface=interface, plans=self.params["plans"], chain=self._chain(),

@@ -53,10 +53,13 @@ class ControllerOutputs:
         twist (v_x [m/s], v_y [m/s], theta' [rad/s]) on ``cmd_vel`` (geometry_msgs/Twist).
     plan_length
         With plans: the plans' length (``wheel_voltage_plan`` / ``cmd_vel_plan`` are published); None: no plans.
+    predicted_path
+        ``predicted_path`` is published (while subscribed); false: no publisher, the prediction never computed.
     """
 
     def __init__(self, node: Node, lockstep: bool, frame_prefix: str = "",
-                 command_interface: str = "voltages", plan_length: int | None = None) -> None:
+                 command_interface: str = "voltages", plan_length: int | None = None,
+                 predicted_path: bool = True) -> None:
         self.node = node
         self.cmd_vel = command_interface == "cmd_vel"
         qos = publish_qos(lockstep)
@@ -71,7 +74,7 @@ class ControllerOutputs:
         self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", qos)
         self.diag_keys: dict[tuple[str, ...], tuple[bytes, ...]] = {}  # the keys of a status, encoded once
         self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, command
-        self.path_pub = node.create_publisher(Path, "predicted_path", PATH_QOS)
+        self.path_pub = node.create_publisher(Path, "predicted_path", PATH_QOS) if predicted_path else None
         self.path_frame = frame_prefix + ODOM_FRAME
         self.enabled_pub = node.create_publisher(Bool, "controller_enabled", LATCHED_QOS)
         self.plan_pub, self.plan_writer = None, None
@@ -140,10 +143,11 @@ class ControllerOutputs:
     # prediction ---------------------------------------------------------------------------------
     def path(self) -> bool:
         """True while a ``predicted_path`` subscription is matched (the prediction is computed only then)."""
-        return self.path_pub.get_subscription_count() > 0
+        return self.path_pub is not None and self.path_pub.get_subscription_count() > 0
 
     def publish_path(self, path: PredictedPath) -> None:
         """Publish the predicted poses y(k+1) .. y(k+N) of a tick (header: its stamp; pose j: its time)."""
+        assert self.path_pub is not None  # (`path`: asked only with a publisher)
         publish_acknowledged(self.node, self.path_pub, path_cdr(self.path_frame, path.stamp_ns, path.stamps_ns,
                                                                 path.poses))
 

@@ -8,6 +8,8 @@
 ``/robot1/robotino_controller:`` section; ``/**`` for every robot). Everything else is the single controller
 node's (its module docstring): each robot's loop (`loop.controller_loop.ControllerLoop`), decoding and outputs
 are that node's, so a robot's fault (stale odometry, a refused input, its watchdog) zeroes that robot only.
+The fleet's own ``publish_predicted_path`` (default false; the report does not read it: with a recorder, which
+subscribes every topic, every robot would compute and send its prediction every tick) is every robot's (`ros.fleet`).
 All robots' callbacks run on one events executor (`ros.spin.run_nodes`): an odometry message costs the same
 Python work as in the single node (decoded in place, one loop call, the outputs' CDR templates).
 """
@@ -22,6 +24,8 @@ from robotino_geom_mpc.ros.fleet import FleetHost, run_fleet
 
 __all__ = ["main"]
 
+_FLEET_WIDE = {"publish_predicted_path": (False, "Publish predicted_path (while subscribed)")}
+
 
 def _robot(namespace: str, overrides: list[Parameter]) -> Node:
     return ControllerNode(namespace=namespace, parameter_overrides=overrides)
@@ -29,7 +33,7 @@ def _robot(namespace: str, overrides: list[Parameter]) -> Node:
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run robotino_geom_mpc fleet_controller_node``."""
-    return run_fleet(lambda: FleetHost("robotino_fleet_controller", _robot), args)
+    return run_fleet(lambda: FleetHost("robotino_fleet_controller", _robot, _FLEET_WIDE), args)
 
 
 if __name__ == "__main__":

@@ -71,6 +71,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "mode", "odom_timeout_s", "reference_timeout_s", "future_tolerance_s", "quaternion_norm_tolerance",
         "tilt_tolerance_rad", "reference_jump_m", "reference_jump_rad", "blend_acceleration_mps2",
         "blend_acceleration_radps2", "frame_prefix", "command_interface", "plans", "start_enabled",
+        "publish_predicted_path",
     ) + _CHAIN,
     "robotino_plant": _ROBOT_CONTROL + (
         "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s",
@@ -78,7 +79,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "seed", "timing_report", "lockstep_wait_for",
         "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std",
         "command_interface", "wheel_pi.kp", "wheel_pi.ki", "wheel_pi.rate_hz", "publish_tf", "frame_prefix",
-        "plans", "timing_window_s", "odom_publisher_check_s",
+        "publish_joint_states", "plans", "timing_window_s", "odom_publisher_check_s",
     ) + _CHAIN + _LINK,
     "robotino_trajectory": _ROBOT_CONTROL + (
         "scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints", "goals.max_velocity_mps",

@@ -7,11 +7,15 @@ namespaced single-robot launch (``/robot1/robotino_controller``): every topic, s
 process per robot, and a parameter file's node sections (``/robot1/robotino_controller:``) set one robot's
 parameters, its ``/**`` section every robot's. Each robot's ``frame_prefix`` is its namespace (``robot1/``), as
 `system.processes.node_arguments` gives a namespaced robot. `ros.spin.run_nodes` spins them all on one executor.
+
+A fleet node may declare fleet-wide parameters (``fleet_wide``): its value of each (its own, or a parameter file's
+``/**`` section) is every robot's, e.g. the optional outputs a fleet leaves off by default (every robot's extra
+message a tick is N messages a tick for the fleet's processes and its recorder).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor
@@ -56,11 +60,18 @@ class FleetHost(Node):
         The fleet node's name (e.g. ``robotino_fleet_controller``).
     build
         A robot's node: `build(namespace, overrides)`.
+    fleet_wide
+        Parameters of the fleet node that are every robot's: name -> (default, description).
     """
 
-    def __init__(self, name: str, build: RobotNodeFactory) -> None:
+    def __init__(self, name: str, build: RobotNodeFactory,
+                 fleet_wide: Mapping[str, tuple[Any, str]] | None = None) -> None:
         super().__init__(name)
         self.build = build
+        self.fleet_wide = [
+            Parameter(key, value=self.declare_parameter(key, default, ParameterDescriptor(
+                description=f"{text} (the fleet's value is every robot's)", read_only=True)).value)
+            for key, (default, text) in (fleet_wide or {}).items()]
         self.declare_parameter(ROBOTS_PARAMETER, ["robot1"], ParameterDescriptor(
             description="The robots' namespaces: one node of the single-robot kind per robot, in its namespace",
             additional_constraints="valid ROS namespaces, each named once, at least one", read_only=True))
@@ -70,8 +81,11 @@ class FleetHost(Node):
             raise NodeStartError(str(exc)) from None
 
     def robot_nodes(self) -> list[Node]:
-        """One node per robot: `build(namespace, overrides)` with the robot's ``frame_prefix``."""
-        return [self.build(ns, [Parameter("frame_prefix", value=frame_prefix(ns))]) for ns in self.namespaces]
+        """One node per robot: `build(namespace, overrides)` with the robot's ``frame_prefix`` and the fleet-wide
+        parameters.
+        """
+        return [self.build(ns, [Parameter("frame_prefix", value=frame_prefix(ns)), *self.fleet_wide])
+                for ns in self.namespaces]
 
 
 def run_fleet(host: Callable[[], FleetHost], args: list[str] | None = None) -> int:

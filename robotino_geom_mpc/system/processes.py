@@ -244,10 +244,10 @@ def robot_names(count: int) -> list[str]:
 
 def fleet_wait_for(robots: int, record: bool, command_interface: str = "voltages") -> list[str]:
     """A fleet plant's ``lockstep_wait_for`` (each robot's): the loop's subscriptions in its namespace (with the
-    recorder's: `recorder_wait_for`, no description publisher), and on the fleet's one /clock every robot's
-    trajectory node (and the recorder).
+    recorder's: `recorder_wait_for`, no description publisher and no joint_states: the fleet plant's default),
+    and on the fleet's one /clock every robot's trajectory node (and the recorder).
     """
-    waits = [w.replace("joint_states:2", "joint_states:1") for w in recorder_wait_for(command_interface)] if record \
+    waits = [w for w in recorder_wait_for(command_interface) if not w.startswith("joint_states:")] if record \
         else list(LOCKSTEP_WAIT_FOR)
     clock_readers = robots + (1 if record else 0)
     return [f"/clock:{clock_readers}" if w.startswith("/clock:") else w for w in waits]

@@ -15,12 +15,25 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.ros.qos import LATCHED_QOS, PUBLISH_QOS
 from harness import Harness
 from robotino_geom_mpc.system.processes import ros_args
+import launch_standins as standins
+import ament_index_python.packages
 
 pytestmark = pytest.mark.ros
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = "robotino_geom_mpc"
 EXECUTABLES = ("plant_node", "controller_node", "trajectory_node", "recorder_node")
+
+
+def _share(install: Path):
+    def share(package: str) -> str:
+        assert package == PACKAGE, package
+        return str(install / "share" / PACKAGE)
+    return share
+
+
+def _no_robot_state_publisher(package: str) -> str:
+    raise ament_index_python.packages.PackageNotFoundError(package)
 
 
 @pytest.fixture(scope="module")
@@ -72,11 +85,28 @@ def test_installed_executable_answers_on_dds(install):
     assert proc.returncode == 0 and b"Traceback" not in err
 
 
-def test_launch_file_compiles_and_names_what_exists(install):
-    launch = REPO / "launch" / "robotino_geom_mpc.launch.py"
-    compile(launch.read_text(), str(launch), "exec")
-    text = launch.read_text()
-    for name in EXECUTABLES:
-        assert f'executable="{name}"' in text
-        assert (install / "lib" / PACKAGE / name).is_file()
+# each launch file with the arguments that change which executables it starts
+LAUNCHES = [("robotino_geom_mpc.launch.py", {}), ("robotino_geom_mpc.launch.py", {"record": "true", "robots": "3"}),
+            ("real_robot.launch.py", {"record": "true"}), ("robot_side.launch.py", {}),
+            ("driver_standin.launch.py", {})]
+
+
+def test_every_launch_file_starts_only_installed_executables_and_files(install, monkeypatch):
+    """Each launch file, evaluated with the stand-ins as launch would (`launch_standins`), its package's share the
+    colcon install: every executable of ours it starts is installed in lib/, every file it passes exists.
+    """
+    standins.install(monkeypatch.setitem)
+    monkeypatch.setattr(ament_index_python.packages, "get_package_share_directory", _no_robot_state_publisher)
+    started: set[str] = set()
+    for name, arguments in LAUNCHES:
+        launch = install / "share" / PACKAGE / "launch" / name
+        actions, _ = standins.evaluate(standins.load_description(launch), arguments, _share(install))
+        for node in standins.of("Node", actions):
+            if node.kwargs["package"] == PACKAGE:
+                started.add(node.kwargs["executable"])
+                assert (install / "lib" / PACKAGE / node.kwargs["executable"]).is_file(), (name, node.kwargs)
+            for entry in node.kwargs.get("parameters", []):
+                assert not isinstance(entry, str) or not entry or Path(entry).is_file(), (name, entry)
+    assert set(EXECUTABLES) <= started, started
+    text = (install / "share" / PACKAGE / "launch" / "robotino_geom_mpc.launch.py").read_text()
     assert '"robotino3.yaml"' in text and (install / "share" / PACKAGE / "config" / "robotino3.yaml").is_file()

@@ -58,3 +58,18 @@ def test_suppressed_calls_do_not_reach_the_logger(clock):
     for k in range(50):
         _tick(logger, k)
         clock[0] += 0.01
+
+
+def test_an_rclpy_loggers_message_reaches_rcutils_with_its_call_site(capfd, clock):
+    """An rclpy logger's messages go straight to rcutils (not through rclpy's caller search): the console line
+    carries the severity, the logger's name and the message; a suppressed one is not there.
+    """
+    import rclpy.logging
+
+    logger = rclpy.logging.get_logger("throttle_test")
+    _tick(logger, 7)
+    _tick(logger, 8)  # suppressed: within the period
+    _other_site(logger, 9)
+    err = capfd.readouterr().err
+    assert "[WARN]" in err and "[throttle_test]: warn 7" in err and "warn 8" not in err
+    assert "[INFO]" in err and "[throttle_test]: info 9" in err

@@ -57,7 +57,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from robotino_geom_mpc.scenarios import SCENARIOS
-from . import VERBS, UsageError, positive_float, seed_value
+from . import VERBS, UsageError, positive_float, positive_int, seed_value
 from robotino_geom_mpc.cli.simulate import add_chain_argument, add_command_interface_argument, add_link_arguments, \
     add_no_plots_argument, add_odometry_argument, add_scenario_argument, chain_from_args, command_interface_from_args, \
     link_from_args
@@ -116,7 +116,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--goals", type=Path, default=None, metavar="FILE",
                         help="scenario goals: a goal file (YAML/JSON, e.g. config/goals_example.yaml) whose goals "
                         "and paths a sender publishes on goal_pose and plan; the run lasts until they end + 3 s")
-    parser.add_argument("--robots", type=_robot_count, default=None, metavar="N",
+    parser.add_argument("--robots", type=positive_int, default=None, metavar="N",
                         help="a fleet of N robots (robot1 .. robotN) through one controller, one plant and one "
                         "trajectory process; DIR/robot<k>/metrics.json and DIR/timing.json")
     parser.add_argument("--foxglove", type=_port, nargs="?", const=8765, default=None, metavar="PORT",
@@ -135,17 +135,6 @@ def _port(text: str) -> int:
     if not 1 <= port <= 65535:
         raise argparse.ArgumentTypeError(f"port {port} is not in 1..65535")
     return port
-
-
-def _robot_count(text: str) -> int:
-    """A fleet's size (>= 1) for argparse."""
-    try:
-        count = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of robots") from None
-    if count < 1:
-        raise argparse.ArgumentTypeError(f"--robots {count}: at least 1")
-    return count
 
 
 def _fleet_problem(args: argparse.Namespace) -> str | None:

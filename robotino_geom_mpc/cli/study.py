@@ -13,22 +13,11 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from . import VERBS, UsageError, positive_float, seed_value
+from . import VERBS, UsageError, positive_float, positive_int, seed_value
 from robotino_geom_mpc.cli.simulate import SETTLE_TIME_S, add_chain_argument, add_link_arguments, \
     add_scenario_argument, chain_from_args, link_from_args
 
 __all__ = ["add_parser", "run"]
-
-
-def _positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer (1 or more), got {text!r}")
-    return value
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -43,8 +32,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "per run), DIR/summary.json and the figures.",
     )
     add_scenario_argument(parser)
-    parser.add_argument("--samples", type=_positive_int, required=True, metavar="N", help="number of runs")
-    parser.add_argument("--workers", type=_positive_int, default=None, metavar="K",
+    parser.add_argument("--samples", type=positive_int, required=True, metavar="N", help="number of runs")
+    parser.add_argument("--workers", type=positive_int, default=None, metavar="K",
                         help="processes (default: the number of cores)")
     parser.add_argument("--seed", type=seed_value, default=0, metavar="S", help="seed of the draws (default 0)")
     parser.add_argument("--odometry", choices=("both", "ideal", "encoders"), default="both",

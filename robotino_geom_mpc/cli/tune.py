@@ -11,9 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from . import VERBS, UsageError, positive_float, seed_value
+from . import VERBS, UsageError, positive_float, positive_int, seed_value
 from robotino_geom_mpc.cli.simulate import add_scenario_argument
-from robotino_geom_mpc.cli.study import _positive_int
 
 __all__ = ["add_parser", "run"]
 
@@ -28,14 +27,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "with the parameter file's weights on a held-out study (other seeds): the certificate.",
     )
     add_scenario_argument(parser)
-    parser.add_argument("--samples", type=_positive_int, required=True, metavar="N", help="runs per study")
-    parser.add_argument("--trials", type=_positive_int, required=True, metavar="T", help="optuna trials")
+    parser.add_argument("--samples", type=positive_int, required=True, metavar="N", help="runs per study")
+    parser.add_argument("--trials", type=positive_int, required=True, metavar="T", help="optuna trials")
     parser.add_argument("--seed", type=seed_value, default=0, metavar="S",
                         help="seed of the tuning draws and the sampler (default 0); the certificate's draws use "
                         "another seed")
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
                         help="Dask scheduler address for the trials' studies (default: the local cores)")
-    parser.add_argument("--workers", type=_positive_int, default=None, metavar="K",
+    parser.add_argument("--workers", type=positive_int, default=None, metavar="K",
                         help="local processes (default: the number of cores)")
     parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
                         help="simulated time of each run [s] (default: the scenario's length)")

@@ -112,3 +112,49 @@ def test_realtime_preview_values_are_the_reference_sampled_at_once(scenario):
         want = np.column_stack((pos[:, :2], np.sin(half), np.cos(half), vel, acc))
         got = np.reshape(preview_values(reference, t_ns, period, horizon), want.shape)
         np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-12, err_msg=f"{scenario} at {t_ns} ns")
+
+
+_THREADS_PROBE = """
+import json, os, threading
+from robotino_geom_mpc.ros.spin import realtime_threads
+
+def policies():
+    return {int(t): os.sched_getscheduler(int(t)) for t in os.listdir("/proc/self/task")}
+
+stop = threading.Event()
+early = threading.Thread(target=stop.wait)
+early.start()
+before = policies()
+refused = realtime_threads(1)
+seen = []
+late = threading.Thread(target=lambda: seen.append(os.sched_getscheduler(0)))
+late.start()
+late.join()
+after = policies()
+stop.set()
+early.join()
+print(json.dumps({"refused": refused, "before": sorted(set(before.values())), "after": sorted(set(after.values())),
+                  "threads": len(after), "late": seen[0]}))
+"""
+
+
+def test_realtime_threads_puts_every_thread_under_sched_fifo_or_says_why_not():
+    """In a process of its own (not the test runner's threads): with the permission every thread is SCHED_FIFO
+    (one started before, the main thread, one started after: inherited); without it nothing changes and the
+    reason is named.
+    """
+    import json
+    import os
+    import subprocess
+    import sys
+
+    if not hasattr(os, "sched_setscheduler"):
+        pytest.skip("no SCHED_FIFO on this system")
+    proc = subprocess.run([sys.executable, "-c", _THREADS_PROBE], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(proc.stdout)
+    assert got["threads"] >= 2 and os.SCHED_FIFO not in got["before"]
+    if got["refused"] is None:
+        assert got["after"] == [os.SCHED_FIFO] and got["late"] == os.SCHED_FIFO
+    else:
+        assert got["refused"] and got["after"] == got["before"] and got["late"] != os.SCHED_FIFO

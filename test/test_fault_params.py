@@ -154,9 +154,12 @@ def test_the_registry_names_what_each_node_declares(tmp_path):
         from robotino_geom_mpc.nodes.robot_description_node import RobotDescriptionNode
         from robotino_sim_node.plant_node import PlantNode
         from robotino_geom_mpc.nodes.command_buffer_node import CommandBufferNode
+        from robotino_geom_mpc.nodes import fleet_controller_node, fleet_trajectory_node
+        from robotino_sim_node.fleet_plant_node import FleetPlant
         rclpy.init()
         out = {{}}
         for make in (ControllerNode, TrajectoryNode, PlantNode, RobotDescriptionNode, CommandBufferNode,
+                     fleet_controller_node.fleet, fleet_trajectory_node.fleet, FleetPlant,
                      lambda: RecorderNode(parameter_overrides=[Parameter("output", value={str(tmp_path / 'bag')!r})]),
                      lambda: GoalSender(parameter_overrides=[Parameter("goals_file", value={str(GOALS_EXAMPLE)!r})])):
             node = make()

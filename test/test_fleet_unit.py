@@ -158,3 +158,21 @@ def test_realtime_threads_puts_every_thread_under_sched_fifo_or_says_why_not():
         assert got["after"] == [os.SCHED_FIFO] and got["late"] == os.SCHED_FIFO
     else:
         assert got["refused"] and got["after"] == got["before"] and got["late"] != os.SCHED_FIFO
+
+
+def test_a_parameter_file_may_name_the_fleets_own_nodes(tmp_path):
+    """The fleet nodes' sections are checked as the single nodes' are: their parameters pass, a misspelled one is
+    refused with a suggestion (`params.files.check_parameter_files`, before rcl reads the file).
+    """
+    from robotino_geom_mpc.params.files import check_parameter_files
+    from robotino_geom_mpc.params.specs import ParamError
+
+    good = tmp_path / "fleet.yaml"
+    good.write_text("/robotino_fleet_plant:\n  ros__parameters:\n    realtime_priority: 20\n    publish_tf: true\n"
+                    "/robotino_fleet_controller:\n  ros__parameters:\n    publish_predicted_path: true\n"
+                    "/robotino_fleet_trajectory:\n  ros__parameters:\n    robots: [robot1, robot2]\n")
+    check_parameter_files([good])
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/robotino_fleet_controller:\n  ros__parameters:\n    realtime_priorty: 20\n")
+    with pytest.raises(ParamError, match="unknown parameter 'realtime_priorty'.*did you mean 'realtime_priority'"):
+        check_parameter_files([bad])

@@ -22,7 +22,7 @@ from rclpy.parameter import Parameter
 from robotino_geom_mpc.nodes.controller_node import ControllerNode
 from robotino_geom_mpc.ros.fleet import FleetHost, run_fleet
 
-__all__ = ["main"]
+__all__ = ["fleet", "main"]
 
 _FLEET_WIDE = {"publish_predicted_path": (False, "Publish predicted_path (while subscribed)")}
 
@@ -31,9 +31,14 @@ def _robot(namespace: str, overrides: list[Parameter]) -> Node:
     return ControllerNode(namespace=namespace, parameter_overrides=overrides)
 
 
+def fleet() -> FleetHost:
+    """The fleet's node (``/robotino_fleet_controller``), its robots' nodes not built yet (`FleetHost.robot_nodes`)."""
+    return FleetHost("robotino_fleet_controller", _robot, _FLEET_WIDE)
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run robotino_geom_mpc fleet_controller_node``."""
-    return run_fleet(lambda: FleetHost("robotino_fleet_controller", _robot, _FLEET_WIDE), args)
+    return run_fleet(fleet, args)
 
 
 if __name__ == "__main__":

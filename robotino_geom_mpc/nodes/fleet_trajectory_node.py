@@ -16,16 +16,21 @@ from rclpy.parameter import Parameter
 from robotino_geom_mpc.nodes.trajectory_node import TrajectoryNode
 from robotino_geom_mpc.ros.fleet import FleetHost, run_fleet
 
-__all__ = ["main"]
+__all__ = ["fleet", "main"]
 
 
 def _robot(namespace: str, overrides: list[Parameter]) -> Node:
     return TrajectoryNode(namespace=namespace, parameter_overrides=overrides)
 
 
+def fleet() -> FleetHost:
+    """The fleet's node (``/robotino_fleet_trajectory``), its robots' nodes not built yet (`FleetHost.robot_nodes`)."""
+    return FleetHost("robotino_fleet_trajectory", _robot)
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run robotino_geom_mpc fleet_trajectory_node``."""
-    return run_fleet(lambda: FleetHost("robotino_fleet_trajectory", _robot), args)
+    return run_fleet(fleet, args)
 
 
 if __name__ == "__main__":

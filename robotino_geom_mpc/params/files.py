@@ -94,6 +94,10 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "robot_description_publisher": _ROBOT_CONTROL + ("frame_prefix", "mode"),
     "robotino_goal_sender": ("goals_file", "mode"),
     "robotino_command_buffer": ("control.period_s", "idle_after_s"),
+    # a fleet's own nodes (`ros.fleet`; its robots' nodes are the single ones above, in their namespaces)
+    "robotino_fleet_trajectory": ("robots", "realtime_priority"),
+    "robotino_fleet_controller": ("robots", "realtime_priority", "publish_predicted_path"),
+    "robotino_fleet_plant": ("robots", "realtime_priority", "timing_report", "publish_tf", "publish_joint_states"),
 }
 """The parameters each node of the package declares (besides rclpy's), by node name; a test compares them
 with what the nodes declare."""

@@ -219,11 +219,3 @@ def test_a_bad_robots_parameter_stops_the_fleet_with_status_2(tmp_path):
         node = group.start("fleet_controller_node", ros_args(None, {"robots": ["robot1", "robot1"]}))
         assert node.popen.wait(timeout=60) == 2
         assert "named twice" in node.stderr_tail()
-
-
-def test_a_bad_realtime_priority_stops_the_fleet_with_status_2(tmp_path):
-    with NodeGroup(log_dir=tmp_path) as group:
-        for value, reason in ((100, "is no priority"), (-1, "is no priority"), (2.5, "realtime_priority")):
-            node = group.start("fleet_trajectory_node", ros_args(None, {"realtime_priority": value}))
-            assert node.popen.wait(timeout=60) == 2, value
-            assert reason in node.stderr_tail(), value

@@ -114,52 +114,6 @@ def test_realtime_preview_values_are_the_reference_sampled_at_once(scenario):
         np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-12, err_msg=f"{scenario} at {t_ns} ns")
 
 
-_THREADS_PROBE = """
-import json, os, threading
-from robotino_geom_mpc.ros.spin import realtime_threads
-
-def policies():
-    return {int(t): os.sched_getscheduler(int(t)) for t in os.listdir("/proc/self/task")}
-
-stop = threading.Event()
-early = threading.Thread(target=stop.wait)
-early.start()
-before = policies()
-refused = realtime_threads(1)
-seen = []
-late = threading.Thread(target=lambda: seen.append(os.sched_getscheduler(0)))
-late.start()
-late.join()
-after = policies()
-stop.set()
-early.join()
-print(json.dumps({"refused": refused, "before": sorted(set(before.values())), "after": sorted(set(after.values())),
-                  "threads": len(after), "late": seen[0]}))
-"""
-
-
-def test_realtime_threads_puts_every_thread_under_sched_fifo_or_says_why_not():
-    """In a process of its own (not the test runner's threads): with the permission every thread is SCHED_FIFO
-    (one started before, the main thread, one started after: inherited); without it nothing changes and the
-    reason is named.
-    """
-    import json
-    import os
-    import subprocess
-    import sys
-
-    if not hasattr(os, "sched_setscheduler"):
-        pytest.skip("no SCHED_FIFO on this system")
-    proc = subprocess.run([sys.executable, "-c", _THREADS_PROBE], capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 0, proc.stderr
-    got = json.loads(proc.stdout)
-    assert got["threads"] >= 2 and os.SCHED_FIFO not in got["before"]
-    if got["refused"] is None:
-        assert got["after"] == [os.SCHED_FIFO] and got["late"] == os.SCHED_FIFO
-    else:
-        assert got["refused"] and got["after"] == got["before"] and got["late"] != os.SCHED_FIFO
-
-
 def test_a_parameter_file_may_name_the_fleets_own_nodes(tmp_path):
     """The fleet nodes' sections are checked as the single nodes' are: their parameters pass, a misspelled one is
     refused with a suggestion (`params.files.check_parameter_files`, before rcl reads the file).
@@ -168,11 +122,12 @@ def test_a_parameter_file_may_name_the_fleets_own_nodes(tmp_path):
     from robotino_geom_mpc.params.specs import ParamError
 
     good = tmp_path / "fleet.yaml"
-    good.write_text("/robotino_fleet_plant:\n  ros__parameters:\n    realtime_priority: 20\n    publish_tf: true\n"
+    good.write_text("/robotino_fleet_plant:\n  ros__parameters:\n    timing_report: t.json\n    publish_tf: true\n"
                     "/robotino_fleet_controller:\n  ros__parameters:\n    publish_predicted_path: true\n"
                     "/robotino_fleet_trajectory:\n  ros__parameters:\n    robots: [robot1, robot2]\n")
     check_parameter_files([good])
     bad = tmp_path / "bad.yaml"
-    bad.write_text("/robotino_fleet_controller:\n  ros__parameters:\n    realtime_priorty: 20\n")
-    with pytest.raises(ParamError, match="unknown parameter 'realtime_priorty'.*did you mean 'realtime_priority'"):
+    bad.write_text("/robotino_fleet_controller:\n  ros__parameters:\n    publish_predicted_paths: true\n")
+    with pytest.raises(ParamError, match="unknown parameter 'publish_predicted_paths'.*did you mean "
+                       "'publish_predicted_path'"):
         check_parameter_files([bad])

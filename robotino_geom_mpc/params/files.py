@@ -95,9 +95,9 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "robotino_goal_sender": ("goals_file", "mode"),
     "robotino_command_buffer": ("control.period_s", "idle_after_s"),
     # a fleet's own nodes (`ros.fleet`; its robots' nodes are the single ones above, in their namespaces)
-    "robotino_fleet_trajectory": ("robots", "realtime_priority"),
-    "robotino_fleet_controller": ("robots", "realtime_priority", "publish_predicted_path"),
-    "robotino_fleet_plant": ("robots", "realtime_priority", "timing_report", "publish_tf", "publish_joint_states"),
+    "robotino_fleet_trajectory": ("robots",),
+    "robotino_fleet_controller": ("robots", "publish_predicted_path"),
+    "robotino_fleet_plant": ("robots", "timing_report", "publish_tf", "publish_joint_states"),
 }
 """The parameters each node of the package declares (besides rclpy's), by node name; a test compares them
 with what the nodes declare."""

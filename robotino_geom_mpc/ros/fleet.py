@@ -8,11 +8,6 @@ process per robot, and a parameter file's node sections (``/robot1/robotino_cont
 parameters, its ``/**`` section every robot's. Each robot's ``frame_prefix`` is its namespace (``robot1/``), as
 `system.processes.node_arguments` gives a namespaced robot. `ros.spin.run_nodes` spins them all on one executor.
 
-``realtime_priority`` (0: off, the default; `run --robots N --realtime` gives the plant and the controller 20):
-every thread of the fleet's process under SCHED_FIFO at that priority (`ros.spin.realtime_threads`), so the N
-robots' loop runs before the machine's other jobs (a recorder, the trajectory process, anything else) on a
-loaded machine; refused by the system (no permission), one warning and the default scheduling.
-
 A fleet node may declare fleet-wide parameters (``fleet_wide``): its value of each (its own, or a parameter file's
 ``/**`` section) is every robot's, e.g. the optional outputs a fleet leaves off by default (every robot's extra
 message a tick is N messages a tick for the fleet's processes and its recorder).
@@ -24,7 +19,6 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -32,12 +26,9 @@ from robotino_geom_mpc.ros.parameters import NodeStartError
 from robotino_geom_mpc.ros.spin import run_nodes
 from robotino_geom_mpc.system.processes import NamespaceError, frame_prefix, ros_namespace
 
-__all__ = ["PRIORITY_PARAMETER", "ROBOTS_PARAMETER", "RUN_PRIORITY", "FleetHost", "fleet_namespaces", "run_fleet"]
+__all__ = ["ROBOTS_PARAMETER", "FleetHost", "fleet_namespaces", "run_fleet"]
 
 ROBOTS_PARAMETER = "robots"
-PRIORITY_PARAMETER = "realtime_priority"
-MAX_PRIORITY = 99  # SCHED_FIFO's range: 1-99
-RUN_PRIORITY = 20  # `run --robots N --realtime`: the fleet's plant and controller (below the kernel's threads at 50)
 # a ROS robot's node, built in `namespace` with these parameter overrides
 RobotNodeFactory = Callable[[str, list[Parameter]], Node]
 
@@ -88,17 +79,6 @@ class FleetHost(Node):
             self.namespaces = fleet_namespaces(self.get_parameter(ROBOTS_PARAMETER).value)
         except ValueError as exc:
             raise NodeStartError(str(exc)) from None
-        try:
-            priority = self.declare_parameter(PRIORITY_PARAMETER, 0, ParameterDescriptor(
-                description="SCHED_FIFO priority of every thread of the process (the robots' loop before the "
-                "machine's other jobs); 0: the default scheduling", additional_constraints=f"0 to {MAX_PRIORITY}",
-                read_only=True)).value
-        except InvalidParameterTypeException as exc:
-            raise NodeStartError(f"parameter '{PRIORITY_PARAMETER}': {exc}") from None
-        if isinstance(priority, bool) or not isinstance(priority, int) or not 0 <= priority <= MAX_PRIORITY:
-            raise NodeStartError(f"parameter '{PRIORITY_PARAMETER}': {priority!r} is no priority "
-                                 f"(an integer 0 to {MAX_PRIORITY})")
-        self.realtime_priority = priority
 
     def robot_nodes(self) -> list[Node]:
         """One node per robot: `build(namespace, overrides)` with the robot's ``frame_prefix`` and the fleet-wide

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import faulthandler
 import gc
-import os
 import signal
 import sys
 import time
@@ -24,7 +23,7 @@ from robotino_geom_mpc.ros.qos import wait_acknowledged
 from robotino_geom_mpc.system.signals import STOP, ignore_stop_signals, stop_on_signals
 
 __all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "clock_s", "data_publishers", "monotonic", "params_files",
-           "realtime_threads", "run_node", "run_nodes", "start_rclpy"]
+           "run_node", "run_nodes", "start_rclpy"]
 
 # before exiting, the longest a node waits for its readers to acknowledge what it published: after a run it
 # ended itself (the lockstep plant; a recorder can be thousands of samples behind), and when stopped by a
@@ -110,8 +109,7 @@ def run_nodes(factory: Callable[[], list[Node]], args: list[str] | None = None) 
 
     The spin ends on a signal or once every node that has a ``done`` future has it set (none: only a signal);
     the status is the largest ``exit_status``; each node's ``on_stop`` runs, then the acknowledgement wait of
-    all their publishers. A node with a ``realtime_priority`` attribute above 0 (a fleet's, `ros.fleet`) puts
-    every thread of the process under SCHED_FIFO at the largest one (`realtime_threads`) once the nodes are built.
+    all their publishers.
     """
     from rclpy.experimental import EventsExecutor
 
@@ -125,14 +123,6 @@ def run_nodes(factory: Callable[[], list[Node]], args: list[str] | None = None) 
             return 0
         nodes = factory()
         one_blas_thread()  # also under `ros2 run`: OpenBLAS threads only spin on a node's 3x3-9x9 matrices
-        priority = max((getattr(node, "realtime_priority", 0) for node in nodes), default=0)
-        if priority > 0:
-            refused = realtime_threads(priority)
-            logger = nodes[0].get_logger()
-            if refused is None:
-                logger.info(f"every thread of the process under SCHED_FIFO, priority {priority}")
-            else:
-                logger.warn(f"realtime_priority {priority} not applied ({refused}): default scheduling")
         gc.collect()
         gc.freeze()
         executor = EventsExecutor()
@@ -168,23 +158,6 @@ def run_nodes(factory: Callable[[], list[Node]], args: list[str] | None = None) 
             node.destroy_node()
         rclpy.try_shutdown()
     return status
-
-
-def realtime_threads(priority: int) -> str | None:
-    """Every thread of this process (the executor's, the DDS transport's) under SCHED_FIFO at `priority` (1-99);
-    threads started later inherit it. None, or why not (no SCHED_FIFO here; no permission: CAP_SYS_NICE or an
-    rtprio limit). The kernel's realtime throttling (``sched_rt_runtime_us``, 95 % by default) keeps a share of
-    every core for the other tasks even if a thread spins.
-    """
-    if not hasattr(os, "sched_setscheduler") or not Path("/proc/self/task").is_dir():
-        return "no SCHED_FIFO on this system"
-    param = os.sched_param(priority)
-    try:
-        for tid in os.listdir("/proc/self/task"):
-            os.sched_setscheduler(int(tid), os.SCHED_FIFO, param)
-    except OSError as exc:
-        return exc.strerror or type(exc).__name__
-    return None
 
 
 def _stopping(node: Node) -> None:

@@ -4,8 +4,8 @@ The plant runs on host 0 (the robot's), every other node on host 1 (the off-boar
 joined by a veth pair (`HOST_ADDRESSES`, a /24); DDS runs over UDP only (config/fastdds_udp.xml: no shared
 memory, which would bypass the network, as the namespaces share one /dev/shm), discovery reaches the subnet
 with both hosts as static peers (``ROS_STATIC_PEERS``). The veth's byte counters tell what crossed it. Needs
-root and iproute2 (``ip netns``); `netns_unavailable` says why not. Used by test_two_hosts.py and the
-``networked`` benchmark.
+root and iproute2 (``ip netns``); `netns_unavailable` says why not. Used by test_two_hosts.py,
+test_fleet_hosts.py (a fleet: `run_across_hosts` with the fleet plant) and the ``networked`` benchmark.
 """
 
 from __future__ import annotations
@@ -113,8 +113,10 @@ def two_hosts(addresses: tuple[str, str] = HOST_ADDRESSES) -> Iterator[Hosts]:
 
 
 def run_across_hosts(hosts: Hosts, node_args: dict[str, list[str]], log_dir: str | os.PathLike,
-                     timeout_s: float, env: Mapping[str, str] | None = None) -> tuple[int, int]:
-    """Run a run's nodes (`processes.node_arguments`) with the plant on host 0 and the others on host 1.
+                     timeout_s: float, env: Mapping[str, str] | None = None,
+                     plant: str = "plant_node") -> tuple[int, int]:
+    """Run a run's nodes (`processes.node_arguments`, or a fleet's: `processes.fleet_arguments` with `plant`
+    ``fleet_plant_node``) with the plant (executable `plant`) on host 0 and the others on host 1.
 
     The others start first, then the plant, which ends the run; `LINGER_S` after its exit the others get
     SIGINT, the recorder last (it closes its bag). Each host's node logs go to `log_dir`/plant_host and
@@ -131,18 +133,19 @@ def run_across_hosts(hosts: Hosts, node_args: dict[str, list[str]], log_dir: str
     env = dict(hosts.dds_environment() if env is None else env)
     log_dir = Path(log_dir)
     before = [hosts.received_bytes(h) for h in (PLANT_HOST, OTHERS_HOST)]
-    order = sorted((n for n in node_args if n != "plant_node"), key=lambda n: n == "recorder_node")
+    order = sorted((n for n in node_args if n != plant), key=lambda n: n == "recorder_node")
     with NodeGroup(log_dir / "plant_host", env, hosts.prefix(PLANT_HOST)) as plant_host, \
             NodeGroup(log_dir / "controller_host", env, hosts.prefix(OTHERS_HOST)) as others_host:
         others = [others_host.start(name, node_args[name]) for name in order]
-        plant = plant_host.start("plant_node", node_args["plant_node"])
+        plant_node = plant_host.start(plant, node_args[plant])
         deadline = time.monotonic() + timeout_s
-        while not plant_host.wait(plant, 0.2):
+        while not plant_host.wait(plant_node, 0.2):
             others_host.check()
             if time.monotonic() > deadline:
-                raise NodeFailed(f"the run did not end within {timeout_s:g} s:\n{plant.stderr_tail()}")
-        if plant.popen.returncode != 0:
-            raise NodeFailed(f"plant_node exited with status {plant.popen.returncode}:\n{plant.stderr_tail()}")
+                raise NodeFailed(f"the run did not end within {timeout_s:g} s:\n{plant_node.stderr_tail()}")
+        if plant_node.popen.returncode != 0:
+            raise NodeFailed(f"{plant} exited with status {plant_node.popen.returncode}:\n"
+                             f"{plant_node.stderr_tail()}")
         time.sleep(LINGER_S)
         for node in others:  # SIGINT, the recorder last: it closes the bag with every other node's last message
             status = others_host.stop_node(node)

@@ -68,10 +68,9 @@ def _peaks(dp: np.ndarray, dv: np.ndarray, da: np.ndarray, T: np.ndarray) -> np.
     """Peak |(x'', y'')| and peak |theta''| of the offsets of the durations T (shape (m,)): shape (m, 2)."""
     inv = 1.0 / T[:, None]
     c0, c1, c2 = _P2_GRID
-    # (m, grid, 3): the acceleration of each axis over the grid, for each duration
-    acc = (inv * inv * c0)[..., None] * dp + (inv * c1)[..., None] * dv + c2[None, :, None] * da
-    linear = np.sqrt(np.max(acc[..., 0] ** 2 + acc[..., 1] ** 2, axis=1))
-    return np.column_stack((linear, np.max(np.abs(acc[..., 2]), axis=1)))
+    a0, a1 = inv * inv * c0, inv * c1  # (m, grid): o'' = a0 dp + a1 dv + c2 da, one axis at a time
+    x, y, theta = (a0 * p + a1 * v + c2 * a for p, v, a in zip(dp.tolist(), dv.tolist(), da.tolist()))
+    return np.column_stack((np.sqrt(np.max(x * x + y * y, axis=1)), np.max(np.abs(theta), axis=1)))
 
 
 @dataclass(frozen=True)

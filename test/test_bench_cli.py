@@ -139,3 +139,20 @@ def test_cdr_benchmark_fails_when_its_sides_disagree(monkeypatch, break_side, re
     monkeypatch.setattr(cdr_bench, "message_cases", broken)
     with pytest.raises(BenchmarkError, match=f"cdr wheel_voltages: .*{reason}"):
         cdr_bench.bench_cdr(quick=True)
+
+
+def test_fleet_batch_benchmark_gives_each_size_and_fails_when_the_batch_disagrees(monkeypatch):
+    """The batched step equals the robots' own steps (checked before timing); a batch off by 1e-6 V is caught."""
+    from robotino_geom_mpc.bench import fleet_batch
+    from robotino_geom_mpc.control.motion_batch import MotionControllerBatch
+
+    figures = fleet_batch.bench_fleet_batch(quick=True)
+    for size in fleet_batch.FLEET_SIZES:
+        each, batched = figures[f"fleet_batch_{size}_one_at_a_time_us"], figures[f"fleet_batch_{size}_batched_us"]
+        assert np.isfinite([each, batched]).all() and each > 0 and batched > 0
+        assert figures[f"fleet_batch_{size}_one_at_a_time_over_batched"] == pytest.approx(each / batched)
+    step = MotionControllerBatch.step
+    monkeypatch.setattr(MotionControllerBatch, "step", lambda self, X, preview: (step(self, X, preview)[0] + 1e-6,
+                                                                                None))
+    with pytest.raises(BenchmarkError, match="B = 1: the batched voltages differ by 1e-06 V"):
+        fleet_batch.bench_fleet_batch(quick=True)

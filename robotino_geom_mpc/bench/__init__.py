@@ -30,6 +30,8 @@ Modules (each registers its benchmarks in `registry.REGISTRY`, run in this order
   killed and restarted 200 times (`restarts`); ``run`` 100 times in a row.
 * `fleet` (only by name: ``bench --only fleet``): N robots in realtime at 100 Hz (N = 1, 5, 10, 20) through the
   fleet's three processes (`ros.fleet`) beside N separate loops: per-robot CPU and missed ticks.
+* `fleet_batch`: B robots' control steps one at a time (each robot's loop) beside one batched step over the B
+  (`MotionControllerBatch`), per robot and tick, B = 1, 5, 10, 20.
 * `host_steal` samples the hypervisor's steal beside the realtime run;
   `startup_stalls` is a script (``python -m robotino_geom_mpc.bench.startup_stalls``).
 """
@@ -45,6 +47,7 @@ from robotino_geom_mpc.bench import recorder_cpu  # noqa: F401
 from robotino_geom_mpc.bench import networked  # noqa: F401
 from robotino_geom_mpc.bench import soak  # noqa: F401
 from robotino_geom_mpc.bench import fleet  # noqa: F401
+from robotino_geom_mpc.bench import fleet_batch  # noqa: F401
 from robotino_geom_mpc.bench.registry import REGISTRY, BenchmarkError, BenchmarkSkipped, benchmark, run_benchmarks
 
 __all__ = ["REGISTRY", "BenchmarkError", "BenchmarkSkipped", "benchmark", "run_benchmarks"]

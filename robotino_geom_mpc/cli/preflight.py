@@ -12,7 +12,6 @@ figure); exit status 0 when every check passes, 2 otherwise. It creates no publi
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from pathlib import Path
 
@@ -94,7 +93,9 @@ def _listen(namespace: str, seconds: float):  # noqa: ANN202
     from rclpy.qos import HistoryPolicy, QoSProfile
 
     from robotino_geom_mpc.control.chain_preflight import OdometrySample
+    from robotino_geom_mpc.ros.messages import quaternion_to_yaw
     from robotino_geom_mpc.ros.qos import CONTROL_QOS
+    from robotino_geom_mpc.ros.spin import clock_s
 
     context = Context()
     rclpy.init(context=context)
@@ -105,11 +106,11 @@ def _listen(namespace: str, seconds: float):  # noqa: ANN202
         samples: list = []
 
         def on_odom(msg: Odometry) -> None:
-            received = node.get_clock().now().nanoseconds * 1e-9
-            q, p, t = msg.pose.pose.orientation, msg.pose.pose.position, msg.twist.twist
-            yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+            received = clock_s(node)
+            p, t = msg.pose.pose.position, msg.twist.twist
             samples.append(OdometrySample(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, received,
-                                          (p.x, p.y, yaw), (t.linear.x, t.linear.y, t.angular.z)))
+                                          (p.x, p.y, quaternion_to_yaw(msg.pose.pose.orientation)),
+                                          (t.linear.x, t.linear.y, t.angular.z)))
 
         # the controller's reliability and durability (what it cannot match, neither does this), kept all: two
         # samples of one driver pass arrive together, none is dropped while the spinning lags
@@ -120,7 +121,7 @@ def _listen(namespace: str, seconds: float):  # noqa: ANN202
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.01)
-        end = node.get_clock().now().nanoseconds * 1e-9
+        end = clock_s(node)
 
         def names(infos: list) -> list[str]:
             return [f"{info.node_namespace.rstrip('/')}/{info.node_name}" for info in infos]

@@ -10,12 +10,12 @@ until odometry has arrived and returns the node clock's time with the messages (
 
 from __future__ import annotations
 
-import math
 import time
 from contextlib import contextmanager
 from typing import Iterator
 
 from robotino_geom_mpc.control.chain_identification import IdentifyError
+from robotino_geom_mpc.loop.inputs import yaw_of
 
 __all__ = ["ODOM_WAIT_S", "RosRobot", "ros_robot"]
 
@@ -41,7 +41,7 @@ class RosRobot:
 
     def _on_odom(self, msg) -> None:  # noqa: ANN001 - nav_msgs/Odometry
         q = msg.pose.pose.orientation
-        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        yaw = yaw_of(q.x, q.y, q.z, q.w)
         p, t = msg.pose.pose.position, msg.twist.twist
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         self.inbox.append((stamp, (p.x, p.y, yaw), (t.linear.x, t.linear.y, t.angular.z)))

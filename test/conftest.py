@@ -51,6 +51,20 @@ os.environ.update(dds_environment(os.environ))
 _SESSION_START = time.time()
 
 
+@pytest.fixture
+def hosts():
+    """Two fresh network namespaces joined by a veth pair (`system.netns.two_hosts`), always deleted: the hosts of
+    test_two_hosts and test_fleet_hosts; the test is skipped where the kernel refuses them (e.g. no CAP_SYS_ADMIN).
+    """
+    from robotino_geom_mpc.system.netns import NetnsUnavailable, two_hosts
+
+    try:
+        with two_hosts() as made:
+            yield made
+    except NetnsUnavailable as exc:
+        pytest.skip(str(exc))
+
+
 def pytest_sessionfinish(session, exitstatus):
     """Remove the zombie Fast DDS segments of this session (the tests SIGKILL nodes on purpose)."""
     from robotino_geom_mpc.system.shm import remove_zombie_segments

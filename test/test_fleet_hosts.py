@@ -20,7 +20,7 @@ from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.report import report_bag
-from robotino_geom_mpc.system.netns import NetnsUnavailable, netns_unavailable, run_across_hosts, two_hosts
+from robotino_geom_mpc.system.netns import netns_unavailable, run_across_hosts
 from robotino_geom_mpc.system.processes import fleet_arguments, robot_names
 from test_fleet import DURATION_S, SCENARIO, SEED, _assert_each_robot_is_the_single_run
 from test_two_hosts import REALTIME_RMS_LIMIT_M, _load_guard
@@ -29,16 +29,6 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow,
               pytest.mark.skipif(netns_unavailable() is not None, reason=str(netns_unavailable()))]
 
 ROBOTS = 3
-
-
-@pytest.fixture
-def hosts():
-    """Two fresh network namespaces joined by a veth pair (`system.netns.two_hosts`); always deleted."""
-    try:
-        with two_hosts() as made:
-            yield made
-    except NetnsUnavailable as exc:  # e.g. a container without CAP_SYS_ADMIN
-        pytest.skip(str(exc))
 
 
 def _run(hosts, out, scenario: str, duration_s: float, lockstep: bool, seed: int = 0) -> dict:

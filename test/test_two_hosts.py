@@ -18,7 +18,7 @@ from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.ros.plans import report_of_message
 from robotino_geom_mpc.offline.results import compute_metrics
 from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
-from robotino_geom_mpc.system.netns import NetnsUnavailable, netns_unavailable, two_hosts
+from robotino_geom_mpc.system.netns import netns_unavailable
 
 pytestmark = [pytest.mark.ros, pytest.mark.skipif(netns_unavailable() is not None,
                                                   reason=str(netns_unavailable()))]
@@ -30,16 +30,6 @@ REALTIME_RMS_LIMIT_M = 1e-4
 # than the next odometry, a host overloaded by other processes: 94 of 241 at load 12 on 2 cores gave
 # 9 mm on localhost too) the test is skipped with the plant's figures
 REALTIME_MISSED_LIMIT = 0.05
-
-
-@pytest.fixture
-def hosts():
-    """Two fresh network namespaces joined by a veth pair (`system.netns.two_hosts`); always deleted."""
-    try:
-        with two_hosts() as made:
-            yield made
-    except NetnsUnavailable as exc:  # e.g. a container without CAP_SYS_ADMIN
-        pytest.skip(str(exc))
 
 
 def _run(hosts, tmp_path, scenario: str, duration_s: float, lockstep: bool, plans: bool | None = None):

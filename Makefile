@@ -12,11 +12,11 @@ TEST_WORKERS ?= 2  # pytest-xdist workers (make test, unit, check): one a core o
 
 setup: $(STAMP)
 
-$(STAMP): setup.py setup.cfg package.xml Makefile tools/build_interfaces.sh
+$(STAMP): setup.py setup.cfg package.xml Makefile tools/build_interfaces.sh $(wildcard interfaces/*/*)
 	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install --quiet --upgrade "pip>=24"
 	$(VENV)/bin/python -m pip install --quiet --editable ".[ros,test,docs,cluster,tune,viz]"
-	tools/build_interfaces.sh $(VENV)  # tf2_msgs where the wheels have none
+	tools/build_interfaces.sh $(VENV)  # tf2_msgs and nav2_msgs where the wheels have none
 	touch $(STAMP)
 
 # The package's bytecode, written here (only what changed): a process reads it even under

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Build the interface packages under interfaces/ into a venv whose ROS comes from PyPI wheels, each only
-# where it is missing (a ROS install that has it is left untouched). Today: tf2_msgs (TFMessage, for /tf).
+# where it is missing (a ROS install that has it is left untouched): tf2_msgs (TFMessage, for /tf) and nav2_msgs
+# (the FollowPath action of the follow_path server).
 # Usage: tools/build_interfaces.sh [VENV]   (default .venv; needs cmake >= 3.20 and a C/C++ compiler)
 set -euo pipefail
 VENV=$(cd "${1:-.venv}" && pwd)
@@ -12,8 +13,9 @@ BUILD_DEPS=("ros-jazzy-ament-cmake==2.5.4" "ros-jazzy-ament-cmake-include-direct
     "ros-jazzy-ament-cmake-gmock==2.5.4" "ros-jazzy-ament-cmake-gtest==2.5.4" "ros-jazzy-ament-cmake-pytest==2.5.4"
     "ros-jazzy-python-cmake-module==0.11.1")
 
-for pkg in tf2_msgs; do
-    if "$PY" -c "import $pkg.msg" 2>/dev/null; then
+for module in tf2_msgs.msg nav2_msgs.action; do  # each package and a module it has
+    pkg=${module%%.*}
+    if "$PY" -c "import $module" 2>/dev/null; then
         echo "build_interfaces: $pkg is installed, not built"
         continue
     fi
@@ -29,7 +31,7 @@ for pkg in tf2_msgs; do
     PATH="$VENV/bin:$PATH" AMENT_PREFIX_PATH="$VENV" LD_LIBRARY_PATH="$VENV/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}" \
         cmake --build "$build" --target install --parallel "$(nproc)" > "$build/build.log" \
         || { tail -50 "$build/build.log"; exit 1; }
-    "$PY" -c "import $pkg.msg" || { echo "build_interfaces: $pkg built but not importable" >&2; exit 1; }
+    "$PY" -c "import $module" || { echo "build_interfaces: $pkg built but not importable" >&2; exit 1; }
     rm -rf "$build"
     trap - EXIT
 done

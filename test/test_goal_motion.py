@@ -12,7 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from robotino_geom_mpc.reference.goal_motion import GoalError, MotionLimits, PolynomialMotion, nominal_rim_speed
+from robotino_geom_mpc.reference.goal_motion import BrakingMotion, GoalError, MotionLimits, PolynomialMotion, \
+    nominal_rim_speed
 from robotino_geom_mpc.reference.goals import GoalReference
 from robotino_geom_mpc.model.dynamics import wheel_rim_speeds
 from robotino_geom_mpc.params.files import load_params
@@ -146,3 +147,44 @@ def test_goal_at_the_resting_pose_is_no_motion():
     ref = GoalReference(start=(0.1, 0.2, 0.3))
     assert ref.go_to(2.0, np.array([0.1, 0.2, 0.3]), limits()) is None
     np.testing.assert_array_equal(ref.position(5.0), [0.1, 0.2, 0.3])
+
+
+def test_braking_from_cruise_is_the_quintic_stop_within_the_limits():
+    # Truth: from (p, v, 0, 0) the stop's velocity is v (1 - q(t / T)), q = 10 tau^3 - 15 tau^4 + 6 tau^5, and the
+    # shortest T under |a| <= a_max, |j| <= j_max is max(15 v / (8 a_max), sqrt(10 v / (sqrt(3) j_max))) (q' peaks
+    # at 15/8, q'' at 10/sqrt(3)); the planner keeps 0.998 of the limits (on a grid) and finds T to 0.2 %
+    lim = limits()
+    for v in (0.05, 0.2, 0.39):
+        state = np.zeros((4, 3))
+        state[0], state[1, 0] = (0.3, -0.1, 0.4), v
+        motion = BrakingMotion.stopping(state, lim)
+        T = max(15.0 * v / (8.0 * lim.acceleration_mps2), math.sqrt(10.0 * v / math.sqrt(3.0) / lim.jerk_mps3))
+        assert T <= motion.duration_s <= T / 0.998 * 1.0025
+        tau = np.linspace(0.0, 1.0, 401)
+        p, vel, acc, jerk = motion.evaluate(tau * motion.duration_s)
+        q = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
+        np.testing.assert_allclose(vel[:, 0], v * (1.0 - q), atol=1e-12)
+        np.testing.assert_allclose(vel[:, 1:], 0.0, atol=1e-12)
+        np.testing.assert_allclose(motion.goal, state[0] + [v * motion.duration_s / 2.0, 0.0, 0.0], atol=1e-12)
+        assert usage(p[:, 2], vel, acc, jerk, lim) <= 1.0 + 1e-9
+
+
+def test_stop_takes_over_mid_motion_without_a_jump_and_rests():
+    lim = limits()
+    ref = GoalReference()
+    ref.go_to(0.0, np.array([1.0, 0.6, 1.2]), lim)
+    switch = 1.1
+    before = ref.state(switch)
+    assert np.abs(before[2]).max() > 0.05  # accelerating: the stop starts from a full state
+    piece = ref.stop(switch, lim)
+    np.testing.assert_allclose(ref.state(switch), before, atol=1e-12)
+    t = np.linspace(switch, switch + piece.duration_s, 4001)
+    p, v, a, j = ref.sample(t)
+    assert usage(p[:, 2], v, a, j, lim) <= 1.0 + 1e-9
+    h = t[1] - t[0]
+    for k, d in enumerate((v, a, j)):
+        np.testing.assert_allclose(np.gradient((p, v, a)[k], h, axis=0)[2:-2], d[2:-2], atol=2e-3)
+    end = ref.state(switch + piece.duration_s + 1.0)
+    np.testing.assert_allclose(end[0], piece.goal, atol=1e-12)
+    np.testing.assert_allclose(end[1:], 0.0, atol=1e-12)
+    assert ref.stop(switch + piece.duration_s + 2.0, lim) is None  # at rest: nothing to brake

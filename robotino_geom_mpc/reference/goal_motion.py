@@ -36,12 +36,13 @@ from robotino_geom_mpc.arrays import checked_array
 from robotino_geom_mpc.model.dynamics import wheel_rim_speeds
 from robotino_geom_mpc.params.specs import RobotinoParams
 
-__all__ = ["GoalError", "MotionLimits", "PolynomialMotion", "shortest_duration", "nominal_rim_speed"]
+__all__ = ["BrakingMotion", "GoalError", "MotionLimits", "PolynomialMotion", "shortest_duration", "nominal_rim_speed"]
 
 GRID_POINTS = 200  # samples per motion on which the limits are checked
 LIMIT_MARGIN = 0.998  # the planner keeps this fraction of each limit (the grid may miss a peak by ~5e-4)
 MAX_DURATION_S = 600.0
 MAX_OVERSHOOT = 4.0  # a replan from a state near the limits may exceed them by at most this factor
+AT_REST = 1e-12  # a state whose velocities, accelerations and jerks are all at most this is at rest (a stop's end)
 
 
 class GoalError(RobotinoError, ValueError):
@@ -148,6 +149,17 @@ def shortest_duration(usage: Callable[[float], float], start_s: float = 0.05) ->
 _END = np.array([[math.perm(n, k) for n in range(4, 8)] for k in range(4)], dtype=float)
 
 
+def _checked_duration(duration_s: float) -> float:
+    if not (math.isfinite(duration_s) and duration_s > 0.0):
+        raise GoalError(f"duration_s must be positive and finite, got {duration_s!r}")
+    return float(duration_s)
+
+
+def _head(state: np.ndarray, T: float) -> np.ndarray:
+    """c_0..c_3 (4, 3) in tau = t / T of a motion from `state` (p, v, a, j): p, v T, a T^2 / 2, j T^3 / 6."""
+    return state * (np.array([1.0, T, T * T / 2.0, T**3 / 6.0])[:, None])
+
+
 def _derivative_coefficients(c: np.ndarray) -> list[np.ndarray]:
     """Coefficients (8, 3) in tau of p and of its tau-derivatives 1..3 (ascending powers, zero-padded)."""
     out = [c]
@@ -176,18 +188,20 @@ class PolynomialMotion:
     def __init__(self, state: np.ndarray, goal: np.ndarray, duration_s: float) -> None:
         s = checked_array(state, (4, 3), "start state (p, v, a, j)", GoalError)
         g = checked_array(goal, (3,), "goal (x, y, theta)", GoalError)
-        if not (math.isfinite(duration_s) and duration_s > 0.0):
-            raise GoalError(f"duration_s must be positive and finite, got {duration_s!r}")
-        T = float(duration_s)
-        head = s * (np.array([1.0, T, T * T / 2.0, T**3 / 6.0])[:, None])
+        T = _checked_duration(duration_s)
+        head = _head(s, T)
         # residuals at tau = 1 of the known part: goal - p_head(1), then -p_head^(k)(1)
         known = np.array([[math.perm(n, k) for n in range(4)] for k in range(4)], dtype=float) @ head
         rhs = -known
         rhs[0] += g
-        self.coefficients = np.vstack((head, np.linalg.solve(_END, rhs)))
-        self.duration_s = T
+        self._use(np.vstack((head, np.linalg.solve(_END, rhs))), T)
         self.goal = g
-        self._derivs = _derivative_coefficients(self.coefficients)
+
+    def _use(self, coefficients: np.ndarray, duration_s: float) -> None:
+        """Take the coefficients (8, 3) in tau of p over `duration_s`."""
+        T = duration_s
+        self.coefficients, self.duration_s = coefficients, T
+        self._derivs = _derivative_coefficients(coefficients)
         self._scales = (1.0, 1.0 / T, 1.0 / T**2, 1.0 / T**3)
 
     def evaluate(self, t: np.ndarray) -> np.ndarray:
@@ -217,3 +231,51 @@ class PolynomialMotion:
             return limits.usage(p[:, 2], v, a, j)
 
         return cls(s, g, shortest_duration(usage))
+
+
+# d^k/dtau^k of tau^n at tau = 1 for k = 1..3, n = 4..6 (the braking motion's free coefficients)
+_BRAKE_END = np.array([[math.perm(n, k) for n in range(4, 7)] for k in range(1, 4)], dtype=float)
+
+
+class BrakingMotion(PolynomialMotion):
+    """Per axis the degree-6 polynomial from a state (p, v, a, j) to rest wherever that brings it: a stop.
+
+    c_0..c_3 as in `PolynomialMotion`; c_4..c_6 solve p'(1) = p''(1) = p'''(1) = 0, and the rest position
+    ``goal`` = p(1) follows. From (p, v, 0, 0) the velocity is v (1 - q(tau)), q the quintic smoothstep
+    10 tau^3 - 15 tau^4 + 6 tau^5, so the stop takes v T / 2 of travel. C^3 at the switch and at rest after T.
+
+    Parameters
+    ----------
+    state
+        (4, 3): position, velocity, acceleration, jerk of (x, y, theta) when the stop starts.
+    duration_s
+        T > 0.
+    """
+
+    def __init__(self, state: np.ndarray, duration_s: float) -> None:
+        s = checked_array(state, (4, 3), "start state (p, v, a, j)", GoalError)
+        T = _checked_duration(duration_s)
+        head = _head(s, T)
+        known = np.array([[math.perm(n, k) for n in range(4)] for k in range(1, 4)], dtype=float) @ head
+        self._use(np.vstack((head, np.linalg.solve(_BRAKE_END, -known), np.zeros((1, 3)))), T)
+        self.goal = self.coefficients.sum(axis=0)  # p(tau = 1)
+
+    @classmethod
+    def stopping(cls, state: np.ndarray, limits: MotionLimits) -> BrakingMotion | None:
+        """The shortest stop within `limits` (checked on `GRID_POINTS` samples); None if already at rest (`AT_REST`).
+
+        Raises
+        ------
+        GoalError
+            Non-finite state, or no duration up to `MAX_DURATION_S` keeps the limits.
+        """
+        s = checked_array(state, (4, 3), "start state (p, v, a, j)", GoalError)
+        if np.abs(s[1:]).max() <= AT_REST:
+            return None
+        tau = np.linspace(0.0, 1.0, GRID_POINTS)
+
+        def usage(T: float) -> float:
+            p, v, a, j = cls(s, T).evaluate(tau * T)
+            return limits.usage(p[:, 2], v, a, j)
+
+        return cls(s, shortest_duration(usage))

@@ -3,9 +3,9 @@
 `GoalReference` is a `reference.trajectories.Reference` (the protocol `preview` and
 the trajectory node stream), built from pieces: before the first piece it
 holds its start pose; piece k runs from its start time until the next
-piece's start (or for ever, at rest at its end pose). `go_to` and `follow`
+piece's start (or for ever, at rest at its end pose). `go_to`, `follow` and `stop`
 start a new piece at a time t from the reference's full state at t
-(p, v, a, j): the new piece is a `goal_motion.PolynomialMotion` or a
+(p, v, a, j): the new piece is a `goal_motion.PolynomialMotion`, a `goal_motion.BrakingMotion` or a
 `path_timing.PathMotion` that starts from exactly that state, so the
 stitched reference has no jump in position, velocity, acceleration or jerk
 (replanning, a new goal during a motion). A refused goal (`GoalError`)
@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from robotino_geom_mpc.arrays import checked_array
-from robotino_geom_mpc.reference.goal_motion import GoalError, MotionLimits, PolynomialMotion
+from robotino_geom_mpc.reference.goal_motion import BrakingMotion, GoalError, MotionLimits, PolynomialMotion
 from robotino_geom_mpc.reference.path_timing import PathMotion
 from robotino_geom_mpc.reference.time_law import _Scalar
 from robotino_geom_mpc.reference.trajectories import Reference
@@ -80,6 +80,19 @@ class GoalReference(Reference):
         """
         self._check_time(t)
         piece = PathMotion(self.state(t), poses, limits)
+        self._add(t, piece)
+        return piece
+
+    def stop(self, t: float, limits: MotionLimits) -> BrakingMotion | None:
+        """From time t on, brake within `limits` to rest where that brings the reference; None if at rest already.
+
+        Raises
+        ------
+        GoalError
+            A non-finite time, or no stop within the limits (the reference is then unchanged).
+        """
+        self._check_time(t)
+        piece = BrakingMotion.stopping(self.state(t), limits)
         self._add(t, piece)
         return piece
 

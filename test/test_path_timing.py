@@ -15,6 +15,7 @@ from test_goal_motion import limits, usage
 
 from robotino_geom_mpc.reference.goal_motion import GoalError
 from robotino_geom_mpc.reference.goals import GoalReference
+from robotino_geom_mpc.reference.time_law import septic
 
 pytestmark = pytest.mark.unit
 
@@ -103,3 +104,31 @@ def test_bad_paths_are_refused_and_the_reference_unchanged(poses):
         ref.follow(1.0, poses, limits())
     for x, y in zip(before, ref.sample(t)):
         np.testing.assert_array_equal(x, y)
+
+
+def test_a_corner_is_passed_at_rest_and_a_long_leg_cruises_at_the_speed_limit():
+    # a planner's 90 degree corner, poses 5 cm apart, heading fixed: two straight legs joined at rest at the corner
+    s = np.arange(0.0, 1.5001, 0.05)
+    poses = np.vstack((np.column_stack((s, 0 * s, 0 * s)), np.column_stack((1.5 + 0 * s[1:], s[1:], 0 * s[1:]))))
+    lim = limits()
+    ref = GoalReference()
+    piece = ref.follow(0.0, poses, lim)
+    assert len(piece.segments) == 2
+    t, (p, v, a, j) = _dense(ref, 0.0, 30001)
+    assert usage(p[:, 2], v, a, j, lim) <= 1.0 + 1e-6
+    corner = np.argmin(np.hypot(p[:, 0] - 1.5, p[:, 1]))
+    assert np.hypot(*(p[corner, :2] - [1.5, 0.0])) < 1e-9 and np.abs(v[corner]).max() < 1e-6  # through it, at rest
+    first_leg = t < piece.starts[1]
+    assert np.abs(p[first_leg, 1]).max() < 1e-9  # straight: the corner does not ring back into the leg
+    speed = v[first_leg, 0]
+    assert np.mean(speed >= 0.999 * speed.max()) > 0.2  # it cruises: a plateau (one septic over the leg has none)
+    # Truth for the leg's duration: a rate r ramped in and out over T_r by the septic smoothstep s covers L in
+    # L / r + T_r, with T_r >= max s' r / a_max and T_r >= sqrt(max s'' r / j_max), r <= v_max; the best r on a grid
+    tau = np.linspace(0.0, 1.0, 100001)
+    _, s1, s2, _ = septic(tau)
+    rates = np.linspace(0.01, lim.velocity_mps, 4000)
+    ramp = np.maximum(s1.max() * rates / lim.acceleration_mps2, np.sqrt(np.abs(s2).max() * rates / lim.jerk_mps3))
+    best = float(np.min(1.5 / rates + ramp))
+    leg = piece.segments[0].duration_s
+    print(f"leg of 1.5 m: {leg:.3f} s, the best ramped cruise {best:.3f} s")
+    assert best * 0.999 <= leg <= 1.1 * best

@@ -1,0 +1,167 @@
+"""Nav2's FollowPath semantics (reference.follow_path.PathFollower) in-process, on a hand-driven clock.
+
+The robot here is where the reference is (a perfect tracker) unless a case holds it back; the closed loop over DDS
+is test_follow_path. Truths: nav2_msgs' own error codes, the path's poses moved by the transform (computed here with
+4x4 matrices), the reference's state before a switch (continuity), and the path's length summed here.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from nav2_msgs.action import FollowPath
+from test_goal_motion import limits, usage
+
+from robotino_geom_mpc.reference.follow_path import FollowPathError, FollowPathSettings, Nav2Error, PathFollower
+from robotino_geom_mpc.reference.frames import TransformTree
+from robotino_geom_mpc.reference.goals import GoalReference
+
+pytestmark = pytest.mark.unit
+
+DT = 0.01
+IDS = ("", "", "")
+
+
+def _line(start, end, step: float = 0.05) -> np.ndarray:
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    n = max(1, int(math.ceil(np.hypot(*(end - start)) / step)))
+    xy = start + np.linspace(0.0, 1.0, n + 1)[:, None] * (end - start)
+    return np.column_stack((xy, np.zeros(n + 1)))
+
+
+def _follower(tree: TransformTree | None = None, **settings) -> PathFollower:
+    tree = tree or TransformTree()
+    return PathFollower(GoalReference(), "odom", tree.lookup, FollowPathSettings(**settings))
+
+
+def _run(f: PathFollower, t: float, until_s: float, robot=None):
+    """Step every DT from t until an outcome or `until_s`; the robot at the reference unless `robot` is given."""
+    while t < until_s:
+        t = round(t + DT, 9)
+        pose = tuple(f.reference.state(t)[0]) if robot is None else robot
+        outcome = f.step(t, pose, limits())
+        if outcome is not None:
+            return outcome, t
+    return None, t
+
+
+def test_error_codes_are_nav2s():
+    for code in Nav2Error:
+        assert getattr(FollowPath.Result, code.name) == code.value
+
+
+def test_a_path_is_followed_to_its_end_and_succeeds():
+    f = _follower()
+    path = np.vstack((_line((0, 0), (1.0, 0)), _line((1.0, 0), (1.0, 0.8))[1:]))
+    f.start(0.0, "odom", path, ("FollowPath", "goal_checker", "progress_checker"), limits())
+    distance, speed = f.feedback(0.0, (0.0, 0.0, 0.0))
+    assert distance == pytest.approx(1.8, abs=1e-9) and speed == 0.0
+    outcome, t = _run(f, 0.0, 60.0)
+    assert outcome.status == "succeeded" and outcome.code == Nav2Error.NONE
+    assert t == pytest.approx(f.reference.duration_s, abs=DT)  # as soon as the reference rests at the end
+    np.testing.assert_allclose(f.reference.state(t)[0], path[-1], atol=1e-12)
+    assert not f.active
+
+
+@pytest.mark.parametrize("ids", [("DWB", "", ""), ("", "precise", ""), ("", "", "stalled")])
+def test_unknown_ids_are_invalid_controller(ids):
+    with pytest.raises(FollowPathError) as info:
+        _follower().start(0.0, "odom", _line((0, 0), (1, 0)), ids, limits())
+    assert info.value.code == Nav2Error.INVALID_CONTROLLER
+
+
+@pytest.mark.parametrize("frame, poses, code", [
+    ("odom", np.zeros((0, 3)), Nav2Error.INVALID_PATH),
+    ("odom", [[0.1, math.nan, 0.0]], Nav2Error.INVALID_PATH),
+    ("", [[0.1, 0.0, 0.0]], Nav2Error.INVALID_PATH),
+    ("map", [[0.1, 0.0, 0.0]], Nav2Error.TF_ERROR),
+    ("odom", [[1e6, 0.0, 0.0]], Nav2Error.NO_VALID_CONTROL),  # beyond 600 s within the limits
+], ids=["empty", "nan", "no_frame", "no_transform", "unreachable"])
+def test_bad_goals_get_their_code_and_leave_the_reference(frame, poses, code):
+    f = _follower()
+    f.start(0.0, "odom", _line((0, 0), (1, 0)), IDS, limits())
+    t = np.linspace(0.0, 10.0, 101)
+    before = f.reference.sample(t)
+    with pytest.raises(FollowPathError) as info:
+        f.start(1.0, frame, np.asarray(poses, float), IDS, limits())
+    assert info.value.code == code
+    for x, y in zip(before, f.reference.sample(t)):
+        np.testing.assert_array_equal(x, y)
+    outcome = f.refuse(1.0, limits(), info.value)  # Nav2 ends the running goal too: the reference brakes
+    assert outcome.code == code and not f.active
+    rest = f.reference.state(f.reference.duration_s + 1.0)
+    np.testing.assert_allclose(rest[1:], 0.0, atol=1e-12)
+    np.testing.assert_allclose(f.reference.state(1.0), f.reference.state(1.0 - 1e-12), atol=1e-9)
+
+
+def test_a_new_goal_takes_over_without_a_jump_and_from_where_the_reference_is():
+    f = _follower()
+    f.start(0.0, "odom", _line((0, 0), (2.0, 0)), IDS, limits())
+    switch = 3.0
+    before = f.reference.state(switch)
+    assert before[1, 0] > 0.2
+    # the replanned path starts at the robot, a little behind the reference (planning took time): pruned
+    f.start(switch, "odom", _line((before[0, 0] - 0.04, 0.0), (1.5, 0.6)), IDS, limits())
+    np.testing.assert_allclose(f.reference.state(switch), before, atol=1e-9)
+    t = np.linspace(switch, f.reference.duration_s, 20001)
+    p, v, a, j = f.reference.sample(t)
+    assert usage(p[:, 2], v, a, j, limits()) <= 1.0 + 1e-6
+    assert np.all(np.diff(p[:200, 0]) > 0.0)  # it does not go back to the path's first pose
+    outcome, _ = _run(f, switch, 60.0)
+    assert outcome.status == "succeeded"
+
+
+def test_a_path_in_map_is_moved_into_odom_and_a_correction_followed():
+    tree = TransformTree()
+    psi = math.radians(30.0)
+    tree.set("map", "odom", (0.5, 0.3, 0.0), (0.0, 0.0, math.sin(psi / 2), math.cos(psi / 2)), 0, static=False)
+    f = _follower(tree)
+    path = np.vstack((_line((0.6, 0.4), (1.6, 0.4)), _line((1.6, 0.4), (1.6, 1.2))[1:]))
+    f.start(0.0, "map", path, IDS, limits())
+
+    def in_odom(x: float, y: float, theta: float) -> np.ndarray:  # truth: p_odom = (T_map_odom)^-1 p_map
+        m = np.eye(3)
+        m[:2, :2] = [[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]]
+        m[:2, 2] = (x, y)
+        end = np.linalg.inv(m) @ [*path[-1, :2], 1.0]
+        return np.array([end[0], end[1], path[-1, 2] - theta])
+
+    outcome, t = _run(f, 0.0, 4.0)
+    assert outcome is None
+    tree.set("map", "odom", (0.52, 0.3, 0.0), (0.0, 0.0, math.sin(psi / 2), math.cos(psi / 2)), 1, static=False)
+    before = f.reference.state(t + DT)
+    outcome, t_end = _run(f, t, 60.0)
+    assert outcome.status == "succeeded"
+    np.testing.assert_allclose(f.reference.state(t_end)[0], in_odom(0.52, 0.3, psi), atol=1e-9)
+    np.testing.assert_allclose(f.reference.state(t + DT), before, atol=1e-9)  # replanned from the state there
+
+
+def test_a_robot_that_does_not_move_fails_to_make_progress_and_the_reference_brakes():
+    f = _follower(required_movement_radius=0.3, movement_time_allowance=2.0)
+    f.start(0.0, "odom", _line((0, 0), (2.0, 0)), IDS, limits())
+    outcome, t = _run(f, 0.0, 10.0, robot=(0.0, 0.0, 0.0))
+    assert outcome.code == Nav2Error.FAILED_TO_MAKE_PROGRESS and outcome.status == "aborted"
+    assert t == pytest.approx(2.0 + DT, abs=1.5 * DT)
+    np.testing.assert_allclose(f.reference.state(f.reference.duration_s + 1.0)[1:], 0.0, atol=1e-12)
+
+
+def test_cancel_brakes_and_ends_when_the_reference_is_at_rest():
+    f = _follower()
+    f.start(0.0, "odom", _line((0, 0), (3.0, 0)), IDS, limits())
+    _run(f, 0.0, 3.0)
+    f.cancel(3.0, limits())
+    outcome, t = _run(f, 3.0, 10.0)
+    assert outcome.status == "canceled"
+    assert t == pytest.approx(f.reference.duration_s, abs=DT)
+    np.testing.assert_allclose(f.reference.state(t)[1:], 0.0, atol=1e-12)
+    assert f.reference.state(t)[0, 0] < 3.0  # stopped short of the path's end
+
+
+def test_feedback_is_the_remaining_path_length_from_the_robot():
+    f = _follower()
+    path = np.vstack((_line((0, 0), (1.0, 0)), _line((1.0, 0), (1.0, 1.0))[1:]))
+    f.start(0.0, "odom", path, IDS, limits())
+    distance, _ = f.feedback(1.0, (0.52, 0.01, 0.0))
+    assert distance == pytest.approx(0.5 + 1.0, abs=1e-9)  # from the nearest pose (0.5, 0): 0.5 m, the corner, 1 m

@@ -43,7 +43,8 @@ def _table(specs, defaults: dict[str, Any]) -> list[str]:
 
 
 def parameters_page() -> str:
-    from robotino_geom_mpc.nodes import controller_inputs, goal_inputs, goal_sender, robot_description_node
+    from robotino_geom_mpc.nodes import controller_inputs, follow_path_server, goal_inputs, goal_sender, \
+        robot_description_node
     from robotino_geom_mpc.nodes import trajectory_node
     from robotino_geom_mpc.params.specs import CONTROL_SPECS, ROBOT_SPECS
     from robotino_geom_mpc.ros.parameters import spec_defaults
@@ -75,8 +76,9 @@ def parameters_page() -> str:
         "",
         "## trajectory_node (`robotino_trajectory`)",
         "",
-        *_table(trajectory_node.TRAJECTORY_SPECS + goal_inputs.GOAL_SPECS,
-                {**getattr(trajectory_node, "_DEFAULTS", {}), **goal_inputs.GOAL_DEFAULTS}),
+        *_table(trajectory_node.TRAJECTORY_SPECS + goal_inputs.GOAL_SPECS + follow_path_server.FOLLOW_PATH_SPECS,
+                {**getattr(trajectory_node, "_DEFAULTS", {}), **goal_inputs.GOAL_DEFAULTS,
+                 **follow_path_server.FOLLOW_PATH_DEFAULTS}),
         "",
         "## robot_description_publisher",
         "",

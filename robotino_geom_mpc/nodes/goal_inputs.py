@@ -44,7 +44,7 @@ from robotino_geom_mpc.description.urdf import DescriptionError, check_frame_pre
 from robotino_geom_mpc.ros.decode import InputRejected, check_yaw_quaternion, unwrap_near, yaw_of
 from robotino_geom_mpc.ros.messages import ODOM_FRAME
 
-__all__ = ["GOAL_SPECS", "GOAL_DEFAULTS", "GOAL_QOS", "GoalInputs", "goal_params_problem"]
+__all__ = ["GOAL_SPECS", "GOAL_DEFAULTS", "GOAL_QOS", "GoalInputs", "goal_params_problem", "pose_of"]
 
 GOAL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
@@ -63,6 +63,15 @@ def goal_params_problem(values: dict[str, Any]) -> str | None:
     except (DescriptionError, GoalError, ParamError) as exc:
         return str(exc)
     return None
+
+
+def pose_of(pose: Pose, what: str) -> tuple[float, float, float]:
+    """(x, y, yaw) of a pose checked as the module docstring says (`InputRejected` naming `what` otherwise)."""
+    p, q = pose.position, pose.orientation
+    if not all(math.isfinite(v) for v in (p.x, p.y, p.z)):
+        raise InputRejected(f"{what} position ({p.x:g}, {p.y:g}, {p.z:g}) is not finite", "non_finite")
+    check_yaw_quaternion(q.x, q.y, q.z, q.w, what)
+    return p.x, p.y, yaw_of(q.x, q.y, q.z, q.w)
 
 
 class GoalInputs:
@@ -105,15 +114,6 @@ class GoalInputs:
         if frame_id != odom:
             raise InputRejected(f"{what} is in frame {frame_id!r}, not {odom!r} (no transform to it)", "frame")
 
-    @staticmethod
-    def _pose(pose: Pose, what: str) -> tuple[float, float, float]:
-        """(x, y, yaw) of a checked pose."""
-        p, q = pose.position, pose.orientation
-        if not all(math.isfinite(v) for v in (p.x, p.y, p.z)):
-            raise InputRejected(f"{what} position ({p.x:g}, {p.y:g}, {p.z:g}) is not finite", "non_finite")
-        check_yaw_quaternion(q.x, q.y, q.z, q.w, what)
-        return p.x, p.y, yaw_of(q.x, q.y, q.z, q.w)
-
     def _refuse(self, what: str, exc: Exception) -> None:
         reason = getattr(exc, "reason", "unreachable")
         self.refused[reason] = self.refused.get(reason, 0) + 1
@@ -126,7 +126,7 @@ class GoalInputs:
         t = self._time()
         try:
             self._frame(msg.header.frame_id, "goal")
-            x, y, yaw = self._pose(msg.pose, "goal")
+            x, y, yaw = pose_of(msg.pose, "goal")
             theta = unwrap_near(yaw, float(self.reference.state(t)[0, 2]))
             motion = self.reference.go_to(t, np.array([x, y, theta]), motion_limits(self._values))
         except (InputRejected, GoalError) as exc:
@@ -149,7 +149,7 @@ class GoalInputs:
             for k, stamped in enumerate(msg.poses):
                 if stamped.header.frame_id:  # a pose's own frame, if given, must be the path's
                     self._frame(stamped.header.frame_id, f"path pose {k}")
-                x, y, yaw = self._pose(stamped.pose, f"path pose {k}")
+                x, y, yaw = pose_of(stamped.pose, f"path pose {k}")
                 theta = unwrap_near(yaw, theta)
                 poses.append((x, y, theta))
             motion = self.reference.follow(t, np.array(poses), motion_limits(self._values))

@@ -21,6 +21,11 @@ subscribes ``/clock``             rosgraph_msgs/Clock (lockstep only, reliable).
                                   robot's pose the reference is anchored at.
            ``goal_pose``, ``plan``  geometry_msgs/PoseStamped, nav_msgs/Path (scenario ``goals`` only:
                                   `nodes.goal_inputs`, which checks them and replans the reference).
+           ``odom``, ``/tf``, ``/tf_static``  (scenario ``goals``, for ``follow_path``: the robot's pose for
+                                  its goal and progress checks; the transforms of paths into ``odom``,
+                                  `ros.tf_listener`).
+action     ``follow_path``        nav2_msgs/action/FollowPath, Nav2's controller_server role (scenario ``goals``:
+                                  `nodes.follow_path_server`, `reference.follow_path`).
 
 Goals
 -----
@@ -32,6 +37,14 @@ pose every `_GOAL_PATH_STEP` periods), the lockstep table
 (`_grid_values`) is rebuilt; the limits (``goals.*``) and ``frame_prefix`` may change while running.
 Only a change of ``scenario`` or ``waypoints`` makes a new reference (and drops the goals): a set of
 any other parameter, or of these to their current values, leaves the motion alone.
+
+Nav2's follow_path
+------------------
+In scenario ``goals`` the node is also Nav2's controller_server for the paths a planner makes
+(`nodes.follow_path_server`: the ``follow_path`` action, each goal a path that `reference.follow_path.PathFollower`
+moves into ``odom`` through ``/tf`` and follows like a ``plan``, with feedback, Nav2's result codes, cancel,
+preemption and the goal and progress checks of parameters ``follow_path.*``). It steps once a control period, as
+the preview is published. docs/howto/nav2.md has the setup.
 
 Timing
 ------
@@ -92,7 +105,8 @@ to start (exit status 2). Both false (the defaults): the reference starts as des
 Parameters: ``control.period_s`` and ``control.horizon`` of config/*.yaml
 (``/**`` section; fixed while the node runs, as are ``mode``, ``clock_timeout_s``, ``start_on_enable`` and
 ``anchor_to_robot``), the robot's (the wheel kinematics and the motor's nominal speed bound the goal motions),
-`TRAJECTORY_SPECS`, `nodes.goal_inputs.GOAL_SPECS` and ``waypoints`` (a flat list x1, y1, theta1, x2, ... for
+`TRAJECTORY_SPECS`, `nodes.goal_inputs.GOAL_SPECS`, `nodes.follow_path_server.FOLLOW_PATH_SPECS` and ``waypoints``
+(a flat list x1, y1, theta1, x2, ... for
 point-to-point; empty: the scenario's default).
 ``scenario`` is a name of `robotino_geom_mpc.scenarios.SCENARIOS`; the node
 tracks its reference (``robustness``: paper-circle; the mismatch and the
@@ -116,7 +130,9 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from robotino_geom_mpc.nodes.follow_path_server import FOLLOW_PATH_DEFAULTS, FOLLOW_PATH_SPECS, FollowPathServer
 from robotino_geom_mpc.reference.anchor import anchored
+from robotino_geom_mpc.reference.frames import TransformTree
 from robotino_geom_mpc.reference.goals import GoalReference
 from robotino_geom_mpc.params.specs import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.nodes.goal_inputs import GOAL_DEFAULTS, GOAL_SPECS, GoalInputs, goal_params_problem
@@ -130,6 +146,7 @@ from robotino_geom_mpc.ros.qos import CLOCK_SUB_QOS, LATCHED_QOS, publish_acknow
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_geom_mpc.scenarios import SCENARIOS, get_scenario
 from robotino_geom_mpc.ros.throttle import warn_throttled
+from robotino_geom_mpc.ros.tf_listener import TransformListener
 
 __all__ = ["TRAJECTORY_SPECS", "TrajectoryNode", "main"]
 
@@ -184,9 +201,10 @@ class TrajectoryNode(Node):
     def __init__(self, **node_options: Any) -> None:
         """`node_options`: rclpy's `Node` options (a fleet's robot: its ``namespace`` and parameter overrides)."""
         super().__init__("robotino_trajectory", **node_options)
-        specs = ALL_SPECS + TRAJECTORY_SPECS + GOAL_SPECS
+        specs = ALL_SPECS + TRAJECTORY_SPECS + GOAL_SPECS + FOLLOW_PATH_SPECS
         self.params = SpecParameters(
-            self, specs, {**spec_defaults(ALL_SPECS), **_DEFAULTS, **GOAL_DEFAULTS}, self._on_params, fixed=_FIXED,
+            self, specs, {**spec_defaults(ALL_SPECS), **_DEFAULTS, **GOAL_DEFAULTS, **FOLLOW_PATH_DEFAULTS},
+            self._on_params, fixed=_FIXED,
             check=_params_problem,
         )
         self.declare_parameter(
@@ -203,8 +221,14 @@ class TrajectoryNode(Node):
         lockstep = self.params["mode"] == "lockstep"  # the mode, chosen here once
         self.start_on_enable, self.anchor_to_robot = self.params["start_on_enable"], self.params["anchor_to_robot"]
         self.anchor: tuple[float, float, float] | None = None  # anchor_to_robot: the pose at the start
-        self.goals = GoalInputs(self, self.params.values, self._tick_time if lockstep else self._time_since_start,
-                                self._replanned)
+        reference_time = self._tick_time if lockstep else self._time_since_start
+        self.goals = GoalInputs(self, self.params.values, reference_time, self._replanned)
+        self.robot_pose: tuple[float, float, float] | None = None  # from the newest odometry (`_watch_robot`)
+        self.frames = TransformTree()  # /tf and /tf_static (`_watch_robot`)
+        self.tf_listener: TransformListener | None = None
+        self.follow_path = FollowPathServer(self, self.params.values, reference_time, lambda: self.robot_pose,
+                                            self._replanned, self.frames.lookup,
+                                            lambda: self.params["frame_prefix"] + ODOM_FRAME)
         try:
             self._use_reference()
         except TrajectoryError as exc:
@@ -219,10 +243,8 @@ class TrajectoryNode(Node):
         self.start_ns: int | None = 0 if lockstep else None  # node-clock time of the reference's t = 0
         self.subscribed_since: int | None = None  # realtime: node-clock time since which the start condition holds
         self.odom_topic = self.resolve_topic_name("odom")  # realtime: its publisher is part of the start condition
-        self.robot_pose: tuple[float, float, float] | None = None  # anchor_to_robot: from the newest odometry
         if self.anchor_to_robot:
-            self.odom_layout = odometry_layout(self.params["frame_prefix"])
-            self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, _POSE_QOS, raw=True)
+            self._watch_robot()
         self.controller_enabled = False  # start_on_enable: the controller's state (controller_enabled)
         self.holding = False  # start_on_enable: publishing the start at rest, waiting for the enable
         self.hold_checked_at = 0.0  # steady time the hold last looked for a publisher of controller_enabled
@@ -312,7 +334,19 @@ class TrajectoryNode(Node):
         self.reference = self.scenario_reference if self.anchor is None else \
             anchored(self.scenario_reference, self.anchor)
         self.grid = None
-        self.goals.attach(None if self.anchor_to_robot and self.anchor is None else self.reference)
+        goals = None if self.anchor_to_robot and self.anchor is None else self.reference
+        self.goals.attach(goals)
+        self.follow_path.attach(goals)
+        if isinstance(goals, GoalReference):
+            self._watch_robot()
+
+    def _watch_robot(self) -> None:
+        """Subscribe (once) the robot's odometry (`robot_pose`) and the transforms (`frames`)."""
+        if self.tf_listener is not None:
+            return
+        self.odom_layout = odometry_layout(self.params["frame_prefix"])
+        self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, _POSE_QOS, raw=True)
+        self.tf_listener = TransformListener(self, self.frames)
 
     def _tick_time(self) -> float:
         """Lockstep: the reference time [s] a goal starts at, the latest tick published."""
@@ -379,6 +413,7 @@ class TrajectoryNode(Node):
         # the preview of the tick itself only on the first tick, a jump, or a resent tick
         self._publish_ahead(now, current=now == self.last_clock_ns or self.last_published_ns != now)
         self.last_clock_ns = now
+        self.follow_path.tick()
 
     def _check_clock(self) -> None:
         """Lockstep: say what the node waits for when /clock has been silent for ``clock_timeout_s``."""
@@ -429,6 +464,7 @@ class TrajectoryNode(Node):
             self._start(now)
             return
         self._publish_preview(now, now - self.start_ns)
+        self.follow_path.tick()
 
     def _settled(self, now: int) -> bool:
         """Realtime: whether the reference may start at `now` (module docstring, Timing)."""
@@ -491,7 +527,7 @@ class TrajectoryNode(Node):
                                    "next enable")
 
     def _on_odom(self, data: bytes) -> None:
-        """anchor_to_robot: the robot's pose (x, y, yaw) of an odometry; a malformed one is refused (logged)."""
+        """The robot's pose (x, y, yaw) of an odometry; a malformed one is refused (logged)."""
         try:
             values = self.odom_layout.read(data)
             if values is None:
@@ -501,7 +537,7 @@ class TrajectoryNode(Node):
                 raise InputRejected("odom contains non-finite values", "non_finite")
             check_yaw_quaternion(qx, qy, qz, qw, "odom")
         except (MalformedMessage, InputRejected) as exc:
-            warn_throttled(self.get_logger(), f"odometry refused for the anchor: {exc}", 1.0)
+            warn_throttled(self.get_logger(), f"odometry refused (the robot's pose): {exc}", 1.0)
             return
         self.robot_pose = (x, y, yaw_of(qx, qy, qz, qw))
 

@@ -57,11 +57,13 @@ from robotino_geom_mpc.reference.frames import FrameError, Rigid, transform_plan
 from robotino_geom_mpc.reference.goal_motion import GoalError, MotionLimits
 from robotino_geom_mpc.reference.goals import GoalReference
 
-__all__ = ["FollowPathError", "FollowPathSettings", "Lookup", "Nav2Error", "Outcome", "PathFollower"]
+__all__ = ["FEEDBACK_PERIOD_S", "FollowPathError", "FollowPathSettings", "Lookup", "Nav2Error", "Outcome",
+           "PathFollower"]
 
 PRUNE_WINDOW_M = 1.0  # path length ahead of the last pose reached in which the nearest pose is searched
 CORRECTION_M = 5e-4  # a transform that moved more than this (or `CORRECTION_RAD`) is a correction: replan
 CORRECTION_RAD = 1e-3
+FEEDBACK_PERIOD_S = 0.05  # feedback at 20 Hz of reference time, Nav2's default controller_frequency
 
 Lookup = Callable[[str, str], Rigid]
 """lookup(target, source) -> T_target_source, the newest (tf2's lookupTransform(target, source) at time 0, e.g.
@@ -174,6 +176,7 @@ class PathFollower:
         self.transform = Rigid.identity()  # T_odom_path, as last followed
         self.reached = 0  # index of the nearest pose the reference has reached
         self.baseline: tuple[float, float, float] | None = None  # progress checker: (x, y, t) to move away from
+        self.fed_at = -math.inf  # reference time of the last feedback
 
     # goals -----------------------------------------------------------------------------------------
     def start(self, t: float, frame_id: str, poses: np.ndarray, ids: tuple[str, str, str],
@@ -201,7 +204,7 @@ class PathFollower:
         reached = self._nearest(t, pts, transform, 0)
         self._follow(t, transform, pts, reached, limits)
         self.active, self.canceling, self.frame, self.poses = True, None, frame, pts
-        self.reached, self.baseline = reached, None
+        self.reached, self.baseline, self.fed_at = reached, None, -math.inf
 
     def cancel(self, t: float, limits: MotionLimits) -> None:
         """Brake to rest within `limits`; `step` returns CANCELED once the reference is at rest."""
@@ -245,6 +248,13 @@ class PathFollower:
                 f"the robot moved less than {self.settings.required_movement_radius:g} m in "
                 f"{self.settings.movement_time_allowance:g} s")))
         return None
+
+    def due_feedback(self, t: float, robot: tuple[float, float, float] | None) -> tuple[float, float] | None:
+        """`feedback` every `FEEDBACK_PERIOD_S` of reference time from a goal's start (None between)."""
+        if t - self.fed_at < FEEDBACK_PERIOD_S - 1e-9:
+            return None
+        self.fed_at = t
+        return self.feedback(t, robot)
 
     def feedback(self, t: float, robot: tuple[float, float, float] | None) -> tuple[float, float]:
         """(distance_to_goal [m], speed [m/s]): the path's length from the pose nearest the robot (the reference

@@ -14,7 +14,7 @@ import pytest
 
 from robotino_geom_mpc.reference.goal_motion import BrakingMotion, GoalError, MotionLimits, PolynomialMotion, \
     nominal_rim_speed
-from robotino_geom_mpc.reference.goals import GoalReference
+from robotino_geom_mpc.reference.goals import SHIFT_SHARE, GoalReference
 from robotino_geom_mpc.model.dynamics import wheel_rim_speeds
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
@@ -188,3 +188,49 @@ def test_stop_takes_over_mid_motion_without_a_jump_and_rests():
     np.testing.assert_allclose(end[0], piece.goal, atol=1e-12)
     np.testing.assert_allclose(end[1:], 0.0, atol=1e-12)
     assert ref.stop(switch + piece.duration_s + 2.0, lim) is None  # at rest: nothing to brake
+
+
+def test_a_shift_moves_the_end_eased_in_without_a_jump_and_nests():
+    lim = limits()
+    ref = GoalReference()
+    ref.go_to(0.0, np.array([1.2, 0.4, 0.5]), lim)
+    end_before = ref.duration_s
+    shifts = [(1.0, np.array([0.03, -0.02, 0.05])), (2.5, np.array([-0.01, 0.04, 0.0]))]
+    for t, delta in shifts:
+        before = ref.state(t)
+        piece = ref.shift(t, delta, lim)
+        np.testing.assert_allclose(ref.state(t), before, atol=1e-12)  # p, v, a, j continuous at the switch
+    assert len(piece.shifts) == 2 and not isinstance(piece.base, type(piece))  # one level: the shifts listed
+    assert ref.duration_s == pytest.approx(end_before)  # eased in over the time left: not retimed
+    end = ref.state(ref.duration_s + 1.0)
+    np.testing.assert_allclose(end[0], [1.2 + 0.02, 0.4 + 0.02, 0.55], atol=1e-12)
+    np.testing.assert_allclose(end[1:], 0.0, atol=1e-12)
+    t = np.linspace(1.0, ref.duration_s, 20001)
+    p, v, a, j = ref.sample(t)
+    assert usage(p[:, 2], v, a, j, lim) <= 1.0 + SHIFT_SHARE
+    h = t[1] - t[0]
+    for k, d in enumerate((v, a, j)):
+        np.testing.assert_allclose(np.gradient((p, v, a)[k], h, axis=0)[2:-2], d[2:-2], atol=5e-3)
+
+
+def test_a_far_shift_takes_its_own_time_and_bad_shifts_are_refused():
+    lim = limits()
+    ref = GoalReference()
+    ref.go_to(0.0, np.array([1.2, 0.0, 0.0]), lim)
+    piece = ref.shift(ref.duration_s - 0.2, np.array([0.0, 2.0, 0.0]), lim)  # 2 m at the end: eased in over its own
+    T = piece.shifts[-1][2]                                                    # time, a quarter of the limits
+    _, s1, s2, s3 = septic(np.linspace(0.0, 1.0, 100001))
+    least = max(2.0 * np.abs(s1).max() / (SHIFT_SHARE * lim.velocity_mps),
+                (2.0 * np.abs(s2).max() / (SHIFT_SHARE * lim.acceleration_mps2)) ** 0.5,
+                (2.0 * np.abs(s3).max() / (SHIFT_SHARE * lim.jerk_mps3)) ** (1 / 3))
+    assert T == pytest.approx(least, rel=1e-3)
+    t = np.linspace(0.0, ref.duration_s, 20001)
+    p, v, a, j = ref.sample(t)
+    assert usage(p[:, 2], v, a, j, lim) <= 1.0 + SHIFT_SHARE
+    np.testing.assert_allclose(ref.position(ref.duration_s), [1.2, 2.0, 0.0], atol=1e-12)
+    before = ref.sample(t)
+    for bad in ((0.0, np.zeros(3), GoalReference()), (1.0, np.array([math.nan, 0.0, 0.0]), ref)):
+        with pytest.raises(GoalError):
+            bad[2].shift(bad[0], bad[1], lim)  # nothing runs to shift; a non-finite shift
+    for x, y in zip(before, ref.sample(t)):
+        np.testing.assert_array_equal(x, y)

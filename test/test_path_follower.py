@@ -16,7 +16,8 @@ from test_goal_motion import limits, usage
 
 from robotino_geom_mpc.reference.follow_path import FollowPathError, FollowPathSettings, Nav2Error, PathFollower
 from robotino_geom_mpc.reference.frames import TransformTree
-from robotino_geom_mpc.reference.goals import GoalReference
+from robotino_geom_mpc.reference.goals import GoalReference, ShiftedMotion
+from robotino_geom_mpc.reference.path_timing import PathMotion
 
 pytestmark = pytest.mark.unit
 
@@ -165,3 +166,27 @@ def test_feedback_is_the_remaining_path_length_from_the_robot():
     f.start(0.0, "odom", path, IDS, limits())
     distance, _ = f.feedback(1.0, (0.52, 0.01, 0.0))
     assert distance == pytest.approx(0.5 + 1.0, abs=1e-9)  # from the nearest pose (0.5, 0): 0.5 m, the corner, 1 m
+
+
+@pytest.mark.parametrize("tolerance", [0.1, 0.0])
+def test_a_replan_of_the_same_route_moves_the_end_without_retiming(tolerance):
+    f = _follower(same_course_tolerance=tolerance)
+    f.start(0.0, "odom", _line((0, 0), (2.5, 0.5)), IDS, limits())
+    def end_of_motion() -> float:
+        return f.reference.starts[-1] + f.reference.pieces[-1].duration_s
+
+    switch, end = 3.0, end_of_motion()
+    before = f.reference.state(switch)
+    # bt_navigator's replan: from the robot to the goal moved by 4 cm
+    f.start(switch, "odom", _line(before[0, :2], (2.5, 0.54)), IDS, limits())
+    np.testing.assert_allclose(f.reference.state(switch), before, atol=1e-9)
+    piece = f.reference.pieces[-1]
+    if tolerance:  # not retimed: it ends when it would have, the end moved
+        assert isinstance(piece, ShiftedMotion) and end_of_motion() == pytest.approx(end, abs=1e-9)
+        speed = np.hypot(*f.reference.sample(np.linspace(switch, switch + 1.0, 101))[1][:, :2].T)
+        assert speed.min() > 0.95 * np.hypot(*before[1, :2])  # at its cruise on
+    else:  # retimed along the new path from the reference's state: later
+        assert isinstance(piece, PathMotion) and end_of_motion() > end + 0.5
+    outcome, t = _run(f, switch, 60.0)
+    assert outcome.status == "succeeded"
+    np.testing.assert_allclose(f.reference.state(t)[0], [2.5, 0.54, 0.0], atol=1e-9)

@@ -57,6 +57,9 @@ FOLLOW_PATH_SPECS: tuple[ParamSpec, ...] = (
     _positive("required_movement_radius", "the robot moves this far within movement_time_allowance, or the goal "
               "fails with FAILED_TO_MAKE_PROGRESS (SimpleProgressChecker)", "m"),
     _positive("movement_time_allowance", "see required_movement_radius", "s"),
+    ParamSpec("follow_path.same_course_tolerance", float, "follow_path: a new path within this distance of the "
+              "reference's course (a replan of the same route, a localization correction) moves the reference's end "
+              "instead of retiming the path; 0: every new path is retimed", "m", 0.0, 10.0, False),
 )
 _DEFAULT_SETTINGS = FollowPathSettings()
 FOLLOW_PATH_DEFAULTS: dict[str, Any] = {spec.name: getattr(_DEFAULT_SETTINGS, spec.attr) for spec in FOLLOW_PATH_SPECS}

@@ -16,14 +16,21 @@ second), so a replan makes no step in the reference and none in the commands.
 
 Pruning: a planner's path starts at the robot; the poses up to the one nearest the reference (searched from the
 last one reached, within `PRUNE_WINDOW_M` of path length, so a path that loops back is not cut short) are dropped,
-the path is followed from the next. Each replan restarts the path's time law from rest (the reference's own
-velocity is carried over and braked by the blend of `reference.path_timing`), so frequent replans slow the robot.
+the path is followed from the next.
+
+The same course: a new path whose poses ahead all lie within ``same_course_tolerance`` of the course the reference
+still has to run (bt_navigator's replan of an unchanged route, its end moved a little) is not retimed: the rest of
+the reference is moved by the difference of the ends, eased in over the time it has left (`GoalReference.shift`),
+so the robot goes on at its speed and ends at the new end. Any other path is timed anew from the reference's state
+(`GoalReference.follow`: its time law starts from rest, the reference's own velocity carried over and braked by the
+blend of `reference.path_timing`).
 
 map -> odom
 -----------
 Every period the transform is looked up again; when it moved by more than `CORRECTION_M` or `CORRECTION_RAD`
-(a localization correction), the poses not yet reached are transformed with the new one and followed from the
-reference's state: the robot goes to where the path is now, with no step. Between corrections the path is fixed in
+(a localization correction), the poses not yet reached are transformed with the new one and taken as a new path
+(a small correction is the same course: the reference's end moves): the robot goes to where the path is now, with
+no step. Between corrections the path is fixed in
 ``odom``, so odometry drift is not followed (that is what the corrections are for).
 
 Ending (Nav2's codes, `Nav2Error`)
@@ -102,6 +109,9 @@ class FollowPathSettings:
         The one id of each this server answers to (a goal's empty id means it too).
     xy_goal_tolerance, yaw_goal_tolerance
         SimpleGoalChecker's: the robot within this distance [m] and heading difference [rad] of the path's end.
+    same_course_tolerance
+        A new path within this distance [m] of the reference's course moves its end instead of retiming it (0: every
+        new path is retimed).
     required_movement_radius, movement_time_allowance
         SimpleProgressChecker's: the robot moves this far [m] within this long [s], or the goal fails.
     """
@@ -113,6 +123,7 @@ class FollowPathSettings:
     yaw_goal_tolerance: float = 0.035
     required_movement_radius: float = 0.5
     movement_time_allowance: float = 10.0
+    same_course_tolerance: float = 0.1
 
     def __post_init__(self) -> None:
         for name in ("xy_goal_tolerance", "yaw_goal_tolerance", "required_movement_radius",
@@ -120,6 +131,9 @@ class FollowPathSettings:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
                 raise FollowPathError(Nav2Error.UNKNOWN, f"{name} must be a positive finite number, got {value!r}")
+        if not (math.isfinite(self.same_course_tolerance) and self.same_course_tolerance >= 0.0):
+            raise FollowPathError(Nav2Error.UNKNOWN, "same_course_tolerance must be a finite number >= 0, got "
+                                  f"{self.same_course_tolerance!r}")
 
     def check_ids(self, controller_id: str, goal_checker_id: str, progress_checker_id: str) -> None:
         """Raise INVALID_CONTROLLER for an id this server does not have ('' is the configured one)."""
@@ -202,7 +216,7 @@ class PathFollower:
             raise FollowPathError(Nav2Error.INVALID_PATH, "the path has no frame_id")
         transform = self._lookup(frame)
         reached = self._nearest(t, pts, transform, 0)
-        self._follow(t, transform, pts, reached, limits)
+        self._follow(t, transform, pts, reached, limits, self.active and self.canceling is None)
         self.active, self.canceling, self.frame, self.poses = True, None, frame, pts
         self.reached, self.baseline, self.fed_at = reached, None, -math.inf
 
@@ -230,7 +244,7 @@ class PathFollower:
             transform = self._lookup(self.frame)
             self.reached = self._nearest(t, self.poses, self.transform, self.reached)
             if _moved(transform, self.transform):
-                self._follow(t, transform, self.poses, self.reached, limits)
+                self._follow(t, transform, self.poses, self.reached, limits, True)
         except FollowPathError as exc:
             self._brake(t, limits)
             return self._end(Outcome("aborted", exc.code, str(exc)))
@@ -287,20 +301,45 @@ class PathFollower:
         window = poses[start:][ahead <= PRUNE_WINDOW_M]
         return start + int(np.argmin(np.hypot(window[:, 0] - x, window[:, 1] - y)))
 
-    def _follow(self, t: float, transform: Rigid, poses: np.ndarray, reached: int,
-                limits: MotionLimits) -> None:
-        """Follow poses[reached + 1:] (the last pose if none is left) moved into odom by `transform`."""
+    def _follow(self, t: float, transform: Rigid, poses: np.ndarray, reached: int, limits: MotionLimits,
+                moving: bool) -> None:
+        """Follow poses[reached + 1:] (the last pose if none is left) moved into odom by `transform`; while `moving`
+        (a goal runs) a path on the same course moves the reference's end instead (module docstring).
+        """
         rest = poses[reached + 1:] if reached + 1 < len(poses) else poses[-1:]
         odom = transform_planar(transform, rest)
         theta = float(self.reference.state(t)[0, 2])
         for k in range(len(odom)):  # headings unwrapped pose by pose from the reference's
             theta = odom[k, 2] = theta + math.remainder(odom[k, 2] - theta, math.tau)
+        if moving and self._same_course(t, odom):
+            end = self.reference.state(self.reference.duration_s)[0]
+            try:
+                self.reference.shift(t, odom[-1] - end, limits)
+                self.transform = transform
+                return
+            except GoalError:
+                pass  # the shift would leave the limits: retimed below
         try:
             self.reference.follow(t, odom, limits)
         except GoalError as exc:
             raise FollowPathError(Nav2Error.NO_VALID_CONTROL, f"no motion along the path within the limits: "
                                   f"{exc}") from None
         self.transform = transform
+
+    def _same_course(self, t: float, poses: np.ndarray) -> bool:
+        """Whether every pose (in odom) lies within ``same_course_tolerance`` of the reference's course from t on."""
+        tolerance = self.settings.same_course_tolerance
+        if tolerance == 0.0 or self.reference.duration_s <= t:
+            return False
+        course = self.reference.position(np.linspace(t, self.reference.duration_s, 300))[:, :2]
+        a, b = course[:-1], course[1:]
+        ab = b - a
+        length2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)
+        for x, y, _ in poses:  # distance to the course: to its nearest segment
+            along = np.clip(((x - a[:, 0]) * ab[:, 0] + (y - a[:, 1]) * ab[:, 1]) / length2, 0.0, 1.0)
+            if np.min(np.hypot(a[:, 0] + along * ab[:, 0] - x, a[:, 1] + along * ab[:, 1] - y)) > tolerance:
+                return False
+        return True
 
     def _at_goal(self, robot: tuple[float, float, float]) -> bool:
         gx, gy, gyaw = transform_planar(self.transform, self.poses[-1])

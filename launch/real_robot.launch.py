@@ -35,6 +35,10 @@ anchor_to_robot  true (default): the scenario is moved rigidly onto the robot's 
 fastdds_profile  Fast DDS profile of the nodes (default: $FASTRTPS_DEFAULT_PROFILES_FILE if set, else
                config/fastdds_localhost.xml: the driver runs on this host too); empty: none set by the launch
 record         true: also start the MCAP recorder (bag in ``bag``; ``robotino-geom-mpc report BAG`` afterwards)
+nav2_params    Nav2's parameter file (empty, the default: no Nav2). Given: scenario ``goals``, and Nav2's planner_server,
+               bt_navigator (the tree that replans at 1 Hz, without recovery behaviours) and waypoint_follower
+               with a lifecycle_manager, this package's trajectory node serving their ``follow_path`` in place of
+               controller_server (docs/howto/nav2.md; map_server and amcl are Nav2's localization launch)
 bag            recording directory (default: rosbag2_<date> in the working directory)
 
 Bad arguments (an unknown scenario, a simulation-only one, a bad namespace, a missing file) stop the launch
@@ -51,7 +55,8 @@ from launch_ros.substitutions import FindPackageShare
 from robotino_geom_mpc.description.urdf import check_frame_prefix
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.scenarios import ScenarioError, get_scenario, node_parameters
-from robotino_geom_mpc.system.launch_arguments import driver_remaps, flag, node_environment
+from robotino_geom_mpc.system.launch_arguments import NAV2_BEHAVIOR_TREE, NAV2_SERVERS, driver_remaps, flag, \
+    node_environment
 from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, frame_prefix, ros_namespace
 
 PACKAGE = "robotino_geom_mpc"
@@ -73,6 +78,9 @@ def _nodes(context) -> list:
     """
     config = context.launch_configurations
     scenario, params_file, chain_file = config["scenario"], config["params_file"], config["chain_params"]
+    nav2_params = config["nav2_params"]
+    if nav2_params:
+        scenario = "goals"  # the trajectory node is then the follow_path server
     _reference_only(scenario)
     robot, _ = load_params(params_file)  # a missing or malformed file stops the launch here
     namespace = ros_namespace(config["namespace"])
@@ -97,6 +105,21 @@ def _nodes(context) -> list:
     if flag(config, "record"):
         nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
                           parameters=[params_file, {"output": config["bag"], "scenario": scenario}], **common))
+    if nav2_params:
+        nodes += _nav2(nav2_params, namespace)
+    return nodes
+
+
+def _nav2(params_file: str, namespace: str) -> list:
+    """Nav2's servers but controller_server, and their lifecycle manager (`NAV2_SERVERS`)."""
+    tree = {"default_nav_to_pose_bt_xml": PathJoinSubstitution([FindPackageShare(NAV2_BEHAVIOR_TREE[0]),
+                                                                *NAV2_BEHAVIOR_TREE[1:]])}
+    nodes = [Node(package=package, executable=executable, name=executable, namespace=namespace, output="screen",
+                  parameters=[params_file, *([tree] if executable == "bt_navigator" else [])])
+             for package, executable in NAV2_SERVERS]
+    nodes.append(Node(package="nav2_lifecycle_manager", executable="lifecycle_manager",
+                      name="lifecycle_manager_navigation", namespace=namespace, output="screen",
+                      parameters=[{"autostart": True, "node_names": [name for _, name in NAV2_SERVERS]}]))
     return nodes
 
 
@@ -124,5 +147,7 @@ def generate_launch_description() -> LaunchDescription:
                               description="Fast DDS profile of the nodes; empty: none set by the launch"),
         DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),
         DeclareLaunchArgument("bag", default_value="", description="recording directory"),
+        DeclareLaunchArgument("nav2_params", default_value="",
+                              description="Nav2's parameter file: also start Nav2 (follow_path served here)"),
         OpaqueFunction(function=_nodes),
     ])

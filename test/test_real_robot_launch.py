@@ -180,3 +180,24 @@ def test_the_real_parameter_file_is_the_preset_robot_and_the_chain_preset():
     marked = [line.split(":")[0].strip() for line in REAL_PARAMS.read_text().splitlines() if "# LAB:" in line]
     assert marked == ["mass_kg", "wheel_radius_m", "wheel_distance_m", "speed_floor", "speed_floor_translation_m_s",
                       "speed_floor_rotation_rad_s"]
+
+
+def test_nav2_params_start_nav2_with_the_trajectory_node_in_controller_servers_place(launch, tmp_path):
+    nav2 = tmp_path / "nav2_params.yaml"
+    nav2.write_text("planner_server:\n  ros__parameters:\n    expected_planner_frequency: 1.0\n")
+    nodes, _ = launch("real_robot.launch.py", nav2_params=str(nav2), namespace="robotinobase1")
+    assert set(nodes) == {"trajectory_node", "controller_node", "planner_server", "bt_navigator",
+                          "waypoint_follower", "lifecycle_manager"}  # no controller_server, no simulator
+    trajectory = nodes["trajectory_node"].kwargs["parameters"][1]
+    assert trajectory["scenario"] == "goals"  # the follow_path server
+    manager = nodes["lifecycle_manager"].kwargs["parameters"][0]
+    assert manager["node_names"] == ["planner_server", "bt_navigator", "waypoint_follower"] and manager["autostart"]
+    for name in ("planner_server", "bt_navigator", "waypoint_follower", "lifecycle_manager"):
+        assert nodes[name].kwargs["namespace"] == "/robotinobase1"  # beside the robot's nodes and action
+    assert nodes["planner_server"].kwargs["parameters"] == [str(nav2)]
+    tree = nodes["bt_navigator"].kwargs["parameters"][1]["default_nav_to_pose_bt_xml"]
+    package = tree.args[0][0]
+    assert package.args == ("nav2_bt_navigator",) and tree.args[0][1:] == ["behavior_trees",
+                                                                            "navigate_w_replanning_time.xml"]
+    without, _ = launch("real_robot.launch.py")
+    assert set(without) == {"trajectory_node", "controller_node"}

@@ -134,6 +134,7 @@ from robotino_geom_mpc.nodes.follow_path_server import FOLLOW_PATH_DEFAULTS, FOL
 from robotino_geom_mpc.reference.anchor import anchored
 from robotino_geom_mpc.reference.frames import TransformTree
 from robotino_geom_mpc.reference.goals import GoalReference
+from robotino_geom_mpc.reference.path_timing import load_splines
 from robotino_geom_mpc.params.specs import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.nodes.goal_inputs import GOAL_DEFAULTS, GOAL_SPECS, GoalInputs, goal_params_problem
 from robotino_geom_mpc.reference.trajectories import Reference, TrajectoryError
@@ -339,6 +340,7 @@ class TrajectoryNode(Node):
         self.follow_path.attach(goals)
         if isinstance(goals, GoalReference):
             self._watch_robot()
+            load_splines()  # not at the first path, while the previews wait
 
     def _watch_robot(self) -> None:
         """Subscribe (once) the robot's odometry (`robot_pose`) and the transforms (`frames`)."""

@@ -9,8 +9,8 @@ robot's first odometry) and either ``goal: [x, y, yaw]`` (one pose, [m], [m], [r
 The trajectory node's limit parameters are here too (`LIMIT_SPECS`, `LIMIT_DEFAULTS`, `motion_limits`), so
 ``run`` plans with the node's limits without ROS. Defaults: 0.4 m/s, 0.4 m/s^2, 2 m/s^3 per linear axis,
 1.5 rad/s, 1.5 rad/s^2, 8 rad/s^3 in yaw, the rim speed of the motor's nominal speed (0 = that). They keep the
-wheel currents of the closed loop well below the nominal 0.86 A: offline (`simulation.run_scenario` loop)
-0.41 A peak on config/goals_example.yaml and 0.29 A on 1.4 m diagonal moves with 3 rad turns.
+wheel currents of the closed loop below the nominal 0.86 A: 0.53 A peak on config/goals_example.yaml (``run``,
+lockstep) and 0.29 A on 1.4 m diagonal moves with 3 rad turns.
 """
 
 from __future__ import annotations

@@ -34,13 +34,20 @@ from robotino_geom_mpc.arrays import checked_array
 from robotino_geom_mpc.reference.goal_motion import GoalError, MotionLimits, PolynomialMotion, shortest_duration
 from robotino_geom_mpc.reference.time_law import _compose, _RampedPhase, _Vector
 
-__all__ = ["PathMotion"]
+__all__ = ["PathMotion", "load_splines"]
 
 GRID_PER_KNOT = 30  # samples per knot of a segment on which the limits are checked (at least `MIN_GRID`)
 MIN_GRID = 250
 SPLIT_ANGLE_RAD = math.radians(30.0)  # a turn sharper than this between two chords: rest there
 RAMP_FRACTIONS = (0.45, 0.3, 0.15)  # rho: the share of T each ramp of a segment's time law takes (< 1/2)
 _DUPLICATE = 1e-9  # poses closer than this (in the chord metric) are one knot
+
+
+def load_splines() -> None:
+    """Import scipy's splines now (0.3-0.7 s) rather than at the first path: a node that plans paths in its callbacks
+    would stall its previews that long, and a controller's watchdog stops the robot for less.
+    """
+    import scipy.interpolate  # noqa: F401
 
 
 def _halved(limits: MotionLimits) -> MotionLimits:

@@ -16,8 +16,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-__all__ = ["DRIVER_NODE", "DRIVER_ODOMETRY_NODE", "DRIVER_TOPICS", "DRIVER_QOS_DEPTH", "STANDIN_HIDDEN",
-           "driver_remaps", "flag", "node_environment", "number"]
+__all__ = ["DRIVER_NODE", "DRIVER_ODOMETRY_NODE", "DRIVER_TOPICS", "DRIVER_QOS_DEPTH", "NAV2_BEHAVIOR_TREE",
+           "NAV2_SERVERS", "STANDIN_HIDDEN", "driver_remaps", "flag", "node_environment", "number"]
 
 DRIVER_NODE = "robotino_node"  # rto_node: cmd_vel in
 DRIVER_ODOMETRY_NODE = "robotino_odometry_node"  # rto_odometry_node: odom out
@@ -26,6 +26,13 @@ DRIVER_QOS_DEPTH = 10  # both endpoints: reliable, volatile, keep-last 10
 # the stand-in driver's topics that no real driver publishes, moved under a hidden name (a leading underscore:
 # `ros2 topic list` and the recorder skip it), so no recording or report takes the emulation's truth for the robot's
 STANDIN_HIDDEN = ("ground_truth/odom", "wheel_currents", "applied_voltages")
+# Nav2 (jazzy) beside a real robot, the trajectory node in controller_server's place (docs/howto/nav2.md): the servers
+# nav2_bringup's navigation_launch.py starts that a navigate_to_pose with replanning needs (package, executable),
+# managed by a lifecycle_manager; bt_navigator runs nav2_bt_navigator's tree that replans at 1 Hz with no recovery
+# behaviours (behavior_server's spin and back-up publish cmd_vel themselves, against this controller's)
+NAV2_SERVERS = (("nav2_planner", "planner_server"), ("nav2_bt_navigator", "bt_navigator"),
+                ("nav2_waypoint_follower", "waypoint_follower"))
+NAV2_BEHAVIOR_TREE = ("nav2_bt_navigator", "behavior_trees", "navigate_w_replanning_time.xml")
 
 
 def flag(config: Mapping[str, str], name: str) -> bool:

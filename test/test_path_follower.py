@@ -14,7 +14,8 @@ import pytest
 from nav2_msgs.action import FollowPath
 from test_goal_motion import limits, usage
 
-from robotino_geom_mpc.reference.follow_path import FollowPathError, FollowPathSettings, Nav2Error, PathFollower
+from robotino_geom_mpc.reference.follow_path import FEEDBACK_PERIOD_S, FollowPathError, FollowPathSettings, Nav2Error, \
+    PathFollower
 from robotino_geom_mpc.reference.frames import TransformTree
 from robotino_geom_mpc.reference.goals import GoalReference, ShiftedMotion
 from robotino_geom_mpc.reference.path_timing import PathMotion
@@ -190,3 +191,13 @@ def test_a_replan_of_the_same_route_moves_the_end_without_retiming(tolerance):
     outcome, t = _run(f, switch, 60.0)
     assert outcome.status == "succeeded"
     np.testing.assert_allclose(f.reference.state(t)[0], [2.5, 0.54, 0.0], atol=1e-9)
+
+
+def test_feedback_keeps_its_20_hz_grid_when_the_periods_jitter():
+    f = _follower()
+    f.start(0.0, "odom", _line((0, 0), (1.0, 0)), IDS, limits())
+    rng = np.random.default_rng(3)
+    times = np.cumsum(rng.uniform(0.008, 0.0125, 2000))  # a realtime timer's 10 ms, jittered
+    fed = [t for t in times if f.due_feedback(float(t), None) is not None]
+    assert len(fed) == pytest.approx(times[-1] / FEEDBACK_PERIOD_S, abs=2)  # none lost to the jitter
+    assert np.diff(fed).max() < FEEDBACK_PERIOD_S + 0.0125

@@ -190,7 +190,7 @@ class PathFollower:
         self.transform = Rigid.identity()  # T_odom_path, as last followed
         self.reached = 0  # index of the nearest pose the reference has reached
         self.baseline: tuple[float, float, float] | None = None  # progress checker: (x, y, t) to move away from
-        self.fed_at = -math.inf  # reference time of the last feedback
+        self.feedback_at = -math.inf  # reference time the next feedback is due
 
     # goals -----------------------------------------------------------------------------------------
     def start(self, t: float, frame_id: str, poses: np.ndarray, ids: tuple[str, str, str],
@@ -218,7 +218,7 @@ class PathFollower:
         reached = self._nearest(t, pts, transform, 0)
         self._follow(t, transform, pts, reached, limits, self.active and self.canceling is None)
         self.active, self.canceling, self.frame, self.poses = True, None, frame, pts
-        self.reached, self.baseline, self.fed_at = reached, None, -math.inf
+        self.reached, self.baseline, self.feedback_at = reached, None, -math.inf
 
     def cancel(self, t: float, limits: MotionLimits) -> None:
         """Brake to rest within `limits`; `step` returns CANCELED once the reference is at rest."""
@@ -264,10 +264,13 @@ class PathFollower:
         return None
 
     def due_feedback(self, t: float, robot: tuple[float, float, float] | None) -> tuple[float, float] | None:
-        """`feedback` every `FEEDBACK_PERIOD_S` of reference time from a goal's start (None between)."""
-        if t - self.fed_at < FEEDBACK_PERIOD_S - 1e-9:
+        """`feedback` every `FEEDBACK_PERIOD_S` of reference time from a goal's start, on that grid however the
+        periods fall (None between).
+        """
+        due = self.feedback_at
+        if t < due - 1e-9:
             return None
-        self.fed_at = t
+        self.feedback_at = due + FEEDBACK_PERIOD_S if t < due + FEEDBACK_PERIOD_S else t + FEEDBACK_PERIOD_S
         return self.feedback(t, robot)
 
     def feedback(self, t: float, robot: tuple[float, float, float] | None) -> tuple[float, float]:

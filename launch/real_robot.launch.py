@@ -35,10 +35,11 @@ anchor_to_robot  true (default): the scenario is moved rigidly onto the robot's 
 fastdds_profile  Fast DDS profile of the nodes (default: $FASTRTPS_DEFAULT_PROFILES_FILE if set, else
                config/fastdds_localhost.xml: the driver runs on this host too); empty: none set by the launch
 record         true: also start the MCAP recorder (bag in ``bag``; ``robotino-geom-mpc report BAG`` afterwards)
-nav2_params    Nav2's parameter file (empty, the default: no Nav2). Given: scenario ``goals``, and Nav2's planner_server,
-               bt_navigator (the tree that replans at 1 Hz, without recovery behaviours) and waypoint_follower
-               with a lifecycle_manager, this package's trajectory node serving their ``follow_path`` in place of
-               controller_server (docs/howto/nav2.md; map_server and amcl are Nav2's localization launch)
+nav2_params    Nav2's parameter file (empty, the default: no Nav2). Given: scenario ``goals``, and Nav2's
+               planner_server, bt_navigator (the tree that replans at 1 Hz, without recovery behaviours) and
+               waypoint_follower with a lifecycle_manager, this package's trajectory node serving their
+               ``follow_path`` in place of controller_server (docs/howto/nav2.md; map_server and amcl are Nav2's
+               localization launch)
 bag            recording directory (default: rosbag2_<date> in the working directory)
 
 Bad arguments (an unknown scenario, a simulation-only one, a bad namespace, a missing file) stop the launch

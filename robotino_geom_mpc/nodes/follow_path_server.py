@@ -21,6 +21,7 @@ at each goal and each period.
 
 from __future__ import annotations
 
+import traceback
 from collections.abc import Callable
 from typing import Any
 
@@ -139,7 +140,8 @@ class FollowPathServer:
             poses = self._poses(goal)
             follower.start(t, goal.path.header.frame_id, poses,
                            (goal.controller_id, goal.goal_checker_id, goal.progress_checker_id), limits)
-        except FollowPathError as exc:
+        except Exception as error:  # a refused goal, or a fault planning it: the goal ends, the node goes on
+            exc = error if isinstance(error, FollowPathError) else self._fault(error)
             running = follower.active
             outcome = follower.refuse(t, limits, exc)
             if running:
@@ -180,9 +182,10 @@ class FollowPathServer:
                 follower.cancel(t, limits)
             follower.settings = follow_path_settings(self._values)
             outcome = follower.step(t, robot, limits)
-        except GoalError as exc:  # no stop within the limits: the reference goes on; say so
-            self._node.get_logger().error(f"follow_path: {exc}")
-            outcome = Outcome("aborted", Nav2Error.NO_VALID_CONTROL, str(exc))
+        except Exception as error:  # a fault in the follower (a stop no timing keeps): the goal ends, the node goes on
+            exc = self._fault(error)
+            follower.active = False
+            outcome = Outcome("aborted", exc.code, str(exc))
         if (len(follower.reference.pieces), follower.reference.duration_s) != pieces:
             self._replanned(follower.reference)
         if outcome is not None:
@@ -191,6 +194,14 @@ class FollowPathServer:
         feedback = follower.due_feedback(t, robot)
         if feedback is not None:
             handle.publish_feedback(FollowPath.Feedback(distance_to_goal=feedback[0], speed=feedback[1]))
+
+    def _fault(self, error: Exception) -> FollowPathError:
+        """A fault in the follower, logged with its traceback, as Nav2's error (NO_VALID_CONTROL for a motion no
+        timing keeps within the limits, else UNKNOWN).
+        """
+        self._node.get_logger().error(f"follow_path: {type(error).__name__}: {error}\n{traceback.format_exc()}")
+        code = Nav2Error.NO_VALID_CONTROL if isinstance(error, GoalError) else Nav2Error.UNKNOWN
+        return FollowPathError(code, f"{type(error).__name__}: {error}")
 
     def _finish(self, outcome: Outcome) -> None:
         """End the running goal (if any) with `outcome`."""

@@ -85,7 +85,10 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints", "goals.max_velocity_mps",
         "goals.max_acceleration_mps2", "goals.max_jerk_mps3", "goals.max_angular_velocity_radps",
         "goals.max_angular_acceleration_radps2", "goals.max_angular_jerk_radps3", "goals.max_rim_speed_mps",
-        "frame_prefix", "preview_points", "start_on_enable", "anchor_to_robot",
+        "frame_prefix", "preview_points", "start_on_enable", "anchor_to_robot", "follow_path.controller_id",
+        "follow_path.goal_checker_id", "follow_path.progress_checker_id", "follow_path.xy_goal_tolerance",
+        "follow_path.yaw_goal_tolerance", "follow_path.required_movement_radius",
+        "follow_path.movement_time_allowance", "follow_path.same_course_tolerance",
     ),
     "recorder": _ROBOT_CONTROL + (
         "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",

@@ -1,0 +1,21 @@
+# Included by the interface packages here after their rosidl_generate_interfaces (tools/build_interfaces.sh).
+# The PyPI wheels' exported Python targets name the include folders of the machine that built them
+# (/opt/python/...): point the missing ones at this Python's and NumPy's (no-op in a ROS install).
+find_package(Python3 REQUIRED COMPONENTS Interpreter Development NumPy)
+get_property(imported DIRECTORY PROPERTY IMPORTED_TARGETS)
+foreach(target IN LISTS imported)
+  get_target_property(dirs ${target} INTERFACE_INCLUDE_DIRECTORIES)
+  if(NOT dirs)
+    continue()
+  endif()
+  set(fixed)
+  foreach(dir IN LISTS dirs)
+    if(NOT EXISTS "${dir}" AND dir MATCHES "numpy")
+      set(dir "${Python3_NumPy_INCLUDE_DIRS}")
+    elseif(NOT EXISTS "${dir}" AND dir MATCHES "include/python3")
+      set(dir "${Python3_INCLUDE_DIRS}")
+    endif()
+    list(APPEND fixed "${dir}")
+  endforeach()
+  set_target_properties(${target} PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${fixed}")
+endforeach()

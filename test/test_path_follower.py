@@ -62,7 +62,7 @@ def test_a_path_is_followed_to_its_end_and_succeeds():
     assert distance == pytest.approx(1.8, abs=1e-9) and speed == 0.0
     outcome, t = _run(f, 0.0, 60.0)
     assert outcome.status == "succeeded" and outcome.code == Nav2Error.NONE
-    assert t == pytest.approx(f.reference.duration_s, abs=DT)  # as soon as the reference rests at the end
+    assert t == pytest.approx(f.reference.motion_end_s, abs=DT)  # as soon as the reference rests at the end
     np.testing.assert_allclose(f.reference.state(t)[0], path[-1], atol=1e-12)
     assert not f.active
 
@@ -107,7 +107,7 @@ def test_a_new_goal_takes_over_without_a_jump_and_from_where_the_reference_is():
     # the replanned path starts at the robot, a little behind the reference (planning took time): pruned
     f.start(switch, "odom", _line((before[0, 0] - 0.04, 0.0), (1.5, 0.6)), IDS, limits())
     np.testing.assert_allclose(f.reference.state(switch), before, atol=1e-9)
-    t = np.linspace(switch, f.reference.duration_s, 20001)
+    t = np.linspace(switch, f.reference.motion_end_s, 20001)
     p, v, a, j = f.reference.sample(t)
     assert usage(p[:, 2], v, a, j, limits()) <= 1.0 + 1e-6
     assert np.all(np.diff(p[:200, 0]) > 0.0)  # it does not go back to the path's first pose
@@ -156,7 +156,7 @@ def test_cancel_brakes_and_ends_when_the_reference_is_at_rest():
     f.cancel(3.0, limits())
     outcome, t = _run(f, 3.0, 10.0)
     assert outcome.status == "canceled"
-    assert t == pytest.approx(f.reference.duration_s, abs=DT)
+    assert t == pytest.approx(f.reference.motion_end_s, abs=DT)
     np.testing.assert_allclose(f.reference.state(t)[1:], 0.0, atol=1e-12)
     assert f.reference.state(t)[0, 0] < 3.0  # stopped short of the path's end
 
@@ -201,3 +201,12 @@ def test_feedback_keeps_its_20_hz_grid_when_the_periods_jitter():
     fed = [t for t in times if f.due_feedback(float(t), None) is not None]
     assert len(fed) == pytest.approx(times[-1] / FEEDBACK_PERIOD_S, abs=2)  # none lost to the jitter
     assert np.diff(fed).max() < FEEDBACK_PERIOD_S + 0.0125
+
+
+def test_a_short_path_succeeds_when_it_ends_not_when_the_goals_hold_does():
+    f = PathFollower(GoalReference(hold_s=30.0), "odom", TransformTree().lookup, FollowPathSettings())
+    f.start(0.0, "odom", _line((0, 0), (0.3, 0)), IDS, limits())
+    end = f.reference.motion_end_s
+    assert end < 5.0 < f.reference.duration_s
+    outcome, t = _run(f, 0.0, 40.0)
+    assert outcome.status == "succeeded" and t == pytest.approx(end, abs=DT)

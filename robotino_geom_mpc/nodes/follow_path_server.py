@@ -154,7 +154,7 @@ class FollowPathServer:
         self._finish(Outcome("aborted", Nav2Error.NONE, "preempted by a new goal"))
         self.goal, self._done = handle, Future()
         self._node.get_logger().info(f"follow_path: {len(poses)} poses in {goal.path.header.frame_id!r} from "
-                                     f"t = {t:.3f} s, until t = {follower.reference.duration_s:.3f} s")
+                                     f"t = {t:.3f} s, until t = {follower.reference.motion_end_s:.3f} s")
         self._replanned(follower.reference)
         result = await self._done
         return result
@@ -176,7 +176,7 @@ class FollowPathServer:
             return
         t, limits = self._time(), motion_limits(self._values)
         robot = self._robot()
-        pieces = len(follower.reference.pieces), follower.reference.duration_s
+        pieces = list(follower.reference.pieces)
         try:
             if handle.is_cancel_requested and follower.canceling is None:
                 follower.cancel(t, limits)
@@ -186,7 +186,7 @@ class FollowPathServer:
             exc = self._fault(error)
             follower.active = False
             outcome = Outcome("aborted", exc.code, str(exc))
-        if (len(follower.reference.pieces), follower.reference.duration_s) != pieces:
+        if follower.reference.pieces != pieces:  # a correction's replan, a stop: the node publishes it
             self._replanned(follower.reference)
         if outcome is not None:
             self._finish(outcome)

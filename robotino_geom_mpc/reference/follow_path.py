@@ -239,7 +239,7 @@ class PathFollower:
         if not self.active:
             return None
         if self.canceling is not None:
-            return self._end(self.canceling) if t >= self.reference.duration_s else None
+            return self._end(self.canceling) if t >= self.reference.motion_end_s else None
         try:
             transform = self._lookup(self.frame)
             self.reached = self._nearest(t, self.poses, self.transform, self.reached)
@@ -250,7 +250,7 @@ class PathFollower:
             return self._end(Outcome("aborted", exc.code, str(exc)))
         if robot is None:
             return None
-        if t >= self.reference.duration_s and self._at_goal(robot):
+        if t >= self.reference.motion_end_s and self._at_goal(robot):
             return self._end(Outcome("succeeded", Nav2Error.NONE, "reached the goal"))
         x, y, _ = robot
         if self.baseline is None or math.hypot(x - self.baseline[0], y - self.baseline[1]) > \
@@ -315,7 +315,7 @@ class PathFollower:
         for k in range(len(odom)):  # headings unwrapped pose by pose from the reference's
             theta = odom[k, 2] = theta + math.remainder(odom[k, 2] - theta, math.tau)
         if moving and self._same_course(t, odom):
-            end = self.reference.state(self.reference.duration_s)[0]
+            end = self.reference.state(self.reference.motion_end_s)[0]
             try:
                 self.reference.shift(t, odom[-1] - end, limits)
                 self.transform = transform
@@ -332,9 +332,9 @@ class PathFollower:
     def _same_course(self, t: float, poses: np.ndarray) -> bool:
         """Whether every pose (in odom) lies within ``same_course_tolerance`` of the reference's course from t on."""
         tolerance = self.settings.same_course_tolerance
-        if tolerance == 0.0 or self.reference.duration_s <= t:
+        if tolerance == 0.0 or self.reference.motion_end_s <= t:
             return False
-        course = self.reference.position(np.linspace(t, self.reference.duration_s, 300))[:, :2]
+        course = self.reference.position(np.linspace(t, self.reference.motion_end_s, 300))[:, :2]
         a, b = course[:-1], course[1:]
         ab = b - a
         length2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)

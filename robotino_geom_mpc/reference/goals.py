@@ -87,6 +87,13 @@ class GoalReference(Reference):
         self.pieces: list[PolynomialMotion | PathMotion | ShiftedMotion] = []
         self.duration_s = self.hold_s
 
+    @property
+    def motion_end_s(self) -> float:
+        """When the last piece comes to rest (0 before any): after it the reference rests; `duration_s` also covers
+        ``hold_s``.
+        """
+        return self.starts[-1] + self.pieces[-1].duration_s if self.pieces else 0.0
+
     def state(self, t: float) -> np.ndarray:
         """(4, 3): position, velocity, acceleration, jerk of (x, y, theta) at time t."""
         return np.array(self.sample(np.array([float(t)]))).reshape(4, 3)

@@ -1,7 +1,8 @@
 """The trajectory node's ``follow_path`` action server (nav2_msgs/action/FollowPath): Nav2's controller_server role.
 
-Action ``follow_path`` (relative name: remappable, ``<namespace>/follow_path`` in a namespace), served while the
-scenario is ``goals`` (goals are rejected otherwise, and before the reference has started). What a goal does, how
+Action ``follow_path`` (relative name: remappable, ``<namespace>/follow_path`` in a namespace), offered from the
+first time the scenario is ``goals`` and served while it is (goals are rejected otherwise, and before an anchored
+reference has started). What a goal does, how
 it ends and with which error code is `reference.follow_path` (`PathFollower`); this module decodes goals, keeps
 the goal handles and answers:
 
@@ -104,8 +105,7 @@ class FollowPathServer:
         self.follower: PathFollower | None = None
         self.goal: ServerGoalHandle | None = None  # the running goal
         self._done: Future | None = None  # its result, awaited by `_execute`
-        self.server = ActionServer(node, FollowPath, "follow_path", execute_callback=self._execute,
-                                   goal_callback=self._on_goal, cancel_callback=self._on_cancel)
+        self.server: ActionServer | None = None  # made at the first goals reference (none in other scenarios)
 
     def attach(self, reference: object) -> None:
         """Serve goals over `reference` if it is a `GoalReference` (a running goal on another one is aborted)."""
@@ -115,6 +115,9 @@ class FollowPathServer:
                              "or the controller's disable)"))
         self.follower = None if not isinstance(reference, GoalReference) else \
             PathFollower(reference, self._odom_frame(), self._lookup, follow_path_settings(self._values))
+        if self.follower is not None and self.server is None:
+            self.server = ActionServer(self._node, FollowPath, "follow_path", execute_callback=self._execute,
+                                       goal_callback=self._on_goal, cancel_callback=self._on_cancel)
 
     # action callbacks ----------------------------------------------------------------------------
     def _on_goal(self, _request: FollowPath.Goal) -> GoalResponse:

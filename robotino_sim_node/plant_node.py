@@ -65,6 +65,14 @@ Structure: the node is wiring. The robot (plant, odometry, drive, commands check
 `RealtimeGrid`, or `chain_driver.ChainRun` over `loop.chain_robot.ChainRobot`. The subscriptions decode and hand
 each command to the run; `outputs.PlantOutputs` turns the measurements into messages.
 
+One controller at a time: the plant pairs with the first source of commands (``wheel_voltages``, ``cmd_vel`` or
+the plans) after its start or a ``~/release`` (std_srvs/Trigger) and refuses every other one while the paired
+controller has sent within ``pairing.lease_s`` (`loop.robot_loop.RobotLoop.admit`): the refused command is not
+applied (the paired controller's command stays), it is counted (``refused_second_source``, also in the timing
+report) and a throttled warning names the topic's other publishers from the ROS graph (`ros.source_gate`). Its
+``diagnostics`` (diagnostic_msgs/DiagnosticArray, once a second, status ``robotino_geom_mpc: plant``) name the
+paired publisher, the refusals and the last second source.
+
 Start: the node looks for another publisher of its ``odom`` topic on the ROS graph for ``odom_publisher_check_s``
 from its creation, before it publishes anything (`odom_sources`); one found (a real driver's, another simulator's:
 two sources of odometry are a fault), it exits with status 2 and an error naming the publisher's node.
@@ -75,10 +83,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Twist
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.task import Future
 from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
 
 from robotino_geom_mpc.description.urdf import JOINT_NAMES, DescriptionError, check_frame_prefix
 from robotino_geom_mpc.loop.command_hold import warm_up
@@ -93,7 +106,8 @@ from robotino_geom_mpc.params.specs import ParamSpec, RobotinoParams
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.messages import VOLTAGE_LABEL, three_values_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, publish_qos
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS, publish_qos
+from robotino_geom_mpc.ros.source_gate import PAIRING_DEFAULTS, PAIRING_SPECS, SourceGate, WithInfo
 from robotino_geom_mpc.ros.spin import monotonic, run_node
 from robotino_sim_node.chain_driver import CHAIN_NODE_DEFAULTS, CHAIN_NODE_SPECS, ChainRun, chain_of
 from robotino_sim_node.link_params import LINK_DEFAULTS, LINK_SPECS, link_params, link_problem
@@ -107,7 +121,9 @@ from robotino_sim_node.plant_realtime import RealtimeRun
 from robotino_sim_node.radio import Radio
 from robotino_sim_node.plant_run import RunEnd
 
-__all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "main"]
+__all__ = ["PLANT_SPECS", "JOINT_NAMES", "PlantNode", "STATUS_NAME", "main"]
+
+STATUS_NAME = "robotino_geom_mpc: plant"
 
 PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("mode", str, "realtime: wall timers; lockstep: advance one control period per command, publish /clock",
@@ -130,14 +146,14 @@ PLANT_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("plans", bool, "Take the plans (wheel_voltage_plan / cmd_vel_plan) instead of the plain commands "
               "and report what was applied on command_applied"),
     ParamSpec("timing_window_s", float, "Realtime: report the figures per window this long too", "s", 0.0, 1e6, False),
-) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS + LINK_SPECS + CHAIN_NODE_SPECS + ODOM_CHECK_SPECS
+) + ODOMETRY_SPECS + TF_SPECS + WHEEL_PI_SPECS + LINK_SPECS + CHAIN_NODE_SPECS + ODOM_CHECK_SPECS + PAIRING_SPECS
 
 _PLANT_DEFAULTS = {
     "mode": "realtime", "duration_s": 0.0, "physics_rate_hz": 1000.0, "command_timeout_s": 0.1, "seed": 0,
     "lockstep_resend_s": 0.5, "lockstep_max_realtime_factor": 0.0, "lockstep_settle_s": 1.0, "plans": False,
     "odometry_noise.position_m": 0.0, "odometry_noise.yaw_rad": 0.0, "timing_report": "", "timing_window_s": 0.0,
     **ODOMETRY_DEFAULTS, **TF_DEFAULTS, **WHEEL_PI_DEFAULTS, **LINK_DEFAULTS, **CHAIN_NODE_DEFAULTS,
-    **ODOM_CHECK_DEFAULTS,
+    **ODOM_CHECK_DEFAULTS, **PAIRING_DEFAULTS,
 }
 
 _read_command = cdr_reader(Float64MultiArray, "std_msgs/msg/Float64MultiArray")  # other layouts than the controller's
@@ -172,7 +188,8 @@ class PlantNode(Node):
         chain = chain_of(p, lockstep, cmd_vel)
         self.robot_params, self.control = p.robot_control()
         noise = PoseNoise((p["odometry_noise.position_m"], p["odometry_noise.yaw_rad"]), p["seed"])
-        self.robot = RobotLoop(*self._robot_parts(self.robot_params), self.control.period_s, noise)
+        self.robot = RobotLoop(*self._robot_parts(self.robot_params), self.control.period_s, noise,
+                               lease_s=p["pairing.lease_s"])
         up, down = link_params(p.values, "up"), link_params(p.values, "down")
         # the chain takes cmd_vel as the real driver does (its own link, chain.link.*): no plans there
         follower = PlanFollower(self.control.period_s) if p["plans"] and chain is None else None
@@ -184,15 +201,23 @@ class PlantNode(Node):
         self.plans = None if follower is None else PlantPlans(self.outputs, p["command_interface"], follower)
         self.command_layout = three_values_layout(VOLTAGE_LABEL)
         if self.plans is not None:  # lockstep: every answer of a tick is kept
-            self.command_sub = self.create_subscription(self.plans.msg_type, self.plans.topic, self._on_plan, qos)
+            self.gate = SourceGate(self, self.plans.topic)
+            self.command_sub = self.create_subscription(self.plans.msg_type, self.plans.topic,
+                                                        WithInfo(self._on_plan), qos)
         elif cmd_vel:
-            self.command_sub = self.create_subscription(Twist, "cmd_vel", self._on_twist, CONTROL_QOS)
+            self.gate = SourceGate(self, "cmd_vel")
+            self.command_sub = self.create_subscription(Twist, "cmd_vel", WithInfo(self._on_twist),
+                                                        CONTROL_QOS)
         else:
-            self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages", self._on_command,
-                                                        CONTROL_QOS, raw=True)
+            self.gate = SourceGate(self, "wheel_voltages")
+            self.command_sub = self.create_subscription(Float64MultiArray, "wheel_voltages",
+                                                        WithInfo(self._on_command), CONTROL_QOS, raw=True)
+        self.release_srv = self.create_service(Trigger, "~/release", self._on_release)
         handshake = StartHandshake(self, self.command_sub, self.outputs.publishers())
         # nothing published and no callback run yet; the publishers match their readers meanwhile
         check_single_odom_source(self, self.outputs.odom_pub, created, p["odom_publisher_check_s"])
+        self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", PUBLISH_QOS)
+        self.diag_timer = self.create_timer(1.0, self._diagnose, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.run: LockstepRun | RealtimeRun | ChainRun
         if chain is not None:
             warm_up(self.robot.plant, 1.0 / p["physics_rate_hz"])
@@ -231,6 +256,7 @@ class PlantNode(Node):
             self.robot.rebuild(*self._robot_parts(robot, self.robot), self.control.period_s)
         self.outputs.build(self.params, robot, self.control.period_s)
         self.run.on_params()
+        self.robot.set_lease(self.params["pairing.lease_s"])
         if "seed" in changed:
             self.robot.noise.reseed(self.params["seed"])
 
@@ -253,7 +279,36 @@ class PlantNode(Node):
         return plant, source, TwistDrive(plant, speed_loop)
 
     # commands -----------------------------------------------------------------------------------
-    def _on_command(self, data: bytes) -> None:
+    def _admit(self, info: dict[str, Any]) -> bool:
+        """Whether the command (plan) of this message info comes from the paired controller (`RobotLoop.admit`)."""
+        source = self.gate.source(info)
+        if self.robot.admit(source, time.monotonic_ns()):
+            self.gate.note(self.robot.pairing)
+            return True
+        self.gate.refused(self.robot.pairing, source)
+        return False
+
+    def _on_release(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """~/release: the next controller to command takes the robot."""
+        response.success, response.message = True, self.gate.released(self.robot.pairing, self.robot.release())
+        return response
+
+    def _diagnose(self) -> None:
+        pairing = self.robot.pairing
+        refused = pairing.refused_total
+        status = DiagnosticStatus(name=STATUS_NAME, hardware_id="robotino",
+                                  level=DiagnosticStatus.WARN if refused else DiagnosticStatus.OK,
+                                  message=f"second source refused: {self.gate.intruders}" if refused else
+                                  "one source" if pairing.holder is not None else "no commands yet")
+        values = {**self.gate.status(pairing), **{k: str(v) for k, v in self.robot.counts.items()}}
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(msg)
+
+    def _on_command(self, data: bytes, info: dict[str, Any]) -> None:
+        if not self._admit(info):
+            return
         values = self.command_layout.read(data)  # the controller's layout, read in place; else decoded
         if values is None:
             try:
@@ -262,14 +317,16 @@ class PlantNode(Node):
                 values = ()
         self._apply(values)
 
-    def _on_twist(self, msg: Twist) -> None:
-        self._apply((msg.linear.x, msg.linear.y, msg.angular.z))
+    def _on_twist(self, msg: Twist, info: dict[str, Any]) -> None:
+        if self._admit(info):
+            self._apply((msg.linear.x, msg.linear.y, msg.angular.z))
 
     def _apply(self, values: tuple[float, ...]) -> None:
         self.run.command(values)  # checked by the run (the chain forwards only valid ones)
 
-    def _on_plan(self, msg: Any) -> None:
-        if not isinstance(self.run, ChainRun):  # (the chain subscribes to cmd_vel, never to plans)
+    def _on_plan(self, msg: Any, info: dict[str, Any]) -> None:
+        # (the chain subscribes to cmd_vel, never to plans)
+        if not isinstance(self.run, ChainRun) and self._admit(info):
             self.run.plan(msg)
 
 

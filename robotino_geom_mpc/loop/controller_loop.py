@@ -26,6 +26,12 @@ the loop's odom frame), ``stale`` / ``future`` (realtime), ``preview_<reason>`` 
 tick was refused), ``controller`` (the step refused its inputs), ``internal_error`` (a bug: zero and a restart).
 Dropped (counted, a WARN diagnostic, no output): a ``duplicate`` or ``old`` stamp.
 
+One reference source at a time (`loop.source_pairing.SourcePairing`, lease ``reference_timeout_s`` on the watchdog's
+clock): a preview whose `Preview.source` is not the paired one's while that one's previews are fresh is refused
+before any check (``refused_second_source`` counted in every status; no zero, nothing else touched: the loop goes on
+with its paired source); the paired source stale, the next one takes the lease (its reference jump restarts the
+tracking bumplessly).
+
 Bumpless (re)start (`control.blend.BlendEngagement`): at the first tick, after the watchdog, at ``enable``, at a
 preview whose reference jumped (more than ``reference_jump_m`` / ``reference_jump_rad`` from the previous
 preview moved to its stamp) and after new parameters: the controller is reset
@@ -64,6 +70,7 @@ from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.loop.events import (AppliedReport, Command, Diagnostic, EnabledChanged, Level, Log, Now,
                                            Odometry, Output, PlanarOdometry, PlanarPreview, PlanOut, PredictedPath,
                                            Preview, Resend, Undecodable, Waiting, Zero)
+from robotino_geom_mpc.loop.source_pairing import SourcePairing
 from robotino_geom_mpc.loop.inputs import (PLANAR_POINT_SIZE, POINT_SIZE, QUATERNION_NORM_TOLERANCE, REPORT_WINDOW_S,
                                            TILT_TOLERANCE_RAD, InputCounters, InputRejected, planar_preview_arrays,
                                            planar_state, preview_of_values, report_problem, stamp_problem,
@@ -363,6 +370,7 @@ class ControllerLoop:
         self._latest_first: tuple[float, ...] = ()  # its first point's 9 values (position, velocity, acceleration)
         self.last_odom_ns: int | None = None  # stamp of the last odometry used (dt, duplicates, order)
         self.counters = InputCounters()
+        self.sources = SourcePairing(max(1, int(settings.reference_timeout_s * 1e9)))  # previews: one source
         self.blend = BlendEngagement(control.period_s, self.preview_points)
         self.watchdog_state = "waiting"
         self.newest_stamp_s: float | None = None  # plans: the newest odometry stamp planned from [s]
@@ -392,6 +400,7 @@ class ControllerLoop:
         s = self.settings
         self._odom_timeout_ns = int(s.odom_timeout_s * 1e9)
         self._reference_timeout_ns = int(s.reference_timeout_s * 1e9)
+        self.sources.lease_ns = max(1, self._reference_timeout_ns)
         self._future_ns = int(s.future_tolerance_s * 1e9)
         self._tolerances = (s.quaternion_norm_tolerance, s.tilt_tolerance_rad)
         self._jump_limits = (s.reference_jump_m, s.reference_jump_rad)
@@ -446,6 +455,10 @@ class ControllerLoop:
         given.
         """
         self._begin(now)
+        if isinstance(preview, Preview) and preview.source is not None and \
+                not self.sources.admit(preview.source, now.watch_ns):
+            self.counters.second_source += 1  # the paired source goes on: nothing else is touched
+            return self._out
         stamp = preview.stamp_ns
         latest = self.latest_preview
         planar = isinstance(preview, PlanarPreview)

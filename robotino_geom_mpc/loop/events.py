@@ -75,12 +75,14 @@ class PlanarOdometry:
 @dataclass(frozen=True)
 class Preview:
     """A reference preview: its stamp, frame and per point (x, y, q_x, q_y, q_z, q_w, velocity and acceleration
-    (x, y, theta)), flat (`loop.inputs.POINT_SIZE` values a point, any number of points: the loop checks).
+    (x, y, theta)), flat (`loop.inputs.POINT_SIZE` values a point, any number of points: the loop checks); its
+    `source` (the publisher, `loop.source_pairing`; None: not told, every preview is the paired source's).
     """
 
     stamp_ns: int
     frame: str
     values: tuple[float, ...]
+    source: bytes | None = None
 
 
 @dataclass(frozen=True)

@@ -222,6 +222,7 @@ class InputCounters:
         self.last_refusal = "none"
         self.dropped_duplicate = 0
         self.dropped_old = 0
+        self.second_source = 0  # previews of a second source refused (no zero: the paired source goes on)
 
     def refuse(self, reason: str) -> None:
         """Count a refusal with its reason key."""
@@ -237,9 +238,10 @@ class InputCounters:
 
     def values(self) -> list[str]:
         """The diagnostic values of `KEYS`."""
-        return [str(self.rejected), self.last_refusal, str(self.dropped_duplicate), str(self.dropped_old)]
+        return [str(self.rejected), self.last_refusal, str(self.dropped_duplicate), str(self.dropped_old),
+                str(self.second_source)]
 
-    KEYS = ("rejected", "last_refusal", "dropped_duplicate", "dropped_old")
+    KEYS = ("rejected", "last_refusal", "dropped_duplicate", "dropped_old", "refused_second_source")
 
 
 REPORT_WINDOW_S = 2.0

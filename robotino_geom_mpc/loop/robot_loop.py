@@ -34,6 +34,7 @@ from robotino_geom_mpc.loop.command_hold import MAX_CHUNK, CommandHold
 from robotino_geom_mpc.loop.command_link import CommandLink
 from robotino_geom_mpc.loop.events import Level, Log
 from robotino_geom_mpc.loop.plan_follower import ZERO, PlanFollower, Unreadable
+from robotino_geom_mpc.loop.source_pairing import SourcePairing
 from robotino_geom_mpc.model.plant import RobotinoPlant
 from robotino_geom_mpc.model.speed_loop import WheelSpeedLoop
 from robotino_geom_mpc.network.plan import CommandPlan
@@ -132,15 +133,20 @@ class RobotLoop:
     link
         The emulated radio link with the plan buffer or the held command (`loop.command_link.CommandLink`); None:
         the controller's commands go straight to `drive`.
+    lease_s
+        The lease of the controller it pairs with (`admit`): another controller's commands are refused while the
+        paired one has sent within this time [s].
     """
 
     def __init__(self, plant: RobotinoPlant, source: OdometrySource, drive: Drive, period_s: float,
-                 noise: PoseNoise, link: CommandLink | None = None) -> None:
+                 noise: PoseNoise, link: CommandLink | None = None, lease_s: float = 0.5) -> None:
         self.plant, self.source, self.drive_, self.period_s = plant, source, drive, period_s
         self.noise, self.link = noise, link
         self.account = PeriodAccount(voltages=isinstance(drive, TwistDrive))
         self.measured = False  # a fresh measurement was taken (the next carries what the drives did since)
-        self.counts = {"clamped_commands": 0, "refused_commands": 0, "command_timeouts": 0}
+        self.counts = {"clamped_commands": 0, "refused_commands": 0, "command_timeouts": 0,
+                       "refused_second_source": 0}
+        self.pairing = SourcePairing(round(lease_s * 1e9))
 
     def rebuild(self, plant: RobotinoPlant, source: OdometrySource, drive: Drive, period_s: float) -> None:
         """New robot parameters: the plant (at the old one's state), its odometry and drive replaced; the counts,
@@ -157,6 +163,25 @@ class RobotLoop:
         return self.drive_.run(command, self.period_s)
 
     # the node's side: commands checked, measurements with what the drives did --------------------------------
+    def admit(self, source: bytes, now_ns: int) -> bool:
+        """Whether a command (a plan) of `source` at steady time `now_ns` is taken: the robot is driven by one
+        controller at a time (`loop.source_pairing.SourcePairing`: the first after the start or a `release`, until
+        its lease expires). A refused one is counted (``refused_second_source``) and must not be applied: the
+        paired controller's command stays.
+        """
+        if self.pairing.admit(source, now_ns):
+            return True
+        self.counts["refused_second_source"] += 1
+        return False
+
+    def set_lease(self, lease_s: float) -> None:
+        """A new ``pairing.lease_s`` [s] (the lease held goes on under it)."""
+        self.pairing.set_lease(lease_s)
+
+    def release(self) -> bytes | None:
+        """``~/release``: the next controller to command takes the robot; the source released (None: none held)."""
+        return self.pairing.release()
+
     def check_command(self, values: Sequence[float]) -> tuple[Triple, Log | None]:
         """The command to apply for `values` and what to log: not three finite values -> zero (refused, counted);
         voltages beyond the supply -> clamped, as an H-bridge applies them (counted).

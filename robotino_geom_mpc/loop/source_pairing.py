@@ -44,6 +44,10 @@ class SourcePairing:
         self.last_refused: bytes | None = None
         self.handovers = 0  # leases taken (the first included)
 
+    def set_lease(self, lease_s: float) -> None:
+        """A new lease [s] (a positive number; the lease held goes on under it)."""
+        self.lease_ns = max(1, round(lease_s * 1e9))
+
     @property
     def refused_total(self) -> int:
         """Every message refused so far."""

@@ -20,26 +20,39 @@ publishes  ``cmd_vel``          geometry_msgs/Twist in base_link, to the driver:
                                 periods exhausted, the last receipt's age over the plan's basis (one-way delay of
                                 the plan plus the odometry's age at the controller: the loop's round trip)
 
+One controller at a time: the buffer pairs with the first publisher of ``cmd_vel_plan`` after its start or a
+``~/release`` (std_srvs/Trigger) and refuses the plans of any other while the paired one has sent within
+``pairing.lease_s`` (`loop.source_pairing.SourcePairing`; the publishers told apart by `ros.source_gate.SourceGate`):
+a refused plan is not offered to the buffer (the paired controller's plans go on), it is counted
+(``refused_second_source``), a throttled warning and the diagnostics (``paired_source``, ``second_source``) name
+the publishers from the ROS graph.
+
 Clock: the robot's (the node clock; ``use_sim_time`` honoured). A plan stamped far in the future or the past of
 it is refused (`PlanBuffer.offer`'s ``future`` / ``past``), as one with NaN, a wrong length or non-increasing
 times: logged (throttled), counted, the previous plan (or zero) stays.
 
-Parameters: ``control.period_s`` (the plans' period; the config file's value) and `BUFFER_SPECS`.
+Parameters: ``control.period_s`` (the plans' period; the config file's value), `BUFFER_SPECS` and ``pairing.lease_s``.
 """
 
 from __future__ import annotations
+
+import time
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Twist
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, MultiDOFJointTrajectory
 
 from robotino_geom_mpc.loop.plan_follower import IGNORED, PlanDispatcher, PlanFollower
+from robotino_geom_mpc.loop.source_pairing import SourcePairing
 from robotino_geom_mpc.params.specs import CONTROL_SPECS, ParamSpec
 from robotino_geom_mpc.ros.parameters import SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.plans import PlanMessageError, applied_message, plan_of_message, received_message
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, PUBLISH_QOS
+from robotino_geom_mpc.ros.source_gate import PAIRING_DEFAULTS, PAIRING_SPECS, SourceGate, WithInfo
 from robotino_geom_mpc.ros.spin import clock_s, run_node
 from robotino_geom_mpc.ros.throttle import warn_throttled
 
@@ -64,15 +77,21 @@ class CommandBufferNode(Node):
     def __init__(self) -> None:
         super().__init__("robotino_command_buffer")
         period_spec = tuple(s for s in CONTROL_SPECS if s.name == "control.period_s")
-        self.params = SpecParameters(self, period_spec + BUFFER_SPECS, {**spec_defaults(period_spec), **_DEFAULTS},
-                                     fixed=("control.period_s",))
+        self.params = SpecParameters(self, period_spec + BUFFER_SPECS + PAIRING_SPECS,
+                                     {**spec_defaults(period_spec), **_DEFAULTS, **PAIRING_DEFAULTS},
+                                     self._on_params, fixed=("control.period_s",))
+        self.pairing = SourcePairing(1)
+        self.pairing.set_lease(self.params["pairing.lease_s"])
         self.period_s = self.params["control.period_s"]
         self.follower = PlanFollower(self.period_s)
         self.dispatcher = PlanDispatcher(self.follower, self.params["idle_after_s"])
         self.cmd_pub = self.create_publisher(Twist, "cmd_vel", CONTROL_QOS)
         self.report_pub = self.create_publisher(JointTrajectory, "command_applied", PUBLISH_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", PUBLISH_QOS)
-        self.plan_sub = self.create_subscription(MultiDOFJointTrajectory, "cmd_vel_plan", self._on_plan, CONTROL_QOS)
+        self.gate = SourceGate(self, "cmd_vel_plan")
+        self.plan_sub = self.create_subscription(MultiDOFJointTrajectory, "cmd_vel_plan", WithInfo(self._on_plan),
+                                                 CONTROL_QOS)
+        self.release_srv = self.create_service(Trigger, "~/release", self._on_release)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.timer = self.create_timer(POLL_S, self._tick, clock=steady)
         self.diag_timer = self.create_timer(1.0, self._diagnose, clock=steady)
@@ -81,7 +100,20 @@ class CommandBufferNode(Node):
     def _now_s(self) -> float:
         return clock_s(self)
 
-    def _on_plan(self, msg: MultiDOFJointTrajectory) -> None:
+    def _on_params(self, changed: dict) -> None:
+        self.pairing.set_lease(self.params["pairing.lease_s"])
+
+    def _on_release(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """~/release: the next controller to send plans takes the robot."""
+        response.success, response.message = True, self.gate.released(self.pairing, self.pairing.release())
+        return response
+
+    def _on_plan(self, msg: MultiDOFJointTrajectory, info: dict[str, Any]) -> None:
+        source = self.gate.source(info)
+        if not self.pairing.admit(source, time.monotonic_ns()):
+            self.gate.refused(self.pairing, source)
+            return
+        self.gate.note(self.pairing)
         reason: str | None
         try:
             plan = plan_of_message(msg, self.period_s)
@@ -119,12 +151,13 @@ class CommandBufferNode(Node):
         counts = self.follower.counts
         refused = {**dict.fromkeys(_ERRORS, 0), **self.follower.refused}
         status = DiagnosticStatus(name=STATUS_NAME, hardware_id="robotino",
-                                  level=DiagnosticStatus.WARN if counts["refused_plans"] else DiagnosticStatus.OK,
+                                  level=DiagnosticStatus.WARN if counts["refused_plans"] or self.pairing.refused
+                                  else DiagnosticStatus.OK,
                                   message="active" if self.dispatcher.active else "idle")
         values = {"refused": counts["refused_plans"], **{f"refused_{k}": v for k, v in refused.items()},
                   "ignored_older_or_duplicate": counts["ignored_plans"],
                   "exhausted_periods": counts["exhausted_periods"],
-                  "last_round_trip_s": f"{self.dispatcher.round_trip_s:.6f}"}
+                  "last_round_trip_s": f"{self.dispatcher.round_trip_s:.6f}", **self.gate.status(self.pairing)}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()

@@ -65,6 +65,11 @@ answered with a zero twist, noted as well, and enabled again it goes on from its
 plan's braking limit keeps within the firmware's ramps). Its status per tick (message ``chain``) names
 ``preview_stamp_ns``, and every status the node clock ``clock_ns``: a recording of it replays exactly.
 
+One reference source: the loop pairs with the first publisher of ``reference_preview`` (told apart by
+`ros.source_gate.SourceGate`) and refuses the previews of any other while the paired one's are fresh
+(``reference_timeout_s``): counted (``refused_second_source`` in the diagnostics), a throttled warning naming the
+other publishers from the ROS graph; the paired trajectory goes on unaffected (no blending back and forth).
+
 Bumpless (re)start (`control.blend.BlendEngagement`): at the first tick (except tick t = 0 of a lockstep
 run, where robot and reference start together as in `simulate`), after stale data or ``~/enable`` turned
 on again, at a preview whose reference jumped (more than ``reference_jump_m`` / ``reference_jump_rad``
@@ -109,6 +114,7 @@ from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, preview_
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.plans import PlanMessageError, report_of_message
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, LOCKSTEP_PUBLISH_QOS, publish_qos
+from robotino_geom_mpc.ros.source_gate import SourceGate, WithInfo
 from robotino_geom_mpc.ros.spin import run_node
 
 __all__ = ["CONTROLLER_SPECS", "ControllerNode", "main"]
@@ -159,8 +165,9 @@ class ControllerNode(Node):
         # lockstep plans: the previews of the ticks before an odometry's late delivery are all kept
         qos = LOCKSTEP_PUBLISH_QOS if self.params["plans"] and lockstep else CONTROL_QOS
         self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, qos, raw=True)
-        self.preview_sub = self.create_subscription(MultiDOFJointTrajectory, "reference_preview", self._on_preview,
-                                                    qos, raw=True)
+        self.preview_gate = SourceGate(self, "reference_preview")
+        self.preview_sub = self.create_subscription(MultiDOFJointTrajectory, "reference_preview",
+                                                    WithInfo(self._on_preview), qos, raw=True)
         if self.params["plans"]:  # every report (keep-all in lockstep)
             self.report_sub = self.create_subscription(JointTrajectory, "command_applied", self._on_report,
                                                        publish_qos(lockstep))
@@ -234,22 +241,28 @@ class ControllerNode(Node):
             return
         self.outputs.send(self.loop.on_odometry(odom, now))
 
-    def _on_preview(self, data: bytes) -> None:
+    def _on_preview(self, data: bytes, info: dict[str, Any]) -> None:
         now = self._now()
         stamp = None
+        source = self.preview_gate.source(info)
         try:
             values = self.preview_layout.read(data)
             if values is None:
                 msg = _read_preview(data)
                 stamp = time_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)  # a malformed one: refused for its tick
-                preview = Preview(stamp, msg.header.frame_id, preview_point_values(msg, None))
+                preview = Preview(stamp, msg.header.frame_id, preview_point_values(msg, None), source)
             else:
-                preview = Preview(time_ns(values[0], values[1]), self.loop.odom_frame, tuple(values[2:]))
+                preview = Preview(time_ns(values[0], values[1]), self.loop.odom_frame, tuple(values[2:]), source)
         except (MalformedMessage, InputRejected) as exc:
             bad = Undecodable("reference_preview", stamp, getattr(exc, "reason", "malformed"), str(exc))
             self.outputs.send(self.loop.on_undecodable(bad, now))
             return
         self.outputs.send(self.loop.on_preview(preview, now))
+        sources = self.loop.sources
+        if sources.holder == source:
+            self.preview_gate.note(sources)
+        else:
+            self.preview_gate.refused(sources, source)
 
     def _on_report(self, msg: JointTrajectory) -> None:
         now = self._now()

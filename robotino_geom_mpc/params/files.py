@@ -79,7 +79,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "seed", "timing_report", "lockstep_wait_for",
         "odometry_model", "encoder.counts_per_rev", "encoder.wheel_slip_std",
         "command_interface", "wheel_pi.kp", "wheel_pi.ki", "wheel_pi.rate_hz", "publish_tf", "frame_prefix",
-        "publish_joint_states", "plans", "timing_window_s", "odom_publisher_check_s",
+        "publish_joint_states", "plans", "timing_window_s", "odom_publisher_check_s", "pairing.lease_s",
     ) + _CHAIN + _LINK,
     "robotino_trajectory": _ROBOT_CONTROL + (
         "scenario", "mode", "start_settle_s", "clock_timeout_s", "waypoints", "goals.max_velocity_mps",
@@ -96,7 +96,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     ),
     "robot_description_publisher": _ROBOT_CONTROL + ("frame_prefix", "mode"),
     "robotino_goal_sender": ("goals_file", "mode"),
-    "robotino_command_buffer": ("control.period_s", "idle_after_s"),
+    "robotino_command_buffer": ("control.period_s", "idle_after_s", "pairing.lease_s"),
     # a fleet's own nodes (`ros.fleet`; its robots' nodes are the single ones above, in their namespaces)
     "robotino_fleet_trajectory": ("robots",),
     "robotino_fleet_controller": ("robots", "publish_predicted_path"),

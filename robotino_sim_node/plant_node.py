@@ -70,8 +70,9 @@ the plans) after its start or a ``~/release`` (std_srvs/Trigger) and refuses eve
 controller has sent within ``pairing.lease_s`` (`loop.robot_loop.RobotLoop.admit`): the refused command is not
 applied (the paired controller's command stays), it is counted (``refused_second_source``, also in the timing
 report) and a throttled warning names the topic's other publishers from the ROS graph (`ros.source_gate`). Its
-``diagnostics`` (diagnostic_msgs/DiagnosticArray, once a second, status ``robotino_geom_mpc: plant``) name the
-paired publisher, the refusals and the last second source.
+``diagnostics`` (diagnostic_msgs/DiagnosticArray, status ``robotino_geom_mpc: plant``: the paired publisher, the
+refusals, the last second source named, the command counts) go out once a second while commands are refused, and
+once when a controller has taken the robot after a release; a plant driven by one controller publishes none.
 
 Start: the node looks for another publisher of its ``odom`` topic on the ROS graph for ``odom_publisher_check_s``
 from its creation, before it publishes anything (`odom_sources`); one found (a real driver's, another simulator's:
@@ -218,6 +219,7 @@ class PlantNode(Node):
         check_single_odom_source(self, self.outputs.odom_pub, created, p["odom_publisher_check_s"])
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", PUBLISH_QOS)
         self.diag_timer = self.create_timer(1.0, self._diagnose, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.reported = (0, False)  # the refusals last reported; a release not reported yet
         self.run: LockstepRun | RealtimeRun | ChainRun
         if chain is not None:
             warm_up(self.robot.plant, 1.0 / p["physics_rate_hz"])
@@ -291,11 +293,17 @@ class PlantNode(Node):
     def _on_release(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """~/release: the next controller to command takes the robot."""
         response.success, response.message = True, self.gate.released(self.robot.pairing, self.robot.release())
+        self.reported = (self.reported[0], True)
         return response
 
     def _diagnose(self) -> None:
+        """The pairing's status, when there is news: refusals since the last one, or a hand-over after a release."""
         pairing = self.robot.pairing
         refused = pairing.refused_total
+        handed_over = self.reported[1] and pairing.holder is not None
+        if refused == self.reported[0] and not handed_over:
+            return
+        self.reported = (refused, self.reported[1] and not handed_over)
         status = DiagnosticStatus(name=STATUS_NAME, hardware_id="robotino",
                                   level=DiagnosticStatus.WARN if refused else DiagnosticStatus.OK,
                                   message=f"second source refused: {self.gate.intruders}" if refused else

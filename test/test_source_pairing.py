@@ -86,3 +86,29 @@ def test_streams_beyond_forget_drop_the_least_recently_seen():
     assert streams.source(101) == a  # a seen last now
     c = streams.source(5000)  # b is forgotten
     assert streams.source(1001) not in (a, b, c)
+
+
+def test_a_restarted_writer_counting_up_through_a_dead_writers_last_number_stays_itself():
+    """A controller SIGKILLed at sample 520 and restarted: its new samples 1, 2, ... pass 520."""
+    streams = PublicationStreams(window=50)
+    ms = 1_000_000
+    dead = {streams.source(n, n * 10 * ms) for n in range(1, 521)}
+    restart_ns = 520 * 10 * ms + 300 * ms  # 0.3 s later: the dead stream is still remembered
+    alive = {streams.source(n, restart_ns + n * 10 * ms) for n in range(1, 700)}
+    assert len(dead) == 1 and len(alive) == 1 and dead != alive
+    # restarted 3 s after, with a loss right across the dead stream's last number: the dead stream was forgotten
+    # (not heard for stale_ns); remembered, it would have taken the samples from 522 on
+    for stale_s, identities in ((2.0, 1), (10.0, 2)):
+        streams = PublicationStreams(window=50, stale_ns=round(stale_s * 1e9))
+        first = {streams.source(n, n * 10 * ms) for n in range(1, 521)}
+        later = [streams.source(n, 8_200 * ms + n * 10 * ms) for n in (*range(1, 519), *range(522, 600))]
+        assert len(set(later)) == identities and first not in ({s} for s in later[:518])
+
+
+def test_a_tie_between_two_streams_goes_to_the_one_heard_last():
+    streams = PublicationStreams(window=50)
+    a = streams.source(10, 0)
+    b = streams.source(5, 1)
+    assert streams.source(10, 2) == b  # b continues from 5 to 10: both streams' last is 10 now
+    assert streams.source(11, 3) == b  # the tie goes to b, heard last
+    assert streams.source(11, 4) == a  # and a's 11 is a's (b is at 11 already)

@@ -14,10 +14,11 @@ A source is any bytes that tell publishers apart. This rclpy (Jazzy, 7.1) gives 
 (its message info holds the timestamps and the sequence numbers only), so the nodes tell the publishers of a topic
 apart by their DDS writers' sequence numbers (`PublicationStreams`): each writer numbers its samples 1, 2, 3, ...
 on its own, so a message continues the stream whose last number lies just below its own (within
-``window``: the samples a lossy link may lose in a row), and any other number starts a new stream (a new writer,
-or a restarted one). Two writers whose numbers run within ``window`` of each other's (started within
-``window`` messages of each other at the same rate) may be told apart wrongly; the nodes say so (the graph shows
-how many publishers the topic has).
+``window``: the samples a lossy link may lose in a row; of two such streams the closer, then the one heard last),
+and any other number starts a new stream (a new writer, or a restarted one). A stream not heard for ``stale_ns`` is
+forgotten (a writer that died: a restarted one counting up through its last number stays itself). Two live writers
+whose numbers run within ``window`` of each other's (started within ``window`` messages of each other at the same
+rate) may be told apart wrongly.
 """
 
 from __future__ import annotations
@@ -83,27 +84,34 @@ class PublicationStreams:
     window
         The largest step from a stream's last number to its next (lost samples in a row + 1).
     forget
-        Streams kept at most (the oldest is forgotten beyond: writers that left).
+        Streams kept at most (the least recently heard is forgotten beyond).
+    stale_ns
+        A stream not heard for this long is forgotten [ns] (longer than any lease it may hold).
     """
 
-    def __init__(self, window: int = 50, forget: int = 16) -> None:
-        self.window, self.forget = window, forget
-        self.last: dict[bytes, int] = {}  # stream -> its last sequence number
+    def __init__(self, window: int = 50, forget: int = 16, stale_ns: int = 2_000_000_000) -> None:
+        self.window, self.forget, self.stale_ns = window, forget, stale_ns
+        self.last: dict[bytes, tuple[int, int]] = {}  # stream -> its last number, heard at [ns]; least recent first
         self.created = 0
 
-    def source(self, sequence: int | None) -> bytes:
-        """The stream a message numbered `sequence` belongs to (None, no number given: one stream for all)."""
+    def source(self, sequence: int | None, now_ns: int = 0) -> bytes:
+        """The stream a message numbered `sequence` heard at `now_ns` belongs to (None, no number given: one
+        stream for all).
+        """
         if sequence is None:
             return b"-"
+        while self.last and now_ns - next(iter(self.last.values()))[1] > self.stale_ns:
+            del self.last[next(iter(self.last))]
         best: bytes | None = None
-        for stream, last in self.last.items():
-            if last < sequence <= last + self.window and (best is None or last > self.last[best]):
-                best = stream
+        best_last = 0
+        for stream, (last, _) in self.last.items():  # least recently heard first: a tie goes to the later
+            if last < sequence <= last + self.window and (best is None or last >= best_last):
+                best, best_last = stream, last
         if best is None:
             self.created += 1
             best = f"writer-{self.created}".encode()
             if len(self.last) >= self.forget:
                 del self.last[next(iter(self.last))]
         self.last.pop(best, None)
-        self.last[best] = sequence  # (the newest last: the oldest stream first in the dict)
+        self.last[best] = (sequence, now_ns)
         return best

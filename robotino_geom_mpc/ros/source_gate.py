@@ -85,7 +85,7 @@ class SourceGate:
 
     def source(self, info: dict[str, Any]) -> bytes:
         """The source of a message with the message info `info` (a subscription's second argument)."""
-        return self.streams.source(info.get("publication_sequence_number"))
+        return self.streams.source(info.get("publication_sequence_number"), time.monotonic_ns())
 
     def note(self, pairing: SourcePairing) -> None:
         """After a message taken: on a new lease, the topic's publishers now are the paired one(s)."""

@@ -111,3 +111,52 @@ def test_bad_plans_are_refused_and_counted_older_and_duplicates_ignored(buffer_r
     assert {k: int(counts[f"refused_{k}"]) for k in ("nan", "times", "future", "past", "length")} == dict.fromkeys(
         ("nan", "times", "future", "past", "length"), 1)
     assert int(counts["refused"]) == 5 and int(counts["ignored_older_or_duplicate"]) == 2
+
+
+def test_a_second_controllers_plans_are_refused_named_and_taken_after_a_release(tmp_path):
+    """Two controllers' plans on one buffer (issue 38): the first to send is paired, the other's plans are refused
+    (no receipt, counted, named in the diagnostics) until ``~/release``; then the other's next plan is taken.
+    """
+    from rclpy.node import Node
+    from std_srvs.srv import Trigger
+
+    with NodeGroup(log_dir=tmp_path) as group, Harness("first_controller") as h:
+        second = Node("second_controller", context=h.context)
+        h.executor.add_node(second)
+        reports = h.collect("command_applied", JointTrajectory)
+        diagnostics = h.collect("diagnostics", DiagnosticArray)
+        pubs = [h.node.create_publisher(MultiDOFJointTrajectory, "cmd_vel_plan", PUBLISH_QOS)]
+        release = h.node.create_client(Trigger, "/robotino_command_buffer/release")
+        node = group.start("command_buffer_node", ros_args(None, {"control.period_s": TS, "idle_after_s": IDLE_S}))
+        assert h.spin_until(lambda: pubs[0].get_subscription_count() >= 1, 30.0), node.stderr_tail()
+        h.spin_for(0.5)
+        now = lambda: h.node.get_clock().now().nanoseconds * 1e-9  # noqa: E731 - the robot's clock (one host)
+
+        def send(pub, value: float) -> float:
+            t = now()
+            pub.publish(plan_message(_plan(t, t + TS, [(value, 0.0, 0.0)] * 3), "cmd_vel"))
+            h.spin_for(0.15)
+            return t
+
+        def receipts() -> list:
+            return [r.basis_s for r in map(report_of_message, reports) if r.values is None]
+
+        def status() -> dict:
+            return {kv.key: kv.value for kv in diagnostics[-1].status[0].values} if diagnostics else {}
+
+        a1 = send(pubs[0], 0.1)  # paired (the only publisher on the graph then)
+        pubs.append(second.create_publisher(MultiDOFJointTrajectory, "cmd_vel_plan", PUBLISH_QOS))
+        assert h.spin_until(lambda: pubs[1].get_subscription_count() >= 1, 10.0)
+        a1b = send(pubs[0], 0.1)
+        send(pubs[1], 0.2)  # refused: the first controller holds the lease (0.5 s)
+        a2 = send(pubs[0], 0.1)
+        assert h.spin_until(lambda: status().get("refused_second_source") == "1", 5.0), str(status())
+        assert "/second_controller" in status()["second_source"] and "first" not in status()["second_source"]
+        assert "/first_controller" in status()["paired_source"] and "second" not in status()["paired_source"]
+        answer = h._call(release, Trigger.Request(), 10.0)
+        assert answer.success and "/first_controller" in answer.message, answer.message
+        b = send(pubs[1], 0.2)  # the next controller to send takes the buffer
+        a3 = send(pubs[0], 0.1)  # and the first is refused now
+        assert h.spin_until(lambda: status().get("refused_second_source") == "2", 5.0), str(status())
+        group.stop(5.0)
+    assert receipts() == pytest.approx([a1, a1b, a2, b], abs=1e-5), (receipts(), a3)  # not the refused ones

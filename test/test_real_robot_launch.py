@@ -201,3 +201,17 @@ def test_nav2_params_start_nav2_with_the_trajectory_node_in_controller_servers_p
                                                                             "navigate_w_replanning_time.xml"]
     without, _ = launch("real_robot.launch.py")
     assert set(without) == {"trajectory_node", "controller_node"}
+
+
+def test_the_nav2_example_parameters_configure_what_the_launch_starts():
+    import yaml
+
+    from robotino_geom_mpc.description.urdf import BASE_RADIUS_M
+    from robotino_geom_mpc.system.launch_arguments import NAV2_SERVERS
+
+    sections = yaml.safe_load((REPO / "config" / "nav2_robotino.yaml").read_text())
+    assert set(sections) == {name for _, name in NAV2_SERVERS} | {"global_costmap"}  # no controller_server
+    costmap = sections["global_costmap"]["global_costmap"]["ros__parameters"]
+    assert costmap["robot_radius"] == BASE_RADIUS_M
+    assert costmap["global_frame"] == sections["bt_navigator"]["ros__parameters"]["global_frame"] == "map"
+    assert "follow_path_error_code" in sections["bt_navigator"]["ros__parameters"]["error_code_names"]

@@ -210,3 +210,21 @@ def test_a_short_path_succeeds_when_it_ends_not_when_the_goals_hold_does():
     assert end < 5.0 < f.reference.duration_s
     outcome, t = _run(f, 0.0, 40.0)
     assert outcome.status == "succeeded" and t == pytest.approx(end, abs=DT)
+
+
+@pytest.mark.parametrize("use_path_orientations", [False, True])
+def test_headings_by_default_turn_to_the_last_poses_along_the_path(use_path_orientations):
+    # NavFn's path: every pose at yaw 0 but the last, which has the goal's heading; the robot heads 1.2 rad
+    f = PathFollower(GoalReference(start=(0.0, 0.0, 1.2)), "odom", TransformTree().lookup,
+                     FollowPathSettings(use_path_orientations=use_path_orientations))
+    path = _line((0, 0), (1.5, 0))
+    path[-1, 2] = 1.6
+    f.start(0.0, "odom", path, IDS, limits())
+    t = np.linspace(0.0, f.reference.motion_end_s, 4001)
+    p = f.reference.sample(t)[0]
+    np.testing.assert_allclose(p[-1], [1.5, 0.0, 1.6], atol=1e-9)
+    if use_path_orientations:  # through the poses' yaw 0 on the way
+        assert np.abs(p[len(t) // 2, 2]) < 0.05
+    else:  # 1.2 to 1.6 in proportion to the distance along: never near 0, heading and position in step
+        assert p[:, 2].min() > 1.2 - 1e-6
+        np.testing.assert_allclose(p[:, 2], 1.2 + 0.4 * p[:, 0] / 1.5, atol=0.02)

@@ -62,6 +62,9 @@ FOLLOW_PATH_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("follow_path.same_course_tolerance", float, "follow_path: a new path within this distance of the "
               "reference's course (a replan of the same route, a localization correction) moves the reference's end "
               "instead of retiming the path; 0: every new path is retimed", "m", 0.0, 10.0, False),
+    ParamSpec("follow_path.use_path_orientations", bool, "follow_path: true: the heading passes through each pose's "
+              "(Smac, a smoother); false (as MPPI's default): it turns from the robot's to the last pose's along the "
+              "path (NavFn leaves the others at yaw 0)"),
 )
 _DEFAULT_SETTINGS = FollowPathSettings()
 FOLLOW_PATH_DEFAULTS: dict[str, Any] = {spec.name: getattr(_DEFAULT_SETTINGS, spec.attr) for spec in FOLLOW_PATH_SPECS}

@@ -89,6 +89,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
         "follow_path.goal_checker_id", "follow_path.progress_checker_id", "follow_path.xy_goal_tolerance",
         "follow_path.yaw_goal_tolerance", "follow_path.required_movement_radius",
         "follow_path.movement_time_allowance", "follow_path.same_course_tolerance",
+        "follow_path.use_path_orientations",
     ),
     "recorder": _ROBOT_CONTROL + (
         "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",

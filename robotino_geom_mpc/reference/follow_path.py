@@ -9,19 +9,21 @@ A goal
 ------
 ``path`` (nav_msgs/Path: poses a few cm apart, no timestamps, in a frame with a transform to ``odom``) is
 transformed into ``odom`` with the newest transform odom <- path frame (`Lookup`), its headings unwrapped pose by
-pose from the reference's, the poses behind the reference pruned (below), and followed from the reference's full
-state (`GoalReference.follow`: C^3 from the current reference state, within the velocity, acceleration, jerk and
-rim-speed limits). A goal during another replaces its path the same way (bt_navigator replans about once a
-second), so a replan makes no step in the reference and none in the commands.
+pose from the reference's (by default only the last pose's heading counts: ``use_path_orientations``), the poses
+behind the reference pruned (below), and followed from the reference's full state (`GoalReference.follow`: C^3
+from the current reference state, within the velocity, acceleration, jerk and rim-speed limits). A goal during
+another replaces its path the same way (bt_navigator replans about once a second), so a replan makes no step in
+the reference and none in the commands.
 
 Pruning: a planner's path starts at the robot; the poses up to the one nearest the reference (searched from the
 last one reached, within `PRUNE_WINDOW_M` of path length, so a path that loops back is not cut short) are dropped,
 the path is followed from the next.
 
 The same course: a new path whose poses ahead all lie within ``same_course_tolerance`` of the course the reference
-still has to run (bt_navigator's replan of an unchanged route, its end moved a little) is not retimed: the rest of
-the reference is moved by the difference of the ends, eased in over the time it has left (`GoalReference.shift`),
-so the robot goes on at its speed and ends at the new end. Any other path is timed anew from the reference's state
+still has to run, and its end within it of the reference's end (the heading counted as the wheels roll it), is
+bt_navigator's replan of an unchanged route, its end moved a little: it is not retimed. The rest of the reference
+is moved by the difference of the ends, eased in over the time it has left (`GoalReference.shift`), so the robot
+goes on at its speed and ends at the new end. Any other path is timed anew from the reference's state
 (`GoalReference.follow`: its time law starts from rest, the reference's own velocity carried over and braked by the
 blend of `reference.path_timing`).
 
@@ -112,6 +114,10 @@ class FollowPathSettings:
     same_course_tolerance
         A new path within this distance [m] of the reference's course moves its end instead of retiming it (0: every
         new path is retimed).
+    use_path_orientations
+        False (as MPPI's PathAlignCritic by default): the heading turns from the robot's to the last pose's in
+        proportion to the distance along the path (NavFn leaves every pose but the last at yaw 0); True: through each
+        pose's heading (Smac, a smoother).
     required_movement_radius, movement_time_allowance
         SimpleProgressChecker's: the robot moves this far [m] within this long [s], or the goal fails.
     """
@@ -124,6 +130,7 @@ class FollowPathSettings:
     required_movement_radius: float = 0.5
     movement_time_allowance: float = 10.0
     same_course_tolerance: float = 0.1
+    use_path_orientations: bool = False
 
     def __post_init__(self) -> None:
         for name in ("xy_goal_tolerance", "yaw_goal_tolerance", "required_movement_radius",
@@ -314,7 +321,13 @@ class PathFollower:
         theta = float(self.reference.state(t)[0, 2])
         for k in range(len(odom)):  # headings unwrapped pose by pose from the reference's
             theta = odom[k, 2] = theta + math.remainder(odom[k, 2] - theta, math.tau)
-        if moving and self._same_course(t, odom):
+        if not self.settings.use_path_orientations:  # from the heading now to the last pose's, along the path
+            here = self.reference.state(t)[0]
+            xy = np.vstack((here[:2], odom[:, :2]))
+            along = np.cumsum(np.hypot(*np.diff(xy, axis=0).T))
+            share = along / along[-1] if along[-1] > 0.0 else np.ones(len(odom))
+            odom[:, 2] = here[2] + share * (odom[-1, 2] - here[2])
+        if moving and self._same_course(t, odom, limits.robot.l):
             end = self.reference.state(self.reference.motion_end_s)[0]
             try:
                 self.reference.shift(t, odom[-1] - end, limits)
@@ -329,12 +342,17 @@ class PathFollower:
                                   f"{exc}") from None
         self.transform = transform
 
-    def _same_course(self, t: float, poses: np.ndarray) -> bool:
-        """Whether every pose (in odom) lies within ``same_course_tolerance`` of the reference's course from t on."""
+    def _same_course(self, t: float, poses: np.ndarray, weight: float) -> bool:
+        """Whether every pose (in odom) lies within ``same_course_tolerance`` of the reference's course from t on and
+        the last one of its end, heading included (|(dx, dy, `weight` dtheta)|, `weight` the wheel distance: a turn
+        counted as the wheels roll it).
+        """
         tolerance = self.settings.same_course_tolerance
-        if tolerance == 0.0 or self.reference.motion_end_s <= t:
+        end = self.reference.motion_end_s
+        if tolerance == 0.0 or end <= t or \
+                np.linalg.norm((poses[-1] - self.reference.state(end)[0]) * [1.0, 1.0, weight]) > tolerance:
             return False
-        course = self.reference.position(np.linspace(t, self.reference.motion_end_s, 300))[:, :2]
+        course = self.reference.position(np.linspace(t, end, 300))[:, :2]
         a, b = course[:-1], course[1:]
         ab = b - a
         length2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)

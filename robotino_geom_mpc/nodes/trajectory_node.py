@@ -126,6 +126,7 @@ from rclpy.node import Node
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
@@ -225,7 +226,8 @@ class TrajectoryNode(Node):
         reference_time = self._tick_time if lockstep else self._time_since_start
         self.goals = GoalInputs(self, self.params.values, reference_time, self._replanned)
         self.robot_pose: tuple[float, float, float] | None = None  # from the newest odometry (`_watch_robot`)
-        self.frames = TransformTree()  # /tf and /tf_static (`_watch_robot`)
+        self.odom_sub: Subscription | None = None
+        self.frames = TransformTree()  # /tf and /tf_static (goals only: `_use_reference`)
         self.tf_listener: TransformListener | None = None
         self.follow_path = FollowPathServer(self, self.params.values, reference_time, lambda: self.robot_pose,
                                             self._replanned, self.frames.lookup,
@@ -340,15 +342,16 @@ class TrajectoryNode(Node):
         self.follow_path.attach(goals)
         if isinstance(goals, GoalReference):
             self._watch_robot()
+            if self.tf_listener is None:  # follow_path's paths in other frames (an anchor needs no transforms)
+                self.tf_listener = TransformListener(self, self.frames)
             load_splines()  # not at the first path, while the previews wait
 
     def _watch_robot(self) -> None:
-        """Subscribe (once) the robot's odometry (`robot_pose`) and the transforms (`frames`)."""
-        if self.tf_listener is not None:
+        """Subscribe (once) the robot's odometry (`robot_pose`)."""
+        if self.odom_sub is not None:
             return
         self.odom_layout = odometry_layout(self.params["frame_prefix"])
         self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, _POSE_QOS, raw=True)
-        self.tf_listener = TransformListener(self, self.frames)
 
     def _tick_time(self) -> float:
         """Lockstep: the reference time [s] a goal starts at, the latest tick published."""

@@ -285,10 +285,11 @@ class PathFollower:
         without a robot pose) to its end, as Nav2 measures it, and the reference's speed |(x', y')| at `t`.
         """
         odom = transform_planar(self.transform, self.poses)
-        here = np.asarray(robot[:2] if robot is not None else self.reference.state(t)[0, :2])
+        state = self.reference.state(t)
+        here = np.asarray(robot[:2]) if robot is not None else state[0, :2]
         nearest = int(np.argmin(np.hypot(*(odom[:, :2] - here).T)))
         remaining = float(np.sum(np.hypot(*np.diff(odom[nearest:, :2], axis=0).T)))
-        vx, vy = self.reference.state(t)[1, :2]
+        vx, vy = state[1, :2]
         return remaining, math.hypot(vx, vy)
 
     # the reference -----------------------------------------------------------------------------------

@@ -28,6 +28,8 @@ from robotino_geom_mpc.reference.trajectories import Reference
 __all__ = ["GoalReference", "SHIFT_SHARE", "ShiftedMotion"]
 
 SHIFT_SHARE = 0.25  # a shift alone uses at most this share of each limit; shifted, a motion keeps 1 + this share
+# the septic smoothstep's largest first, second and third derivatives (on the grid goal motions are checked on)
+_SEPTIC_PEAKS = [float(np.abs(d).max()) for d in septic(np.linspace(0.0, 1.0, GRID_POINTS))[1:]]
 
 class ShiftedMotion:
     """A piece that goes on with another (`base`, from `offset_s` into it) moved by shifts eased in with the septic:
@@ -160,11 +162,8 @@ class GoalReference(Reference):
         base, offset, shifts = (piece.base, piece.offset_s + since,
                                 [(t0 - since, dk, T) for t0, dk, T in piece.shifts]) \
             if isinstance(piece, ShiftedMotion) else (piece, since, [])
-        tau = np.linspace(0.0, 1.0, GRID_POINTS)
-        _, s1, s2, s3 = septic(tau)
-        peaks = [np.abs(s).max() for s in (s1, s2, s3)]
         bounds = limits.bounds
-        least = max((abs(d[axis]) * peaks[order] / (SHIFT_SHARE * bounds[order, axis])) ** (1.0 / (order + 1))
+        least = max((abs(d[axis]) * _SEPTIC_PEAKS[order] / (SHIFT_SHARE * bounds[order, axis])) ** (1.0 / (order + 1))
                     for order in range(3) for axis in range(3))
         moved = ShiftedMotion(base, offset, shifts + [(0.0, d, max(piece.duration_s - since, least, 1e-3))])
         grid = np.linspace(0.0, moved.duration_s, max(GRID_POINTS, int(moved.duration_s / 0.01)))

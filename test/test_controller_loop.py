@@ -523,3 +523,34 @@ def test_chain_drops_an_older_stamp_and_refuses_an_implausible_pose():
     assert commands(out) == [] and zeros(out) == [] and status(out)["dropped_old"] == "1"
     out = lp.on_odometry(odometry(t + 20 * MS, pose=(1e9, 0.0, 0.0)), at(t + 23 * MS))
     assert zeros(out) == ["implausible"]
+
+
+def test_realtime_a_longer_preview_covers_the_periods_until_the_next():
+    """A preview of N + 10 points (``preview_every`` 10) stamped t_p answers odometries 0..9 periods after it as
+    the exact N + 1 preview of the reference sampled at t_p + m Ts would, moved by the remaining dt (the Taylor
+    step written out); a new preview of the same reference 10 periods on is no jump; the longest one is taken.
+    """
+    every, clock = 10, 1_000 * MS
+    lp, truth_loop = loop(settings=replace(LoopSettings(), reference_timeout_s=0.3)), loop()
+    assert zeros(lp.on_preview(preview(clock, N + every), at(clock))) == []
+    for m in (0, 3, 9):
+        stamp = clock + m * TS_NS + 4 * MS
+        odom = odometry(stamp, pose=(0.01 + 0.001 * m, -0.02, 0.03))
+        out = lp.on_odometry(odom, at(stamp + MS))
+        truth_loop.on_preview(preview(clock + m * TS_NS), at(stamp))  # the exact preview of t_p + m Ts
+        expected = commands(truth_loop.on_odometry(odom, at(stamp + MS)))
+        np.testing.assert_allclose(commands(out)[0].values, expected[0].values, rtol=0, atol=1e-9)
+        assert status(out)["preview_stamp_ns"] == str(clock)
+    out = lp.on_preview(preview(clock + every * TS_NS, N + every), at(clock + every * TS_NS))
+    stamp = clock + every * TS_NS + 4 * MS
+    out = lp.on_odometry(odometry(stamp, pose=(0.02, -0.02, 0.03)), at(stamp + MS))
+    assert status(out)["blend_engagements"] == "1" and status(out)["preview_stamp_ns"] == str(clock + every * TS_NS)
+    # past the preview's rows (a next preview lost): its last rows, carried to second order from there
+    late = clock + every * TS_NS + 14 * TS_NS + 2 * MS
+    out = lp.on_odometry(odometry(late, pose=(0.03, -0.02, 0.03)), at(late))
+    pos, vel, acc = reference((clock + every * TS_NS) * 1e-9, N + every)
+    dt = (late - clock - every * TS_NS - (every - 1) * TS_NS) * 1e-9
+    moved = pos[every - 1:] + dt * vel[every - 1:] + 0.5 * dt * dt * acc[every - 1:]
+    error = state(odometry(late, pose=(0.03, -0.02, 0.03)))[0::2] - moved[0]
+    kv = status(out)
+    assert [float(kv[k]) for k in ("error_x_m", "error_y_m")] == pytest.approx(error[:2].tolist(), abs=1e-9)

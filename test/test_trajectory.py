@@ -13,6 +13,7 @@ from robotino_geom_mpc.reference.trajectories import (
     TrajectoryError,
     make_reference,
     preview,
+    preview_at,
     septic,
     shift_preview,
 )
@@ -189,6 +190,31 @@ def test_shift_preview_moves_points_in_time_to_the_taylor_bound():
                 bound = jerk * abs(dt) ** 3 / 6.0 + 1e-12
                 assert np.all(np.abs(shift_preview(pos, vel, acc, dt) - exact) <= bound)
             np.testing.assert_array_equal(shift_preview(pos, vel, acc, 0.0), pos)
+
+
+def test_preview_at_takes_the_rows_of_the_periods_elapsed_then_the_taylor_step():
+    """A preview of N + 1 + extra points at t_p, asked at t_p + g: rows m = min(g // Ts, extra) .. m + N of the
+    reference sampled at t_p + j Ts, moved by g - m Ts within the Taylor bound of that remainder; a preview of
+    exactly N + 1 points (or a stamp before the preview's) is `shift_preview` by g, bit for bit.
+    """
+    Ts, Ts_ns, N, extra, t_p = 0.01, 10_000_000, 4, 9, 2_000_000_000
+    for ref in references():
+        for start in np.linspace(0.0, ref.duration_s, 13):
+            t0 = t_p + round(start * 1e9)
+            pos, vel, acc, _ = ref.sample(t0 * 1e-9 + Ts * np.arange(N + 1 + extra))
+            for gap in (-3_000_000, 0, 4_000_000, 30_000_000, 93_000_000, 140_000_000):
+                got, got_vel, got_acc = preview_at(t0 + gap, t0, pos, vel, acc, Ts_ns, N + 1)
+                m = min(max(gap // Ts_ns, 0), extra)
+                dt = (gap - m * Ts_ns) * 1e-9
+                exact = ref.sample(t0 * 1e-9 + gap * 1e-9 + Ts * np.arange(N + 1))
+                window = (t0 * 1e-9 + m * Ts + Ts * np.arange(N + 1)[:, None]
+                          + np.linspace(min(dt, 0.0), max(dt, 0.0), 21))
+                jerk = np.abs(ref.sample(window.ravel())[3]).reshape(N + 1, 21, 3).max(axis=1)
+                assert got.shape == (N + 1, 3) and np.all(np.abs(got - exact[0]) <= jerk * abs(dt) ** 3 / 6 + 1e-12)
+                assert np.all(np.abs(got_vel - exact[1]) <= jerk * dt * dt / 2 + 1e-12)
+                np.testing.assert_array_equal(got_acc, acc[m:m + N + 1])
+                short = preview_at(t0 + gap, t0, pos[:N + 1], vel[:N + 1], acc[:N + 1], Ts_ns, N + 1)[0]
+                np.testing.assert_array_equal(short, shift_preview(pos[:N + 1], vel[:N + 1], acc[:N + 1], gap * 1e-9))
 
 
 @pytest.mark.parametrize(

@@ -9,7 +9,8 @@ diagnostics, the predicted path, log lines.
 
 Each odometry is one control tick: one `control.motion_controller.MotionController.step` (three MPCs, eq. 56 ->
 T(theta), eqs. 33-37 -> inverse drive) on the odometry's state (eq. 2) and the preview paired with it, moved to
-its stamp (`reference.trajectories.shift_preview`), the step's ``dt_s`` the interval since the last odometry used
+its stamp (`reference.trajectories.preview_at`: a longer preview's rows of the periods elapsed, then to second
+order), the step's ``dt_s`` the interval since the last odometry used
 (`step_interval`). The pairing is the one difference between the modes, an object chosen at construction:
 
 * `RealtimePairing`: the freshest preview; stamps are checked against the clock handed in (``stale``,
@@ -77,7 +78,7 @@ from robotino_geom_mpc.loop.inputs import (PLANAR_POINT_SIZE, POINT_SIZE, QUATER
                                            state_of_odometry)
 from robotino_geom_mpc.model.driver_chain import ChainParams
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
-from robotino_geom_mpc.reference.trajectories import shift_preview
+from robotino_geom_mpc.reference.trajectories import preview_at
 
 __all__ = ["ControllerLoop", "EVERYONE", "LINK_KEYS", "Listeners", "LockstepPairing", "LoopConfigError",
            "LoopSettings", "QUIET", "RealtimePairing", "TRACKING_KEYS"]
@@ -467,9 +468,9 @@ class ControllerLoop:
             if preview.frame != self.odom_frame:  # another robot's odom, or a prefix mismatch
                 raise InputRejected(f"reference_preview is in frame '{preview.frame}', not in the controller's "
                                     f"'{self.odom_frame}'", "frame")
-            if len(preview.values) != (self.preview_points + 1) * size:
-                raise InputRejected(f"reference_preview has {len(preview.values) // size} points, need N + 1 "
-                                    f"= {self.preview_points + 1}", "size")
+            if len(preview.values) < (self.preview_points + 1) * size or len(preview.values) % size:
+                raise InputRejected(f"reference_preview has {len(preview.values) / size:g} points, need at least "
+                                    f"N + 1 = {self.preview_points + 1}", "size")
             clock = self.pairing.stamp_clock(now)
             if clock is not None:  # lockstep: the trajectory resends previews on purpose, keyed by stamp
                 problem = stamp_problem(stamp, None if latest is None else latest[0], clock,
@@ -491,14 +492,20 @@ class ControllerLoop:
         if latest is None or stamp > latest[0]:
             first = (values[:PLANAR_POINT_SIZE] if planar else
                      (values[0], values[1], float(arrays[0][0, 2]), *values[6:POINT_SIZE]))
-            jump = None if latest is None else _reference_jump(self._latest_first, (stamp - latest[0]) * 1e-9, first,
-                                                               *self._jump_limits)
+            jump = None if latest is None else self._jump_from(latest, stamp, first)
             if jump is not None:
                 self.blend.jump_ns = stamp
                 self._log(Level.WARN, f"{jump}: bumpless restart", "jump")
             self.latest_preview, self._latest_first = (stamp, *arrays), first
         self.pairing.take_preview(self, stamp, arrays)
         return self._out
+
+    def _jump_from(self, latest: _Held, stamp: int, first: Sequence[float]) -> str | None:
+        """`_reference_jump` of the preview stamped `stamp` from the `latest` one's row of the periods elapsed."""
+        gap = stamp - latest[0]
+        m = min(max(gap // self.period_ns, 0), len(latest[1]) - 1)
+        previous = self._latest_first if m == 0 else [float(a[m, j]) for a in latest[1:] for j in range(3)]
+        return _reference_jump(previous, (gap - m * self.period_ns) * 1e-9, first, *self._jump_limits)
 
     def on_undecodable(self, bad: Undecodable, now: Now) -> list[Output]:
         """An input that could not be read: refused (a report: counted as the reports are)."""
@@ -587,11 +594,12 @@ class ControllerLoop:
 
     # the tick ----------------------------------------------------------------------------------------------
     def _control_moved(self, stamp: int, X: np.ndarray, held: _Held) -> None:
-        """A step with the preview `held` moved to `stamp` (positions, velocities to second order)."""
-        preview_stamp, positions, velocities, accelerations = held
-        dt = (stamp - preview_stamp) * 1e-9
-        self._control(stamp, X, shift_preview(positions, velocities, accelerations, dt),
-                      velocities + dt * accelerations, accelerations, preview_stamp)
+        """A step with the preview `held` moved to `stamp` (`reference.trajectories.preview_at`: its rows of the
+        periods elapsed, the rest to second order).
+        """
+        preview_stamp = held[0]
+        self._control(stamp, X, *preview_at(stamp, preview_stamp, *held[1:], self.period_ns, self.preview_points + 1),
+                      preview_stamp)
 
     def _control(self, stamp: int, X: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
                  accelerations: np.ndarray, preview_stamp: int) -> None:
@@ -614,7 +622,7 @@ class ControllerLoop:
                 dt_s = None  # the controller starts over
             else:  # None: one period exactly, or the first tick
                 dt_s = step_interval(stamp, self.last_odom_ns, self.period_ns)
-            preview = positions[1:]
+            preview = positions[1:self.preview_points + 1]  # (a longer preview's rows beyond the horizon unused)
             offsets = self.blend.offsets(stamp)
             if offsets is not None:
                 preview = preview + offsets

@@ -3,7 +3,7 @@
 Topics (relative names)
 -----------------------
 subscribes ``odom``               nav_msgs/Odometry (pose in ``odom``, twist in ``base_link``)
-           ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory (N + 1 points, see trajectory_node)
+           ``reference_preview``  trajectory_msgs/MultiDOFJointTrajectory (N + 1 points or more, see trajectory_node)
 publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layout label ``wheel_voltage_v``
                                   (``command_interface`` voltages, the default), or
            ``cmd_vel``            geometry_msgs/Twist in base_link (``command_interface`` cmd_vel): the MPC's
@@ -40,8 +40,10 @@ publishes what the loop answers. The watchdog's timer, ``~/enable``, a parameter
 Each odometry message is one control tick: the node computes on its arrival. The preview used is the one
 whose stamp equals the odometry stamp in ``lockstep`` (the odometry waits for it if it comes first), the
 freshest in ``realtime``, moved in time to the odometry's stamp with its velocities and accelerations
-(`reference.trajectories.shift_preview`). The step gets ``dt_s`` = the interval between the stamps of this
-odometry and of the last one used (None when it is exactly one period, and after a (re)start).
+(`reference.trajectories.preview_at`; a preview longer than N + 1 points, from a trajectory node
+with ``preview_every`` > 1, gives its rows of the periods elapsed first). The step gets ``dt_s`` = the
+interval between the stamps of this odometry and of the last one used (None when it is exactly one period,
+and after a (re)start).
 
 Time: the stamps of the inputs; in realtime the node clock (``use_sim_time`` honoured) is read once per
 input to check its stamp. The watchdog counts the node clock under ``use_sim_time`` (read at start),
@@ -110,7 +112,7 @@ from robotino_geom_mpc.nodes.controller_outputs import ControllerOutputs
 from robotino_geom_mpc.params.specs import ALL_SPECS, CHAIN_ACTIVE_SPEC, CHAIN_SPECS
 from robotino_geom_mpc.ros.cdr import MalformedMessage, cdr_reader
 from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview_point_values, time_ns
-from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, preview_layout
+from robotino_geom_mpc.ros.messages import ODOM_FRAME, PreviewLayouts, odometry_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.plans import PlanMessageError, report_of_message
 from robotino_geom_mpc.ros.qos import CONTROL_QOS, LOCKSTEP_PUBLISH_QOS, publish_qos
@@ -161,7 +163,7 @@ class ControllerNode(Node):
         self.enable_srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.outputs.send_enabled(self.loop.enabled)
         self.odom_layout = odometry_layout(prefix)  # other frames are read by the general decoder
-        self.preview_layout = preview_layout(control.period_s, self.loop.preview_points, prefix)
+        self.preview_layouts = PreviewLayouts(control.period_s, self.loop.preview_points, prefix)  # longer: learnt
         # lockstep plans: the previews of the ticks before an odometry's late delivery are all kept
         qos = LOCKSTEP_PUBLISH_QOS if self.params["plans"] and lockstep else CONTROL_QOS
         self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, qos, raw=True)
@@ -246,11 +248,12 @@ class ControllerNode(Node):
         stamp = None
         source = self.preview_gate.source(info)
         try:
-            values = self.preview_layout.read(data)
+            values = self.preview_layouts.read(data)
             if values is None:
                 msg = _read_preview(data)
                 stamp = time_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)  # a malformed one: refused for its tick
                 preview = Preview(stamp, msg.header.frame_id, preview_point_values(msg, None), source)
+                self.preview_layouts.learn(data, len(msg.points))
             else:
                 preview = Preview(time_ns(values[0], values[1]), self.loop.odom_frame, tuple(values[2:]), source)
         except (MalformedMessage, InputRejected) as exc:

@@ -38,8 +38,9 @@ sees it (`recorded_run`, ``meta["truth"]`` ``"odometry"``; else ``"ground_truth"
 * tick times and pose: the distinct ``odom`` stamps and, per stamp, its last message (a driver that dispatches
   two samples under one stamp sends the newer second);
 * reference: the reference the controller had, the newest ``reference_preview`` stamped at or before the tick
-  (within its span of N Ts), its point 0 carried to the tick by its velocity and acceleration (second order, as
-  the controller moves it: `reference.trajectories.shift_preview`), else the ``reference_path`` as above;
+  (within its span of N Ts), carried to the tick as the controller carries it (`reference.trajectories.preview_at`:
+  point 0 by its velocity and acceleration, second order; a longer preview's row of the periods elapsed first),
+  else the ``reference_path`` as above;
 * currents, voltages and the commanded twist (``cmd_vel``): the newest message of each published before the
   tick's next odometry (the value in force over the tick); ticks before the first currents or voltages are left
   out, a twist before the first ``cmd_vel`` is zero (nothing commanded yet). Where ``wheel_currents`` (or any
@@ -58,7 +59,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from robotino_geom_mpc.params.specs import ParamError, params_from_values
+from robotino_geom_mpc.params.specs import ControlParams, ParamError, params_from_values
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError, RUN_METADATA
@@ -75,7 +76,7 @@ from robotino_geom_mpc.recording.topics import (
     find_topic,
     read_controller_diagnostics,
 )
-from robotino_geom_mpc.reference.trajectories import shift_preview
+from robotino_geom_mpc.reference.trajectories import preview_at
 from robotino_geom_mpc.ros.cdr import float64_array, odometry_pose, preview_start, values_of
 from robotino_geom_mpc.ros.decode import (
     float64_array_of_message,
@@ -330,37 +331,43 @@ def _path_reference(bag: BagReader) -> Callable[[int], tuple[float, float, float
     return at
 
 
-def _preview_point0(msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Point 0 of a preview: pose, velocity and acceleration (x, y, theta), zeros where it has no derivatives."""
-    if not msg.points or not msg.points[0].transforms:
-        return None
-    point = msg.points[0]
-    tf = point.transforms[0]
-
-    def triple(twists: Any) -> np.ndarray:
-        return np.array((twists[0].linear.x, twists[0].linear.y, twists[0].angular.z)) if twists else np.zeros(3)
-    return (np.array((tf.translation.x, tf.translation.y, yaw(tf.rotation))), triple(point.velocities),
-            triple(point.accelerations))
-
-
-def _preview_reference(bag: BagReader, span_s: float) -> Callable[[int], tuple[float, float, float] | None]:
-    """The reference the controller had at a stamp [ns]: the newest ``reference_preview`` stamped at or before it
-    (within `span_s`), point 0 carried to the stamp (`shift_preview`); the ``reference_path`` otherwise.
+def _preview_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """A preview's points: poses, velocities and accelerations (x, y, theta), each (points, 3), zeros where a
+    point has no derivatives; None when a point has no transform.
     """
-    points: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray] | None] = {}
+    if not msg.points or not all(point.transforms for point in msg.points):
+        return None
+
+    def triple(twists: Any) -> tuple[float, float, float]:
+        return (twists[0].linear.x, twists[0].linear.y, twists[0].angular.z) if twists else (0.0, 0.0, 0.0)
+    poses = np.array([(p.transforms[0].translation.x, p.transforms[0].translation.y, yaw(p.transforms[0].rotation))
+                      for p in msg.points])
+    poses[:, 2] = np.unwrap(poses[:, 2])
+    return (poses, np.array([triple(p.velocities) for p in msg.points]),
+            np.array([triple(p.accelerations) for p in msg.points]))
+
+
+def _preview_reference(bag: BagReader, control: ControlParams) -> Callable[[int], tuple[float, float, float] | None]:
+    """The reference the controller had at a stamp [ns]: the newest ``reference_preview`` stamped at or before it
+    (within its span of N Ts), moved to the stamp as the controller moves it (`reference.trajectories.preview_at`:
+    a longer preview's row of the periods elapsed, to second order from there); the ``reference_path`` otherwise.
+    """
+    read: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray] | None] = {}
     for _, msg in by_publish_time(bag, find_topic(bag, "reference_preview",
                                                   "trajectory_msgs/msg/MultiDOFJointTrajectory", False)):
-        points.setdefault(stamp_ns(msg.header.stamp), _preview_point0(msg))
-    stamps = sorted(s for s, point in points.items() if point is not None)
+        read.setdefault(stamp_ns(msg.header.stamp), _preview_arrays(msg))
+    previews = {stamp: arrays for stamp, arrays in read.items() if arrays is not None}
+    stamps = sorted(previews)
     path_reference = _path_reference(bag)
-    span_ns = round(span_s * 1e9)
+    period_ns = round(control.period_s * 1e9)
+    span_ns, points = control.horizon * period_ns, control.horizon + 1
 
     def at(stamp: int) -> tuple[float, float, float] | None:
         i = bisect_right(stamps, stamp) - 1
         if i < 0 or stamp - stamps[i] > span_ns:
             return path_reference(stamp)
-        position, velocity, acceleration = points[stamps[i]]  # type: ignore[misc]
-        return tuple(shift_preview(position, velocity, acceleration, (stamp - stamps[i]) * 1e-9).tolist())
+        positions = preview_at(stamp, stamps[i], *previews[stamps[i]], period_ns, points)[0]
+        return tuple(positions[0].tolist())
     return at
 
 
@@ -394,7 +401,7 @@ def _odometry_run(bag: BagReader, robot: Any, control: Any, scenario: str, meta:
     cmd_topic = find_topic(bag, "cmd_vel", "geometry_msgs/msg/Twist", False)
     commands = [(p, _twist(m)) for p, m in by_publish_time(bag, cmd_topic)] if "currents" not in series else []
     command_t = [p for p, _ in commands]
-    reference_at = _preview_reference(bag, control.horizon * control.period_s)
+    reference_at = _preview_reference(bag, control)
     rows: list[tuple] = []
     for k, stamp in enumerate(stamps):
         end = begins[stamps[k + 1]] if k + 1 < len(stamps) else None

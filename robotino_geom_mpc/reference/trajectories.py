@@ -54,6 +54,7 @@ __all__ = [
     "make_reference",
     "preview",
     "shift_preview",
+    "preview_at",
 ]
 
 # Default waypoints of point-to-point: along x, a pure rotation in place, a
@@ -436,3 +437,25 @@ def shift_preview(positions: np.ndarray, velocities: np.ndarray, accelerations: 
     (x, y, theta) and their first and second derivatives.
     """
     return positions + dt_s * velocities + (0.5 * dt_s * dt_s) * accelerations
+
+
+def preview_at(stamp_ns: int, preview_stamp_ns: int, positions: np.ndarray, velocities: np.ndarray,
+               accelerations: np.ndarray, period_ns: int, points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The `points` reference points at `stamp_ns` + j Ts, j = 0..points - 1, from a preview stamped `preview_stamp_ns`.
+
+    A preview holds the reference at its stamp + j Ts (eq. 54's x_d(k + j) with derivatives, rows j of the
+    arrays); one longer than `points` (a trajectory node that publishes every few periods) covers the odometries
+    after its stamp: the whole periods m elapsed since the stamp are taken from its rows m.. (as many as it has
+    beyond `points`), the remainder dt = t_k - t_p - m Ts by `shift_preview` (second order; the velocities by
+    the accelerations). A preview of exactly `points` rows, or one newer than the stamp, is moved by dt alone.
+
+    Returns
+    -------
+    positions, velocities, accelerations, each (points, 3).
+    """
+    gap = stamp_ns - preview_stamp_ns
+    m = min(max(gap // period_ns, 0), len(positions) - points)
+    rows = slice(m, m + points)
+    dt = (gap - m * period_ns) * 1e-9
+    velocity, acceleration = velocities[rows], accelerations[rows]
+    return shift_preview(positions[rows], velocity, acceleration, dt), velocity + dt * acceleration, acceleration

@@ -31,7 +31,7 @@ from robotino_geom_mpc.ros.decode import ODOM_FIELDS, POINT_FIELDS, STAMP_FIELDS
 __all__ = [
     "BASE_FRAME", "CURRENT_LABEL", "ODOM_FRAME", "VOLTAGE_LABEL", "ns_to_stamp", "odometry_layout", "odometry_message",
     "path_cdr", "point_values",
-    "preview_layout", "preview_message", "preview_skeleton", "preview_template", "preview_values",
+    "preview_layout", "PreviewLayouts", "preview_message", "preview_skeleton", "preview_template", "preview_values",
     "quaternion_to_yaw", "stamp_to_ns", "three_values", "three_values_layout", "three_values_template",
     "yaw_quaternion_zw", "yaw_to_quaternion",
 ]
@@ -170,6 +170,34 @@ def preview_layout(period_s: float, horizon: int, frame_prefix: str = "") -> Cdr
     """The preview the trajectory node sends, read in place: stamp, then `decode.POINT_FIELDS` of each point."""
     return CdrLayout(preview_skeleton(period_s, horizon, frame_prefix), STAMP_FIELDS + tuple(
         f"points[{j}].{f}" for j in range(horizon + 1) for f in POINT_FIELDS))
+
+
+class PreviewLayouts:
+    """`preview_layout` for each preview length seen: N + 1 points from the start, a longer preview's (a trajectory
+    node publishing every few periods, with the points to cover them) once the general decoder has read one.
+
+    At most `MAX_LENGTHS` lengths are kept (a stray publisher cannot grow it).
+    """
+
+    MAX_LENGTHS = 8
+
+    def __init__(self, period_s: float, horizon: int, frame_prefix: str = "") -> None:
+        self.period_s, self.frame_prefix = period_s, frame_prefix
+        first = preview_layout(period_s, horizon, frame_prefix)
+        self.by_size = {first.size: first}
+
+    def read(self, data: bytes) -> tuple | None:
+        """`CdrLayout.read` with the layout of `data`'s length; None if there is none, or it does not fit."""
+        layout = self.by_size.get(len(data))
+        return None if layout is None else layout.read(data)
+
+    def learn(self, data: bytes, points: int) -> None:
+        """Keep the layout of a preview of `points` points that the general decoder read from `data`."""
+        if len(data) in self.by_size or len(self.by_size) >= self.MAX_LENGTHS or points < 1:
+            return
+        layout = preview_layout(self.period_s, points - 1, self.frame_prefix)
+        if layout.read(data) is not None:
+            self.by_size[len(data)] = layout
 
 
 _STAMP_LENGTH = struct.Struct("<iII")  # a header's stamp (sec, nanosec) and its frame_id's length

@@ -44,7 +44,8 @@ bag            recording directory (default: rosbag2_<date> in the working direc
 robots         N > 0: a fleet of N robots, ``robot1`` .. ``robotN`` (`ros.fleet`): the trajectory, the controller and
                the plant as one process each for the whole fleet (``fleet_trajectory_node``,
                ``fleet_controller_node``, ``fleet_plant_node``: one node per robot in its namespace, its frames
-               prefixed ``robot<k>/``; in lockstep one /clock for the fleet), no description publisher; with no
+               prefixed ``robot<k>/``; in lockstep one /clock for the fleet; in realtime a preview every 10
+               periods, `fleet_realtime_parameters`), no description publisher; with no
                ``namespace``, ``frame_prefix`` auto and no command buffer. 0 (default): one robot
 rviz           true: also start rviz2 with config/robotino.rviz (fixed frame odom, the robot model, TF, the
                reference and predicted paths, the odometry) where rviz2 is installed; where it is not, the
@@ -72,8 +73,8 @@ from launch_ros.substitutions import FindPackageShare
 
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
-from robotino_geom_mpc.system.processes import FLEET_NODES, FRAME_PREFIX_NODES, fleet_wait_for, frame_prefix, \
-    namespace_remaps, recorder_wait_for, robot_names, ros_namespace
+from robotino_geom_mpc.system.processes import FLEET_NODES, FRAME_PREFIX_NODES, fleet_realtime_parameters, \
+    fleet_wait_for, frame_prefix, namespace_remaps, recorder_wait_for, robot_names, ros_namespace
 from robotino_geom_mpc.scenarios import node_parameters
 from robotino_geom_mpc.system.launch_arguments import flag, node_environment, number
 
@@ -122,7 +123,7 @@ def _nodes(context) -> list:
     """
     config = context.launch_configurations
     scenario, params_file = config["scenario"], config["params_file"]
-    robot, _ = load_params(params_file)
+    robot, control = load_params(params_file)
     overrides = node_parameters(scenario, robot)
     lockstep = flag(config, "lockstep")
     mode = "lockstep" if lockstep else "realtime"
@@ -150,6 +151,7 @@ def _nodes(context) -> list:
         return {"executable": FLEET_NODES[name]} if robots else {"executable": name, "name": node_name}
 
     fleet = {"robots": robot_names(robots)} if robots else {}
+    realtime_fleet = fleet_realtime_parameters(control.period_s) if robots and not lockstep else {}
     plant = {**overrides["plant_node"], "mode": mode, "duration_s": number(config, "duration"),
              "seed": number(config, "seed", int), **command, **own("plant_node"), **fleet}
     if robots:  # every robot's loop (and the recorder's) subscriptions, the fleet's /clock read by each robot's
@@ -161,11 +163,11 @@ def _nodes(context) -> list:
     nodes = [
         Node(package=PACKAGE, **kind("trajectory_node", "robotino_trajectory"),
              parameters=[params_file, {**overrides["trajectory_node"], "mode": mode, **own("trajectory_node"),
-                                       **fleet}],
+                                       **fleet, **realtime_fleet.get("trajectory_node", {})}],
              **common),
         Node(package=PACKAGE, **kind("controller_node", "robotino_controller"),
              parameters=[params_file, {**overrides["controller_node"], "mode": mode, **command,
-                                       **own("controller_node"), **fleet}],
+                                       **own("controller_node"), **fleet, **realtime_fleet.get("controller_node", {})}],
              **common),
         plant_node,
         *([] if robots else [_description(config["plant_params"], prefix, mode, **common)]),

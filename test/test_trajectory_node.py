@@ -138,8 +138,11 @@ def test_reference_path_is_latched_for_a_late_subscriber(trajectory):
     assert volatile == []  # published once, not streamed
 
 
-def test_realtime_reference_starts_the_settle_time_after_a_controller_and_odometry_are_there(tmp_path):
-    """No preview without an odom publisher, none for ``start_settle_s`` after; then point 0 follows the reference."""
+@pytest.mark.parametrize("every", [1, 5])
+def test_realtime_reference_starts_the_settle_time_after_a_controller_and_odometry_are_there(tmp_path, every):
+    """No preview without an odom publisher, none for ``start_settle_s`` after; then point 0 follows the reference,
+    a preview every ``preview_every`` periods with N + ``preview_every`` points, each the reference at its time.
+    """
     settle_s = 1.0
     _, control = load_params()
     reference = make_reference("paper-circle")
@@ -149,21 +152,25 @@ def test_realtime_reference_starts_the_settle_time_after_a_controller_and_odomet
         sub = h.node.create_subscription(MultiDOFJointTrajectory, "/realtime/reference_preview",
                                          lambda msg: arrivals.append((time.monotonic(), msg)), DEEP_QOS)
         node = group.start("trajectory_node", ros_args(None, {
-            "mode": "realtime", "scenario": "paper-circle", "start_settle_s": settle_s}) + ["-r", "__ns:=/realtime"])
+            "mode": "realtime", "scenario": "paper-circle", "start_settle_s": settle_s, "preview_every": every})
+            + ["-r", "__ns:=/realtime"])
         assert h.spin_until(lambda: sub.get_publisher_count() >= 1, 30.0), node.stderr_tail()
         h.spin_for(settle_s + 0.5)
         assert arrivals == []  # a controller listens, but no robot sends odometry
         h.node.create_publisher(Odometry, "/realtime/odom", PUBLISH_QOS)
         odometry_at = time.monotonic()
-        assert h.spin_until(lambda: len(arrivals) >= 50, 10.0), node.stderr_tail()
+        assert h.spin_until(lambda: len(arrivals) >= 250 // every, 10.0), node.stderr_tail()
     # the node sees the odom publisher a little after it exists; without the settle the first preview
     # would follow within a control period or two
     assert arrivals[0][0] - odometry_at > settle_s - 0.2
     stamps = np.array([stamp_to_ns(msg.header.stamp) for _, msg in arrivals])
     assert np.all(np.diff(stamps) > 0)
-    assert np.median(np.diff(stamps)) == pytest.approx(control.period_s * 1e9, rel=0.2)  # one per period
+    assert np.median(np.diff(stamps)) == pytest.approx(every * control.period_s * 1e9, rel=0.2)  # one per `every`
     t = (stamps - stamps[0]) * 1e-9  # the reference's time: t = 0 at the first preview
-    np.testing.assert_allclose([positions(msg)[0] for _, msg in arrivals], reference.position(t), atol=1e-12)
+    points = np.arange(control.horizon + every) * control.period_s
+    assert {len(msg.points) for _, msg in arrivals} == {control.horizon + every}
+    for (_, msg), t_k in zip(arrivals, t):
+        np.testing.assert_allclose(positions(msg), reference.position(t_k + points), atol=1e-12)
     assert np.all(positions(arrivals[0][1])[0] == 0.0)  # paper-circle starts at rest at the origin
 
 
@@ -223,6 +230,8 @@ def test_a_silent_clock_is_logged_throttled_with_what_the_node_waits_for(tmp_pat
     ({"scenario": "spiral"}, "scenario"),
     ({"start_settle_s": 120.0}, "start_settle_s"),
     ({"clock_timeout_s": 0.0}, "clock_timeout_s"),
+    ({"mode": "lockstep", "preview_every": 2}, "preview_every"),
+    ({"preview_every": 0}, "preview_every"),
 ])
 def test_refuses_to_start_with_a_bad_parameter(override, name):
     proc = subprocess.run([sys.executable, "-m", "robotino_geom_mpc.nodes.trajectory_node",

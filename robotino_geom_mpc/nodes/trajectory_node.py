@@ -49,7 +49,9 @@ the preview is published. docs/howto/nav2.md has the setup.
 Timing
 ------
 ``realtime``: a timer on the node clock (sim time when ``use_sim_time``)
-publishes the preview every control period; the reference starts (t = 0)
+publishes the preview every control period (every ``preview_every`` periods, each preview that many points
+longer less one, so that it holds the reference until the next: a fleet's previews are then a tenth of its
+messages; ``follow_path`` steps at that rate too); the reference starts (t = 0)
 at the first tick at which, for ``start_settle_s``, a controller has
 subscribed the preview and the graph has shown a publisher of ``odom``
 (the robot or the plant; a plant process starting last can come up a
@@ -164,14 +166,19 @@ TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
               "waits for", "s", 0.0, 3600.0, True),
     ParamSpec("preview_points", int, "Points after the first in each preview; 0: control.horizon (N). A controller "
               "with plans needs its DelayCompensatingController.preview_length", "", 0, 10000, False),
+    ParamSpec("preview_every", int, "Realtime: publish the preview every this many control periods, each with this "
+              "many points more minus one, so that it covers the odometries until the next (the controller takes "
+              "its rows of the periods elapsed); fewer messages for a fleet. The controller's reference_timeout_s "
+              "must exceed preview_every control periods", "", 1, 100, False),
     ParamSpec("start_on_enable", bool, "Realtime: hold the reference's start (its t = 0 point, at rest) until the "
               "controller's controller_enabled is true, and start t = 0 then; a disable holds again"),
     ParamSpec("anchor_to_robot", bool, "Realtime: move the scenario rigidly onto the robot's pose (newest odom) at "
               "the start, so the reference starts where the robot stands, at rest (goals: hold that pose)"),
 )
 _DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1.0, "clock_timeout_s": 5.0,
-             "preview_points": 0, "start_on_enable": False, "anchor_to_robot": False}
-_FIXED = ("mode", "control.period_s", "control.horizon", "clock_timeout_s", "preview_points", "start_on_enable",
+             "preview_points": 0, "preview_every": 1, "start_on_enable": False, "anchor_to_robot": False}
+_FIXED = ("mode", "control.period_s", "control.horizon", "clock_timeout_s", "preview_points", "preview_every",
+          "start_on_enable",
           "anchor_to_robot")
 _REALTIME_ONLY = ("start_on_enable", "anchor_to_robot")
 # the robot's pose for the anchor: only the newest odometry matters, from any publisher (best effort reads both)
@@ -185,6 +192,9 @@ _GAP_FILL_TICKS = 100  # lockstep: the previews of at most this many skipped tic
 def _params_problem(values: dict) -> str | None:
     """Why the node's parameters cannot run: the goal limits' problem, or a realtime feature in lockstep."""
     on = [name for name in _REALTIME_ONLY if values[name]]
+    if values["mode"] == "lockstep" and values["preview_every"] > 1:
+        return ("preview_every > 1 is a realtime feature: in lockstep the controller pairs each tick with the preview "
+                "of its stamp; set it to 1 or use mode realtime")
     if values["mode"] == "lockstep" and on:
         return (f"{' and '.join(on)} {'is a realtime feature' if len(on) == 1 else 'are realtime features'} (a "
                 "real robot started disabled): in lockstep the plant's /clock drives the reference and the simulated "
@@ -262,7 +272,8 @@ class TrajectoryNode(Node):
             self.clock_watch = self.create_timer(self.params["clock_timeout_s"] / 2, self._check_clock,
                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
         else:
-            self.timer = self.create_timer(self.params["control.period_s"], self._on_timer)
+            self.timer = self.create_timer(self.params["control.period_s"] * self.params["preview_every"],
+                                           self._on_timer)
         if self.start_ns is not None:
             self._publish_path(self.start_ns)
         starts = ("; starts on the controller's enable" if self.start_on_enable else "") + \
@@ -394,7 +405,8 @@ class TrajectoryNode(Node):
         return self.grid[k : k + horizon + 1].ravel().tolist()
 
     def _preview_points(self) -> int:
-        return self.params["preview_points"] or self.params["control.horizon"]
+        """Points after the first: ``preview_points`` (or N), and ``preview_every`` - 1 more to cover its period."""
+        return (self.params["preview_points"] or self.params["control.horizon"]) + self.params["preview_every"] - 1
 
     def _publish_preview(self, t_ns: int, reference_t_ns: int, values: list[float] | None = None) -> None:
         """The preview stamped `t_ns` of the reference at `reference_t_ns` (or of the point `values`: lockstep, the

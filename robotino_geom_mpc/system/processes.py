@@ -28,7 +28,8 @@ __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "TIMING_RE
            "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
            "dds_environment",
            "wait_for_exit",
-           "FLEET_NODES", "fleet_arguments", "fleet_wait_for", "frame_prefix", "namespace_remaps", "node_arguments",
+           "FLEET_NODES", "FLEET_PREVIEW_EVERY", "fleet_arguments", "fleet_realtime_parameters", "fleet_wait_for",
+           "frame_prefix", "namespace_remaps", "node_arguments",
            "robot_names", "ros_args", "ros_namespace"]
 
 from robotino_geom_mpc.errors import RobotinoError
@@ -237,6 +238,21 @@ FLEET_NODES = {"recorder_node": "recorder_node", "trajectory_node": "fleet_traje
                "controller_node": "fleet_controller_node", "plant_node": "fleet_plant_node"}
 
 
+FLEET_PREVIEW_EVERY = 10  # a realtime fleet's trajectory nodes publish a preview every this many control periods
+_REFERENCE_TIMEOUT_S = 0.1  # the controller's default reference_timeout_s (`nodes.controller_inputs`)
+
+
+def fleet_realtime_parameters(period_s: float) -> dict[str, dict[str, Any]]:
+    """A realtime fleet's parameters (single node's executable -> parameters): every robot's preview every
+    `FLEET_PREVIEW_EVERY` control periods (``preview_every``: a message of N robots' per tick less for the fleet's
+    processes and its recorder, each preview covering the periods until the next), and its controller's
+    ``reference_timeout_s`` the default's over that period.
+    """
+    return {"trajectory_node": {"preview_every": FLEET_PREVIEW_EVERY},
+            "controller_node": {"reference_timeout_s": round(_REFERENCE_TIMEOUT_S + FLEET_PREVIEW_EVERY * period_s,
+                                                             9)}}
+
+
 def robot_names(count: int) -> list[str]:
     """The namespaces of a fleet of `count` robots: ``robot1`` .. ``robot<count>``."""
     return [f"robot{k}" for k in range(1, count + 1)]
@@ -262,8 +278,14 @@ def fleet_arguments(scenario: str, params_file: str | os.PathLike, duration_s: f
     `robots` robots ``robot1`` .. ``robot<robots>``, each with the nodes' arguments of a single robot's run
     (`node_arguments`: the scenario, the mode, the seed, ...; `overrides` by the single node's executable name),
     as ``robots`` of each fleet process; the recorder at the root records them all. A lockstep plant waits as
-    `fleet_wait_for` says; no robot description publisher.
+    `fleet_wait_for` says; no robot description publisher. Realtime: `fleet_realtime_parameters` under `overrides`.
     """
+    from robotino_geom_mpc.params.files import load_params
+
+    if not lockstep:
+        realtime = fleet_realtime_parameters(load_params(params_file)[1].period_s)
+        overrides = {name: {**realtime.get(name, {}), **(overrides or {}).get(name, {})}
+                     for name in {*realtime, *(overrides or {})}}
     single = node_arguments(scenario, params_file, duration_s, lockstep, seed, bag,
                             wait_for=fleet_wait_for(robots, bag is not None, command_interface),
                             overrides=overrides, odometry=odometry, command_interface=command_interface,

@@ -5,7 +5,8 @@ Side by side for each N (1, 5, 10, 20; quick: 1 and 5), the fleet first:
 * the fleet: `system.processes.fleet_arguments` (``fleet_trajectory_node``, ``fleet_controller_node``,
   ``fleet_plant_node``: one node per robot in each);
 * N separate loops (today's layout): per robot its own trajectory, controller and plant processes in its
-  namespace (`system.processes.node_arguments`; no description publisher, as in the fleet).
+  namespace (`system.processes.node_arguments`; no description publisher, and a preview every 10 periods
+  (`system.processes.fleet_realtime_parameters`), as in the fleet: the figures compare the layouts).
 
 No recorder. The trajectory and controller processes start first; the plants once both have logged that they
 are ready (so every plant's run spans the window). Once every plant is ready too and `SETTLE_S` later, the CPU time
@@ -25,10 +26,11 @@ from pathlib import Path
 from typing import Any
 
 from robotino_geom_mpc.bench.recorder_load import process_cpu_s
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.bench.registry import BenchmarkError, BenchmarkSkipped, benchmark
 from robotino_geom_mpc.system.signals import NODE_MODULES
 from robotino_geom_mpc.system.processes import NodeFailed, NodeGroup, NodeProcess, fleet_arguments, \
-    node_arguments, robot_names
+    fleet_realtime_parameters, node_arguments, robot_names
 
 __all__ = ["FLEET_SIZES", "SETTLE_S", "WINDOW_S", "bench_fleet", "fleet_side", "separate_side"]
 
@@ -126,13 +128,15 @@ def separate_side(robots: int, params: Path, tmp: Path, window_s: float) -> dict
     first: dict[str, list[str]] = {}
     plants: dict[str, list[str]] = {}
     reports = []
+    _, control = load_params(params)
     # the plants start one after the other: the first's run must span the last's start, the settle and the window
     duration = SETTLE_S + window_s + 5.0 + 2.0 * robots
     for namespace in robot_names(robots):
         report = tmp / f"{namespace}_timing.json"
         reports.append(report)
         args = node_arguments(SCENARIO, params, duration, False, namespace=namespace,
-                              overrides={"plant_node": _plant_params(duration, report)})
+                              overrides={**fleet_realtime_parameters(control.period_s),
+                                         "plant_node": _plant_params(duration, report)})
         first[f"trajectory_node@{namespace}"] = args["trajectory_node"]
         first[f"controller_node@{namespace}"] = args["controller_node"]
         plants[f"plant_node@{namespace}"] = args["plant_node"]

@@ -166,8 +166,8 @@ TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
               "waits for", "s", 0.0, 3600.0, True),
     ParamSpec("preview_points", int, "Points after the first in each preview; 0: control.horizon (N). A controller "
               "with plans needs its DelayCompensatingController.preview_length", "", 0, 10000, False),
-    ParamSpec("preview_every", int, "Realtime: publish the preview every this many control periods, each with this "
-              "many points more minus one, so that it covers the odometries until the next (the controller takes "
+    ParamSpec("preview_every", int, "Realtime: publish the preview every this many control periods, each with "
+              "preview_every - 1 more points, so that it covers the odometries until the next (the controller takes "
               "its rows of the periods elapsed); fewer messages for a fleet. The controller's reference_timeout_s "
               "must exceed preview_every control periods", "", 1, 100, False),
     ParamSpec("start_on_enable", bool, "Realtime: hold the reference's start (its t = 0 point, at rest) until the "
@@ -178,8 +178,7 @@ TRAJECTORY_SPECS: tuple[ParamSpec, ...] = (
 _DEFAULTS = {"scenario": "paper-circle", "mode": "realtime", "start_settle_s": 1.0, "clock_timeout_s": 5.0,
              "preview_points": 0, "preview_every": 1, "start_on_enable": False, "anchor_to_robot": False}
 _FIXED = ("mode", "control.period_s", "control.horizon", "clock_timeout_s", "preview_points", "preview_every",
-          "start_on_enable",
-          "anchor_to_robot")
+          "start_on_enable", "anchor_to_robot")
 _REALTIME_ONLY = ("start_on_enable", "anchor_to_robot")
 # the robot's pose for the anchor: only the newest odometry matters, from any publisher (best effort reads both)
 _POSE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -190,7 +189,9 @@ _GAP_FILL_TICKS = 100  # lockstep: the previews of at most this many skipped tic
 
 
 def _params_problem(values: dict) -> str | None:
-    """Why the node's parameters cannot run: the goal limits' problem, or a realtime feature in lockstep."""
+    """Why the node's parameters cannot run: the goal limits' problem, or a realtime feature (``preview_every`` > 1
+    too) in lockstep.
+    """
     on = [name for name in _REALTIME_ONLY if values[name]]
     if values["mode"] == "lockstep" and values["preview_every"] > 1:
         return ("preview_every > 1 is a realtime feature: in lockstep the controller pairs each tick with the preview "

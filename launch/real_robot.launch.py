@@ -54,13 +54,14 @@ from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
 from robotino_geom_mpc.description.urdf import check_frame_prefix
-from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.files import load_params, read_parameter_file
 from robotino_geom_mpc.scenarios import ScenarioError, get_scenario, node_parameters
 from robotino_geom_mpc.system.launch_arguments import NAV2_BEHAVIOR_TREE, NAV2_SERVERS, driver_remaps, flag, \
     node_environment
 from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, frame_prefix, ros_namespace
 
 PACKAGE = "robotino_geom_mpc"
+_CONTROLLER = "robotino_controller"  # the controller node's name: identify's chain file has its section
 
 
 def _reference_only(name: str) -> None:
@@ -100,12 +101,15 @@ def _nodes(context) -> list:
     nodes = [
         Node(package=PACKAGE, executable="trajectory_node", name="robotino_trajectory",
              parameters=[params_file, trajectory], **common),
-        Node(package=PACKAGE, executable="controller_node", name="robotino_controller",
+        Node(package=PACKAGE, executable="controller_node", name=_CONTROLLER,
              parameters=[params_file, *([chain_file] if chain_file else []), controller], **common),
     ]
-    if flag(config, "record"):
+    if flag(config, "record"):  # with the controller's chain.* (stored in the bag: regress replays them)
+        chain = {name: value for name, value in (read_parameter_file(chain_file, _CONTROLLER).items()
+                                                 if chain_file else ()) if name.startswith("chain.")}
         nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
-                          parameters=[params_file, {"output": config["bag"], "scenario": scenario}], **common))
+                          parameters=[params_file, {**chain, "chain.active": "enabled", "output": config["bag"],
+                                                    "scenario": scenario}], **common))
     if nav2_params:
         nodes += _nav2(nav2_params, namespace)
     return nodes

@@ -116,7 +116,9 @@ def test_identifys_chain_file_and_the_arguments_reach_the_nodes(launch, tmp_path
     trajectory = nodes["trajectory_node"].kwargs["parameters"][1]
     assert trajectory["scenario"] == "lemniscate"
     assert trajectory["start_on_enable"] is False and trajectory["anchor_to_robot"] is False
-    assert nodes["recorder_node"].kwargs["parameters"][1] == {"output": str(tmp_path / "bag"), "scenario": "lemniscate"}
+    # the recorder stores the controller's chain (identify's) with the run: regress replays it from the bag
+    assert nodes["recorder_node"].kwargs["parameters"][1] == {
+        **identified.values(), "chain.active": "enabled", "output": str(tmp_path / "bag"), "scenario": "lemniscate"}
     for node in nodes.values():
         assert node.kwargs["namespace"] == "/robotinobase1"
         assert node.kwargs["remappings"] == [("odom", "/robotinobase1/odom"), ("cmd_vel", "/robotinobase1/cmd_vel")]

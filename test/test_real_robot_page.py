@@ -54,7 +54,7 @@ EXPECTED = [  # the page's marked blocks, in order
     ("enable", "ros2 service call /robotino_controller/enable std_srvs/srv/SetBool '{data: true}'"),
     ("disable", "ros2 service call /robotino_controller/enable std_srvs/srv/SetBool '{data: false}'"),
     ("report", "robotino-geom-mpc report circle_bag --out circle_report\n"
-               "robotino-geom-mpc regress circle_bag --chain-params my_chain/chain_params.yaml"),
+               "robotino-geom-mpc regress circle_bag"),
 ]
 TRACK_S = 14.0  # of paper-circle between the enable and the disable (the reference lasts 22 s)
 RMS_BOUND_M, MAX_BOUND_M = 3e-3, 6e-3  # from the enable to the disable
@@ -213,3 +213,5 @@ def test_the_bring_up_drives_the_standin_around_the_circle_and_stops(terminal):
     assert 0.0 < metrics["rms_position_error_m"] < 0.02, metrics
     verdict = re.search(r"PASS: (\d+) of (\d+) ticks compared", said)
     assert verdict and int(verdict.group(1)) > 100, said
+    # the chain identify fitted, from the bag: the launch gave the recorder the controller's chain file
+    assert "its parameters from the run parameters the recorder stored" in said, said

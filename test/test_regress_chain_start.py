@@ -12,6 +12,7 @@ commands from the start, the odometry, previews and statuses from a later time).
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -21,8 +22,10 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from robotino_geom_mpc.loop.controller_loop import ControllerLoop
 from robotino_geom_mpc.loop.events import Command, Diagnostic, Now, Zero
-from robotino_geom_mpc.model.driver_chain import chain_params
-from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.model.driver_chain import ChainParams, chain_params
+from robotino_geom_mpc.params.files import load_params, read_parameter_file
+from robotino_geom_mpc.params.presets import default_params_file
+from robotino_geom_mpc.params.specs import ALL_SPECS
 from robotino_geom_mpc.recording.bag_writer import BagWriter
 from robotino_geom_mpc.recording.regress import regress_bag
 from robotino_geom_mpc.reference.trajectories import make_reference
@@ -67,9 +70,11 @@ def _odometry(stamp: int, pose: np.ndarray, twist: np.ndarray):
     return msg
 
 
-def _run() -> list[tuple[int, str, bytes]]:
-    """(publish time, topic, message) of everything the scripted run sends, in publish order."""
-    loop = ControllerLoop(ROBOT, CONTROL, Now(START, START), interface="cmd_vel", chain=chain_params(),
+def _run(chain: ChainParams | None = None) -> list[tuple[int, str, bytes]]:
+    """(publish time, topic, message) of everything the scripted run sends, in publish order (the controller's
+    chain `chain`, default the preset).
+    """
+    loop = ControllerLoop(ROBOT, CONTROL, Now(START, START), interface="cmd_vel", chain=chain or chain_params(),
                           enabled=False)
     sent: list[tuple[int, str, bytes]] = []
     pose = REF.position(0.0).copy()
@@ -117,12 +122,14 @@ def _send(sent: list[tuple[int, str, bytes]], outputs: list) -> None:
                 out.stamp_ns, bytes((int(out.level),)), out.message, [k.encode() for k in out.keys], out.values)))
 
 
-def _record(path, sent: list[tuple[int, str, bytes]], late: dict[str, int]) -> int:
-    """Write `sent` as a recorder whose subscription to a topic of `late` began at that time; returns the commands
-    written for odometries the recording lacks.
+def _record(path, sent: list[tuple[int, str, bytes]], late: dict[str, int], stored: dict | None = None) -> int:
+    """Write `sent` as a recorder whose subscription to a topic of `late` began at that time (and that stored the
+    run parameters `stored`); returns the commands written for odometries the recording lacks.
     """
     first_odom = min((p for p, topic, _ in sent if topic == "/odom" and p >= late["/odom"]), default=0)
     with BagWriter(path, compression="none") as writer:
+        if stored is not None:
+            writer.store_run_metadata({"scenario": "", "parameters": json.dumps(stored)})
         channels = {topic: writer.add_topic(topic, kind) for topic, kind in TOPICS.items()}
         for publish, topic, data in sorted(sent, key=lambda item: item[0]):
             if publish >= late.get(topic, 0):
@@ -142,3 +149,23 @@ def test_replay_of_a_recording_begun_on_cmd_vel_before_odom(tmp_path, late_ms):
     answers = sum(1 for p, topic, _ in sent if topic == "/odom" and p >= late)
     assert result.chain_source is not None and result.compared == result.ticks == answers
     assert result.max_deviation_v == 0.0 and result.passed, result
+
+
+def test_replay_takes_the_chain_the_recorder_stored(tmp_path):
+    """A controller on an identified chain (not the preset's ramps, timeout or round trip): the recorder stores its
+    ``chain.*`` with the run parameters (as the launch and `run` give them to it), and `regress_bag` replays with
+    them and no parameter file; the same recording without them replays with the preset and does not match.
+    """
+    identified = chain_params({"chain.ramp_translation_m_s2": 0.7, "chain.ramp_rotation_rad_s2": 2.0,
+                               "chain.speed_loop_time_constant_s": 0.04, "chain.driver_phase_s": 0.012})
+    sent = _run(identified)
+    run = {k: v for k, v in read_parameter_file(default_params_file()).items() if k in {s.name for s in ALL_SPECS}}
+    for name, stored in (("stored", {**run, **identified.values(), "chain.active": "enabled"}), ("bare", None)):
+        _record(tmp_path / name, sent, {"/odom": 0}, stored)
+        result = regress_bag(tmp_path / name)
+        if stored is not None:
+            assert result.chain_source == "the run parameters the recorder stored"
+            assert result.max_deviation_v == 0.0 and result.passed and result.compared == result.ticks > 80, result
+        else:
+            assert result.chain_source.startswith("the robocup-logistics preset")
+            assert not result.passed and result.max_deviation_v > 1e-3, result

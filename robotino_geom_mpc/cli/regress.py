@@ -6,7 +6,8 @@ a mismatch, 2 when the recording cannot be used (see `recording.regress`).
 A damaged bag is named in one warning line with what was recovered; the
 verdict covers the ticks that could be read. A chain recording (the controller through the driver chain,
 ``chain.active``; also a real robot's, without ground truth) is replayed by `recording.regress_chain`, with the
-chain's parameters the controller recorded, else ``--chain-params``, else the preset.
+chain's parameters of ``--chain-params``, else those the recording holds (the controller's parameter events, else
+the run parameters the recorder stored), else the preset.
 """
 
 from __future__ import annotations

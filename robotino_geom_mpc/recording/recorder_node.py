@@ -27,7 +27,8 @@ publisher's DDS source timestamp (system clock), so causal order between
 nodes on one machine survives in the bag.
 
 Run parameters: started with the system's ``--params-file`` the recorder
-receives the ``/**`` robot/motor/control parameters too; it stores them (and
+receives the ``/**`` robot/motor/control parameters too, and from the launch
+and `run` the controller's ``chain.*`` (identify's file); it stores them (and
 its ``scenario`` parameter) in an MCAP metadata record ``robotino_geom_mpc``
 written when the bag opens, and in metadata.yaml's custom_data, so a
 recording carries what `report` and `regress` need.
@@ -62,7 +63,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
-from robotino_geom_mpc.params.specs import ALL_SPECS
+from robotino_geom_mpc.params.specs import ALL_SPECS, CHAIN_ACTIVE_SPEC, CHAIN_SPECS
 from robotino_geom_mpc.recording.bag_writer import BagWriter, default_bag_name, default_compression
 from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.definitions import message_class
@@ -93,6 +94,8 @@ class _OwnLoop(CallbackGroup):
 def _hidden(topic: str) -> bool:
     return any(part.startswith("_") for part in topic.split("/") if part)
 
+# the run parameters the recorder declares and stores: the robot, the control, the chain (what `regress` replays)
+_STORED = (*ALL_SPECS, *CHAIN_SPECS, CHAIN_ACTIVE_SPEC)
 
 class RecorderNode(Node):
     """Records topics serialized into a `BagWriter`; see the module docstring for the behaviour."""
@@ -122,7 +125,7 @@ class RecorderNode(Node):
             integer_range=[IntegerRange(from_value=0, to_value=100000, step=1)], **ro))
         self.declare_parameter("scenario", "", ParameterDescriptor(
             description="Scenario name stored with the run parameters (for reports)", **ro))
-        for spec in ALL_SPECS:  # filled from the system's --params-file (/** section); stored, not used
+        for spec in _STORED:  # filled from the system's --params-file (/** section) and the chain's; stored, not used
             self.declare_parameter(spec.name, None, ParameterDescriptor(
                 description=f"{spec.description} (stored in the bag)", dynamic_typing=True, **ro))
 
@@ -151,7 +154,7 @@ class RecorderNode(Node):
 
     def _store_run_parameters(self) -> None:
         values = {}
-        for spec in ALL_SPECS:
+        for spec in _STORED:
             value = self.get_parameter(spec.name).value
             if value is not None:
                 values[spec.name] = value

@@ -30,8 +30,10 @@ publish time. The readings are stepped best first (`_kept`): while many match (a
 the reading), the search stops stepping once the `BEAM` it keeps are known, and keeps those that stepping every
 reading would keep.
 
-The chain's parameters are the controller's own, from its ``/parameter_events`` in the recording, else a
-parameter file (``--chain-params``, `identify`'s), else the robocup-logistics preset (`chain_source` says which).
+The chain's parameters are a parameter file's if one is given (``--chain-params``, `identify`'s), else the
+controller's own from its ``/parameter_events`` in the recording, else those the recorder stored with the run
+(`topics.run_parameters`: the launch and `run` give the recorder the controller's ``chain.*``), else the
+robocup-logistics preset (`chain_source` says which).
 Limits: the controller node's own parameters are the loop's defaults; the watchdog of an exact replay decides on
 the node clock (the node's on steady time).
 """
@@ -56,7 +58,7 @@ from robotino_geom_mpc.params.specs import CHAIN_SPECS, ControlParams, RobotinoP
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviations, PreviewFeed
-from robotino_geom_mpc.recording.topics import by_publish_time, find_topic, stamp_ns
+from robotino_geom_mpc.recording.topics import by_publish_time, find_topic, run_parameters, stamp_ns
 from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
 
 __all__ = ["BEAM", "RECEIVE_MARGIN_S", "WATCHDOG_STALE_NS", "chain_parameters", "regress_chain"]
@@ -130,6 +132,10 @@ def chain_parameters(bag: BagReader, chain_file: str | os.PathLike | None = None
         if values and known <= values.keys():
             return chain_params({k: values[k] for k in known}, where="the controller's recorded parameters"), \
                 "the controller's parameters in the recording", active
+        stored = run_parameters(bag)[0] or {}
+        if known <= stored.keys():
+            return chain_params({k: stored[k] for k in known}, where="the run parameters the recorder stored"), \
+                "the run parameters the recorder stored", active or stored.get("chain.active") == "enabled"
     except ChainError as exc:
         raise BagError(str(exc)) from None
     return chain_params(), "the robocup-logistics preset (the recording holds no chain.* of the controller)", active

@@ -50,7 +50,6 @@ sees it (`recorded_run`, ``meta["truth"]`` ``"odometry"``; else ``"ground_truth"
 
 from __future__ import annotations
 
-import json
 import os
 from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
@@ -62,7 +61,7 @@ import numpy as np
 from robotino_geom_mpc.params.specs import ControlParams, ParamError, params_from_values
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.recording.bag_reader import BagReader
-from robotino_geom_mpc.recording.bagfile import BagError, RUN_METADATA
+from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.definitions import _typestore
 from robotino_geom_mpc.model.kinematics import MotorKinematics
 from robotino_geom_mpc.offline.results import RunData, compute_metrics, write_metrics
@@ -75,6 +74,7 @@ from robotino_geom_mpc.recording.topics import (
     converted_by_publish_time,
     find_topic,
     read_controller_diagnostics,
+    run_parameters,
 )
 from robotino_geom_mpc.reference.trajectories import preview_at
 from robotino_geom_mpc.ros.cdr import float64_array, odometry_pose, preview_start, values_of
@@ -107,23 +107,6 @@ __all__ = [
 def yaw(q: Any) -> float:
     """Yaw (rad) of a quaternion message (ZYX convention)."""
     return yaw_of(q.x, q.y, q.z, q.w)
-
-
-def run_parameters(bag: BagReader) -> tuple[dict[str, Any] | None, str]:
-    """The robot/control parameters (flat dotted names) and scenario stored by the recorder, if any."""
-    record = bag.metadata.get(RUN_METADATA)
-    if record is None:
-        prefix = RUN_METADATA + "."
-        record = {k[len(prefix):]: v for k, v in bag.custom_data.items() if k.startswith(prefix)}
-    scenario = record.get("scenario", "") or ""
-    text = record.get("parameters")
-    if not text:
-        return None, scenario
-    try:
-        values = json.loads(text)
-    except json.JSONDecodeError:
-        raise BagError(f"{bag.path}: the stored run parameters are not valid JSON") from None
-    return (values or None), scenario
 
 
 def resolve_parameters(bag: BagReader, params_file: str | os.PathLike | None):

@@ -4,17 +4,19 @@ replays (`regress`, `regress_plans`, `regress_chain`) all read a bag with.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from typing import Any, Literal, overload
 
 from robotino_geom_mpc.recording.bag_reader import BagReader
-from robotino_geom_mpc.recording.bagfile import BagError, BagMessage
+from robotino_geom_mpc.recording.bagfile import RUN_METADATA, BagError, BagMessage
 from robotino_geom_mpc.recording.definitions import _typestore
 from robotino_geom_mpc.ros.cdr import diagnostics_with
 from robotino_geom_mpc.ros.decode import diagnostics_with_of_message, stamp_ns
 
 __all__ = ["find_topic", "plan_topic", "converted_by_publish_time", "by_publish_time", "TRACKING_KEY",
-           "read_controller_diagnostics", "controller_diagnostics_of_message", "controller_diagnostics", "stamp_ns"]
+           "read_controller_diagnostics", "controller_diagnostics_of_message", "controller_diagnostics", "stamp_ns",
+           "run_parameters"]
 
 _PLAN_TYPES = {"wheel_voltage_plan": "trajectory_msgs/msg/JointTrajectory",
                "cmd_vel_plan": "trajectory_msgs/msg/MultiDOFJointTrajectory"}
@@ -99,3 +101,22 @@ def by_publish_time(bag: BagReader, topic: str | None) -> list[tuple[int, Any]]:
 def controller_diagnostics(msg: Any) -> dict[str, str] | None:
     """Key-values of the controller's tracking status in a DiagnosticArray (None if it has none)."""
     return controller_diagnostics_of_message(msg)[1]
+
+
+def run_parameters(bag: BagReader) -> tuple[dict[str, Any] | None, str]:
+    """The run's parameters (flat dotted names: the robot's, the control's, the chain's) and scenario stored by
+    the recorder, if any.
+    """
+    record = bag.metadata.get(RUN_METADATA)
+    if record is None:
+        prefix = RUN_METADATA + "."
+        record = {k[len(prefix):]: v for k, v in bag.custom_data.items() if k.startswith(prefix)}
+    scenario = record.get("scenario", "") or ""
+    text = record.get("parameters")
+    if not text:
+        return None, scenario
+    try:
+        values = json.loads(text)
+    except json.JSONDecodeError:
+        raise BagError(f"{bag.path}: the stored run parameters are not valid JSON") from None
+    return (values or None), scenario

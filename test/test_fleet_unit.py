@@ -5,6 +5,7 @@ realtime preview's values (the fleet trajectory's cost a robot and tick).
 import numpy as np
 import pytest
 
+from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.ros.fleet import fleet_namespaces
 from robotino_geom_mpc.system.processes import FLEET_NODES, fleet_arguments, node_arguments, robot_names
@@ -43,6 +44,24 @@ def test_fleet_arguments_are_the_single_runs_plus_the_robots():
             assert "joint_states" not in waits and '"joint_states:2"' in single_waits
         assert got == want, name
     assert robot_names(3) == ["robot1", "robot2", "robot3"]
+
+
+def test_a_realtime_fleet_sends_a_preview_every_10_periods_and_its_controllers_wait_for_it():
+    """Realtime: the single run's arguments but the trajectory nodes' ``preview_every`` 10 and the controllers'
+    ``reference_timeout_s`` the default's 0.1 s over those 10 periods; lockstep (above): the single run's.
+    """
+    params = default_params_file()
+    _, control = load_params(params)
+    fleet = fleet_arguments("paper-circle", params, 2.0, False, 2)
+    single = node_arguments("paper-circle", params, 2.0, False)
+    extra = {"trajectory_node": {"preview_every": "10"},
+             "controller_node": {"reference_timeout_s": repr(round(0.1 + 10 * control.period_s, 9))}}
+    for name in ("trajectory_node", "controller_node", "plant_node"):
+        got, want = _params(fleet[FLEET_NODES[name]]), _params(single[name])
+        got.pop("robots")
+        if name == "plant_node":
+            got.pop("lockstep_wait_for"), want.pop("lockstep_wait_for")
+        assert got == {**want, **extra.get(name, {})}, name
 
 
 class _Outputs:

@@ -368,3 +368,7 @@ def test_robots_starts_the_fleets_processes_as_run_does(description):
             assert got.pop("lockstep_wait_for") == fleet_wait_for(3, True)
             want.pop("lockstep_wait_for")
         assert got == want, name
+    # realtime: a preview every 10 periods, the controllers' reference timeout over them (as run --robots)
+    fleet, _ = _launch(description, lockstep="false", robots="3")
+    assert _overrides(fleet["fleet_trajectory_node"])["preview_every"] == 10
+    assert _overrides(fleet["fleet_controller_node"])["reference_timeout_s"] == pytest.approx(0.2, abs=1e-12)

@@ -239,7 +239,6 @@ FLEET_NODES = {"recorder_node": "recorder_node", "trajectory_node": "fleet_traje
 
 
 FLEET_PREVIEW_EVERY = 10  # a realtime fleet's trajectory nodes publish a preview every this many control periods
-_REFERENCE_TIMEOUT_S = 0.1  # the controller's default reference_timeout_s (`nodes.controller_inputs`)
 
 
 def fleet_realtime_parameters(period_s: float) -> dict[str, dict[str, Any]]:
@@ -248,9 +247,11 @@ def fleet_realtime_parameters(period_s: float) -> dict[str, dict[str, Any]]:
     processes and its recorder, each preview covering the periods until the next), and its controller's
     ``reference_timeout_s`` the default's over that period.
     """
+    from robotino_geom_mpc.loop.controller_loop import LoopSettings
+
+    timeout_s = LoopSettings().reference_timeout_s + FLEET_PREVIEW_EVERY * period_s
     return {"trajectory_node": {"preview_every": FLEET_PREVIEW_EVERY},
-            "controller_node": {"reference_timeout_s": round(_REFERENCE_TIMEOUT_S + FLEET_PREVIEW_EVERY * period_s,
-                                                             9)}}
+            "controller_node": {"reference_timeout_s": round(timeout_s, 9)}}
 
 
 def robot_names(count: int) -> list[str]:

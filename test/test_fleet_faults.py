@@ -10,7 +10,7 @@
   stops holds the whole fleet, by design: simulated time stops for everyone, nobody's watchdog fires (it counts
   simulated time) and the run goes on unchanged when the odometry comes back. Robot 2's odometry goes through a
   relay in the test (the fleet plant's ``/robot2/odom`` remapped to ``/robot2/odom_plant``) that drops it for
-  1.5 s: meanwhile no robot's tick advances past robot 2's first lost one, the fleet plant resends robot 2's
+  2 s: meanwhile no robot's tick advances past robot 2's first lost one, the fleet plant resends robot 2's
   tick and holds the others' (their resend counts 0), and afterwards every robot's run, read by a probe in its
   namespace, equals its single-robot run (`simulation.run_scenario`) to 1e-9.
 """
@@ -88,7 +88,9 @@ def test_the_fleet_controller_killed_every_robots_plant_stops_within_its_watchdo
 
 LOCKSTEP_S = 2.0
 STOP_AT_S = 0.5  # robot 2's odometry is dropped from its first tick at or after this simulated time
-OUTAGE_S = 1.5  # wall time: three of the plant's resends (lockstep_resend_s 0.5 s) lost too
+# wall time: the tick and at least two resends lost too (lockstep_resend_s 0.5 s, checked every 0.25 s: each resend
+# comes 0.5-0.75 s after the send before it, so the second by 1.5 s; 1.5 s itself put it on the outage's edge)
+OUTAGE_S = 2.0
 
 
 def test_lockstep_one_robots_odometry_stopping_holds_the_fleet_and_changes_no_run(tmp_path):

@@ -116,8 +116,6 @@ def test_the_nodes_import_no_pip_only_solver():
 NOT_LOOP_ADAPTERS = {
     "robotino_geom_mpc/nodes/__init__.py": "the package",
     "robotino_sim_node/__init__.py": "the package",
-    "robotino_geom_mpc/nodes/trajectory_node.py": "the reference's source: the time law on the node clock (no loop)",
-    "robotino_geom_mpc/nodes/goal_inputs.py": "the trajectory node's goals and paths (no loop)",
     "robotino_geom_mpc/nodes/goal_sender.py": "a goal file sent on the node clock (no loop)",
     "robotino_geom_mpc/nodes/robot_description_node.py": "the URDF and the wheels' joint states (no loop)",
     "robotino_sim_node/loop_timing.py": "the run's timing statistics on the steady clock: measures the host",
@@ -143,8 +141,7 @@ WIRING = {
 # when a parameter set is validated (a realtime-only feature refused in lockstep)
 CONSTRUCTION = {"__init__", "chain_of", "_params_problem"}
 # the node modules that run no loop but choose the mode once too (checked for that only)
-MODE_ONLY = ("robotino_geom_mpc/nodes/trajectory_node.py", "robotino_geom_mpc/nodes/goal_inputs.py",
-             "robotino_geom_mpc/nodes/goal_sender.py", "robotino_geom_mpc/nodes/robot_description_node.py")
+MODE_ONLY = ("robotino_geom_mpc/nodes/goal_sender.py", "robotino_geom_mpc/nodes/robot_description_node.py")
 
 
 def _subjects(expr: ast.AST) -> set[str]:
@@ -228,8 +225,8 @@ def _loop_adapters() -> list[Path]:
 @pytest.mark.unit
 def test_the_node_modules_hold_no_control_decisions():
     adapters = _loop_adapters()
-    assert {"controller_node.py", "plant_node.py", "command_buffer_node.py", "chain_driver.py"} <= \
-        {f.name for f in adapters}
+    assert {"controller_node.py", "plant_node.py", "command_buffer_node.py", "chain_driver.py",
+            "trajectory_node.py"} <= {f.name for f in adapters}
     found = [line for f in adapters for line in control_decisions(str(f.relative_to(ROOT)), f.read_text())]
     found += [line for path in MODE_ONLY for line in control_decisions(path, (ROOT / path).read_text(),
                                                                       arithmetic=False)]

@@ -48,6 +48,9 @@ the preview is published. docs/howto/nav2.md has the setup.
 
 Timing
 ------
+The decisions below are `loop.reference_clock`'s (`RealtimeStart`, `LockstepPreviews`); the node reads the clock,
+the graph and ``controller_enabled`` for them and publishes what they answer.
+
 ``realtime``: a timer on the node clock (sim time when ``use_sim_time``)
 publishes the preview every control period (every ``preview_every`` periods, each preview that many points
 longer less one, so that it holds the reference until the next: a fleet's previews are then a tenth of its
@@ -133,6 +136,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from robotino_geom_mpc.loop.reference_clock import LockstepPreviews, RealtimeStart, Tick, path_stamps
 from robotino_geom_mpc.nodes.follow_path_server import FOLLOW_PATH_DEFAULTS, FOLLOW_PATH_SPECS, FollowPathServer
 from robotino_geom_mpc.reference.anchor import anchored
 from robotino_geom_mpc.reference.frames import TransformTree
@@ -142,7 +146,7 @@ from robotino_geom_mpc.params.specs import ALL_SPECS, ParamSpec
 from robotino_geom_mpc.nodes.goal_inputs import GOAL_DEFAULTS, GOAL_SPECS, GoalInputs, goal_params_problem
 from robotino_geom_mpc.reference.trajectories import Reference, TrajectoryError
 from robotino_geom_mpc.ros.cdr import CdrLayout, CdrTemplate, MalformedMessage, cdr_reader
-from robotino_geom_mpc.ros.decode import InputRejected, check_yaw_quaternion, odometry_values, yaw_of
+from robotino_geom_mpc.ros.decode import InputRejected, check_yaw_quaternion, odometry_values, time_ns, yaw_of
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, odometry_layout, path_cdr, point_values, preview_template, \
     preview_values
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
@@ -185,22 +189,21 @@ _POSE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Rel
 _read_odom = cdr_reader(Odometry, "nav_msgs/msg/Odometry")  # odometry in frames the in-place layout does not read
 _GOAL_PATH_STEP = 5  # after a goal, reference_path has a pose every this many control periods
 _WAIT_LOG_PERIOD_S = 5.0  # at most one "waiting for /clock" line per this long (or per clock_timeout_s if longer)
-_GAP_FILL_TICKS = 100  # lockstep: the previews of at most this many skipped ticks are sent late
 
 
-def _params_problem(values: dict) -> str | None:
+def _params_problem(given: dict) -> str | None:
     """Why the node's parameters cannot run: the goal limits' problem, or a realtime feature (``preview_every`` > 1
     too) in lockstep.
     """
-    on = [name for name in _REALTIME_ONLY if values[name]]
-    if values["mode"] == "lockstep" and values["preview_every"] > 1:
+    on = [name for name in _REALTIME_ONLY if given[name]]
+    if given["mode"] == "lockstep" and given["preview_every"] > 1:
         return ("preview_every > 1 is a realtime feature: in lockstep the controller pairs each tick with the preview "
                 "of its stamp; set it to 1 or use mode realtime")
-    if values["mode"] == "lockstep" and on:
+    if given["mode"] == "lockstep" and on:
         return (f"{' and '.join(on)} {'is a realtime feature' if len(on) == 1 else 'are realtime features'} (a "
                 "real robot started disabled): in lockstep the plant's /clock drives the reference and the simulated "
                 "robot starts at the origin with it; set them false or use mode realtime")
-    return goal_params_problem(values)
+    return goal_params_problem(given)
 
 
 def _same_waypoints(a: np.ndarray | None, b: np.ndarray | None) -> bool:
@@ -234,6 +237,9 @@ class TrajectoryNode(Node):
         lockstep = self.params["mode"] == "lockstep"  # the mode, chosen here once
         self.start_on_enable, self.anchor_to_robot = self.params["start_on_enable"], self.params["anchor_to_robot"]
         self.anchor: tuple[float, float, float] | None = None  # anchor_to_robot: the pose at the start
+        # the timing (`loop.reference_clock`): realtime the start; lockstep the ticks, t = 0 at simulated time 0
+        self.start = RealtimeStart(self.params["start_settle_s"], self.start_on_enable, 0 if lockstep else None)
+        self.ticks = LockstepPreviews(self.params["control.period_s"])
         reference_time = self._tick_time if lockstep else self._time_since_start
         self.goals = GoalInputs(self, self.params.values, reference_time, self._replanned)
         self.robot_pose: tuple[float, float, float] | None = None  # from the newest odometry (`_watch_robot`)
@@ -252,14 +258,9 @@ class TrajectoryNode(Node):
             event_callbacks=PublisherEventCallbacks(matched=self._on_preview_matched) if lockstep else None,
         )
         self.path_pub = self.create_publisher(Path, "reference_path", LATCHED_QOS)
-        self.last_clock_ns: int | None = None
-        self.last_published_ns: int | None = None
-        self.start_ns: int | None = 0 if lockstep else None  # node-clock time of the reference's t = 0
-        self.subscribed_since: int | None = None  # realtime: node-clock time since which the start condition holds
         self.odom_topic = self.resolve_topic_name("odom")  # realtime: its publisher is part of the start condition
         if self.anchor_to_robot:
             self._watch_robot()
-        self.controller_enabled = False  # start_on_enable: the controller's state (controller_enabled)
         self.holding = False  # start_on_enable: publishing the start at rest, waiting for the enable
         self.hold_checked_at = 0.0  # steady time the hold last looked for a publisher of controller_enabled
         if self.start_on_enable:
@@ -275,8 +276,8 @@ class TrajectoryNode(Node):
         else:
             self.timer = self.create_timer(self.params["control.period_s"] * self.params["preview_every"],
                                            self._on_timer)
-        if self.start_ns is not None:
-            self._publish_path(self.start_ns)
+        if self.start.start_ns is not None:
+            self._publish_path(self.start.start_ns)
         starts = ("; starts on the controller's enable" if self.start_on_enable else "") + \
             ("; anchored at the robot's pose" if self.anchor_to_robot else "")
         self.get_logger().info(
@@ -367,13 +368,11 @@ class TrajectoryNode(Node):
 
     def _tick_time(self) -> float:
         """Lockstep: the reference time [s] a goal starts at, the latest tick published."""
-        return (self.last_published_ns or 0) * 1e-9
+        return self.ticks.reference_s()
 
     def _time_since_start(self) -> float:
         """Realtime: the reference time [s] a goal starts at, now (0 before the start)."""
-        if self.start_ns is None:
-            return 0.0
-        return (self.get_clock().now().nanoseconds - self.start_ns) * 1e-9
+        return self.start.reference_s(self.get_clock().now().nanoseconds)
 
     def _replanned(self, reference: GoalReference | Reference) -> None:
         """The reference changed: rebuild the lockstep table, publish the path again.
@@ -382,12 +381,13 @@ class TrajectoryNode(Node):
         of the whole run would stall the previews for as long as its thousands of poses take to build.
         """
         self.grid = None
-        if self.start_ns is None:
+        start = self.start.start_ns
+        if start is None:
             return
         if isinstance(reference, GoalReference) and reference.pieces:
-            self._publish_path(self.start_ns, reference.starts[-1], _GOAL_PATH_STEP)
+            self._publish_path(start, reference.starts[-1], _GOAL_PATH_STEP)
         else:
-            self._publish_path(self.start_ns)
+            self._publish_path(start)
 
     # publishing ---------------------------------------------------------------------------------
     def _grid_values(self, t_ns: int) -> list[float] | None:
@@ -397,11 +397,11 @@ class TrajectoryNode(Node):
         `simulation.run_scenario` samples its targets, so the positions are those of the offline loop.
         """
         period_s, horizon = self.params["control.period_s"], self._preview_points()
-        k, off = divmod(t_ns, self._period_ns())
+        k = self.ticks.grid_index(t_ns)
         if self.grid is None:
             times = np.arange(int(self.reference.duration_s / period_s) + horizon + 2) * period_s
             self.grid = point_values(*self.reference.sample(times)[:3])
-        if off or k < 0 or k + horizon >= len(self.grid):
+        if k is None or k + horizon >= len(self.grid):
             return None
         return self.grid[k : k + horizon + 1].ravel().tolist()
 
@@ -419,7 +419,7 @@ class TrajectoryNode(Node):
         if values is None:
             values = preview_values(self.reference, reference_t_ns, period_s, horizon)
         publish_acknowledged(self, self.preview_pub, self.preview_cdr.pack(*divmod(t_ns, 1_000_000_000), *values))
-        self.last_published_ns = t_ns
+        self.ticks.published(t_ns)
 
     def _on_clock(self, data: bytes) -> None:
         values = self.clock_layout.read(data)
@@ -427,10 +427,7 @@ class TrajectoryNode(Node):
             warn_throttled(self.get_logger(), f"undecodable /clock ({len(data)} bytes) ignored", 1.0)
             return
         self.clock_heard_at = monotonic()
-        now = values[0] * 1_000_000_000 + values[1]
-        # the preview of the tick itself only on the first tick, a jump, or a resent tick
-        self._publish_ahead(now, current=now == self.last_clock_ns or self.last_published_ns != now)
-        self.last_clock_ns = now
+        self._publish_ticks(self.ticks.on_clock(time_ns(values[0], values[1])))
         self.follow_path.tick()
 
     def _check_clock(self) -> None:
@@ -440,7 +437,8 @@ class TrajectoryNode(Node):
         if waited < timeout:
             return
         topic = self.clock_sub.topic_name
-        last = "none" if self.last_clock_ns is None else f"{self.last_clock_ns * 1e-9:g} s"
+        last_s = self.ticks.last_clock_s()
+        last = "none" if last_s is None else f"{last_s:g} s"
         warn_throttled(
             self.get_logger(),
             f"lockstep: no clock on {topic} for {waited:.1f} s (last tick: {last}): waiting for the plant's next "
@@ -450,54 +448,38 @@ class TrajectoryNode(Node):
 
     def _on_preview_matched(self, info: QoSPublisherMatchedInfo) -> None:
         """Lockstep: a new subscription gets the previews of the current tick (those sent before missed it)."""
-        if info.current_count_change > 0 and self.last_clock_ns is not None:
-            self._publish_ahead(self.last_clock_ns, current=True)
+        if info.current_count_change > 0:
+            self._publish_ticks(self.ticks.on_matched())
 
-    def _publish_ahead(self, now: int, current: bool) -> None:
-        """Lockstep: the preview of the tick after `now`, after that of `now` itself if `current`, and before it
-        those of the ticks since the last one published (up to `_GAP_FILL_TICKS`): a /clock the reader's history
-        dropped in a burst of ticks (over a link the plant runs on at once through ticks with no answer due)
-        would leave the preview of its next tick unsent, and an odometry of that stamp, delivered later, waiting.
-        """
-        if current:
-            period, last = self._period_ns(), self.last_published_ns
-            if last is not None and now - _GAP_FILL_TICKS * period <= last < now - period:
-                for stamp in range(last + period, now, period):
-                    self._publish_preview(stamp, stamp, self._grid_values(stamp))
-            self._publish_preview(now, now, self._grid_values(now))
-        after = now + self._period_ns()
-        self._publish_preview(after, after, self._grid_values(after))
-
-    def _period_ns(self) -> int:
-        return int(round(self.params["control.period_s"] * 1e9))
+    def _publish_ticks(self, stamps: list[int]) -> None:
+        """Lockstep: the previews of the ticks `stamps` (`LockstepPreviews`), from the table of the grid."""
+        for stamp in stamps:
+            self._publish_preview(stamp, stamp, self._grid_values(stamp))
 
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
-        if self.start_ns is None:
-            if not self._settled(now):
-                return
-            if self.start_on_enable and not self.controller_enabled:
-                self._hold(now)
-                return
+        tick = self.start.tick(now, self._ready())
+        if tick is Tick.HOLD:
+            self._hold(now)
+        elif tick is Tick.START:
             self._start(now)
-            return
-        self._publish_preview(now, now - self.start_ns)
-        self.follow_path.tick()
+        elif tick is Tick.RUN:
+            self._publish_preview(now, self.start.reference_ns(now))
+            self.follow_path.tick()
 
-    def _settled(self, now: int) -> bool:
-        """Realtime: whether the reference may start at `now` (module docstring, Timing)."""
-        if self.preview_pub.get_subscription_count() == 0 or self.count_publishers(self.odom_topic) == 0 or \
-                (self.anchor_to_robot and self.robot_pose is None):
-            self.subscribed_since = None
-            return False  # the reference starts when a controller listens and the robot sends odometry ...
-        if self.subscribed_since is None:
-            self.subscribed_since = now
-        return now - self.subscribed_since >= int(self.params["start_settle_s"] * 1e9)  # ... for the settle time
+    def _ready(self) -> bool:
+        """Realtime: the start condition (module docstring, Timing): a controller listens to the preview, the robot
+        sends odometry (and with ``anchor_to_robot`` its pose is known); `RealtimeStart` waits the settle time.
+        """
+        return self.preview_pub.get_subscription_count() > 0 and self.count_publishers(self.odom_topic) > 0 and \
+            not (self.anchor_to_robot and self.robot_pose is None)
 
     def _start(self, now: int) -> None:
-        """Realtime: t = 0 of the reference at `now`, anchored at the robot's pose with ``anchor_to_robot``."""
-        self.start_ns, self.holding = now, False
-        pose = self.robot_pose  # (`_settled` waits for one with anchor_to_robot)
+        """Realtime: t = 0 of the reference at `now` (`RealtimeStart` says so), anchored at the robot's pose with
+        ``anchor_to_robot``.
+        """
+        self.holding = False
+        pose = self.robot_pose  # (`_ready` waits for one with anchor_to_robot)
         if self.anchor_to_robot and pose is not None:
             self.anchor = pose
             self._use_reference()
@@ -531,15 +513,12 @@ class TrajectoryNode(Node):
         """start_on_enable: start at the enable (if the start condition holds, else at the tick it does); a
         disable after the start returns to the hold with the reference made anew.
         """
-        enabled = bool(msg.data)
-        if enabled == self.controller_enabled:
-            return
-        self.controller_enabled = enabled
         now = self.get_clock().now().nanoseconds
-        if enabled and self.start_ns is None and self._settled(now):
+        change = self.start.on_enabled(bool(msg.data), now, self._ready())
+        if change is Tick.START:
             self._start(now)
-        elif not enabled and self.start_ns is not None:
-            self.start_ns, self.anchor = None, None
+        elif change is Tick.HOLD:
+            self.anchor = None
             self._use_reference()  # (goals dropped)
             self.get_logger().info("the controller is disabled: the reference holds its start again until the "
                                    "next enable")
@@ -563,7 +542,7 @@ class TrajectoryNode(Node):
         """The reference path from `from_s` [s] on, every `step` periods, for a t = 0 at `start_ns` (node clock)."""
         period = self.params["control.period_s"] * step
         times = np.arange(from_s, self.reference.duration_s + 0.5 * period, period)
-        stamps = [start_ns + int(round(t * 1e9)) for t in times.tolist()]
+        stamps = path_stamps(start_ns, times.tolist())
         odom = self.params["frame_prefix"] + ODOM_FRAME
         publish_acknowledged(self, self.path_pub, path_cdr(odom, start_ns, stamps, self.reference.position(times)))
 

@@ -78,7 +78,7 @@ from robotino_geom_mpc.loop.inputs import (PLANAR_POINT_SIZE, POINT_SIZE, QUATER
                                            state_of_odometry)
 from robotino_geom_mpc.model.driver_chain import ChainParams
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
-from robotino_geom_mpc.reference.trajectories import preview_at
+from robotino_geom_mpc.reference.trajectories import preview_at, whole_periods
 
 __all__ = ["ControllerLoop", "EVERYONE", "LINK_KEYS", "Listeners", "LockstepPairing", "LoopConfigError",
            "LoopSettings", "QUIET", "RealtimePairing", "TRACKING_KEYS"]
@@ -503,7 +503,7 @@ class ControllerLoop:
     def _jump_from(self, latest: _Held, stamp: int, first: Sequence[float]) -> str | None:
         """`_reference_jump` of the preview stamped `stamp` from the `latest` one's row of the periods elapsed."""
         gap = stamp - latest[0]
-        m = min(max(gap // self.period_ns, 0), len(latest[1]) - 1)
+        m = whole_periods(gap, self.period_ns, len(latest[1]) - 1)
         previous = self._latest_first if m == 0 else [float(a[m, j]) for a in latest[1:] for j in range(3)]
         return _reference_jump(previous, (gap - m * self.period_ns) * 1e-9, first, *self._jump_limits)
 

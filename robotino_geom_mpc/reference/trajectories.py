@@ -55,6 +55,7 @@ __all__ = [
     "preview",
     "shift_preview",
     "preview_at",
+    "whole_periods",
 ]
 
 # Default waypoints of point-to-point: along x, a pure rotation in place, a
@@ -454,8 +455,13 @@ def preview_at(stamp_ns: int, preview_stamp_ns: int, positions: np.ndarray, velo
     positions, velocities, accelerations, each (points, 3).
     """
     gap = stamp_ns - preview_stamp_ns
-    m = min(max(gap // period_ns, 0), len(positions) - points)
+    m = whole_periods(gap, period_ns, len(positions) - points)
     rows = slice(m, m + points)
     dt = (gap - m * period_ns) * 1e-9
     velocity, acceleration = velocities[rows], accelerations[rows]
     return shift_preview(positions[rows], velocity, acceleration, dt), velocity + dt * acceleration, acceleration
+
+
+def whole_periods(gap_ns: int, period_ns: int, most: int) -> int:
+    """The whole periods m in `gap_ns` that a preview's later rows cover: 0 <= m <= `most` (its rows to spare)."""
+    return min(max(gap_ns // period_ns, 0), most)

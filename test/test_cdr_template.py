@@ -234,6 +234,30 @@ def test_layout_of_a_sequence_length_is_checked():
     assert short.read(data[: short.size]) is None  # right length, wrong point count
 
 
+def test_preview_layouts_learn_a_longer_preview_and_try_another_prefix_once(monkeypatch):
+    """`PreviewLayouts` (the controller node's): a longer preview's layout is learnt from one general decode and
+    reads the next as rosbags does; a preview in another frame prefix is tried once (no layout built again).
+    """
+    layouts = messages.PreviewLayouts(0.01, 4, "robot1/")
+    reference = make_reference("lemniscate")
+    longer = preview_template(0.01, 13, "robot1/")
+    first, second = (longer.pack(*divmod(t, 10**9), *preview_values(reference, t, 0.01, 13))
+                     for t in (2 * 10**9, 2_100_000_000))
+    assert layouts.read(first) is None  # not known yet: the general decoder reads it
+    layouts.learn(first, 14)
+    msg = TYPESTORE.deserialize_cdr(second, "trajectory_msgs/msg/MultiDOFJointTrajectory")
+    assert layouts.read(second) == (msg.header.stamp.sec, msg.header.stamp.nanosec,
+                                    *decode.preview_point_values(msg, 13))
+    foreign = preview_template(0.01, 6, "robot2/")
+    other = foreign.pack(*divmod(2 * 10**9, 10**9), *preview_values(reference, 2 * 10**9, 0.01, 6))
+    layouts.learn(other, 7)  # its layout in this node's prefix does not read it: remembered as such
+    assert layouts.read(other) is None
+    built: list = []
+    monkeypatch.setattr(messages, "preview_layout", lambda *args: built.append(args))
+    layouts.learn(other, 7)  # tried already: no layout is built again
+    assert built == [] and layouts.read(other) is None
+
+
 @pytest.mark.parametrize("frame", ["", "odom", "robot1/odom", "abc"])  # every alignment of the doubles
 @pytest.mark.parametrize("n", [0, 1, 2, 7])
 def test_path_written_straight_to_cdr_reads_as_the_path_rclpy_builds(frame, n):

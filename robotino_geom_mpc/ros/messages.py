@@ -176,7 +176,9 @@ class PreviewLayouts:
     """`preview_layout` for each preview length seen: N + 1 points from the start, a longer preview's (a trajectory
     node publishing every few periods, with the points to cover them) once the general decoder has read one.
 
-    At most `MAX_LENGTHS` lengths are kept (a stray publisher cannot grow it).
+    A length is tried once: one whose layout does not read the preview (another frame prefix) is remembered as
+    such, so its next messages go to the general decoder without a layout built again. At most `MAX_LENGTHS`
+    lengths are kept (a stray publisher cannot grow it).
     """
 
     MAX_LENGTHS = 8
@@ -184,7 +186,7 @@ class PreviewLayouts:
     def __init__(self, period_s: float, horizon: int, frame_prefix: str = "") -> None:
         self.period_s, self.frame_prefix = period_s, frame_prefix
         first = preview_layout(period_s, horizon, frame_prefix)
-        self.by_size = {first.size: first}
+        self.by_size: dict[int, CdrLayout | None] = {first.size: first}
 
     def read(self, data: bytes) -> tuple | None:
         """`CdrLayout.read` with the layout of `data`'s length; None if there is none, or it does not fit."""
@@ -196,8 +198,7 @@ class PreviewLayouts:
         if len(data) in self.by_size or len(self.by_size) >= self.MAX_LENGTHS or points < 1:
             return
         layout = preview_layout(self.period_s, points - 1, self.frame_prefix)
-        if layout.read(data) is not None:
-            self.by_size[len(data)] = layout
+        self.by_size[len(data)] = layout if layout.read(data) is not None else None
 
 
 _STAMP_LENGTH = struct.Struct("<iII")  # a header's stamp (sec, nanosec) and its frame_id's length

@@ -37,10 +37,13 @@ RECORDINGS = {
     "realtime_cmd_vel": ("/cmd_vel", {**ODOMETRY, **DIAGNOSTICS, "/cmd_vel": "geometry_msgs/msg/Twist"}),
     # the chain controller of ec8bd99 published no diagnostics: its inputs and its twists
     "realtime_chain": ("/cmd_vel", {**ODOMETRY, "/cmd_vel": "geometry_msgs/msg/Twist"}),
+    # d447d5f, a realtime run under load: a watchdog stop that fired as an odometry was on its way
+    "realtime_watchdog": ("/wheel_voltages", {**ODOMETRY, **DIAGNOSTICS,
+                                              "/wheel_voltages": "std_msgs/msg/Float64MultiArray"}),
 }
 # the modes today's regress replays: every one (the chain's by `regress_chain`: its parameters from the preset, as
 # the recording holds none of the controller's)
-REPLAYED = ("lockstep_demo", "realtime_wifi_plans", "realtime_cmd_vel", "realtime_chain")
+REPLAYED = ("lockstep_demo", "realtime_wifi_plans", "realtime_cmd_vel", "realtime_chain", "realtime_watchdog")
 
 
 def _counts(folder: str) -> dict[str, tuple[str, int]]:
@@ -79,6 +82,37 @@ def test_regress_replays_a_recording_of_older_code(folder, capsys, monkeypatch):
     assert result.gap is None and result.max_deviation_v <= 1e-12 and result.passed
     assert status == 0
     assert capsys.readouterr().out.startswith(f"PASS: {result.compared} of {result.ticks} ticks compared")
+
+
+def test_the_watchdog_recording_holds_a_stop_before_an_odometry_published_earlier():
+    """What `realtime_watchdog` pins (its replay above): the node's stale-odometry stop fired (its status's stamp,
+    the node's clock) before an odometry published just before that status was, and the node answered that
+    odometry with no status (the stop had forgotten the preview); the replay has to take the stop first.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import deserialize_message
+
+    def ns(stamp) -> int:
+        return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+    odometry, stops, statuses = [], [], set()
+    with open(next((DATA / "realtime_watchdog").glob("*.mcap")), "rb") as stream:
+        for _, channel, message in make_reader(stream).iter_messages(topics=["/odom", "/diagnostics"]):
+            if channel.topic == "/odom":
+                odometry.append((message.publish_time, ns(deserialize_message(message.data, Odometry).header.stamp)))
+                continue
+            msg = deserialize_message(message.data, DiagnosticArray)
+            for status in msg.status:
+                if status.message.startswith("watchdog: stale_odom"):
+                    stops.append((ns(msg.header.stamp), message.publish_time))
+                elif status.message == "tracking":
+                    statuses.add(ns(msg.header.stamp))
+    raced = [(fired, stamp) for fired, status_publish in stops for publish, stamp in odometry
+             if fired < publish < status_publish]
+    assert len(raced) == 1 and raced[0][1] not in statuses
+    after = sorted(stamp for _, stamp in odometry if stamp > raced[0][1])
+    assert after[0] in statuses  # the restart: the next odometry answered
 
 
 @pytest.mark.slow  # the search over the readings: 1-2 s per case

@@ -21,10 +21,11 @@ one control period apart) it stops at the first tick whose odometry (the next st
 or preview is missing from the recording, and says so (`RegressionResult.gap_at_s`). A recorder that fell behind
 a fast lockstep loop can have lost samples; the ticks before the gap are still compared.
 
-The node's watchdog stops (its ``watchdog: ...`` statuses) are replayed where they came. Limits: the controller
-node's own parameters are not in the recording (the loop's defaults are used: blend limits, timeouts, tolerances);
-a parameter change during the run (the node rebuilds its controller) is not replayed; such a recording shows a
-deviation from that tick on.
+The node's watchdog stops (its ``watchdog: ...`` statuses) are replayed where they came on the node's clock (the
+status's stamp): before the first odometry whose status the node published later (one without a status: that was
+published later). Limits: the controller node's own parameters are not in the recording (the loop's defaults are
+used: blend limits, timeouts, tolerances); a parameter change during the run (the node rebuilds its controller) is
+not replayed; such a recording shows a deviation from that tick on.
 """
 
 from __future__ import annotations
@@ -162,14 +163,17 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
     """
     volt_t = [p for p, _ in commands]
     answers: dict[int, np.ndarray] = {}  # tick stamp -> recorded voltages
+    answered: dict[int, int] = {}  # tick stamp -> publish time of the node's status of it (its clock then)
     for publish, msg in diags:
         if controller_diagnostics(msg) is None:
             continue
+        answered.setdefault(stamp_ns(msg.header.stamp), publish)
         i = bisect_left(volt_t, publish) - 1
         if i >= 0:
             answers.setdefault(stamp_ns(msg.header.stamp), _command_values(commands[i][1], twists))
-    # the node's watchdog stops (realtime: zero, the stamps and the preview forgotten, a restart at the data's return)
-    stops = deque((publish, stamp_ns(msg.header.stamp)) for publish, msg in diags
+    # the node's watchdog stops (realtime: zero, the stamps and the preview forgotten, a restart at the data's
+    # return), at the node's clock when it fired (the status's stamp)
+    stops = deque(stamp_ns(msg.header.stamp) for _, msg in diags
                   if any(s.name == STATUS_NAME and s.message.startswith("watchdog") for s in msg.status))
     odom, by_stamp, used = inputs.odom, inputs.first_of, inputs.used
     prev_t = [p for p, _ in inputs.previews]
@@ -194,16 +198,19 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
             gap = (stamp, "reference_preview")
             break
         previous = stamp
-        while stops and stops[0][0] < publish:  # stale by then for sure (the node decided on its steady clock)
-            clock = stops.popleft()[1]
+        # a stop fired before the node took this odometry: before the status the node published for it (one
+        # thread: a callback's publications precede the next callback's clock), else before its publication
+        while stops and stops[0] < answered.get(stamp, publish):
+            clock = stops.popleft()  # stale by then for sure (the node decided on its steady clock)
             replay.on_watchdog(Now(clock, clock + WATCHDOG_STALE_NS))
         # the previews the node had by this odometry: lockstep that of its stamp; realtime up to the one its
-        # diagnostics name, else those published before its answer (none before the first one named)
+        # diagnostics name, else those published before its answer (none before the first one named, nor for
+        # an odometry the node published no status of: it had no preview, e.g. since a watchdog stop)
         if lockstep:
             previews.give(by_stamp[stamp])
         elif stamp in used:
             previews.feed(by_stamp.get(used[stamp], previews.fed))
-        elif count.ticks > 0 or not used:
+        elif not used or (count.ticks > 0 and stamp in answered):
             answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
             previews.feed(bisect_left(prev_t, answer_publish) - 1)
         out = replay.on_input(inputs.odometries[index], Now(publish, publish))

@@ -215,13 +215,14 @@ def test_realtime_start_blend_shift_and_stamp_checks():
     error = state(odom2)[0::2] - moved[0]
     assert [float(kv[k]) for k in ("error_x_m", "error_y_m")] == pytest.approx(error[:2].tolist(), abs=1e-9)
     assert float(kv["dt_s"]) == pytest.approx(8e-3, abs=1e-12) and kv["preview_stamp_ns"] == str(clock)
+    assert kv["clock_ns"] == str(clock + 12 * MS)  # the clock it was handed: what a replay takes it at
     # late (older), duplicate, stale and future stamps
     out = lp.on_odometry(odometry(clock + 5 * MS), at(clock + 13 * MS))
     assert commands(out) == [] and zeros(out) == [] and status(out)["dropped_old"] == "1"
     out = lp.on_odometry(odometry(clock + 11 * MS), at(clock + 13 * MS))
     assert commands(out) == [] and status(out)["dropped_duplicate"] == "1"
     out = lp.on_odometry(odometry(clock + 12 * MS), at(clock + 500 * MS))
-    assert zeros(out) == ["stale"]
+    assert zeros(out) == ["stale"] and status(out)["clock_ns"] == str(clock + 500 * MS)
     out = lp.on_odometry(odometry(clock + 900 * MS), at(clock + 13 * MS))
     assert zeros(out) == ["future"]
     assert status(out)["rejected"] == "2" and status(out)["last_refusal"] == "future"

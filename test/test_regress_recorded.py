@@ -37,13 +37,17 @@ RECORDINGS = {
     "realtime_cmd_vel": ("/cmd_vel", {**ODOMETRY, **DIAGNOSTICS, "/cmd_vel": "geometry_msgs/msg/Twist"}),
     # the chain controller of ec8bd99 published no diagnostics: its inputs and its twists
     "realtime_chain": ("/cmd_vel", {**ODOMETRY, "/cmd_vel": "geometry_msgs/msg/Twist"}),
-    # d447d5f, a realtime run under load: a watchdog stop that fired as an odometry was on its way
+    # d447d5f, realtime runs under load: a watchdog stop that fired as an odometry was on its way; an odometry
+    # published late that the node took stale
     "realtime_watchdog": ("/wheel_voltages", {**ODOMETRY, **DIAGNOSTICS,
                                               "/wheel_voltages": "std_msgs/msg/Float64MultiArray"}),
+    "realtime_stale_refusal": ("/wheel_voltages", {**ODOMETRY, **DIAGNOSTICS,
+                                                   "/wheel_voltages": "std_msgs/msg/Float64MultiArray"}),
 }
 # the modes today's regress replays: every one (the chain's by `regress_chain`: its parameters from the preset, as
 # the recording holds none of the controller's)
-REPLAYED = ("lockstep_demo", "realtime_wifi_plans", "realtime_cmd_vel", "realtime_chain", "realtime_watchdog")
+REPLAYED = ("lockstep_demo", "realtime_wifi_plans", "realtime_cmd_vel", "realtime_chain", "realtime_watchdog",
+            "realtime_stale_refusal")
 
 
 def _counts(folder: str) -> dict[str, tuple[str, int]]:
@@ -113,6 +117,31 @@ def test_the_watchdog_recording_holds_a_stop_before_an_odometry_published_earlie
     assert len(raced) == 1 and raced[0][1] not in statuses
     after = sorted(stamp for _, stamp in odometry if stamp > raced[0][1])
     assert after[0] in statuses  # the restart: the next odometry answered
+
+
+def test_the_stale_refusal_recording_holds_an_odometry_fresh_at_its_publication_and_refused_stale():
+    """What `realtime_stale_refusal` pins: an odometry the plant published 44 ms after its stamp (fresh then:
+    the odometry timeout is 0.1 s) that the node refused as stale when it took it; the replay has to take it at the
+    node's clock, not at its publication.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import deserialize_message
+
+    def ns(stamp) -> int:
+        return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+    published, refused = {}, {}
+    with open(next((DATA / "realtime_stale_refusal").glob("*.mcap")), "rb") as stream:
+        for _, channel, message in make_reader(stream).iter_messages(topics=["/odom", "/diagnostics"]):
+            if channel.topic == "/odom":
+                published[ns(deserialize_message(message.data, Odometry).header.stamp)] = message.publish_time
+                continue
+            msg = deserialize_message(message.data, DiagnosticArray)
+            if any(status.message.startswith("refused odom (stale)") for status in msg.status):
+                refused[ns(msg.header.stamp)] = message.publish_time
+    [(stamp, status_publish)] = refused.items()
+    assert published[stamp] - stamp < 0.1e9 < status_publish - stamp
 
 
 @pytest.mark.slow  # the search over the readings: 1-2 s per case

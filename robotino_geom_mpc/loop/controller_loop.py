@@ -46,8 +46,8 @@ planned), a report further than `REPORT_WINDOW_S` from the newest odometry refus
 The chain (``chain``: the controller through the real driver's chain, realtime, cmd_vel): each odometry steps a
 `control.chain_tracking.ChainTracker` with the newest preview at the clock handed in; duplicate and old-looking
 stamps are used (dispatch times); every zero sent is noted in its command model; each tick's diagnostic
-(message ``chain``) names the preview used (``preview_stamp_ns``) and every status the clock (``clock_ns``), so
-that a recording replays exactly.
+(message ``chain``) names the preview used (``preview_stamp_ns``). Every status, in every mode, carries the clock
+handed in (``clock_ns``), so that a recording replays in the node's order at the node's times.
 """
 
 from __future__ import annotations
@@ -394,8 +394,7 @@ class ControllerLoop:
     @property
     def event_keys(self) -> tuple[str, ...]:
         """The keys every status carries (after a tick's own)."""
-        return _EVENT_KEYS + (LINK_KEYS if self.plans is not None else ()) + (
-            ("clock_ns",) if self.chain is not None else ())
+        return _EVENT_KEYS + (LINK_KEYS if self.plans is not None else ()) + ("clock_ns",)
 
     def _limits(self) -> None:
         s = self.settings
@@ -780,8 +779,7 @@ class ControllerLoop:
                 values.append("nan" if isinstance(value, float) and np.isnan(value) else
                               f"{value:.6f}" if isinstance(value, float) else str(value))
             values += [str(self.refused_reports), str(self.reports_received)]
-        if self.chain is not None:
-            values.append(str(self._now.clock_ns))
+        values.append(str(self._now.clock_ns))
         return values
 
     def _wait_log(self, watch_ns: int) -> None:

@@ -18,8 +18,9 @@ publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layo
                                   interval passed to the step). Always: ``watchdog`` (waiting, ok,
                                   stale_odom, stale_reference), ``rejected`` (refusals so far),
                                   ``last_refusal`` (its reason key, ``none``), ``dropped_duplicate``,
-                                  ``dropped_old``, ``blend_remaining_s``, ``blend_engagements``. Built and
-                                  sent only while a subscription is matched.
+                                  ``dropped_old``, ``blend_remaining_s``, ``blend_engagements``,
+                                  ``clock_ns`` (the node clock at the input). Built and sent only while a
+                                  subscription is matched.
            ``predicted_path``     nav_msgs/Path in ``<frame_prefix>odom``: the MPCs' y(k+1) .. y(k+N) (eq. 50
                                   under the optimal increments of eq. 56), pose j stamped t_k + j Ts; computed
                                   and sent only while a subscription is matched (``publish_predicted_path``
@@ -65,7 +66,8 @@ and the node clock at the step; two odometries of one driver pass share a stamp 
 too (a dispatch time); every zero twist the node sends is noted in its command model; disabled, each odometry is
 answered with a zero twist, noted as well, and enabled again it goes on from its model (no blend: the one-move
 plan's braking limit keeps within the firmware's ramps). Its status per tick (message ``chain``) names
-``preview_stamp_ns``, and every status the node clock ``clock_ns``: a recording of it replays exactly.
+``preview_stamp_ns``. Every status (every mode) carries the node clock at its input, ``clock_ns``: a recording
+replays exactly.
 
 One reference source: the loop pairs with the first publisher of ``reference_preview`` (told apart by
 `ros.source_gate.SourceGate`) and refuses the previews of any other while the paired one's are fresh

@@ -2,7 +2,8 @@
 
 A fresh `loop.controller_loop.ControllerLoop` (the node's tick protocol), built from the run parameters the
 recording stores (or a parameter file), is given what the controller node got, in the recorded order with the
-recorded times (each message's publish time as the clock): every ``odom`` message once and the
+recorded times (each message's publish time as the clock; an odometry the node published a status of at its clock
+then, the status's ``clock_ns``, in older recordings the status's publication): every ``odom`` message once and the
 ``reference_preview`` messages the node had by then -- lockstep: the preview of the same stamp (the loop pairs
 them); realtime: the previews up to the one the node's diagnostics name for the tick (``preview_stamp_ns``), else
 those published before the next odometry (the ticks before the first preview the diagnostics name are not
@@ -22,10 +23,9 @@ or preview is missing from the recording, and says so (`RegressionResult.gap_at_
 a fast lockstep loop can have lost samples; the ticks before the gap are still compared.
 
 The node's watchdog stops (its ``watchdog: ...`` statuses) are replayed where they came on the node's clock (the
-status's stamp): before the first odometry whose status the node published later (one without a status: that was
-published later). Limits: the controller node's own parameters are not in the recording (the loop's defaults are
-used: blend limits, timeouts, tolerances); a parameter change during the run (the node rebuilds its controller) is
-not replayed; such a recording shows a deviation from that tick on.
+status's stamp): before the first odometry the node took later. Limits: the controller node's own parameters are
+not in the recording (the loop's defaults are used: blend limits, timeouts, tolerances); a parameter change during
+the run (the node rebuilds its controller) is not replayed; such a recording shows a deviation from that tick on.
 """
 
 from __future__ import annotations
@@ -43,7 +43,8 @@ from robotino_geom_mpc.loop.events import Command, Now, Zero
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
-from robotino_geom_mpc.recording.regress_chain import WATCHDOG_STALE_NS, chain_parameters, regress_chain
+from robotino_geom_mpc.recording.regress_chain import ODOMETRY_STATUSES, WATCHDOG_STALE_NS, chain_parameters, \
+    regress_chain
 from robotino_geom_mpc.recording.regress_plans import regress_plans
 from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviations, PreviewFeed, diagnostics
 from robotino_geom_mpc.recording.report import resolve_parameters
@@ -163,18 +164,25 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
     """
     volt_t = [p for p, _ in commands]
     answers: dict[int, np.ndarray] = {}  # tick stamp -> recorded voltages
-    answered: dict[int, int] = {}  # tick stamp -> publish time of the node's status of it (its clock then)
-    for publish, msg in diags:
-        if controller_diagnostics(msg) is None:
-            continue
-        answered.setdefault(stamp_ns(msg.header.stamp), publish)
-        i = bisect_left(volt_t, publish) - 1
-        if i >= 0:
-            answers.setdefault(stamp_ns(msg.header.stamp), _command_values(commands[i][1], twists))
     # the node's watchdog stops (realtime: zero, the stamps and the preview forgotten, a restart at the data's
-    # return), at the node's clock when it fired (the status's stamp)
-    stops = deque(stamp_ns(msg.header.stamp) for _, msg in diags
-                  if any(s.name == STATUS_NAME and s.message.startswith("watchdog") for s in msg.status))
+    # return) at its clock when each fired (the status's stamp); per odometry it took (its status, stamped with
+    # the odometry's stamp: a step or a refusal) its clock then: the status's ``clock_ns`` (older recordings: the
+    # status's publication, a little later)
+    stops: deque[int] = deque()
+    taken: dict[int, int] = {}
+    for publish, msg in diags:
+        stamp = stamp_ns(msg.header.stamp)
+        for status in msg.status:
+            if status.name != STATUS_NAME:
+                continue
+            if status.message.startswith("watchdog"):
+                stops.append(stamp)
+            elif status.message.startswith(ODOMETRY_STATUSES) and stamp not in taken:
+                clock = next((kv.value for kv in status.values if kv.key == "clock_ns"), "")
+                taken[stamp] = int(clock) if clock.isdigit() else publish
+        i = bisect_left(volt_t, publish) - 1
+        if i >= 0 and controller_diagnostics(msg) is not None:
+            answers.setdefault(stamp, _command_values(commands[i][1], twists))
     odom, by_stamp, used = inputs.odom, inputs.first_of, inputs.used
     prev_t = [p for p, _ in inputs.previews]
     # the first tick has a preview of its own stamp; realtime stamps follow the plant's timer, late or not,
@@ -198,11 +206,10 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
             gap = (stamp, "reference_preview")
             break
         previous = stamp
-        # a stop fired before the node took this odometry: before the status the node published for it (one
-        # thread: a callback's publications precede the next callback's clock), else before its publication
-        while stops and stops[0] < answered.get(stamp, publish):
-            clock = stops.popleft()  # stale by then for sure (the node decided on its steady clock)
-            replay.on_watchdog(Now(clock, clock + WATCHDOG_STALE_NS))
+        clock = taken.get(stamp, publish)  # the node's clock as it took this odometry (no status: its publication)
+        while stops and stops[0] < clock:  # a stop fired before that
+            fired = stops.popleft()  # stale by then for sure (the node decided on its steady clock)
+            replay.on_watchdog(Now(fired, fired + WATCHDOG_STALE_NS))
         # the previews the node had by this odometry: lockstep that of its stamp; realtime up to the one its
         # diagnostics name, else those published before its answer (none before the first one named, nor for
         # an odometry the node published no status of: it had no preview, e.g. since a watchdog stop)
@@ -210,10 +217,10 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
             previews.give(by_stamp[stamp])
         elif stamp in used:
             previews.feed(by_stamp.get(used[stamp], previews.fed))
-        elif not used or (count.ticks > 0 and stamp in answered):
+        elif not used or (count.ticks > 0 and stamp in taken):
             answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
             previews.feed(bisect_left(prev_t, answer_publish) - 1)
-        out = replay.on_input(inputs.odometries[index], Now(publish, publish))
+        out = replay.on_input(inputs.odometries[index], Now(clock, clock))
         expected = next((o.values for o in out if isinstance(o, Command) and o.stamp_ns == stamp), None)
         if expected is None:
             if not any(isinstance(o, Zero) for o in out):

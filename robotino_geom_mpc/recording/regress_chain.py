@@ -61,11 +61,13 @@ from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviatio
 from robotino_geom_mpc.recording.topics import by_publish_time, find_topic, run_parameters, stamp_ns
 from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
 
-__all__ = ["BEAM", "RECEIVE_MARGIN_S", "WATCHDOG_STALE_NS", "chain_parameters", "regress_chain"]
+__all__ = ["BEAM", "ODOMETRY_STATUSES", "RECEIVE_MARGIN_S", "WATCHDOG_STALE_NS", "chain_parameters", "regress_chain"]
 
 RECEIVE_MARGIN_S = 0.01  # a preview published this long before an odometry had reached the node
 BEAM = 32  # readings kept at once: the nearest to the recorded answers, then to the recorder's order
 WATCHDOG_STALE_NS = 10**12  # a recorded watchdog stop replayed on a watchdog clock this far on: stale for sure
+# the controller's statuses of an odometry it took (stamped with its stamp): a step, or its refusal
+ODOMETRY_STATUSES = ("tracking", "chain", "disabled", "refused odom", "dropped odom", "refused input")
 _CONTROLLER_NODE = "robotino_controller"
 
 
@@ -214,8 +216,7 @@ def _exact(loop: ControllerLoop, inputs: ControllerInputs, commands: list, statu
         elif status.message.startswith("refused reference_preview") and status.stamp in first_of:
             refused.add(first_of[status.stamp])
             timeline.append((status.clock, 0, first_of[status.stamp], k))
-        elif status.message in ("chain", "disabled") or status.message.startswith(("refused odom", "dropped odom",
-                                                                                    "refused input")):
+        elif status.message.startswith(ODOMETRY_STATUSES):
             by_odometry.setdefault(status.stamp, deque()).append(k)
     for i, (publish, msg) in enumerate(inputs.odom):
         queue = by_odometry.get(stamp_ns(msg.header.stamp))

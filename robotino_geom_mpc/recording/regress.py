@@ -33,23 +33,20 @@ from __future__ import annotations
 import math
 import os
 from bisect import bisect_left
-from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from robotino_geom_mpc.loop.events import Command, Now, Zero
+from robotino_geom_mpc.loop.events import Command, Zero
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
-from robotino_geom_mpc.recording.regress_chain import ODOMETRY_STATUSES, WATCHDOG_STALE_NS, chain_parameters, \
-    regress_chain
+from robotino_geom_mpc.recording.regress_chain import chain_parameters, regress_chain
 from robotino_geom_mpc.recording.regress_plans import regress_plans
-from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviations, PreviewFeed, diagnostics
+from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviations, NodeClock, PreviewFeed, diagnostics
 from robotino_geom_mpc.recording.report import resolve_parameters
 from robotino_geom_mpc.recording.topics import by_publish_time, controller_diagnostics, find_topic, plan_topic, stamp_ns
-from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
 from robotino_geom_mpc.scenarios import SCENARIOS
 
 __all__ = ["RegressionResult", "regress_bag"]
@@ -133,7 +130,7 @@ def regress_bag(
     diags = diagnostics(bag)
     if plan_topic(bag) is not None:  # a run with plans (over a link): its plans recomputed (`regress_plans`)
         inputs = ControllerInputs.read(bag, diags)
-        count, topic = regress_plans(bag, inputs, robot, control)
+        count, topic = regress_plans(bag, inputs, diags, robot, control)
         return _result(inputs, count, tolerance_v, command=topic)
     command = find_topic(bag, "wheel_voltages", "std_msgs/msg/Float64MultiArray", False)
     twists = command is None  # a cmd_vel run: the controller's twists
@@ -164,25 +161,11 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
     """
     volt_t = [p for p, _ in commands]
     answers: dict[int, np.ndarray] = {}  # tick stamp -> recorded voltages
-    # the node's watchdog stops (realtime: zero, the stamps and the preview forgotten, a restart at the data's
-    # return) at its clock when each fired (the status's stamp); per odometry it took (its status, stamped with
-    # the odometry's stamp: a step or a refusal) its clock then: the status's ``clock_ns`` (older recordings: the
-    # status's publication, a little later)
-    stops: deque[int] = deque()
-    taken: dict[int, int] = {}
     for publish, msg in diags:
-        stamp = stamp_ns(msg.header.stamp)
-        for status in msg.status:
-            if status.name != STATUS_NAME:
-                continue
-            if status.message.startswith("watchdog"):
-                stops.append(stamp)
-            elif status.message.startswith(ODOMETRY_STATUSES) and stamp not in taken:
-                clock = next((kv.value for kv in status.values if kv.key == "clock_ns"), "")
-                taken[stamp] = int(clock) if clock.isdigit() else publish
         i = bisect_left(volt_t, publish) - 1
         if i >= 0 and controller_diagnostics(msg) is not None:
-            answers.setdefault(stamp, _command_values(commands[i][1], twists))
+            answers.setdefault(stamp_ns(msg.header.stamp), _command_values(commands[i][1], twists))
+    node = NodeClock.read(diags)  # its watchdog stops (realtime: zero, the stamps and the preview forgotten)
     odom, by_stamp, used = inputs.odom, inputs.first_of, inputs.used
     prev_t = [p for p, _ in inputs.previews]
     # the first tick has a preview of its own stamp; realtime stamps follow the plant's timer, late or not,
@@ -206,10 +189,7 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
             gap = (stamp, "reference_preview")
             break
         previous = stamp
-        clock = taken.get(stamp, publish)  # the node's clock as it took this odometry (no status: its publication)
-        while stops and stops[0] < clock:  # a stop fired before that
-            fired = stops.popleft()  # stale by then for sure (the node decided on its steady clock)
-            replay.on_watchdog(Now(fired, fired + WATCHDOG_STALE_NS))
+        now = node.take(replay, stamp, publish)
         # the previews the node had by this odometry: lockstep that of its stamp; realtime up to the one its
         # diagnostics name, else those published before its answer (none before the first one named, nor for
         # an odometry the node published no status of: it had no preview, e.g. since a watchdog stop)
@@ -217,10 +197,10 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
             previews.give(by_stamp[stamp])
         elif stamp in used:
             previews.feed(by_stamp.get(used[stamp], previews.fed))
-        elif not used or (count.ticks > 0 and stamp in taken):
+        elif not used or (count.ticks > 0 and stamp in node.taken):
             answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
             previews.feed(bisect_left(prev_t, answer_publish) - 1)
-        out = replay.on_input(inputs.odometries[index], Now(clock, clock))
+        out = replay.on_input(inputs.odometries[index], now)
         expected = next((o.values for o in out if isinstance(o, Command) and o.stamp_ns == stamp), None)
         if expected is None:
             if not any(isinstance(o, Zero) for o in out):

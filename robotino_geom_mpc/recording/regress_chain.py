@@ -57,17 +57,15 @@ from robotino_geom_mpc.model.driver_chain import ChainError, ChainParams, chain_
 from robotino_geom_mpc.params.specs import CHAIN_SPECS, ControlParams, RobotinoParams
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
-from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviations, PreviewFeed
+from robotino_geom_mpc.recording.replay_inputs import ODOMETRY_STATUSES, WATCHDOG_STALE_NS, ControllerInputs, \
+    Deviations, PreviewFeed
 from robotino_geom_mpc.recording.topics import by_publish_time, find_topic, run_parameters, stamp_ns
 from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
 
-__all__ = ["BEAM", "ODOMETRY_STATUSES", "RECEIVE_MARGIN_S", "WATCHDOG_STALE_NS", "chain_parameters", "regress_chain"]
+__all__ = ["BEAM", "RECEIVE_MARGIN_S", "chain_parameters", "regress_chain"]
 
 RECEIVE_MARGIN_S = 0.01  # a preview published this long before an odometry had reached the node
 BEAM = 32  # readings kept at once: the nearest to the recorded answers, then to the recorder's order
-WATCHDOG_STALE_NS = 10**12  # a recorded watchdog stop replayed on a watchdog clock this far on: stale for sure
-# the controller's statuses of an odometry it took (stamped with its stamp): a step, or its refusal
-ODOMETRY_STATUSES = ("tracking", "chain", "disabled", "refused odom", "dropped odom", "refused input")
 _CONTROLLER_NODE = "robotino_controller"
 
 

@@ -5,12 +5,13 @@ file) is given what the controller node got, in the order it got it: the plant's
 messages, each topic in the order the recorder got it (one writer each: the node's order too), interleaved as the
 node took them: before each odometry, the reports up to the count the node's status of that odometry gives
 (``reports_received``; a recording without it: merged by publish time, the plant writing a radio packet's reports
-before its odometry), and the ``reference_preview`` messages the node had by then (lockstep: those up to its
-stamp; realtime: up to the one its diagnostics name). The loop makes the plans as the node did (reports refused
-as it refuses them, the preview moved to the stamp, bumpless restarts, reordered and duplicated odometries
+before its odometry), and the ``reference_preview`` messages the node had by then (lockstep: those up to its stamp;
+realtime: up to the one its diagnostics name), each odometry at the node's clock as it took it and after the
+watchdog stops that fired before (`replay_inputs.NodeClock`). The loop makes the plans as the node did (reports
+refused as it refuses them, the preview moved to the stamp, bumpless restarts, reordered and duplicated odometries
 dropped). Each plan it makes is compared with the recorded plan of the same basis (``wheel_voltage_plan`` [V] or
-``cmd_vel_plan`` [m/s, rad/s]): same code on the same inputs, the same floats (tolerance 1e-12). Plans the
-recorder lacks are not compared.
+``cmd_vel_plan`` [m/s, rad/s]): same code on the same inputs, the same floats (tolerance 1e-12). Plans the recorder
+lacks are not compared.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from robotino_geom_mpc.loop.events import AppliedReport, Now, PlanOut, Undecodab
 from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
-from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviations, PreviewFeed
+from robotino_geom_mpc.recording.replay_inputs import ControllerInputs, Deviations, NodeClock, PreviewFeed
 from robotino_geom_mpc.recording.topics import by_publish_time, find_topic, plan_topic, stamp_ns
 from robotino_geom_mpc.ros.plans import PlanMessageError, plan_of_message, report_of_message
 
@@ -35,7 +36,7 @@ __all__ = ["regress_plans"]
 _BASIS_TOLERANCE_NS = 1000
 
 
-def regress_plans(bag: BagReader, inputs: ControllerInputs, robot: RobotinoParams,
+def regress_plans(bag: BagReader, inputs: ControllerInputs, diags: list[tuple[int, Any]], robot: RobotinoParams,
                   control: ControlParams) -> tuple[Deviations, str]:
     """(the count: odometries planned from, plans compared, the largest deviation; the plan topic's name) of the
     replay (see the module docstring); BagError without plans or an odometry planned from.
@@ -56,6 +57,7 @@ def regress_plans(bag: BagReader, inputs: ControllerInputs, robot: RobotinoParam
     lockstep = inputs.first_stamp in by_stamp
     replay = inputs.loop(robot, control, lockstep=lockstep, interface=interface, plans=True)
     previews = PreviewFeed(replay, inputs)
+    node = NodeClock.read(diags)
     fed_stamps = taken = 0  # lockstep: previews handed on by stamp; reports handed on
     count = Deviations()
 
@@ -87,7 +89,7 @@ def regress_plans(bag: BagReader, inputs: ControllerInputs, robot: RobotinoParam
                 fed_stamps += 1
         elif stamp in used:  # the previews up to the one it used
             previews.feed(by_stamp.get(used[stamp], previews.fed))
-        plans = [o.plan for o in replay.on_input(inputs.odometries[index], Now(publish, publish))
+        plans = [o.plan for o in replay.on_input(inputs.odometries[index], node.take(replay, stamp, publish))
                  if isinstance(o, PlanOut)]
         if not plans:
             continue

@@ -7,12 +7,14 @@ answer with its input being the one thing each mode does its own way.
 times (and the recorder's receive times, which the chain's search reads), each preview stamp's first message, and
 what the controller's tracking statuses say per odometry stamp (the preview it used, ``preview_stamp_ns``; the
 robot's reports it had received, ``reports_received``). It builds the loop the node was (`loop`), and hands the
-previews on in publish order, each once, up to an index (`PreviewFeed`). `Deviations` counts the ticks answered
-and the answers compared, and keeps the largest deviation and its stamp.
+previews on in publish order, each once, up to an index (`PreviewFeed`). `NodeClock` gives each odometry the
+node's clock as it took it and replays the watchdog's stops where they came. `Deviations` counts the ticks
+answered and the answers compared, and keeps the largest deviation and its stamp.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -23,9 +25,15 @@ from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.topics import by_publish_time, controller_diagnostics, find_topic, stamp_ns
+from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
 from robotino_geom_mpc.ros.decode import odometry_input, preview_input
 
-__all__ = ["ControllerInputs", "Deviations", "PreviewFeed", "diagnostics"]
+__all__ = ["ODOMETRY_STATUSES", "WATCHDOG_STALE_NS", "ControllerInputs", "Deviations", "NodeClock", "PreviewFeed",
+           "diagnostics"]
+
+WATCHDOG_STALE_NS = 10**12  # a recorded watchdog stop replayed on a watchdog clock this far on: stale for sure
+# the controller's statuses of an odometry it took (stamped with its stamp): a step, or its refusal
+ODOMETRY_STATUSES = ("tracking", "chain", "disabled", "refused odom", "dropped odom", "refused input")
 
 
 def diagnostics(bag: BagReader) -> list[tuple[int, Any]]:
@@ -138,6 +146,44 @@ class PreviewFeed:
         """`up_to` whose outputs nobody reads."""
         for _ in self.up_to(last, clock):
             pass
+
+
+@dataclass
+class NodeClock:
+    """The controller's clock in its statuses: when each watchdog stop fired (the status's stamp) and, per odometry
+    it took (a status stamped with the odometry's stamp), its clock then (the status's ``clock_ns``; recordings
+    made before the statuses carried it: the status's publication, a little later).
+    """
+
+    stops: deque[int]
+    taken: dict[int, int]
+
+    @classmethod
+    def read(cls, diags: list[tuple[int, Any]]) -> NodeClock:
+        stops: deque[int] = deque()
+        taken: dict[int, int] = {}
+        for publish, msg in diags:
+            stamp = stamp_ns(msg.header.stamp)
+            for status in msg.status:
+                if status.name != STATUS_NAME:
+                    continue
+                if status.message.startswith("watchdog"):
+                    stops.append(stamp)
+                elif status.message.startswith(ODOMETRY_STATUSES) and stamp not in taken:
+                    clock = next((kv.value for kv in status.values if kv.key == "clock_ns"), "")
+                    taken[stamp] = int(clock) if clock.isdigit() else publish
+        return cls(stops, taken)
+
+    def take(self, loop: ControllerLoop, stamp: int, publish: int) -> Now:
+        """The time the node took the odometry of `stamp` (published at `publish`: without a status, that), after
+        the watchdog stops that fired before it (on `loop`: stale by then for sure; the node decided on its steady
+        clock).
+        """
+        clock = self.taken.get(stamp, publish)
+        while self.stops and self.stops[0] < clock:
+            fired = self.stops.popleft()
+            loop.on_watchdog(Now(fired, fired + WATCHDOG_STALE_NS))
+        return Now(clock, clock)
 
 
 @dataclass

@@ -72,6 +72,7 @@ from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
 from robotino_geom_mpc.params.files import load_params
+from robotino_geom_mpc.params.specs import LOOP_SPECS
 from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
 from robotino_geom_mpc.system.processes import FLEET_NODES, FRAME_PREFIX_NODES, fleet_realtime_parameters, \
     fleet_wait_for, frame_prefix, namespace_remaps, recorder_wait_for, robot_names, ros_namespace
@@ -158,6 +159,7 @@ def _nodes(context) -> list:
         plant["lockstep_wait_for"] = fleet_wait_for(robots, record, interface)
     elif record:  # the lockstep plant also waits for the recorder's subscriptions
         plant["lockstep_wait_for"] = recorder_wait_for(interface)
+    controller = {**overrides["controller_node"], **realtime_fleet.get("controller_node", {})}
     plant_node = Node(package=PACKAGE, **kind("plant_node", "robotino_plant"),
                       parameters=[config["plant_params"], plant], **common)
     nodes = [
@@ -166,8 +168,7 @@ def _nodes(context) -> list:
                                        **fleet, **realtime_fleet.get("trajectory_node", {})}],
              **common),
         Node(package=PACKAGE, **kind("controller_node", "robotino_controller"),
-             parameters=[params_file, {**overrides["controller_node"], "mode": mode, **command,
-                                       **own("controller_node"), **fleet, **realtime_fleet.get("controller_node", {})}],
+             parameters=[params_file, {**controller, "mode": mode, **command, **own("controller_node"), **fleet}],
              **common),
         plant_node,
         *([] if robots else [_description(config["plant_params"], prefix, mode, **common)]),
@@ -175,9 +176,11 @@ def _nodes(context) -> list:
     if flag(config, "command_buffer"):
         nodes.append(Node(package=PACKAGE, executable="command_buffer_node", name="robotino_command_buffer",
                           parameters=[params_file], **common))
-    if record:
+    if record:  # it stores the controller's loop settings given here (for the replays)
+        settings = {spec.name: controller[spec.name] for spec in LOOP_SPECS if spec.name in controller}
         nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
-                          parameters=[params_file, {"output": config["bag"], "scenario": scenario}], **common))
+                          parameters=[params_file, {"output": config["bag"], "scenario": scenario, **settings}],
+                          **common))
     views = _rviz(config, namespace, remappings) if flag(config, "rviz") else []
     ended = EmitEvent(event=Shutdown(reason="the plant ended the run"))
     return [*nodes, *views, RegisterEventHandler(OnProcessExit(target_action=plant_node, on_exit=[ended]))]

@@ -129,7 +129,7 @@ class LoopConfigError(RobotinoError, ValueError):
 
 @dataclass(frozen=True)
 class LoopSettings:
-    """The controller's own parameters (the node's of the same names, `nodes.controller_inputs.CONTROLLER_SPECS`)."""
+    """The controller's own parameters (the node's of the same names, `params.specs.LOOP_SPECS`)."""
 
     odom_timeout_s: float = 0.1
     reference_timeout_s: float = 0.1

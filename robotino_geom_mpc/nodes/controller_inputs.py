@@ -49,15 +49,14 @@ callback) sends zero volts (a zero twist) as its last command.
 
 from __future__ import annotations
 
-import math
+from dataclasses import asdict
 from typing import Any
 
-from robotino_geom_mpc.control.blend import ANGULAR_LIMIT_RADPS2, LINEAR_LIMIT_MPS2
 from robotino_geom_mpc.control.motion_controller import MotionController
 from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.control.mpc import check_closed_loop
-from robotino_geom_mpc.params.specs import ParamSpec, params_from_values
-from robotino_geom_mpc.loop.inputs import QUATERNION_NORM_TOLERANCE, TILT_TOLERANCE_RAD
+from robotino_geom_mpc.params.specs import LOOP_SPECS, ParamSpec, params_from_values
+from robotino_geom_mpc.loop.controller_loop import LoopSettings
 
 __all__ = ["CONTROLLER_DEFAULTS", "CONTROLLER_SPECS", "FIXED_WHILE_RUNNING", "closed_loop_problem"]
 
@@ -65,23 +64,7 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("mode", str, "realtime: freshest preview, watchdog outputs zero volts; "
               "lockstep: preview of the same stamp",
               choices=("realtime", "lockstep")),
-    ParamSpec("odom_timeout_s", float, "Odometry older than this (arrival, and stamp against the node clock in "
-              "realtime) is stale: zero volts", "s", 0.0, 60.0, True),
-    ParamSpec("reference_timeout_s", float, "Reference preview older than this (arrival, and stamp against the node "
-              "clock in realtime) is stale: zero volts", "s", 0.0, 60.0, True),
-    ParamSpec("future_tolerance_s", float, "Realtime: an input stamped further ahead of the node clock is refused",
-              "s", 0.0, 60.0, False),
-    ParamSpec("quaternion_norm_tolerance", float, "An odometry or preview quaternion whose norm differs from 1 by more "
-              "(relative) is refused", "", 0.0, 0.5, True),
-    ParamSpec("tilt_tolerance_rad", float, "An odometry or preview orientation with more roll/pitch (tilt of the z "
-              "axis) is refused", "rad", 0.0, 0.5 * math.pi, True),
-    ParamSpec("reference_jump_m", float, "A preview whose reference position moved by more than this from the "
-              "previous preview (moved to its stamp) restarts the tracking bumplessly", "m", 0.0, 1e3, True),
-    ParamSpec("reference_jump_rad", float, "The same for the reference heading", "rad", 0.0, 1e3, True),
-    ParamSpec("blend_acceleration_mps2", float, "Bound on |(x'', y'')| of the bumpless-restart offset (its duration "
-              "is the shortest that meets it)", "m/s^2", 0.0, 100.0, True),
-    ParamSpec("blend_acceleration_radps2", float, "Bound on |theta''| of the bumpless-restart offset", "rad/s^2", 0.0,
-              1000.0, True),
+    *LOOP_SPECS,
     ParamSpec("frame_prefix", str, "Prefix of the odom frame of predicted_path (e.g. 'robot1/'; '' for 'odom')"),
     ParamSpec("command_interface", str, "voltages: wheel_voltages (std_msgs/Float64MultiArray) to the DC drives; "
               "cmd_vel: the MPC's base_link velocity for the next period (geometry_msgs/Twist) to a velocity-"
@@ -95,10 +78,7 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
               "twist every tick, diagnostic 'disabled') until ~/enable true, then tracks bumplessly"),
 )
 CONTROLLER_DEFAULTS: dict[str, Any] = {
-    "mode": "realtime", "odom_timeout_s": 0.1, "reference_timeout_s": 0.1, "future_tolerance_s": 0.05,
-    "quaternion_norm_tolerance": QUATERNION_NORM_TOLERANCE, "tilt_tolerance_rad": TILT_TOLERANCE_RAD,
-    "reference_jump_m": 0.005, "reference_jump_rad": 0.02,
-    "blend_acceleration_mps2": LINEAR_LIMIT_MPS2, "blend_acceleration_radps2": ANGULAR_LIMIT_RADPS2,
+    "mode": "realtime", **asdict(LoopSettings()),
     "frame_prefix": "", "command_interface": "voltages", "plans": False, "start_enabled": True,
     "publish_predicted_path": True,
 }

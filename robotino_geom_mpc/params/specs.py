@@ -15,6 +15,7 @@ from typing import Any
 from robotino_geom_mpc.errors import RobotinoError
 
 __all__ = [
+    "LOOP_SPECS",
     "TWIST_MODELS",
     "ParamSpec",
     "ParamError",
@@ -212,6 +213,28 @@ CHAIN_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("chain.link.jitter_s", float, "plus a uniform draw in [0, jitter_s] per message, each direction",
               "s", 0.0, 1.0, False),
     ParamSpec("chain.link.loss", float, "probability that a message is lost, each direction", "", 0.0, 0.5, False),
+)
+
+# the controller loop's own settings as node parameters (`loop.controller_loop.LoopSettings`, same names): the
+# controller node declares them, a recorder stores them for the replays
+LOOP_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("odom_timeout_s", float, "Odometry older than this (arrival, and stamp against the node clock in "
+              "realtime) is stale: zero volts", "s", 0.0, 60.0, True),
+    ParamSpec("reference_timeout_s", float, "Reference preview older than this (arrival, and stamp against the node "
+              "clock in realtime) is stale: zero volts", "s", 0.0, 60.0, True),
+    ParamSpec("future_tolerance_s", float, "Realtime: an input stamped further ahead of the node clock is refused",
+              "s", 0.0, 60.0, False),
+    ParamSpec("quaternion_norm_tolerance", float, "An odometry or preview quaternion whose norm differs from 1 by more "
+              "(relative) is refused", "", 0.0, 0.5, True),
+    ParamSpec("tilt_tolerance_rad", float, "An odometry or preview orientation with more roll/pitch (tilt of the z "
+              "axis) is refused", "rad", 0.0, 0.5 * math.pi, True),
+    ParamSpec("reference_jump_m", float, "A preview whose reference position moved by more than this from the "
+              "previous preview (moved to its stamp) restarts the tracking bumplessly", "m", 0.0, 1e3, True),
+    ParamSpec("reference_jump_rad", float, "The same for the reference heading", "rad", 0.0, 1e3, True),
+    ParamSpec("blend_acceleration_mps2", float, "Bound on |(x'', y'')| of the bumpless-restart offset (its duration "
+              "is the shortest that meets it)", "m/s^2", 0.0, 100.0, True),
+    ParamSpec("blend_acceleration_radps2", float, "Bound on |theta''| of the bumpless-restart offset", "rad/s^2", 0.0,
+              1000.0, True),
 )
 
 CHAIN_ACTIVE_SPEC = ParamSpec(

@@ -23,9 +23,10 @@ or preview is missing from the recording, and says so (`RegressionResult.gap_at_
 a fast lockstep loop can have lost samples; the ticks before the gap are still compared.
 
 The node's watchdog stops (its ``watchdog: ...`` statuses) are replayed where they came on the node's clock (the
-status's stamp): before the first odometry the node took later. Limits: the controller node's own parameters are
-not in the recording (the loop's defaults are used: blend limits, timeouts, tolerances); a parameter change during
-the run (the node rebuilds its controller) is not replayed; such a recording shows a deviation from that tick on.
+status's stamp): before the first odometry the node took later. The loop's own settings (timeouts, tolerances,
+blend limits) are the node's (`replay_inputs.loop_settings`: its parameter events in the recording, else the values
+the recorder stored, else the defaults). Limits: a parameter change during the run (the node rebuilds its
+controller) is not replayed; such a recording shows a deviation from that tick on.
 """
 
 from __future__ import annotations

@@ -34,8 +34,8 @@ The chain's parameters are a parameter file's if one is given (``--chain-params`
 controller's own from its ``/parameter_events`` in the recording, else those the recorder stored with the run
 (`topics.run_parameters`: the launch and `run` give the recorder the controller's ``chain.*``), else the
 robocup-logistics preset (`chain_source` says which).
-Limits: the controller node's own parameters are the loop's defaults; the watchdog of an exact replay decides on
-the node clock (the node's on steady time).
+The loop's own settings are the node's as `replay_inputs.loop_settings` finds them. Limits: the watchdog of an
+exact replay decides on the node clock (the node's on steady time).
 """
 
 from __future__ import annotations
@@ -59,14 +59,13 @@ from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.replay_inputs import ODOMETRY_STATUSES, WATCHDOG_STALE_NS, ControllerInputs, \
     Deviations, PreviewFeed
-from robotino_geom_mpc.recording.topics import by_publish_time, find_topic, run_parameters, stamp_ns
+from robotino_geom_mpc.recording.topics import CONTROLLER_NODE, controller_parameters, run_parameters, stamp_ns
 from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
 
 __all__ = ["BEAM", "RECEIVE_MARGIN_S", "chain_parameters", "regress_chain"]
 
 RECEIVE_MARGIN_S = 0.01  # a preview published this long before an odometry had reached the node
 BEAM = 32  # readings kept at once: the nearest to the recorded answers, then to the recorder's order
-_CONTROLLER_NODE = "robotino_controller"
 
 
 @dataclass
@@ -110,22 +109,13 @@ def chain_parameters(bag: BagReader, chain_file: str | os.PathLike | None = None
     BagError
         If the recorded or given values are not a valid chain.
     """
-    values: dict[str, Any] = {}
-    topic = find_topic(bag, "parameter_events", "rcl_interfaces/msg/ParameterEvent", False)
-    for _, event in by_publish_time(bag, topic):
-        if event.node.rsplit("/", 1)[-1] != _CONTROLLER_NODE:
-            continue
-        for parameter in (*event.new_parameters, *event.changed_parameters):
-            if parameter.name.startswith("chain."):
-                value = parameter.value
-                values[parameter.name] = {1: value.bool_value, 2: value.integer_value, 3: value.double_value,
-                                          4: value.string_value}.get(value.type)  # rcl_interfaces ParameterType
+    values = {name: value for name, value in controller_parameters(bag).items() if name.startswith("chain.")}
     active = values.pop("chain.active", None) == "enabled"
     try:
         if chain_file is not None:
             from robotino_geom_mpc.params.files import read_parameter_file
 
-            given = read_parameter_file(chain_file, _CONTROLLER_NODE)
+            given = read_parameter_file(chain_file, CONTROLLER_NODE)
             return chain_params({k: v for k, v in given.items() if k.startswith("chain.") and k != "chain.active"},
                                 where=str(chain_file)), str(chain_file), active
         known = {spec.name for spec in CHAIN_SPECS}

@@ -19,17 +19,18 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop
+from robotino_geom_mpc.loop.controller_loop import QUIET, ControllerLoop, LoopSettings
 from robotino_geom_mpc.loop.events import Now, Odometry, Output, Preview, Undecodable
-from robotino_geom_mpc.params.specs import ControlParams, RobotinoParams
+from robotino_geom_mpc.params.specs import LOOP_SPECS, ControlParams, RobotinoParams
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bagfile import BagError
-from robotino_geom_mpc.recording.topics import by_publish_time, controller_diagnostics, find_topic, stamp_ns
+from robotino_geom_mpc.recording.topics import CONTROLLER_NODE, by_publish_time, controller_diagnostics, \
+    controller_parameters, find_topic, run_parameters, stamp_ns
 from robotino_geom_mpc.ros.controller_cdr import STATUS_NAME
 from robotino_geom_mpc.ros.decode import odometry_input, preview_input
 
 __all__ = ["ODOMETRY_STATUSES", "WATCHDOG_STALE_NS", "ControllerInputs", "Deviations", "NodeClock", "PreviewFeed",
-           "diagnostics"]
+           "diagnostics", "loop_settings"]
 
 WATCHDOG_STALE_NS = 10**12  # a recorded watchdog stop replayed on a watchdog clock this far on: stale for sure
 # the controller's statuses of an odometry it took (stamped with its stamp): a step, or its refusal
@@ -57,6 +58,8 @@ class ControllerInputs:
         Preview stamp [ns] -> index of its first message.
     used, received
         Odometry stamp [ns] -> the preview stamp its status names, the reports it had received.
+    settings
+        The controller loop's settings the node ran with (`loop_settings`).
     """
 
     path: str
@@ -67,6 +70,7 @@ class ControllerInputs:
     first_of: dict[int, int]
     used: dict[int, int]
     received: dict[int, int]
+    settings: LoopSettings = LoopSettings()
     odom_log_ns: list[int] = field(default_factory=list)
     preview_log_ns: list[int] = field(default_factory=list)
 
@@ -94,7 +98,7 @@ class ControllerInputs:
                 received.setdefault(stamp, int(values["reports_received"]))
         return cls(str(bag.path), odom, previews, [odometry_input(msg) for _, msg in odom],
                    [preview_input(msg) for _, msg in previews], first_of, used, received,
-                   _log_times(bag, odom_topic) if log_times else [],
+                   loop_settings(bag, odom_topic), _log_times(bag, odom_topic) if log_times else [],
                    _log_times(bag, preview_topic) if log_times else [])
 
     @property
@@ -108,11 +112,25 @@ class ControllerInputs:
         """
         start = self.odom[0][0]
         frame = self.previews[0][1].header.frame_id if self.previews else "odom"
-        return ControllerLoop(robot, control, Now(start, start), odom_frame=frame, listeners=QUIET, **mode)
+        return ControllerLoop(robot, control, Now(start, start), self.settings, odom_frame=frame, listeners=QUIET,
+                              **mode)
 
     def seconds(self, stamp: int | None) -> float | None:
         """`stamp` [ns] as seconds after the first odometry's stamp (None stays None)."""
         return None if stamp is None else (stamp - self.first_stamp) * 1e-9
+
+
+def loop_settings(bag: BagReader, odom_topic: str) -> LoopSettings:
+    """The controller loop's settings (`params.specs.LOOP_SPECS`) the node of `odom_topic`'s namespace ran with: its
+    parameter events in the recording over the values the recorder stored (`run` and the launch give it those
+    they give the controller, e.g. a realtime fleet's ``reference_timeout_s``) over the defaults.
+    """
+    names = {spec.name for spec in LOOP_SPECS}
+    values = {name: value for name, value in (run_parameters(bag)[0] or {}).items()
+              if name in names and value is not None}
+    recorded = controller_parameters(bag, odom_topic.rsplit("/", 1)[0] + "/" + CONTROLLER_NODE)
+    values.update((name, value) for name, value in recorded.items() if name in names)
+    return LoopSettings.of(values)
 
 
 def _log_times(bag: BagReader, topic: str) -> list[int]:

@@ -16,7 +16,10 @@ from robotino_geom_mpc.ros.decode import diagnostics_with_of_message, stamp_ns
 
 __all__ = ["find_topic", "plan_topic", "converted_by_publish_time", "by_publish_time", "TRACKING_KEY",
            "read_controller_diagnostics", "controller_diagnostics_of_message", "controller_diagnostics", "stamp_ns",
-           "run_parameters"]
+           "run_parameters", "CONTROLLER_NODE", "controller_parameters"]
+
+CONTROLLER_NODE = "robotino_controller"  # the controller node's name (each robot's, in its namespace)
+_VALUE_FIELDS = {1: "bool_value", 2: "integer_value", 3: "double_value", 4: "string_value"}  # rcl_interfaces types
 
 _PLAN_TYPES = {"wheel_voltage_plan": "trajectory_msgs/msg/JointTrajectory",
                "cmd_vel_plan": "trajectory_msgs/msg/MultiDOFJointTrajectory"}
@@ -120,3 +123,26 @@ def run_parameters(bag: BagReader) -> tuple[dict[str, Any] | None, str]:
     except json.JSONDecodeError:
         raise BagError(f"{bag.path}: the stored run parameters are not valid JSON") from None
     return (values or None), scenario
+
+
+def controller_parameters(bag: BagReader, node: str | None = None) -> dict[str, Any]:
+    """The parameter values the controller's parameter events in the recording give (declared, then changed, in
+    publish order): of the node named `node` (its full name, e.g. ``/robot1/robotino_controller``), or of any node
+    named `CONTROLLER_NODE`; {} without events. Decoded by rclpy: rosbags refuses some events (their CDR size).
+    """
+    from rclpy.serialization import deserialize_message
+    from rcl_interfaces.msg import ParameterEvent
+
+    topic = find_topic(bag, "parameter_events", "rcl_interfaces/msg/ParameterEvent", False)
+    values: dict[str, Any] = {}
+    for m in sorted(bag.messages([topic] if topic else []), key=lambda m: m.publish_time_ns):
+        try:
+            event = deserialize_message(m.data, ParameterEvent)
+        except Exception as exc:  # rclpy's deserialization error of a damaged message
+            raise BagError(f"{bag.path}: a {m.type} message on {topic} does not decode: {exc!r}") from None
+        if event.node == node if node is not None else event.node.rsplit("/", 1)[-1] == CONTROLLER_NODE:
+            for parameter in (*event.new_parameters, *event.changed_parameters):
+                kind = _VALUE_FIELDS.get(parameter.value.type)
+                if kind is not None:
+                    values[parameter.name] = getattr(parameter.value, kind)
+    return values

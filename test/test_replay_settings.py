@@ -31,6 +31,7 @@ from robotino_geom_mpc.params.presets import default_params_file
 from robotino_geom_mpc.params.specs import ALL_SPECS, LOOP_SPECS
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bag_writer import BagWriter
+from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.regress import regress_bag
 from robotino_geom_mpc.recording.replay_inputs import loop_settings
 from robotino_geom_mpc.reference.trajectories import make_reference
@@ -140,6 +141,9 @@ def test_the_controllers_parameter_events_take_precedence_over_the_stored_settin
     assert loop_settings(BagReader(tmp_path / "other"), "/odom").reference_timeout_s == 0.3
     _record(tmp_path / "none", sent, None)
     assert loop_settings(BagReader(tmp_path / "none"), "/odom") == LoopSettings()
+    _record(tmp_path / "bad", sent, {**stored, "odom_timeout_s": "soon"})  # a recorder given a string: said so
+    with pytest.raises(BagError, match="loop settings in the recording are not numbers"):
+        loop_settings(BagReader(tmp_path / "bad"), "/odom")
 
 
 def test_run_and_the_fleet_give_the_recorder_the_controllers_loop_settings():

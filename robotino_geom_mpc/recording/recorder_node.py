@@ -29,7 +29,7 @@ nodes on one machine survives in the bag.
 Run parameters: started with the system's ``--params-file`` the recorder
 receives the ``/**`` robot/motor/control parameters too, and from the launch
 and `run` the controller's ``chain.*`` (identify's file) and the loop settings
-they give the controller (`loop.controller_loop.LOOP_SPECS`, e.g. a realtime
+they give the controller (`params.specs.LOOP_SPECS`, e.g. a realtime
 fleet's ``reference_timeout_s``); it stores them (and
 its ``scenario`` parameter) in an MCAP metadata record ``robotino_geom_mpc``
 written when the bag opens, and in metadata.yaml's custom_data, so a

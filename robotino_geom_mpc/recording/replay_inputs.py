@@ -130,7 +130,11 @@ def loop_settings(bag: BagReader, odom_topic: str) -> LoopSettings:
               if name in names and value is not None}
     recorded = controller_parameters(bag, odom_topic.rsplit("/", 1)[0] + "/" + CONTROLLER_NODE)
     values.update((name, value) for name, value in recorded.items() if name in names)
-    return LoopSettings.of(values)
+    try:
+        return LoopSettings.of(values)
+    except (TypeError, ValueError):
+        raise BagError(f"{bag.path}: the controller's loop settings in the recording are not numbers: {values}") \
+            from None
 
 
 def _log_times(bag: BagReader, topic: str) -> list[int]:

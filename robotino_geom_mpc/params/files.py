@@ -41,6 +41,7 @@ from robotino_geom_mpc.params.specs import (
     ROBOT_SPECS,
     CHAIN_ACTIVE_SPEC,
     CHAIN_SPECS,
+    LOOP_SPECS,
     ControlParams,
     ParamError,
     RobotinoParams,
@@ -60,6 +61,7 @@ __all__ = [
 
 _ROBOT_CONTROL = tuple(s.name for s in ALL_SPECS)
 _CHAIN = (CHAIN_ACTIVE_SPEC.name,) + tuple(s.name for s in CHAIN_SPECS)
+_LOOP = tuple(s.name for s in LOOP_SPECS)  # the controller loop's settings
 _LINK = tuple(f"link.{way}.{field}" for way in ("up", "down")
               for field in ("delay_s", "jitter_s", "loss", "burst_length", "duplicate"))  # the plant's radio link
 
@@ -68,10 +70,7 @@ RCLPY_PARAMETERS: tuple[str, ...] = ("use_sim_time", "start_type_description_ser
 
 NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "robotino_controller": _ROBOT_CONTROL + (
-        "mode", "odom_timeout_s", "reference_timeout_s", "future_tolerance_s", "quaternion_norm_tolerance",
-        "tilt_tolerance_rad", "reference_jump_m", "reference_jump_rad", "blend_acceleration_mps2",
-        "blend_acceleration_radps2", "frame_prefix", "command_interface", "plans", "start_enabled",
-        "publish_predicted_path",
+        "mode", *_LOOP, "frame_prefix", "command_interface", "plans", "start_enabled", "publish_predicted_path",
     ) + _CHAIN,
     "robotino_plant": _ROBOT_CONTROL + (
         "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s",
@@ -94,7 +93,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "recorder": _ROBOT_CONTROL + (
         "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",
         "scenario",
-    ) + _CHAIN,
+    ) + _CHAIN + _LOOP,
     "robot_description_publisher": _ROBOT_CONTROL + ("frame_prefix", "mode"),
     "robotino_goal_sender": ("goals_file", "mode"),
     "robotino_command_buffer": ("control.period_s", "idle_after_s", "pairing.lease_s"),

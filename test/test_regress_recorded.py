@@ -1,5 +1,7 @@
 """Replay of recordings made by older code: test/data/regress/ holds one per mode, made by `run` of commit
-ec8bd99 (its README.md: the commands), never re-recorded.
+ec8bd99, and two realtime runs of d447d5f under load whose order and times the replay has to take from the
+node (a watchdog stop racing an odometry, an odometry the node took stale); its README.md says how each was made.
+They are never re-recorded.
 
 Each recording, read by rosbags (a reader independent of the package's), holds the topics the replay reads, with
 their types, every message decodable, and the run's parameters in its metadata (read by mcap), so that the replay

@@ -72,7 +72,7 @@ from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
 from robotino_geom_mpc.params.files import load_params
-from robotino_geom_mpc.params.specs import LOOP_SPECS
+from robotino_geom_mpc.params.specs import RECORDED_CONTROLLER_SPECS
 from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
 from robotino_geom_mpc.system.processes import FLEET_NODES, FRAME_PREFIX_NODES, fleet_realtime_parameters, \
     fleet_wait_for, frame_prefix, namespace_remaps, recorder_wait_for, robot_names, ros_namespace
@@ -176,8 +176,8 @@ def _nodes(context) -> list:
     if flag(config, "command_buffer"):
         nodes.append(Node(package=PACKAGE, executable="command_buffer_node", name="robotino_command_buffer",
                           parameters=[params_file], **common))
-    if record:  # it stores the controller's loop settings given here (for the replays)
-        settings = {spec.name: controller[spec.name] for spec in LOOP_SPECS if spec.name in controller}
+    if record:  # it stores the controller's chain and loop settings given here (for the replays)
+        settings = {spec.name: controller[spec.name] for spec in RECORDED_CONTROLLER_SPECS if spec.name in controller}
         nodes.append(Node(package=PACKAGE, executable="recorder_node", name="recorder",
                           parameters=[params_file, {"output": config["bag"], "scenario": scenario, **settings}],
                           **common))

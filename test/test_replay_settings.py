@@ -28,7 +28,7 @@ from robotino_geom_mpc.loop.controller_loop import ControllerLoop, LoopSettings
 from robotino_geom_mpc.loop.events import Command, Diagnostic, Now
 from robotino_geom_mpc.params.files import load_params, read_parameter_file
 from robotino_geom_mpc.params.presets import default_params_file
-from robotino_geom_mpc.params.specs import ALL_SPECS, LOOP_SPECS
+from robotino_geom_mpc.params.specs import ALL_SPECS, RECORDED_CONTROLLER_SPECS
 from robotino_geom_mpc.recording.bag_reader import BagReader
 from robotino_geom_mpc.recording.bag_writer import BagWriter
 from robotino_geom_mpc.recording.bagfile import BagError
@@ -147,12 +147,12 @@ def test_the_controllers_parameter_events_take_precedence_over_the_stored_settin
 
 
 def test_run_and_the_fleet_give_the_recorder_the_controllers_loop_settings():
-    """`node_arguments` gives the recorder the loop settings it gives the controller (the realtime fleet's timeout
-    included), and only those (`params.specs.LOOP_SPECS`).
+    """`node_arguments` gives the recorder the loop settings and the chain it gives the controller (the realtime
+    fleet's timeout included), and only those (`params.specs.RECORDED_CONTROLLER_SPECS`).
     """
     def recorder(args: list[str]) -> dict[str, str]:
         return dict(a.split(":=", 1) for a in args if ":=" in a and a.split(":=", 1)[0] in
-                    {s.name for s in LOOP_SPECS})
+                    {s.name for s in RECORDED_CONTROLLER_SPECS})
 
     params = default_params_file()
     single = node_arguments("paper-circle", params, 2.0, False, bag="b",
@@ -162,3 +162,6 @@ def test_run_and_the_fleet_give_the_recorder_the_controllers_loop_settings():
     timeout = round(LoopSettings().reference_timeout_s + 10 * CONTROL.period_s, 9)
     assert recorder(fleet["recorder_node"]) == {"reference_timeout_s": repr(timeout)}
     assert recorder(node_arguments("paper-circle", params, 2.0, True, bag="b")["recorder_node"]) == {}
+    chain = node_arguments("paper-circle", params, 2.0, False, bag="b", overrides={"controller_node": {
+        "chain.active": "enabled", "chain.driver_phase_s": 0.012}})  # `run --chain`'s
+    assert recorder(chain["recorder_node"]) == {"chain.active": "enabled", "chain.driver_phase_s": "0.012"}

@@ -255,9 +255,8 @@ def run(args: argparse.Namespace) -> int:
                              "clock)")
         values = {"chain.active": "enabled", **chain.values()}
         # the PI loops at 200 Hz (5 samples a tick, 1 kHz offline): the emulation keeps up with the wall clock
-        # (the recorder stores the controller's chain in the bag: regress replays it)
-        overrides = {"plant_node": {**values, "wheel_pi.rate_hz": CHAIN_PI_RATE_HZ}, "controller_node": dict(values),
-                     "recorder_node": dict(values)}
+        # (the recorder stores the controller's chain in the bag, `node_arguments`: regress replays it)
+        overrides = {"plant_node": {**values, "wheel_pi.rate_hz": CHAIN_PI_RATE_HZ}, "controller_node": dict(values)}
     link = link_from_args(args)
     params_file = (args.params or default_params_file()).resolve()
     _, control = load_params(params_file)

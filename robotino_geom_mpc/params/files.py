@@ -42,6 +42,7 @@ from robotino_geom_mpc.params.specs import (
     CHAIN_ACTIVE_SPEC,
     CHAIN_SPECS,
     LOOP_SPECS,
+    RECORDED_CONTROLLER_SPECS,
     ControlParams,
     ParamError,
     RobotinoParams,
@@ -93,7 +94,7 @@ NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "recorder": _ROBOT_CONTROL + (
         "output", "topics", "discovery_period_s", "flush_period_s", "chunk_size_bytes", "compression", "qos_depth",
         "scenario",
-    ) + _CHAIN + _LOOP,
+    ) + tuple(s.name for s in RECORDED_CONTROLLER_SPECS),
     "robot_description_publisher": _ROBOT_CONTROL + ("frame_prefix", "mode"),
     "robotino_goal_sender": ("goals_file", "mode"),
     "robotino_command_buffer": ("control.period_s", "idle_after_s", "pairing.lease_s"),

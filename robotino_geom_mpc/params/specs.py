@@ -16,6 +16,7 @@ from robotino_geom_mpc.errors import RobotinoError
 
 __all__ = [
     "LOOP_SPECS",
+    "RECORDED_CONTROLLER_SPECS",
     "TWIST_MODELS",
     "ParamSpec",
     "ParamError",
@@ -241,6 +242,10 @@ CHAIN_ACTIVE_SPEC = ParamSpec(
     "chain.active", str, "enabled: the plant node behaves as the driver + firmware chain chain.* (realtime, cmd_vel) "
     "and the controller controls through it (control.chain_controller: reconstructed measurement times, the command "
     "path predicted, ramp-respecting velocities); disabled: neither", choices=("disabled", "enabled"))
+
+# the controller's parameters a recorder stores beside the robot's and the control's (given by the launch and `run`
+# the values they give the controller): what the replays need of it besides its model
+RECORDED_CONTROLLER_SPECS: tuple[ParamSpec, ...] = (*CHAIN_SPECS, CHAIN_ACTIVE_SPEC, *LOOP_SPECS)
 
 
 def validate_value(spec: ParamSpec, value: Any, where: str = "") -> Any:

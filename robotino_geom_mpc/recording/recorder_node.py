@@ -29,7 +29,7 @@ nodes on one machine survives in the bag.
 Run parameters: started with the system's ``--params-file`` the recorder
 receives the ``/**`` robot/motor/control parameters too, and from the launch
 and `run` the controller's ``chain.*`` (identify's file) and the loop settings
-they give the controller (`params.specs.LOOP_SPECS`, e.g. a realtime
+they give the controller (`params.specs.RECORDED_CONTROLLER_SPECS`, e.g. a realtime
 fleet's ``reference_timeout_s``); it stores them (and
 its ``scenario`` parameter) in an MCAP metadata record ``robotino_geom_mpc``
 written when the bag opens, and in metadata.yaml's custom_data, so a
@@ -65,7 +65,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
-from robotino_geom_mpc.params.specs import ALL_SPECS, CHAIN_ACTIVE_SPEC, CHAIN_SPECS, LOOP_SPECS
+from robotino_geom_mpc.params.specs import ALL_SPECS, RECORDED_CONTROLLER_SPECS
 from robotino_geom_mpc.recording.bag_writer import BagWriter, default_bag_name, default_compression
 from robotino_geom_mpc.recording.bagfile import BagError
 from robotino_geom_mpc.recording.definitions import message_class
@@ -98,7 +98,7 @@ def _hidden(topic: str) -> bool:
 
 # the run parameters the recorder declares and stores: the robot, the control, the chain, the controller loop's
 # settings (what `regress` replays)
-_STORED = (*ALL_SPECS, *CHAIN_SPECS, CHAIN_ACTIVE_SPEC, *LOOP_SPECS)
+_STORED = (*ALL_SPECS, *RECORDED_CONTROLLER_SPECS)
 
 class RecorderNode(Node):
     """Records topics serialized into a `BagWriter`; see the module docstring for the behaviour."""

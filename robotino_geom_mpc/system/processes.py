@@ -164,7 +164,7 @@ def node_arguments(
     (``lockstep_max_realtime_factor`` 1), so the view shows the run from tick 0 at the pace it would have.
     """
     from robotino_geom_mpc.params.files import load_params
-    from robotino_geom_mpc.params.specs import LOOP_SPECS
+    from robotino_geom_mpc.params.specs import RECORDED_CONTROLLER_SPECS
     from robotino_geom_mpc.scenarios import node_parameters
     from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST
 
@@ -193,10 +193,10 @@ def node_arguments(
     remaps = namespace_remaps(namespace, lockstep)
     frames = {name: {"frame_prefix": frame_prefix(namespace)} for name in FRAME_PREFIX_NODES} if namespace else {}
     args = {}
-    if bag is not None:  # it stores the controller's loop settings given here (for the replays)
+    if bag is not None:  # it stores the controller's chain and loop settings given here (for the replays)
         settings = {name: value for name, value in {**scenario_overrides["controller_node"],
                                                     **extra.get("controller_node", {})}.items()
-                    if name in {spec.name for spec in LOOP_SPECS}}
+                    if name in {spec.name for spec in RECORDED_CONTROLLER_SPECS}}
         args["recorder_node"] = ros_args(params_file, {"output": str(bag), "scenario": scenario, **settings,
                                                        **extra.get("recorder_node", {})}, remaps)
     # no use_sim_time: in lockstep the trajectory's time is the /clock messages and the controller's the

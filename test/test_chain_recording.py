@@ -202,6 +202,7 @@ def test_regress_replays_a_chain_run_started_disabled(tmp_path):
     import signal
     import time
 
+    from diagnostic_msgs.msg import DiagnosticArray
     from std_srvs.srv import SetBool
 
     from harness import Harness
@@ -215,9 +216,11 @@ def test_regress_replays_a_chain_run_started_disabled(tmp_path):
                                      "controller_node": {**chain, "start_enabled": False}})
     with Harness("chain_disabled_recording") as h, NodeGroup(log_dir=tmp_path) as group:
         nodes = {name: group.start(name, argv) for name, argv in args.items()}
+        statuses = h.collect("/diagnostics", DiagnosticArray)
         client = h.node.create_client(SetBool, "/robotino_controller/enable")
         assert client.wait_for_service(timeout_sec=60.0)
-        h.spin_for(2.0)  # held
+        # held for 1 s of odometry (30 Hz) as this process sees it: a loaded host starts the plant later
+        assert h.spin_until(lambda: sum(any(s.message == "disabled" for s in m.status) for m in statuses) >= 30, 60.0)
         assert h._call(client, SetBool.Request(data=True), 30.0).message == "enabled"
         h.spin_for(4.0)
         for name in ("trajectory_node", "controller_node", "plant_node", "robot_description_publisher"):

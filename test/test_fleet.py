@@ -149,10 +149,13 @@ def test_one_robots_stale_odometry_or_disable_zeroes_that_robot_only(tmp_path):
         def tracking(ns):
             return sum(values(d)[0].message == "tracking" for d in rigs[ns][1])
 
+        last_stamp: dict[str, int] = {}  # each robot's last odometry fed
+
         def feed(robots, ticks, start):
             for k in range(start, start + ticks):
                 stamp = h.node.get_clock().now().nanoseconds
                 for ns in robots:
+                    last_stamp[ns] = stamp
                     _, _, odom, preview = rigs[ns]
                     msg = stamped_preview(reference, k * period_ns, stamp, control)
                     msg.header.frame_id = f"{ns}/odom"  # each robot's frames carry its prefix
@@ -168,7 +171,11 @@ def test_one_robots_stale_odometry_or_disable_zeroes_that_robot_only(tmp_path):
             k = feed(ROBOTS, 1, k)
         assert min(tracking(ns) for ns in ROBOTS) >= 5, node.stderr_tail()
 
-        # robot2's odometry stops; robot1 and robot3 go on
+        # robot2's odometry stops; robot1 and robot3 go on, from robot2's answer to its last odometry on (its
+        # status, published just after its voltages: a loaded host answers later than the feed's 20 ms)
+        assert h.spin_until(lambda: any(d.header.stamp.sec * 10**9 + d.header.stamp.nanosec == last_stamp["robot2"]
+                                        for d in rigs["robot2"][1]), 0.1), "robot2's last odometry not answered"
+        h.spin_for(0.01)
         counts = {ns: (len(rigs[ns][0]), tracking(ns)) for ns in ROBOTS}
         k = feed(("robot1", "robot3"), 40, k)  # 0.8 s: robot2 stale after 0.2 s
         volts = {ns: [list(m.data) for m in rigs[ns][0]][counts[ns][0]:] for ns in ROBOTS}

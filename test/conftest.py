@@ -8,7 +8,8 @@ killed processes left in /dev/shm are removed.
 
 Every test is in one tier, marked in its file (setup.cfg lists the markers): ``unit`` (in-process, no
 child process, no DDS: `make unit`) or ``ros`` (starts processes: nodes over DDS, the CLI, worker pools);
-``slow`` marks the long ones besides, ``longest`` those of half a minute or more. Under CI=true Hypothesis runs derandomized (the same examples each run).
+``slow`` marks the long ones besides, ``longest`` those of half a minute or more. Under CI=true Hypothesis runs
+derandomized (the same examples each run).
 """
 
 import os

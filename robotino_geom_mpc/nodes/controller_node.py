@@ -117,7 +117,7 @@ from robotino_geom_mpc.ros.decode import InputRejected, odometry_values, preview
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, PreviewLayouts, odometry_layout
 from robotino_geom_mpc.ros.parameters import NodeStartError, SpecParameters, spec_defaults
 from robotino_geom_mpc.ros.plans import PlanMessageError, report_of_message
-from robotino_geom_mpc.ros.qos import CONTROL_QOS, LOCKSTEP_PUBLISH_QOS, publish_qos
+from robotino_geom_mpc.ros.qos import CONTROL_QOS, LATEST_QOS, LOCKSTEP_PUBLISH_QOS, publish_qos
 from robotino_geom_mpc.ros.source_gate import SourceGate, WithInfo
 from robotino_geom_mpc.ros.spin import run_node
 
@@ -168,7 +168,10 @@ class ControllerNode(Node):
         self.preview_layouts = PreviewLayouts(control.period_s, self.loop.preview_points, prefix)  # longer: learnt
         # lockstep plans: the previews of the ticks before an odometry's late delivery are all kept
         qos = LOCKSTEP_PUBLISH_QOS if self.params["plans"] and lockstep else CONTROL_QOS
-        self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, qos, raw=True)
+        # realtime: the newest odometry only; the chain's controller reads every sample of the driver's bursts
+        newest = not lockstep and self.loop.chain is None
+        self.odom_sub = self.create_subscription(Odometry, "odom", self._on_odom, LATEST_QOS if newest else qos,
+                                                 raw=True)
         self.preview_gate = SourceGate(self, "reference_preview")
         self.preview_sub = self.create_subscription(MultiDOFJointTrajectory, "reference_preview",
                                                     WithInfo(self._on_preview), qos, raw=True)

@@ -190,6 +190,8 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
             gap = (stamp, "reference_preview")
             break
         previous = stamp
+        if not lockstep and not node.took(stamp):
+            continue  # replaced by a newer one in the node's reader before it took it
         now = node.take(replay, stamp, publish)
         # the previews the node had by this odometry: lockstep that of its stamp; realtime up to the one its
         # diagnostics name, else those published before its answer (none before the first one named, nor for

@@ -79,6 +79,8 @@ def regress_plans(bag: BagReader, inputs: ControllerInputs, diags: list[tuple[in
             report(publish, reports[index][1])
             continue
         stamp = stamp_ns(inputs.odom[index][1].header.stamp)
+        if not lockstep and not node.took(stamp):
+            continue  # replaced by a newer one in the node's reader before it took it
         if stamp in received:
             for report_publish, report_msg in itertools.islice(pending, max(received[stamp] - taken, 0)):
                 report(report_publish, report_msg)

@@ -196,6 +196,14 @@ class NodeClock:
                     taken[stamp] = int(clock) if clock.isdigit() else publish
         return cls(stops, taken)
 
+    def took(self, stamp: int) -> bool:
+        """Whether the node took the realtime odometry of `stamp`: one with a status, or any in a recording without
+        statuses. Its reader keeps the newest odometry only (`ros.qos.LATEST_QOS`): one that a newer replaced
+        before the node took it was never answered, and the replay skips it as the node did (the silent ticks
+        the node took, with no preview or a stale one, change no state a later answer reads).
+        """
+        return not self.taken or stamp in self.taken
+
     def take(self, loop: ControllerLoop, stamp: int, publish: int) -> Now:
         """The time the node took the odometry of `stamp` (published at `publish`: without a status, that), after
         the watchdog stops that fired before it (on `loop`: stale by then for sure; the node decided on its steady

@@ -5,6 +5,14 @@
   be lost), keep-last with a small depth (the newest sample is what matters;
   a short queue bounds latency but holds the previews of two ticks in
   flight), volatile (old control data is useless to a late joiner).
+* `LATEST_QOS`, the realtime controller's odometry (not the chain's, which
+  reads every sample of the driver's bursts): as `CONTROL_QOS` with depth 1.
+  The newest measurement is the only one worth an answer: a controller
+  that falls behind (a loaded host, a fleet process) answers the newest
+  odometry instead of working through a queue of ones the robot has left
+  behind, each answer later than the one before (README: a fleet). The
+  replays skip the odometry the node never took (no status of it,
+  `recording.replay_inputs.NodeClock.took`).
 * `publish_qos(lockstep)`, every publisher of the loop (the same topics
   plus wheel_currents, joint_states, ground_truth/odom, diagnostics,
   /clock), reliable and volatile:
@@ -44,12 +52,18 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from robotino_geom_mpc.ros.throttle import warn_throttled
 
-__all__ = ["CONTROL_QOS", "PUBLISH_QOS", "LOCKSTEP_PUBLISH_QOS", "LATCHED_QOS", "CLOCK_SUB_QOS", "publish_qos",
-           "publish_acknowledged", "wait_acknowledged"]
+__all__ = ["CONTROL_QOS", "LATEST_QOS", "PUBLISH_QOS", "LOCKSTEP_PUBLISH_QOS", "LATCHED_QOS", "CLOCK_SUB_QOS",
+           "publish_qos", "publish_acknowledged", "wait_acknowledged"]
 
 CONTROL_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=5,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+LATEST_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )

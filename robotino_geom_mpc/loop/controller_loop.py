@@ -47,7 +47,9 @@ The chain (``chain``: the controller through the real driver's chain, realtime, 
 `control.chain_tracking.ChainTracker` with the newest preview at the clock handed in; duplicate and old-looking
 stamps are used (dispatch times); every zero sent is noted in its command model; each tick's diagnostic
 (message ``chain``) names the preview used (``preview_stamp_ns``). Every status, in every mode, carries the clock
-handed in (``clock_ns``), so that a recording replays in the node's order at the node's times.
+handed in (``clock_ns``) and the one handed in with the newest preview it took (``preview_clock_ns``; empty before
+any), so that a recording replays in the node's order at the node's times: a node that fell behind took a preview
+later than its publication, and its age at a tick (``reference_timeout_s``) counts from then.
 """
 
 from __future__ import annotations
@@ -381,6 +383,7 @@ class ControllerLoop:
         self._start_watch_ns = now.watch_ns
         self._odom_watch_ns: int | None = None  # arrival times of accepted inputs (watch clock)
         self._preview_watch_ns: int | None = None
+        self._preview_clock_ns: int | None = None  # the node clock then (statuses: ``preview_clock_ns``)
         self._now = now
         self._out: list[Output] = []
         self._limits()
@@ -394,7 +397,7 @@ class ControllerLoop:
     @property
     def event_keys(self) -> tuple[str, ...]:
         """The keys every status carries (after a tick's own)."""
-        return _EVENT_KEYS + (LINK_KEYS if self.plans is not None else ()) + ("clock_ns",)
+        return _EVENT_KEYS + (LINK_KEYS if self.plans is not None else ()) + ("clock_ns", "preview_clock_ns")
 
     def _limits(self) -> None:
         s = self.settings
@@ -487,7 +490,7 @@ class ControllerLoop:
         except InputRejected as exc:
             self.pairing.refuse_preview(self, stamp, exc.reason, str(exc))
             return self._out
-        self._preview_watch_ns = now.watch_ns
+        self._preview_watch_ns, self._preview_clock_ns = now.watch_ns, now.clock_ns
         if latest is None or stamp > latest[0]:
             first = (values[:PLANAR_POINT_SIZE] if planar else
                      (values[0], values[1], float(arrays[0][0, 2]), *values[6:POINT_SIZE]))
@@ -779,7 +782,7 @@ class ControllerLoop:
                 values.append("nan" if isinstance(value, float) and np.isnan(value) else
                               f"{value:.6f}" if isinstance(value, float) else str(value))
             values += [str(self.refused_reports), str(self.reports_received)]
-        values.append(str(self._now.clock_ns))
+        values += [str(self._now.clock_ns), "" if self._preview_clock_ns is None else str(self._preview_clock_ns)]
         return values
 
     def _wait_log(self, watch_ns: int) -> None:

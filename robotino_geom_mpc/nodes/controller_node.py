@@ -19,8 +19,9 @@ publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layo
                                   stale_odom, stale_reference), ``rejected`` (refusals so far),
                                   ``last_refusal`` (its reason key, ``none``), ``dropped_duplicate``,
                                   ``dropped_old``, ``blend_remaining_s``, ``blend_engagements``,
-                                  ``clock_ns`` (the node clock at the input). Built and sent only while a
-                                  subscription is matched.
+                                  ``clock_ns`` (the node clock at the input), ``preview_clock_ns`` (the
+                                  node clock when it took the newest preview; empty before any). Built
+                                  and sent only while a subscription is matched.
            ``predicted_path``     nav_msgs/Path in ``<frame_prefix>odom``: the MPCs' y(k+1) .. y(k+N) (eq. 50
                                   under the optimal increments of eq. 56), pose j stamped t_k + j Ts; computed
                                   and sent only while a subscription is matched (``publish_predicted_path``
@@ -66,8 +67,8 @@ and the node clock at the step; two odometries of one driver pass share a stamp 
 too (a dispatch time); every zero twist the node sends is noted in its command model; disabled, each odometry is
 answered with a zero twist, noted as well, and enabled again it goes on from its model (no blend: the one-move
 plan's braking limit keeps within the firmware's ramps). Its status per tick (message ``chain``) names
-``preview_stamp_ns``. Every status (every mode) carries the node clock at its input, ``clock_ns``: a recording
-replays exactly.
+``preview_stamp_ns``. Every status (every mode) carries the node clock at its input, ``clock_ns``, and when it
+took the newest preview, ``preview_clock_ns``: a recording replays exactly, also of a node that fell behind.
 
 One reference source: the loop pairs with the first publisher of ``reference_preview`` (told apart by
 `ros.source_gate.SourceGate`) and refuses the previews of any other while the paired one's are fresh

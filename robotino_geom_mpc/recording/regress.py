@@ -3,11 +3,12 @@
 A fresh `loop.controller_loop.ControllerLoop` (the node's tick protocol), built from the run parameters the
 recording stores (or a parameter file), is given what the controller node got, in the recorded order with the
 recorded times (each message's publish time as the clock; an odometry the node published a status of at its clock
-then, the status's ``clock_ns``, in older recordings the status's publication): every ``odom`` message once and the
-``reference_preview`` messages the node had by then -- lockstep: the preview of the same stamp (the loop pairs
-them); realtime: the previews up to the one the node's diagnostics name for the tick (``preview_stamp_ns``), else
-those published before the next odometry (the ticks before the first preview the diagnostics name are not
-answered: the node had no preview yet). The loop answers as the node did: the preview moved to the tick's stamp,
+then, the status's ``clock_ns``, in older recordings the status's publication): every ``odom`` message once (a
+realtime one the node published no status of was never taken: skipped) and the ``reference_preview`` messages the
+node had by then -- lockstep: the preview of the same stamp (the loop pairs them); realtime: the previews up to the
+one the node's diagnostics name for the tick (``preview_stamp_ns``; that one at the clock the node took it,
+``preview_clock_ns``, when the status names it), else those published before the next odometry (the ticks before
+the first preview the diagnostics name are not answered: the node had no preview yet). The loop answers as the node did: the preview moved to the tick's stamp,
 the step interval, the bumpless (re)starts, zero on a refused input. Its commands are compared with the recorded
 ``wheel_voltages`` answer of the tick (paired through the controller's ``diagnostics``, stamped with the tick, see
 `report`). Deterministic code on identical inputs gives identical floats, so the tolerance is 1e-12 V. A cmd_vel
@@ -199,7 +200,7 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
         if lockstep:
             previews.give(by_stamp[stamp])
         elif stamp in used:
-            previews.feed(by_stamp.get(used[stamp], previews.fed))
+            previews.feed_used(by_stamp.get(used[stamp], previews.fed), inputs.preview_clock.get(stamp))
         elif not used or (count.ticks > 0 and stamp in node.taken):
             answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
             previews.feed(bisect_left(prev_t, answer_publish) - 1)

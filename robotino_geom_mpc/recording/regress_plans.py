@@ -90,7 +90,7 @@ def regress_plans(bag: BagReader, inputs: ControllerInputs, diags: list[tuple[in
                 previews.give(by_stamp[ordered[fed_stamps]])
                 fed_stamps += 1
         elif stamp in used:  # the previews up to the one it used
-            previews.feed(by_stamp.get(used[stamp], previews.fed))
+            previews.feed_used(by_stamp.get(used[stamp], previews.fed), inputs.preview_clock.get(stamp))
         plans = [o.plan for o in replay.on_input(inputs.odometries[index], node.take(replay, stamp, publish))
                  if isinstance(o, PlanOut)]
         if not plans:

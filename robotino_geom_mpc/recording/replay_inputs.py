@@ -58,6 +58,9 @@ class ControllerInputs:
         Preview stamp [ns] -> index of its first message.
     used, received
         Odometry stamp [ns] -> the preview stamp its status names, the reports it had received.
+    preview_clock
+        Odometry stamp [ns] -> the node clock when it took the newest preview it had (its status's
+        ``preview_clock_ns``; recordings made before the statuses carried it: none).
     settings
         The controller loop's settings the node ran with (`loop_settings`).
     """
@@ -71,6 +74,7 @@ class ControllerInputs:
     used: dict[int, int]
     received: dict[int, int]
     settings: LoopSettings = LoopSettings()
+    preview_clock: dict[int, int] = field(default_factory=dict)
     odom_log_ns: list[int] = field(default_factory=list)
     preview_log_ns: list[int] = field(default_factory=list)
 
@@ -87,6 +91,7 @@ class ControllerInputs:
             first_of.setdefault(stamp_ns(msg.header.stamp), j)
         used: dict[int, int] = {}
         received: dict[int, int] = {}
+        preview_clock: dict[int, int] = {}
         for _, msg in diags:
             values = controller_diagnostics(msg)
             if values is None:
@@ -96,9 +101,11 @@ class ControllerInputs:
                 used.setdefault(stamp, int(values["preview_stamp_ns"]))
             if values.get("reports_received", "").isdigit():
                 received.setdefault(stamp, int(values["reports_received"]))
+            if values.get("preview_clock_ns", "").isdigit():
+                preview_clock.setdefault(stamp, int(values["preview_clock_ns"]))
         return cls(str(bag.path), odom, previews, [odometry_input(msg) for _, msg in odom],
                    [preview_input(msg) for _, msg in previews], first_of, used, received,
-                   loop_settings(bag, odom_topic), _log_times(bag, odom_topic) if log_times else [],
+                   loop_settings(bag, odom_topic), preview_clock, _log_times(bag, odom_topic) if log_times else [],
                    _log_times(bag, preview_topic) if log_times else [])
 
     @property
@@ -168,6 +175,18 @@ class PreviewFeed:
         """`up_to` whose outputs nobody reads."""
         for _ in self.up_to(last, clock):
             pass
+
+    def feed_used(self, last: int, taken_ns: int | None) -> None:
+        """`feed` up to the preview a realtime tick used, index `last`, that one at `taken_ns` on both clocks: when
+        the node took it (its status's ``preview_clock_ns``: behind, later than its publication, and its age at
+        the tick counts from then); None: at its publication.
+        """
+        if taken_ns is None or last <= self.fed:
+            self.feed(last)
+            return
+        self.feed(last - 1)
+        self.fed = last
+        self.loop.on_input(self.inputs.preview_events[last], Now(taken_ns, taken_ns))
 
 
 @dataclass

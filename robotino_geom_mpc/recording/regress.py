@@ -8,8 +8,9 @@ realtime one the node published no status of was never taken: skipped) and the `
 node had by then -- lockstep: the preview of the same stamp (the loop pairs them); realtime: the previews up to the
 one the node's diagnostics name for the tick (``preview_stamp_ns``; that one at the clock the node took it,
 ``preview_clock_ns``, when the status names it), else those published before the next odometry (the ticks before
-the first preview the diagnostics name are not answered: the node had no preview yet). The loop answers as the node did: the preview moved to the tick's stamp,
-the step interval, the bumpless (re)starts, zero on a refused input. Its commands are compared with the recorded
+the first preview the diagnostics name are not answered: the node had no preview yet). The loop answers as the
+node did: the preview moved to the tick's stamp, the step interval, the bumpless (re)starts, zero on a refused
+input. Its commands are compared with the recorded
 ``wheel_voltages`` answer of the tick (paired through the controller's ``diagnostics``, stamped with the tick, see
 `report`). Deterministic code on identical inputs gives identical floats, so the tolerance is 1e-12 V. A cmd_vel
 run (its controller sent twists on ``cmd_vel``, no ``wheel_voltages``) is compared the same way on the twist the

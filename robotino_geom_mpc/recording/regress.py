@@ -7,16 +7,16 @@ then, the status's ``clock_ns``, in older recordings the status's publication): 
 realtime one the node published no status of was never taken: skipped) and the ``reference_preview`` messages the
 node had by then -- lockstep: the preview of the same stamp (the loop pairs them); realtime: the previews up to the
 one the node's diagnostics name for the tick (``preview_stamp_ns``; that one at the clock the node took it,
-``preview_clock_ns``, when the status names it), else those published before the next odometry (the ticks before
-the first preview the diagnostics name are not answered: the node had no preview yet). The loop answers as the
-node did: the preview moved to the tick's stamp, the step interval, the bumpless (re)starts, zero on a refused
-input. Its commands are compared with the recorded
-``wheel_voltages`` answer of the tick (paired through the controller's ``diagnostics``, stamped with the tick, see
-`report`). Deterministic code on identical inputs gives identical floats, so the tolerance is 1e-12 V. A cmd_vel
-run (its controller sent twists on ``cmd_vel``, no ``wheel_voltages``) is compared the same way on the twist the
-node sends (v_x, v_y [m/s], theta' [rad/s] in base_link; zero where the node refused the input), with the same
-tolerance in those units. Runs with plans: `regress_plans`; chain runs: `regress_chain`; what all of them read
-from a recording and how they hand it to the loop: `replay_inputs`.
+``preview_clock_ns``, when the status names it), else those published before the next odometry (the ticks before the
+first preview the diagnostics name are not answered: the node had no preview yet). The loop answers as the node did:
+the preview moved to the tick's stamp, the step interval, the bumpless (re)starts, zero on a refused input. Its
+commands are compared with the recorded ``wheel_voltages`` answer of the tick (paired through the controller's
+``diagnostics``, stamped with the tick, see `report`). Deterministic code on identical inputs gives identical
+floats, so the tolerance is 1e-12 V. A cmd_vel run (its controller sent twists on ``cmd_vel``, no
+``wheel_voltages``) is compared the same way on the twist the node sends (v_x, v_y [m/s], theta' [rad/s] in
+base_link; zero where the node refused the input), with the same tolerance in those units. Runs with plans:
+`regress_plans`; chain runs: `regress_chain`; what all of them read from a recording and how they hand it to the
+loop: `replay_inputs`.
 
 The controller carries state from tick to tick (u(k-1) of the Delta-u form, the pose estimate), so the replay
 needs every tick's inputs. In a lockstep recording (its first tick has a preview of the same stamp; the ticks are
@@ -196,13 +196,12 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
             continue  # replaced by a newer one in the node's reader before it took it
         now = node.take(replay, stamp, publish)
         # the previews the node had by this odometry: lockstep that of its stamp; realtime up to the one its
-        # diagnostics name, else those published before its answer (none before the first one named, nor for
-        # an odometry the node published no status of: it had no preview, e.g. since a watchdog stop)
+        # diagnostics name, else those published before its answer (none before the first one named)
         if lockstep:
             previews.give(by_stamp[stamp])
         elif stamp in used:
             previews.feed_used(by_stamp.get(used[stamp], previews.fed), inputs.preview_clock.get(stamp))
-        elif not used or (count.ticks > 0 and stamp in node.taken):
+        elif not used or count.ticks > 0:
             answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
             previews.feed(bisect_left(prev_t, answer_publish) - 1)
         out = replay.on_input(inputs.odometries[index], now)

@@ -8,8 +8,7 @@ killed processes left in /dev/shm are removed.
 
 Every test is in one tier, marked in its file (setup.cfg lists the markers): ``unit`` (in-process, no
 child process, no DDS: `make unit`) or ``ros`` (starts processes: nodes over DDS, the CLI, worker pools);
-``slow`` marks the long ones besides, ``longest`` those of half a minute or more. Under CI=true Hypothesis runs
-derandomized (the same examples each run).
+``slow`` marks the long ones besides. Under CI=true Hypothesis runs derandomized (the same examples each run).
 """
 
 import os
@@ -78,16 +77,14 @@ TIERS = ("unit", "ros")
 
 def pytest_collection_modifyitems(config, items):
     """Refuse a test without exactly one tier (a file's ``pytestmark``, or the test's own mark); run the files
-    with a ``longest`` test first, then those with a ``slow`` test, each file's tests together (its module fixtures
-    once): under pytest-xdist the long tests then start early, and the short ones fill the workers' ends (a run
-    whose soak started last had one worker idle for its last 38 s).
+    with a ``slow`` test first, each file's tests together (its module fixtures once): under pytest-xdist the long
+    tests then start early, and the short ones fill the workers' ends.
     """
     untiered = [item.nodeid for item in items if sum(item.get_closest_marker(t) is not None for t in TIERS) != 1]
     if untiered:
         raise pytest.UsageError(f"tests need exactly one of the marks {TIERS}: {untiered[:5]} ({len(untiered)})")
-    longest, slow = ({item.path for item in items if item.get_closest_marker(mark) is not None}
-                     for mark in ("longest", "slow"))
-    items.sort(key=lambda item: (item.path not in longest, item.path not in slow))  # stable within each group
+    slow_files = {item.path for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.path not in slow_files)  # stable: the order within each group stays
 
 
 @pytest.fixture

@@ -119,7 +119,6 @@ def terminal(tmp_path):
 
 @pytest.mark.ros
 @pytest.mark.slow
-@pytest.mark.longest
 def test_the_bring_up_drives_the_standin_around_the_circle_and_stops(terminal):
     blocks = dict(page_blocks(PAGE.read_text()))
     assert list(blocks) == [name for name, _ in EXPECTED]

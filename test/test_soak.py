@@ -35,7 +35,6 @@ def _log(line: str) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.longest
 def test_a_minute_of_the_realtime_loop_loses_nothing_and_does_not_grow(tmp_path):
     result = soak(SOAK_S, tmp_path, _log)
     assert len(result["windows"]) >= 5
@@ -60,7 +59,6 @@ def test_a_minute_of_the_realtime_loop_loses_nothing_and_does_not_grow(tmp_path)
 
 
 @pytest.mark.slow
-@pytest.mark.longest
 def test_controller_kills_and_restarts_leave_no_segment_port_or_descriptor(tmp_path):
     figures = restart_loop(RESTARTS, tmp_path, _log)
     assert figures["restart_count"] == RESTARTS

@@ -22,16 +22,15 @@ from __future__ import annotations
 
 import pytest
 from rclpy.serialization import serialize_message
-from std_msgs.msg import Float64MultiArray
 
 from robotino_geom_mpc.loop.controller_loop import ControllerLoop
-from robotino_geom_mpc.loop.events import Command, Diagnostic, Now
+from robotino_geom_mpc.loop.events import Command, Now
 from robotino_geom_mpc.recording import replay_inputs
 from robotino_geom_mpc.recording.regress import regress_bag
-from robotino_geom_mpc.ros.controller_cdr import diagnostics_cdr
 from robotino_geom_mpc.ros.decode import odometry_input, preview_input
 from robotino_geom_mpc.ros.messages import ns_to_stamp, preview_message
-from test_replay_settings import CONTROL, EVERY, FLEET, MS, REF, ROBOT, START, _odometry, _record, _run_parameters
+from test_replay_settings import CONTROL, EVERY, FLEET, MS, REF, ROBOT, START, _odometry, _record, _run_parameters, \
+    node_messages
 
 pytestmark = pytest.mark.unit
 
@@ -66,14 +65,7 @@ def _run() -> tuple[list[tuple[int, str, bytes]], int]:
             outputs = loop.on_input(odometry_input(msg), Now(clock, clock))
             late += any(isinstance(o, Command) for o in outputs) and \
                 clock - published > FLEET.reference_timeout_s * 1e9
-        for j, out in enumerate(outputs):  # the node publishes a command, then its status
-            if isinstance(out, Command):
-                sent.append((clock + (j + 1) * 10_000, "/wheel_voltages",
-                             serialize_message(Float64MultiArray(data=list(out.values)))))
-            elif isinstance(out, Diagnostic):
-                sent.append((clock + (j + 1) * 10_000, "/diagnostics", diagnostics_cdr(
-                    out.stamp_ns, bytes((int(out.level),)), out.message, [k.encode() for k in out.keys],
-                    out.values)))
+        sent += node_messages(clock, outputs)
     return sent, late
 
 

@@ -87,15 +87,23 @@ def _run() -> tuple[list[tuple[int, str, bytes]], int]:
             sent.append((stamp + MS // 2, "/odom", serialize_message(msg)))
             outputs = loop.on_input(odometry_input(msg), Now(clock, clock))
             old += any(isinstance(o, Command) for o in outputs) and clock - received > 100 * MS
-        for j, out in enumerate(outputs):  # the node publishes a command, then its status
-            if isinstance(out, Command):
-                sent.append((clock + (j + 1) * 10_000, "/wheel_voltages",
-                             serialize_message(Float64MultiArray(data=list(out.values)))))
-            elif isinstance(out, Diagnostic):
-                sent.append((clock + (j + 1) * 10_000, "/diagnostics", diagnostics_cdr(
-                    out.stamp_ns, bytes((int(out.level),)), out.message, [k.encode() for k in out.keys],
-                    out.values)))
+        sent += node_messages(clock, outputs)
     return sent, old
+
+
+def node_messages(clock: int, outputs: list) -> list[tuple[int, str, bytes]]:
+    """(publish time, topic, message) of what the node publishes for a loop's `outputs` at `clock`: a command, then
+    its status.
+    """
+    messages = []
+    for j, out in enumerate(outputs):
+        if isinstance(out, Command):
+            messages.append((clock + (j + 1) * 10_000, "/wheel_voltages",
+                             serialize_message(Float64MultiArray(data=list(out.values)))))
+        elif isinstance(out, Diagnostic):
+            messages.append((clock + (j + 1) * 10_000, "/diagnostics", diagnostics_cdr(
+                out.stamp_ns, bytes((int(out.level),)), out.message, [k.encode() for k in out.keys], out.values)))
+    return messages
 
 
 def _record(path, sent, stored: dict | None, events: list[tuple[str, float]] = ()) -> None:

@@ -458,7 +458,8 @@ class TrajectoryNode(Node):
 
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
-        tick = self.start.tick(now, self._ready())
+        # (the start condition, graph queries, only until the start: a fleet's node asks it of every robot a tick)
+        tick = self.start.tick(now, self.start.start_ns is not None or self._ready())
         if tick is Tick.HOLD:
             self._hold(now)
         elif tick is Tick.START:

@@ -150,3 +150,21 @@ def test_a_parameter_file_may_name_the_fleets_own_nodes(tmp_path):
     with pytest.raises(ParamError, match="unknown parameter 'publish_predicted_paths'.*did you mean "
                        "'publish_predicted_path'"):
         check_parameter_files([bad])
+
+
+def test_runs_fleet_summary_names_the_misses_only_when_there_are_some(tmp_path, capsys):
+    import json
+
+    from robotino_geom_mpc.cli.run import _print_fleet
+
+    metrics = {f"robot{k}": {"rms_position_error_m": 1e-6, "max_position_error_m": 2e-6, "peak_current_a": 0.3}
+               for k in (1, 2)}
+    timing = tmp_path / "timing.json"
+    timing.write_text(json.dumps({"robot1": {"ticks": 600, "missed": 3}, "robot2": {"ticks": 400, "missed": 0}}))
+    _print_fleet(metrics, timing, tmp_path)
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split(";")[1].strip() for line in lines[:2]] == ["ticks 600, missed 3", "ticks 400, missed 0"]
+    assert "the fleet missed 3 of 1000 ticks (0.3 %)" in lines[2]
+    timing.write_text(json.dumps({"robot1": {"ticks": 600, "missed": 0}, "robot2": {"ticks": 400, "missed": 0}}))
+    _print_fleet(metrics, timing, tmp_path)
+    assert "missed" not in capsys.readouterr().out.split("ticks 400, missed 0")[1]

@@ -376,4 +376,9 @@ def _print_fleet(metrics: dict[str, dict], timing: Path, out: Path) -> None:
         t = ticks.get(namespace) or {}
         print(f"  {namespace}: rms {m['rms_position_error_m']:.3g} m, max {m['max_position_error_m']:.3g} m, peak "
               f"current {m['peak_current_a']:.3g} A; ticks {t.get('ticks')}, missed {t.get('missed')}")
+    total = sum(t.get("ticks") or 0 for t in ticks.values())
+    missed = sum(t.get("missed") or 0 for t in ticks.values())
+    if missed:  # realtime only: a lockstep fleet misses none
+        print(f"  the fleet missed {missed} of {total} ticks ({100 * missed / total:.2g} %): more robots than this "
+              "machine keeps at the control rate (docs/howto/several_robots.md, Capacity)")
     print(f"  wrote {out}/robot<k>/metrics.json and {timing}")

@@ -119,12 +119,6 @@ class LinkStatistics:
     odometry_stale: int
     exhausted_periods: int
 
-    @property
-    def plan_loss(self) -> float:
-        """Fraction of the plans with a known fate that did not arrive."""
-        known = self.plans_received + self.plans_lost
-        return self.plans_lost / known if known else 0.0
-
 
 class DelayCompensatingController:
     """The plan-making controller of an off-board link: predicts to the time of action, rolls the MPC out.

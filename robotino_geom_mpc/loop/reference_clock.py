@@ -16,7 +16,7 @@ Times are integers in ns (node clock, or the simulated time of ``/clock``).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from enum import Enum
 
 __all__ = ["GAP_FILL_TICKS", "LockstepPreviews", "RealtimeStart", "Tick", "path_stamps"]
@@ -52,17 +52,19 @@ class RealtimeStart:
         self.ready_since_ns: int | None = None  # since when the start condition holds
         self.enabled = False  # the controller's controller_enabled
 
-    def settled(self, now_ns: int, ready: bool) -> bool:
-        """Whether the start condition (`ready`) has held for the settle time at `now_ns`; a lapse starts it over."""
-        if not ready:
+    def settled(self, now_ns: int, ready: Callable[[], bool]) -> bool:
+        """Whether the start condition (`ready()`) has held for the settle time at `now_ns`; a lapse starts it over."""
+        if not ready():
             self.ready_since_ns = None
             return False
         if self.ready_since_ns is None:
             self.ready_since_ns = now_ns
         return now_ns - self.ready_since_ns >= self.settle_ns
 
-    def tick(self, now_ns: int, ready: bool) -> Tick:
-        """A timer tick at `now_ns` with the start condition `ready`."""
+    def tick(self, now_ns: int, ready: Callable[[], bool]) -> Tick:
+        """A timer tick at `now_ns` with the start condition `ready()`, asked only before the start (in the node a
+        graph query: a fleet's trajectory process would ask it of every robot a tick).
+        """
         if self.start_ns is not None:
             return Tick.RUN
         if not self.settled(now_ns, ready):
@@ -72,7 +74,7 @@ class RealtimeStart:
         self.start_ns = now_ns
         return Tick.START
 
-    def on_enabled(self, enabled: bool, now_ns: int, ready: bool) -> Tick | None:
+    def on_enabled(self, enabled: bool, now_ns: int, ready: Callable[[], bool]) -> Tick | None:
         """The controller's ``controller_enabled``: START at an enable once settled (t = 0 is the enable's arrival),
         HOLD at a disable after the start (the reference starts again at the next enable), None otherwise.
         """

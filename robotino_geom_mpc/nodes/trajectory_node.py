@@ -458,8 +458,7 @@ class TrajectoryNode(Node):
 
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
-        # (the start condition, graph queries, only until the start: a fleet's node asks it of every robot a tick)
-        tick = self.start.tick(now, self.start.start_ns is not None or self._ready())
+        tick = self.start.tick(now, self._ready)
         if tick is Tick.HOLD:
             self._hold(now)
         elif tick is Tick.START:
@@ -515,7 +514,7 @@ class TrajectoryNode(Node):
         disable after the start returns to the hold with the reference made anew.
         """
         now = self.get_clock().now().nanoseconds
-        change = self.start.on_enabled(bool(msg.data), now, self._ready())
+        change = self.start.on_enabled(bool(msg.data), now, self._ready)
         if change is Tick.START:
             self._start(now)
         elif change is Tick.HOLD:

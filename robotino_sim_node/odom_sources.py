@@ -1,18 +1,20 @@
 """The plant's start check: no other publisher of its ``odom`` topic on the ROS graph (two sources of odometry are a
 fault: a real driver's beside the simulator's, or a second simulator).
 
-`check_single_odom_source` runs in the plant node's construction, after its publishers and subscriptions exist
-(DDS matches them in the background meanwhile: the loop's start handshake is not held back) and before anything is
-published or any callback runs. It polls the graph until the window ``odom_publisher_check_s``, counted from the
-node's creation, has passed: discovery of a participant that existed before takes tens of milliseconds to about a
-second on one host (Fast DDS; longer where its announcements are lost). Its own publisher is on the graph too and
-is left out by node name and namespace, once. A publisher can show before its node's name does (rmw sends the
-nodes of a participant apart from its endpoints): the check then waits up to `NAME_WAIT_S` more for the name.
+`check_single_odom_source` runs in the plant node's construction, after its publishers and subscriptions exist (DDS
+matches them in the background meanwhile, and the caller's `meanwhile` is polled: the lockstep start handshake's
+settle runs during the window, not after it) and before anything is published or any callback runs. It polls the
+graph until the window ``odom_publisher_check_s``, counted from the node's creation, has passed: discovery of a
+participant that existed before takes tens of milliseconds to about a second on one host (Fast DDS; longer where its
+announcements are lost). Its own publisher is on the graph too and is left out by node name and namespace, once. A
+publisher can show before its node's name does (rmw sends the nodes of a participant apart from its endpoints): the
+check then waits up to `NAME_WAIT_S` more for the name.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 from robotino_geom_mpc.params.specs import ParamSpec
@@ -41,8 +43,10 @@ def other_publishers(infos: list[Any], name: str, namespace: str) -> list[str]:
     return [f"{ns.rstrip('/')}/{node}" for ns, node in names]
 
 
-def check_single_odom_source(node: Any, publisher: Any, since: float, window_s: float) -> None:
-    """Return once `window_s` after `since` (steady time) has passed with `publisher` the only one of its topic.
+def check_single_odom_source(node: Any, publisher: Any, since: float, window_s: float,
+                             meanwhile: Callable[[float], object] | None = None) -> None:
+    """Return once `window_s` after `since` (steady time) has passed with `publisher` the only one of its topic;
+    `meanwhile` (if given) is called with the steady time at each look.
 
     Raises
     ------
@@ -57,6 +61,8 @@ def check_single_odom_source(node: Any, publisher: Any, since: float, window_s: 
         infos = node.get_publishers_info_by_topic(topic)
         others = other_publishers(infos, node.get_name(), node.get_namespace()) if len(infos) > 1 else []
         now = time.monotonic()
+        if meanwhile is not None:
+            meanwhile(now)
         if not others:
             seen = None
             if now >= since + window_s:

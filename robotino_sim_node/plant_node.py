@@ -76,7 +76,8 @@ once when a controller has taken the robot after a release; a plant driven by on
 
 Start: the node looks for another publisher of its ``odom`` topic on the ROS graph for ``odom_publisher_check_s``
 from its creation, before it publishes anything (`odom_sources`); one found (a real driver's, another simulator's:
-two sources of odometry are a fault), it exits with status 2 and an error naming the publisher's node.
+two sources of odometry are a fault), it exits with status 2 and an error naming the publisher's node. In
+lockstep the start handshake is polled during that window, so its ``lockstep_settle_s`` runs alongside it.
 """
 
 from __future__ import annotations
@@ -215,8 +216,10 @@ class PlantNode(Node):
                                                         WithInfo(self._on_command), CONTROL_QOS, raw=True)
         self.release_srv = self.create_service(Trigger, "~/release", self._on_release)
         handshake = StartHandshake(self, self.command_sub, self.outputs.publishers())
-        # nothing published and no callback run yet; the publishers match their readers meanwhile
-        check_single_odom_source(self, self.outputs.odom_pub, created, p["odom_publisher_check_s"])
+        # nothing published and no callback run yet; the publishers match their readers meanwhile, and in lockstep
+        # the start handshake settles meanwhile (tick 0 waits for the later of the two, not for their sum)
+        settle = (lambda now: handshake.poll(now, p["lockstep_settle_s"])) if lockstep and chain is None else None
+        check_single_odom_source(self, self.outputs.odom_pub, created, p["odom_publisher_check_s"], settle)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", PUBLISH_QOS)
         self.diag_timer = self.create_timer(1.0, self._diagnose, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.reported = (0, False)  # the refusals last reported; a release not reported yet

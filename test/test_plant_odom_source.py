@@ -7,6 +7,7 @@ subscriptions receive came from the plant); one in another namespace does not co
 
 import subprocess
 import sys
+import time
 from types import SimpleNamespace
 
 import pytest
@@ -14,7 +15,8 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from harness import DEEP_QOS, Harness
-from robotino_sim_node.odom_sources import other_publishers
+from robotino_sim_node.odom_sources import check_single_odom_source, other_publishers
+from robotino_geom_mpc.ros.parameters import NodeStartError
 from robotino_geom_mpc.system.processes import ros_args
 
 
@@ -31,6 +33,40 @@ def test_the_own_publisher_is_left_out_once():
     # a second simulator of the same name and namespace is another source
     assert other_publishers([own, own], "robotino_plant", "/robot1") == ["/robot1/robotino_plant"]
     assert other_publishers([_info("/", "driver")], "robotino_plant", "/") == ["/driver"]
+
+
+class _Graph:
+    """A node's graph queries (`check_single_odom_source` asks these): the publishers of one topic, its own name."""
+
+    def __init__(self, publishers: list[SimpleNamespace]) -> None:
+        self.publishers = publishers
+
+    def get_publishers_info_by_topic(self, topic: str) -> list[SimpleNamespace]:
+        assert topic == "/robot1/odom"
+        return self.publishers
+
+    def get_name(self) -> str:
+        return "robotino_plant"
+
+    def get_namespace(self) -> str:
+        return "/robot1"
+
+
+@pytest.mark.unit
+def test_the_check_polls_meanwhile_at_each_look_until_its_window_has_passed():
+    """The lockstep plant polls its start handshake here: its settle runs during the window, not after it."""
+    own = SimpleNamespace(topic_name="/robot1/odom")
+    looks: list[float] = []
+    since = time.monotonic()
+    check_single_odom_source(_Graph([_info("/robot1", "robotino_plant")]), own, since, 0.15, looks.append)
+    assert len(looks) >= 3 and looks == sorted(looks)
+    assert looks[0] >= since and looks[-1] >= since + 0.15  # the last look is the one past the window
+    # another publisher: refused at the first look, which meanwhile saw too
+    looks.clear()
+    with pytest.raises(NodeStartError, match="/robot1/robotino_node"):
+        check_single_odom_source(_Graph([_info("/robot1", "robotino_plant"), _info("/robot1", "robotino_node")]),
+                                 own, time.monotonic(), 5.0, looks.append)
+    assert len(looks) == 1
 
 
 def _plant(namespace: str) -> subprocess.Popen:

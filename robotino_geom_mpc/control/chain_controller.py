@@ -105,7 +105,6 @@ class ChainController:
         self.commands: list[tuple[int, tuple[float, float, float]]] = []  # (apply tick, body twist) in order
         self._base: tuple[int, Firmware] | None = None  # the replay's start: a tick and the firmware before it
         self._plan_prev = np.zeros(3)
-        self.last_prediction: tuple[float, np.ndarray] | None = None  # (time, predicted pose at n_a)
         self._trajectory: dict[int, tuple[float, float, float]] = {}  # tick -> predicted pose (for the chooser)
 
     # ------------------------------------------------------------------ the command path model
@@ -200,7 +199,6 @@ class ChainController:
         command = self._feasible(body, setpoints[n_a - n_m - 1] if n_a - n_m - 1 >= 0 else (0.0, 0.0, 0.0))
         self.commands = [cmd for cmd in self.commands if cmd[0] < n_a] + [(n_a, command)]
         self._settle(n_m - 4 * self.ticks_per_sample)
-        self.last_prediction = (t0 + n_a * h, np.asarray(p_a))
         return command
 
     def _braking(self, plan: np.ndarray, v_ref: np.ndarray, error: np.ndarray) -> np.ndarray:

@@ -198,7 +198,6 @@ class CircleReference(Reference):
         phase = _RampedPhase if ramp_in else _SteppedPhase
         self._phase = phase(2.0 * math.pi / self.period_s, _positive(ramp_s, "ramp_s"), 2.0 * math.pi * laps, self.name)
         self.duration_s = self._phase.duration_s
-        self.centre = np.array([0.0, self.radius_m])
 
     def _kernel(self, t, xp: _Backend, derivatives: bool) -> list:  # noqa: ANN001
         phase = self._phase.evaluate(t, xp, derivatives)

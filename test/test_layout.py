@@ -71,6 +71,32 @@ def test_only_nodes_and_ros_plumbing_import_rclpy():
     assert _imports_rclpy([node]) == {node: True}
 
 
+@pytest.mark.ros
+def test_every_public_error_of_the_package_is_a_robotino_error():
+    """errors.py's promise: a caller catches all of the package's errors with `RobotinoError` (each module's
+    exception classes, imported in a fresh interpreter; private ones, leading underscore, are internal flow).
+    """
+    script = (
+        "import importlib, inspect, json, sys\n"
+        "from robotino_geom_mpc.errors import RobotinoError\n"
+        "found, bad = [], []\n"
+        "for m in sys.argv[1:]:\n"
+        "    module = importlib.import_module(m)\n"
+        "    for name, cls in vars(module).items():\n"
+        "        if inspect.isclass(cls) and issubclass(cls, BaseException) and cls.__module__ == m \\\n"
+        "                and not name.startswith('_'):\n"
+        "            found.append(f'{m}.{name}')\n"
+        "            if not issubclass(cls, RobotinoError):\n"
+        "                bad.append(f'{m}.{name}')\n"
+        "print(json.dumps([found, bad]))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script, *_modules()], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    found, bad = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert "robotino_geom_mpc.params.specs.ParamError" in found and len(found) > 20  # the walk saw the package
+    assert bad == [], f"exception classes not derived from RobotinoError: {bad}"
+
+
 def _lint_imports(config: Path) -> subprocess.CompletedProcess:
     return subprocess.run([str(Path(sys.executable).with_name("lint-imports")), "--config", str(config)], cwd=ROOT,
                           capture_output=True, text=True, timeout=300)

@@ -26,6 +26,8 @@ from typing import Any
 
 import yaml
 
+from robotino_geom_mpc.errors import RobotinoError
+
 __all__ = ["NO_VALUE", "RclFileError", "rcl_parameters", "rcl_scalar"]
 
 PARAMS_KEY = "ros__parameters"
@@ -45,7 +47,7 @@ _INT64 = (-(2**63), 2**63 - 1)
 _NAME_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
-class RclFileError(ValueError):
+class RclFileError(RobotinoError, ValueError):
     """What rcl says when it refuses a parameter file (its message, with the line)."""
 
 

@@ -40,6 +40,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint, MultiDOFJ
     MultiDOFJointTrajectoryPoint
 
 from robotino_geom_mpc.description.urdf import BASE_LINK, JOINT_NAMES
+from robotino_geom_mpc.errors import RobotinoError
 from robotino_geom_mpc.loop.events import AppliedReport
 from robotino_geom_mpc.loop.inputs import REPORT_WINDOW_S, report_problem
 from robotino_geom_mpc.network.plan import CommandPlan
@@ -57,7 +58,7 @@ PLAN_TOPICS = {"voltages": "wheel_voltage_plan", "cmd_vel": "cmd_vel_plan"}
 TWIST_AXES = ("base_link_x", "base_link_y", "base_link_yaw")  # command_applied's names of a twist's values
 
 
-class PlanMessageError(ValueError):
+class PlanMessageError(RobotinoError, ValueError):
     """A plan or report message that cannot be read; `reason` is a `PlanBuffer` refusal key."""
 
     def __init__(self, message: str, reason: str) -> None:

@@ -47,9 +47,10 @@ robots         N > 0: a fleet of N robots, ``robot1`` .. ``robotN`` (`ros.fleet`
                prefixed ``robot<k>/``; in lockstep one /clock for the fleet; in realtime a preview every 10
                periods, `fleet_realtime_parameters`), no description publisher; with no
                ``namespace``, ``frame_prefix`` auto and no command buffer. 0 (default): one robot
-rviz           true: also start rviz2 with config/robotino.rviz (fixed frame odom, the robot model, TF, the
+rviz           true: also start rviz2 with ``rviz_config`` (fixed frame odom, the robot model, TF, the
                reference and predicted paths, the odometry) where rviz2 is installed; where it is not, the
                launch says so in its log and runs without it (docs/howto/views.md)
+rviz_config    the RViz view of ``rviz:=true`` (default: config/robotino.rviz)
 
 The robot description (the URDF from the plant's parameters, `description.urdf.robotino_urdf`) is
 published in realtime by robot_state_publisher where it is installed, else (and always in lockstep, where its

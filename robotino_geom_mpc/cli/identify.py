@@ -29,8 +29,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the `identify` verb."""
     parser = sub.add_parser(
         "identify", help=VERBS["identify"],
-        description="Drive a short, bounded excitation (about 6.5 s; at most 0.25 m/s, 1 rad/s, 1 m/s^2, 6 rad/s^2) "
-        "through cmd_vel, record odometry and fit the chain's round-trip dead time, acceleration ramps and "
+        description="Drive a short, bounded excitation (about 6.6 s; at most 0.255 m/s, 1.03 rad/s, 1 m/s^2, "
+        "6 rad/s^2) through cmd_vel, record odometry and fit the chain's round-trip dead time, acceleration ramps and "
         "speed-loop time constant. Writes DIR/chain_params.yaml (chain.* for the controller) and DIR/identify.json. "
         "Without --ros, against the emulated chain of --chain (robocup-logistics by default).",
     )

@@ -4,7 +4,7 @@
 topics in `ros.identify_io`) through `Excitation`: per axis a step to a moderate speed (0.25 m/s, 1 rad/s),
 commanded with a bounded acceleration (1 m/s^2, 6 rad/s^2) that the firmware's ramps, if slower, limit;
 a small probe step (within one tick's ramp, so the speed loop alone shapes the response); back to rest.
-About 6.5 s, every command sent once per odometry dispatch, zero at the end. After each plateau it checks
+About 6.6 s, every command sent once per odometry dispatch, zero at the end. After each plateau it checks
 that the robot moved as commanded; if not it stops the robot (zero twist) and raises `IdentifyError`
 saying why: no motion, saturation (the plateau stays below the command), or motion other than commanded.
 
@@ -55,7 +55,9 @@ class RobotIO(Protocol):
 
 @dataclass(frozen=True)
 class Excitation:
-    """The excitation's bounds (each is a limit the robot never exceeds while it follows the commands)."""
+    """The excitation's plateaus, probe steps and acceleration limits: the commands never exceed speed + probe,
+    rate + probe or the accelerations.
+    """
 
     speed_m_s: float = 0.25
     rate_rad_s: float = 1.0

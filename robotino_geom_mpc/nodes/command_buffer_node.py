@@ -12,8 +12,8 @@ publishes  ``cmd_vel``          geometry_msgs/Twist in base_link, to the driver:
                                 entry's start time (within `POLL_S`; the entry of a period is the one the plans
                                 held at its start, held to its end); zero twist once every plan is
                                 used up (the robot stops) for ``idle_after_s``, then nothing until the next plan
-                                (the last, a zero, holds the robot: the driver has no
-                                command timeout; a joystick may take over)
+                                (the driver has no command timeout: the last zero holds the robot; a joystick
+                                may take over)
            ``command_applied``  trajectory_msgs/JointTrajectory (`ros.plans`): each period sent (its start time,
                                 the plan's basis, the entry, the twist) and each plan received (its receipt time,
                                 taken or not)

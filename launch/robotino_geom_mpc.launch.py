@@ -59,7 +59,9 @@ keep-all ``mode`` records every wheel transform; robot_state_publisher's /tf is 
 
 The scenario is resolved when the launch runs (an ``OpaqueFunction``): an unknown name, a bad namespace
 or frame prefix stops the launch with a clear error. With ``record:=true`` the lockstep plant also waits for
-the recorder's subscriptions (``lockstep_wait_for``), so the recording holds tick 0. Without ``ros2 launch``,
+the recorder's subscriptions (``lockstep_wait_for``), and the controller holds its first answer until its
+command has matched the plant's and the recorder's readers (``lockstep_command_readers``), so the recording
+holds tick 0 and the plant gets its answer. Without ``ros2 launch``,
 ``robotino-geom-mpc run`` starts the same processes and also writes metrics.json and the figures
 from the recording.
 """
@@ -75,8 +77,9 @@ from launch_ros.substitutions import FindPackageShare
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.specs import RECORDED_CONTROLLER_SPECS
 from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
-from robotino_geom_mpc.system.processes import FLEET_NODES, FRAME_PREFIX_NODES, fleet_realtime_parameters, \
-    fleet_wait_for, frame_prefix, namespace_remaps, recorder_wait_for, robot_names, ros_namespace
+from robotino_geom_mpc.system.processes import FLEET_NODES, FRAME_PREFIX_NODES, command_readers, \
+    fleet_realtime_parameters, fleet_wait_for, frame_prefix, namespace_remaps, recorder_wait_for, robot_names, \
+    ros_namespace
 from robotino_geom_mpc.scenarios import node_parameters
 from robotino_geom_mpc.system.launch_arguments import flag, node_environment, number
 
@@ -161,6 +164,8 @@ def _nodes(context) -> list:
     elif record:  # the lockstep plant also waits for the recorder's subscriptions
         plant["lockstep_wait_for"] = recorder_wait_for(interface)
     controller = {**overrides["controller_node"], **realtime_fleet.get("controller_node", {})}
+    if lockstep:  # the command's readers the plant waits for, matched by the controller's writer too
+        controller["lockstep_command_readers"] = command_readers(plant.get("lockstep_wait_for", ()), interface)
     plant_node = Node(package=PACKAGE, **kind("plant_node", "robotino_plant"),
                       parameters=[config["plant_params"], plant], **common)
     nodes = [

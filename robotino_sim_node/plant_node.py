@@ -46,7 +46,8 @@ publishes tick k + 1 (if ``lockstep_max_realtime_factor`` > 0, not before its sl
 goes out once the subscriptions of ``lockstep_wait_for`` are there and have settled (`lockstep_start`; what is
 missing is logged). The current tick is published again (logged: which tick, since how long) when no command
 arrives within ``lockstep_resend_s``, so no discovery race can deadlock the loop (the controller answers a
-repeated tick only if its first answer could not be delivered, so no tick is answered twice). With
+repeated tick only if its first answer could not be delivered, so no tick is answered twice; its first answer
+waits until its writer has matched the command's readers, ``lockstep_command_readers``). With
 ``duration_s`` > 0 the run has n = round(duration_s / Ts) ticks; when tick n - 1 is answered the node logs its
 real-time factor and exits (status 0). The factor is that of the running loop: ticks 1 .. n - 1, from the
 answer of tick 0 to the answer of the last tick; the wait for tick 0's answer (the end of discovery, which can

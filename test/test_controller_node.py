@@ -137,30 +137,42 @@ def test_lockstep_voltages_equal_the_core_controller(harness, lockstep_controlle
     assert len(h.voltages) == start_v + len(states)
 
 
-def test_an_answer_sent_before_the_plant_matched_goes_out_when_it_matches(tmp_path_factory):
-    """Lockstep: the answer to a tick published while no plant listened is delivered once one subscribes."""
+@pytest.mark.parametrize("readers", [1, 2])
+def test_an_answer_is_held_until_the_command_has_its_readers_then_sent_once(tmp_path_factory, readers):
+    """Lockstep: the answer to a tick goes out once the command publisher has matched ``lockstep_command_readers``:
+    with 1, an answer computed while no plant listened is delivered when one subscribes; with 2, a recorder's
+    reader matched first gets nothing until the plant's matches too (sent then, the plant would never get it:
+    the hang of a 20-robot fleet's tick 0), then both get it once.
+    """
     robot, control = load_params()
     stamp = 40 * round(control.period_s * 1e9)
     reference = make_reference("paper-circle")
     with NodeGroup(log_dir=tmp_path_factory.mktemp("late")) as group, Harness("late_plant") as h:
-        node = group.start("controller_node", ros_args(None, {"mode": "lockstep"}) + ["-r", "__ns:=/late"])
+        node = group.start("controller_node", ros_args(None, {"mode": "lockstep", "lockstep_command_readers": readers})
+                           + ["-r", "__ns:=/late"])
         odom_pub = h.node.create_publisher(Odometry, "/late/odom", PUBLISH_QOS)
         preview_pub = h.node.create_publisher(MultiDOFJointTrajectory, "/late/reference_preview", PUBLISH_QOS)
+        early = h.collect("/late/wheel_voltages", Float64MultiArray) if readers == 2 else None  # a recorder's
         assert h.spin_until(lambda: odom_pub.get_subscription_count() >= 1
-                            and preview_pub.get_subscription_count() >= 1, 30.0), node.stderr_tail()
+                            and preview_pub.get_subscription_count() >= 1
+                            and (early is None or h.node.count_publishers("/late/wheel_voltages") >= 1), 30.0), \
+            node.stderr_tail()
+        h.spin_for(0.3)  # the recorder's reader matched by the controller's writer too
         x, y, th = reference.position(stamp * 1e-9)
         preview_pub.publish(preview_message(reference, stamp, control.period_s, control.horizon))
         h.spin_for(0.1)
         odom_pub.publish(odometry(stamp, x + 0.001, y, th))
-        h.spin_for(0.5)  # answered with nobody listening
-        voltages = h.collect("/late/wheel_voltages", Float64MultiArray)
-        assert h.spin_until(lambda: len(voltages) >= 1, 10.0), "the undelivered answer did not go out on match"
+        h.spin_for(0.5)  # answered, held: no reader, or the recorder's only
+        assert early is None or early == []
+        voltages = h.collect("/late/wheel_voltages", Float64MultiArray)  # the plant's
+        assert h.spin_until(lambda: len(voltages) >= 1, 10.0), "the held answer did not go out on match"
         h.spin_for(0.3)
-    assert len(voltages) == 1  # once
+    assert len(voltages) == 1 and (early is None or len(early) == 1)  # once each
     X = np.array([x + 0.001, 0.0, y, 0.0, th, 0.0])
     out = MotionController(robot, control).step(
         X, blended_preview(reference, start_blend(reference, X, stamp * 1e-9, control), stamp * 1e-9, control))
-    assert np.allclose(voltages[0].data, out.voltages, rtol=1e-12, atol=1e-12)
+    for got in [voltages[0], *(early or [])]:
+        assert np.allclose(got.data, out.voltages, rtol=1e-12, atol=1e-12)
 
 
 def test_topics_and_qos(harness, lockstep_controller):

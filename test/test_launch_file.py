@@ -143,6 +143,16 @@ def test_with_record_the_recorder_starts_and_the_plant_waits_for_its_subscriptio
     assert waiting["lockstep_wait_for"] == recorder_wait_for() != list(RECORDER_WAIT_FOR)  # + the description publisher
     assert "lockstep_wait_for" not in _overrides(plain["plant_node"])  # the plant's default: the loop's nodes
     assert waiting.keys() - {"lockstep_wait_for"} == _overrides(plain["plant_node"]).keys()
+    # the lockstep controller holds its first answer until its command matched the plant's and the recorder's
+    # readers (the count the plant waits for), one reader without the recorder, nothing in realtime
+    assert "lockstep_command_readers" not in _overrides(recorded["controller_node"])  # realtime
+    lockstep, _ = _launch(description, record="true", bag="/tmp/b", lockstep="true")
+    assert _overrides(lockstep["controller_node"])["lockstep_command_readers"] == 2
+    alone, _ = _launch(description, record="false", lockstep="true")
+    assert _overrides(alone["controller_node"])["lockstep_command_readers"] == 1
+    assert "lockstep_command_readers" not in _overrides(plain["controller_node"])
+    twist, _ = _launch(description, record="true", bag="/tmp/b", lockstep="true", command_interface="cmd_vel")
+    assert _overrides(twist["controller_node"])["lockstep_command_readers"] == 2
 
 
 @pytest.mark.parametrize("arguments, error, match", [

@@ -112,7 +112,7 @@ def test_each_node_gets_its_scenarios_overrides():
     """
     robot, _ = load_params()
     args = node_arguments("robustness", default_params_file(), 3.0, True, seed=5)
-    assert args["controller_node"][-2:] == ["-p", "mode:=lockstep"]
+    assert args["controller_node"][-4:] == ["-p", "mode:=lockstep", "-p", "lockstep_command_readers:=1"]
     controller = " ".join(args["controller_node"])
     assert f"robot.mass_kg:={1.2 * robot.mass_kg!r}" in controller
     assert f"robot.yaw_inertia_kg_m2:={0.8 * robot.yaw_inertia_kg_m2!r}" in controller
@@ -122,6 +122,23 @@ def test_each_node_gets_its_scenarios_overrides():
     assert "seed:=5" in plant and "duration_s:=3.0" in plant
     assert "scenario:=robustness" in " ".join(args["trajectory_node"])
     assert "robot." not in " ".join(node_arguments("paper-circle", default_params_file(), 3.0, True)["controller_node"])
+
+
+@pytest.mark.parametrize("bag, port, interface, readers", [
+    (None, None, "voltages", 1), ("b", None, "voltages", 2), ("b", 8765, "voltages", 3), ("b", None, "cmd_vel", 2)])
+def test_a_lockstep_controller_holds_its_answer_for_the_command_readers_the_plant_waits_for(bag, port, interface,
+                                                                                            readers):
+    """The plant's reader, the recorder's, the live view's: the plant waits for them on the command topic before
+    tick 0, and the controller's writer must have matched them before its first answer (realtime: no such wait).
+    """
+    topic = "wheel_voltages" if interface == "voltages" else "cmd_vel"
+    args = node_arguments("paper-circle", default_params_file(), 3.0, True, bag=bag, live_view_port=port,
+                          command_interface=interface)
+    assert f"lockstep_command_readers:={readers}" in args["controller_node"]
+    wait_for = " ".join(args["plant_node"])
+    assert (f'"{topic}:{readers}"' in wait_for) if bag else (topic not in wait_for)  # without: the plant's own
+    realtime = node_arguments("paper-circle", default_params_file(), 3.0, False, bag=bag, command_interface=interface)
+    assert not any("lockstep_command_readers" in arg for arg in realtime["controller_node"])
 
 
 def test_unknown_scenario_is_a_usage_error(tmp_path):

@@ -74,19 +74,23 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
               "command_applied (loop.controller_loop)"),
     ParamSpec("publish_predicted_path", bool, "Publish predicted_path (the MPCs' predicted poses, computed only while "
               "a subscription is matched; the report does not read it)"),
+    ParamSpec("lockstep_command_readers", int, "Lockstep: readers of the command topic (wheel_voltages / cmd_vel) "
+              "its publisher must have matched before the first answer goes out, which is held until then: the "
+              "plant's, and a recorder's or a live view's (an answer sent while only some had matched never reaches "
+              "the others)", "", 0, 1000, False),
     ParamSpec("start_enabled", bool, "false: the node starts disabled, as after ~/enable false (zero volts / zero "
               "twist every tick, diagnostic 'disabled') until ~/enable true, then tracks bumplessly"),
 )
 CONTROLLER_DEFAULTS: dict[str, Any] = {
     "mode": "realtime", **asdict(LoopSettings()),
     "frame_prefix": "", "command_interface": "voltages", "plans": False, "start_enabled": True,
-    "publish_predicted_path": True,
+    "publish_predicted_path": True, "lockstep_command_readers": 1,
 }
 # the mode, the outputs, and what must agree with the trajectory node (the preview's layout)
 FIXED_WHILE_RUNNING = ("mode", "frame_prefix", "command_interface", "control.period_s", "control.horizon", "plans",
                        "control.plan_length", "control.lead_max_periods",
                        "start_enabled",  # (a start value: ~/enable switches a running node)
-                       "publish_predicted_path")
+                       "publish_predicted_path", "lockstep_command_readers")
 
 
 def closed_loop_problem(values: dict[str, Any]) -> str | None:

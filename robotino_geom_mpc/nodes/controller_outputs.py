@@ -1,7 +1,8 @@
 """The controller node's output side: the publishers of what a `loop.controller_loop.ControllerLoop` answers.
 
 `ControllerOutputs.send` publishes a loop's outputs (`loop.events`): the command (and in lockstep the bookkeeping of
-the last answer, sent again when the plant resends a tick whose answer found no reader), zero, the plan, the
+the last answer: held until the command publisher has matched its ``lockstep_command_readers``, then sent once;
+sent again when the plant resends a tick whose answer found no reader), zero, the plan, the
 status, the predicted path, the enabled state, and the log lines (throttled per key). It also tells the loop
 whether anyone reads the status and the path (`loop.controller_loop.Listeners`), so they are built only then.
 The topics: `controller_node`'s docstring. Publishers use `ros.qos.publish_qos` (keep-all in lockstep).
@@ -9,6 +10,7 @@ The topics: `controller_node`'s docstring. Publishers use `ros.qos.publish_qos` 
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -27,12 +29,13 @@ from robotino_geom_mpc.ros.controller_cdr import diagnostics_cdr
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, path_cdr, three_values_template
 from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanWriter, plan_type
 from robotino_geom_mpc.ros.qos import LATCHED_QOS, publish_acknowledged, publish_qos
-from robotino_geom_mpc.ros.throttle import log_throttled
+from robotino_geom_mpc.ros.throttle import log_throttled, warn_throttled
 
 __all__ = ["ControllerOutputs", "TRACKING_KEYS"]
 
 ZERO = (0.0, 0.0, 0.0)
 _WAIT_LOG_PERIOD_S = 5.0  # throttle of the "waiting for ..." log
+_HOLD_REPORT_AFTER_S = 1.0  # a shorter hold of an answer is discovery at work: not reported (as the plant's wait)
 # the newest prediction only, kept for a late reader (a display); never blocks the loop
 PATH_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -55,12 +58,18 @@ class ControllerOutputs:
         With plans: the plans' length (``wheel_voltage_plan`` / ``cmd_vel_plan`` are published); None: no plans.
     predicted_path
         ``predicted_path`` is published (while subscribed); false: no publisher, the prediction never computed.
+    command_readers
+        Lockstep: the readers the command publisher must have matched before the first answer goes out (the
+        plant's, and a recorder's: matching is per writer and reader, so the controller's writer can match the
+        recorder before the plant, and an answer sent then never reaches the plant). Until then an answer is held,
+        and it goes out once when they have matched; after that one matched reader is enough.
     """
 
     def __init__(self, node: Node, lockstep: bool, frame_prefix: str = "",
                  command_interface: str = "voltages", plan_length: int | None = None,
-                 predicted_path: bool = True) -> None:
+                 predicted_path: bool = True, command_readers: int = 1) -> None:
         self.node = node
+        self.readers_needed = command_readers if lockstep else 0  # until first met; then 1
         self.cmd_vel = command_interface == "cmd_vel"
         qos = publish_qos(lockstep)
         # lockstep: a newly matched plant gets an answer sent before it matched (realtime: the next tick's)
@@ -74,6 +83,7 @@ class ControllerOutputs:
         self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", qos)
         self.diag_keys: dict[tuple[str, ...], tuple[bytes, ...]] = {}  # the keys of a status, encoded once
         self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, command
+        self.held_since: float | None = None  # steady time [s] the answer was first held
         self.path_pub = node.create_publisher(Path, "predicted_path", PATH_QOS) if predicted_path else None
         self.path_frame = frame_prefix + ODOM_FRAME
         self.enabled_pub = node.create_publisher(Bool, "controller_enabled", LATCHED_QOS)
@@ -120,16 +130,36 @@ class ControllerOutputs:
         publish_acknowledged(self.node, self.command_pub, msg)
 
     def answer(self, stamp: int, command: list[float]) -> None:
-        """Publish the answer to the odometry of `stamp` and remember whether a reader could receive it."""
-        delivered = self.command_pub.get_subscription_count() > 0
-        self.send_command(command)
-        self.answered = (stamp, delivered, command)
+        """Publish the answer to the odometry of `stamp` (lockstep: held while `_readers_matched` is not met) and
+        remember whether it went out.
+        """
+        self.answered = (stamp, False, command)
+        self.deliver_answer()
 
     def deliver_answer(self) -> None:
-        """Lockstep: publish the last answer again if it went out before any subscription matched."""
-        if self.answered is not None and not self.answered[1] and self.command_pub.get_subscription_count() > 0:
-            self.send_command(self.answered[2])
-            self.answered = (self.answered[0], True, self.answered[2])
+        """Lockstep: publish the last answer if it was not sent yet and its readers have matched (else: a log)."""
+        if self.answered is None or self.answered[1]:
+            return
+        stamp, _, command = self.answered
+        if self._readers_matched():
+            self.send_command(command)
+            self.answered, self.held_since = (stamp, True, command), None
+            return
+        now = time.monotonic()
+        self.held_since = now if self.held_since is None else self.held_since
+        if self.readers_needed > 1 and now - self.held_since >= _HOLD_REPORT_AFTER_S:
+            warn_throttled(self.node.get_logger(), f"holding the answer to the odometry of stamp {stamp} ns for "
+                           f"{now - self.held_since:.1f} s: {self.command_pub.topic_name} has matched "
+                           f"{self.command_pub.get_subscription_count()} of its {self.readers_needed} readers "
+                           "(lockstep_command_readers)", 2.0)
+
+    def _readers_matched(self) -> bool:
+        """The command publisher has its readers: `command_readers` the first time, then one (realtime: always)."""
+        matched = self.command_pub.get_subscription_count()
+        if matched < self.readers_needed:
+            return False
+        self.readers_needed = min(self.readers_needed, 1)
+        return matched >= self.readers_needed
 
     def _on_command_matched(self, info: QoSPublisherMatchedInfo) -> None:
         if info.current_count_change > 0:

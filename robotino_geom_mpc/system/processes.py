@@ -19,13 +19,14 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "TIMING_REPORT",
-           "RECORDER_WAIT_FOR", "recorder_wait_for", "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
+           "RECORDER_WAIT_FOR", "recorder_wait_for", "command_readers", "NamespaceError", "NodeFailed", "NodeProcess",
+           "NodeGroup",
            "dds_environment",
            "wait_for_exit",
            "FLEET_NODES", "FLEET_PREVIEW_EVERY", "fleet_arguments", "fleet_realtime_parameters", "fleet_wait_for",
@@ -60,6 +61,15 @@ def recorder_wait_for(command_interface: str = "voltages", plans: bool = False) 
         waits = [f"{command}:1" if w == f"{command}:2" else w for w in waits]
         waits += [f"{command.replace('wheel_voltages', 'wheel_voltage')}_plan:2", "command_applied:2"]
     return waits
+
+
+def command_readers(wait_for: Iterable[str], command_interface: str = "voltages") -> int:
+    """The controller's ``lockstep_command_readers``: the count of its command topic (``wheel_voltages`` /
+    ``cmd_vel``) in the plant's ``lockstep_wait_for`` `wait_for`, or 1 (the plant's reader) where it names none.
+    """
+    topic = "wheel_voltages" if command_interface == "voltages" else "cmd_vel"
+    counts = [int(count) for name, _, count in (entry.rpartition(":") for entry in wait_for) if name == topic]
+    return counts[0] if counts else 1
 
 
 FASTDDS_PROFILE = "fastdds_localhost.xml"  # in config/: the nodes' profile on one host (`dds_environment`)
@@ -143,7 +153,8 @@ def node_arguments(
     mode; the plant the run's length, the seed, ``odometry_model`` (`odometry`: ideal or encoders; with
     encoders the controller ``control.odometry_twist: period_mean``) and
     ``lockstep_wait_for`` (`wait_for`, by default the subscriptions of the nodes started:
-    `LOCKSTEP_WAIT_FOR`, or `recorder_wait_for(command_interface)` with a recorder);
+    `LOCKSTEP_WAIT_FOR`, or `recorder_wait_for(command_interface)` with a recorder), and the lockstep
+    controller the readers of its command among them (``lockstep_command_readers``, `command_readers`);
     `overrides` (per executable name) come last. A `namespace` moves every node into it (`namespace_remaps`)
     and gives the nodes of `FRAME_PREFIX_NODES` its `frame_prefix`.
     A ``robot_description_publisher`` publishes the URDF and the wheels' TF (lossless in lockstep, its ``mode``).
@@ -203,8 +214,11 @@ def node_arguments(
     # odometry stamps; the time source's /clock reader would cost each a wake-up a tick
     twist = {"controller_node": {"control.odometry_twist": CONTROLLER_TWIST[odometry]}} \
         if odometry in CONTROLLER_TWIST else {}
-    interface = {} if command_interface == "voltages" else {
+    interface: dict[str, dict[str, Any]] = {} if command_interface == "voltages" else {
         name: {"command_interface": command_interface} for name in ("controller_node", "plant_node")}
+    if lockstep:  # the command's readers the plant waits for, matched by the controller's writer too
+        interface.setdefault("controller_node", {})["lockstep_command_readers"] = command_readers(
+            wait_for, command_interface)
     for name in ("trajectory_node", "controller_node"):
         args[name] = ros_args(params_file, {**scenario_overrides[name], "mode": mode, **twist.get(name, {}),
                                             **interface.get(name, {}), **frames.get(name, {}), **extra.get(name, {})},

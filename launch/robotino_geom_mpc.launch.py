@@ -10,7 +10,9 @@ Launch arguments
 scenario       a name of ``robotino_geom_mpc.scenarios.SCENARIOS`` (the documentation's scenario page lists
                them, generated from it). Each node gets the scenario's overrides (``scenarios.node_parameters``): the
                trajectory the scenario (its reference), the controller its model (mismatched in
-               robustness), the plant the odometry noise
+               robustness), the plant the odometry noise; over a scenario's link (wifi) the plant that link
+               and, as with ``robotino-geom-mpc run``, plans: the controller's delay-compensated plans, the
+               trajectory's preview as long as they need (``processes.scenario_parameters``)
 params_file    ROS 2 parameter file, ``/**`` section read by every node (default: config/robotino3.yaml);
                the controller's mismatched model is scaled from its robot
 plant_params   parameter file of the plant alone (default: params_file); a different one gives a
@@ -79,8 +81,7 @@ from robotino_geom_mpc.params.specs import RECORDED_CONTROLLER_SPECS
 from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
 from robotino_geom_mpc.system.processes import FLEET_NODES, FRAME_PREFIX_NODES, command_readers, \
     fleet_realtime_parameters, fleet_wait_for, frame_prefix, namespace_remaps, recorder_wait_for, robot_names, \
-    ros_namespace
-from robotino_geom_mpc.scenarios import node_parameters
+    ros_namespace, scenario_parameters
 from robotino_geom_mpc.system.launch_arguments import flag, node_environment, number
 
 PACKAGE = "robotino_geom_mpc"
@@ -123,13 +124,13 @@ def _description(plant_params: str, prefix: str, mode: str, **common) -> Node:
 
 
 def _nodes(context) -> list:
-    """The nodes of the run, each with its scenario's overrides (`scenarios.node_parameters`), and the
+    """The nodes of the run, each with its scenario's overrides (`processes.scenario_parameters`), and the
     handler that shuts the launch down when the plant exits.
     """
     config = context.launch_configurations
     scenario, params_file = config["scenario"], config["params_file"]
     robot, control = load_params(params_file)
-    overrides = node_parameters(scenario, robot)
+    overrides, plans = scenario_parameters(scenario, robot, control)  # over a scenario's link: plans, as run
     lockstep = flag(config, "lockstep")
     mode = "lockstep" if lockstep else "realtime"
     record = flag(config, "record")
@@ -162,10 +163,10 @@ def _nodes(context) -> list:
     if robots:  # every robot's loop (and the recorder's) subscriptions, the fleet's /clock read by each robot's
         plant["lockstep_wait_for"] = fleet_wait_for(robots, record, interface)
     elif record:  # the lockstep plant also waits for the recorder's subscriptions
-        plant["lockstep_wait_for"] = recorder_wait_for(interface)
+        plant["lockstep_wait_for"] = recorder_wait_for(interface, plans)
     controller = {**overrides["controller_node"], **realtime_fleet.get("controller_node", {})}
     if lockstep:  # the command's readers the plant waits for, matched by the controller's writer too
-        controller["lockstep_command_readers"] = command_readers(plant.get("lockstep_wait_for", ()), interface)
+        controller["lockstep_command_readers"] = command_readers(plant.get("lockstep_wait_for", ()), interface, plans)
     plant_node = Node(package=PACKAGE, **kind("plant_node", "robotino_plant"),
                       parameters=[config["plant_params"], plant], **common)
     nodes = [

@@ -31,6 +31,7 @@ from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, RECORDER_WAIT
     recorder_wait_for
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
 from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
+from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
 from launch_standins import Context, Recorded, install, launch_ros_file, load_description, of
 
 pytestmark = pytest.mark.unit
@@ -104,8 +105,13 @@ def test_each_node_gets_its_scenarios_parameters(description, scenario):
         assert node_overrides["mode"] == "lockstep"
         assert {k: v for k, v in node_overrides.items() if k in want[name]} == want[name]
     assert nodes[DESCRIPTION].kwargs["parameters"][1]["mode"] == "lockstep"  # its joint_states and /tf keep-all
+    offline = run_scenario(RunConfig(scenario, robot, control, duration_s=0.05))
+    # over a link: plans, as the offline run compensates the link (the preview as long as the plans need)
+    plans = "link" in offline.meta and offline.meta["link"]["compensated"]
+    assert [by_node[name].get("plans", False) for name in ("controller_node", "plant_node")] == [plans, plans]
+    longer = {"preview_points": DelayCompensatingController(robot, control).preview_length} if plans else {}
     assert {k: v for k, v in by_node["trajectory_node"].items() if k != "frame_prefix"} == \
-        {"scenario": scenario, "mode": "lockstep"}
+        {"scenario": scenario, "mode": "lockstep", **longer}
     plant = by_node["plant_node"]
     assert plant["duration_s"] == 2.5 and plant["seed"] == 7 and "lockstep_wait_for" not in plant
 
@@ -114,7 +120,6 @@ def test_each_node_gets_its_scenarios_parameters(description, scenario):
     values = {**read_parameter_file(PARAMS), **by_node["controller_node"]}
     launched, _ = params_from_values({s.name: values[s.name] for s in ALL_SPECS}, "launch")
     assert launched == get_scenario(scenario).controller_model(robot)
-    offline = run_scenario(RunConfig(scenario, robot, control, duration_s=0.05))
     assert [plant["odometry_noise.position_m"], plant["odometry_noise.yaw_rad"]] == offline.meta["odometry_noise"]
     assert (launched != robot) == (offline.meta["controller_mismatch"] is not None)
 
@@ -337,7 +342,8 @@ def test_every_node_accepts_the_files_launch_ros_gives_it(description, tmp_path,
     for files in written.values():
         check_parameter_files(files)
     (values,) = parse_parameter_file(written["plant_node"][-1]).values()
-    assert values.get("lockstep_wait_for") == (recorder_wait_for(interface) if record == "true" else None)
+    plans = get_scenario(scenario).link is not None  # over a link the plant reads plans (and the recorder)
+    assert values.get("lockstep_wait_for") == (recorder_wait_for(interface, plans) if record == "true" else None)
 
 
 def test_rviz_starts_rviz2_with_the_packages_view_where_installed_and_says_so_where_not(description, monkeypatch,

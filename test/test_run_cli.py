@@ -124,20 +124,25 @@ def test_each_node_gets_its_scenarios_overrides():
     assert "robot." not in " ".join(node_arguments("paper-circle", default_params_file(), 3.0, True)["controller_node"])
 
 
-@pytest.mark.parametrize("bag, port, interface, readers", [
-    (None, None, "voltages", 1), ("b", None, "voltages", 2), ("b", 8765, "voltages", 3), ("b", None, "cmd_vel", 2)])
-def test_a_lockstep_controller_holds_its_answer_for_the_command_readers_the_plant_waits_for(bag, port, interface,
-                                                                                            readers):
-    """The plant's reader, the recorder's, the live view's: the plant waits for them on the command topic before
-    tick 0, and the controller's writer must have matched them before its first answer (realtime: no such wait).
+@pytest.mark.parametrize("scenario, bag, port, interface, readers", [
+    ("paper-circle", None, None, "voltages", 1), ("paper-circle", "b", None, "voltages", 2),
+    ("paper-circle", "b", 8765, "voltages", 3), ("paper-circle", "b", None, "cmd_vel", 2),
+    ("wifi", None, None, "voltages", 1), ("wifi", "b", None, "voltages", 2), ("wifi", "b", None, "cmd_vel", 2)])
+def test_a_lockstep_controller_holds_its_answer_for_the_command_readers_the_plant_waits_for(scenario, bag, port,
+                                                                                            interface, readers):
+    """The plant's reader, the recorder's, the live view's: the plant waits for them on the topic of its answers
+    (the command's; over a link the plans') before tick 0, and the controller's writer must have matched them
+    before its first answer (realtime: no such wait).
     """
     topic = "wheel_voltages" if interface == "voltages" else "cmd_vel"
-    args = node_arguments("paper-circle", default_params_file(), 3.0, True, bag=bag, live_view_port=port,
+    if scenario == "wifi":
+        topic = {"voltages": "wheel_voltage_plan", "cmd_vel": "cmd_vel_plan"}[interface]
+    args = node_arguments(scenario, default_params_file(), 3.0, True, bag=bag, live_view_port=port,
                           command_interface=interface)
     assert f"lockstep_command_readers:={readers}" in args["controller_node"]
     wait_for = " ".join(args["plant_node"])
     assert (f'"{topic}:{readers}"' in wait_for) if bag else (topic not in wait_for)  # without: the plant's own
-    realtime = node_arguments("paper-circle", default_params_file(), 3.0, False, bag=bag, command_interface=interface)
+    realtime = node_arguments(scenario, default_params_file(), 3.0, False, bag=bag, command_interface=interface)
     assert not any("lockstep_command_readers" in arg for arg in realtime["controller_node"])
 
 

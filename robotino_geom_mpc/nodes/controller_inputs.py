@@ -74,10 +74,10 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
               "command_applied (loop.controller_loop)"),
     ParamSpec("publish_predicted_path", bool, "Publish predicted_path (the MPCs' predicted poses, computed only while "
               "a subscription is matched; the report does not read it)"),
-    ParamSpec("lockstep_command_readers", int, "Lockstep: readers of the command topic (wheel_voltages / cmd_vel) "
-              "its publisher must have matched before the first answer goes out, which is held until then: the "
-              "plant's, and a recorder's or a live view's (an answer sent while only some had matched never reaches "
-              "the others)", "", 0, 1000, False),
+    ParamSpec("lockstep_command_readers", int, "Lockstep: readers of the topic the plant reads its answers on "
+              "(wheel_voltages / cmd_vel; with plans the plan topic) that its publisher must have matched before the "
+              "first answer goes out; the answers are held until then: the plant's, and a recorder's or a live "
+              "view's (an answer sent while only some had matched never reaches the others)", "", 0, 1000, False),
     ParamSpec("start_enabled", bool, "false: the node starts disabled, as after ~/enable false (zero volts / zero "
               "twist every tick, diagnostic 'disabled') until ~/enable true, then tracks bumplessly"),
 )

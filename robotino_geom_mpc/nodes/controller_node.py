@@ -60,9 +60,9 @@ odometry waits for its preview); a report that cannot be read or lies more than 
 refused (``refused_reports``); the link in the diagnostics (`loop.controller_loop.LINK_KEYS`: round trip mean,
 jitter and the lead's quantile [s], the lead [periods], plans sent / received / lost, odometries received /
 missing / stale, ``exhausted_periods``, ``refused_reports``, ``reports_received``). In lockstep the odometries of a
-tick are answered in arrival order, each with the preview of its stamp; an answer goes out once the command
-publisher has matched ``lockstep_command_readers`` readers (the plant's and a recorder's: `controller_outputs`),
-and is sent again when the plant resends its tick only if it found no reader.
+tick are answered in arrival order, each with the preview of its stamp; the answers (commands, with plans the
+plans) go out once their publisher has matched ``lockstep_command_readers`` readers (the plant's and a
+recorder's: `controller_outputs`), held until then; an answer is never sent twice.
 Chain (``chain.active`` enabled: realtime, cmd_vel): the chain controller (`control.chain_controller`, built from
 ``chain.*``: the preset, or `identify`'s file) steps on each odometry instead of the MPC, with the newest preview
 and the node clock at the step; two odometries of one driver pass share a stamp and both are used, an old stamp

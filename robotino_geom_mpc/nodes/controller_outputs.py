@@ -1,8 +1,8 @@
 """The controller node's output side: the publishers of what a `loop.controller_loop.ControllerLoop` answers.
 
-`ControllerOutputs.send` publishes a loop's outputs (`loop.events`): the command (and in lockstep the bookkeeping of
-the last answer: held until the command publisher has matched its ``lockstep_command_readers``, then sent once;
-sent again when the plant resends a tick whose answer found no reader), zero, the plan, the
+`ControllerOutputs.send` publishes a loop's outputs (`loop.events`): the command, zero, the plan (in lockstep the
+answers the plant reads, the commands or with plans the plans, are held until their publisher has matched its
+``lockstep_command_readers``, then sent once, in order), the
 status, the predicted path, the enabled state, and the log lines (throttled per key). It also tells the loop
 whether anyone reads the status and the path (`loop.controller_loop.Listeners`), so they are built only then.
 The topics: `controller_node`'s docstring. Publishers use `ros.qos.publish_qos` (keep-all in lockstep).
@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
@@ -24,7 +25,6 @@ from std_msgs.msg import Bool, Float64MultiArray
 from robotino_geom_mpc.loop.controller_loop import TRACKING_KEYS
 from robotino_geom_mpc.loop.events import (Command, Diagnostic, EnabledChanged, Log, Output, PlanOut, PredictedPath,
                                            Resend, Waiting, Zero)
-from robotino_geom_mpc.network.plan import CommandPlan
 from robotino_geom_mpc.ros.controller_cdr import diagnostics_cdr
 from robotino_geom_mpc.ros.messages import ODOM_FRAME, VOLTAGE_LABEL, path_cdr, three_values_template
 from robotino_geom_mpc.ros.plans import PLAN_TOPICS, PlanWriter, plan_type
@@ -48,7 +48,7 @@ class ControllerOutputs:
     node
         The controller node (publishers are created on it).
     lockstep
-        Keep-all publishers, and an answer that went out before a reader matched is sent again when one does.
+        Keep-all publishers, and the answers held until their readers have matched (`command_readers`).
     frame_prefix
         Prefix of the ``odom`` frame of ``predicted_path`` (a namespaced robot's ``robot1/odom``).
     command_interface
@@ -59,10 +59,11 @@ class ControllerOutputs:
     predicted_path
         ``predicted_path`` is published (while subscribed); false: no publisher, the prediction never computed.
     command_readers
-        Lockstep: the readers the command publisher must have matched before the first answer goes out (the
-        plant's, and a recorder's: matching is per writer and reader, so the controller's writer can match the
-        recorder before the plant, and an answer sent then never reaches the plant). Until then an answer is held,
-        and it goes out once when they have matched; after that one matched reader is enough.
+        Lockstep: the readers the publisher of the answers (the command's, with plans the plan's) must have matched
+        before the first answer goes out (the plant's, and a recorder's: matching is per writer and reader, so the
+        controller's writer can match the recorder before the plant, and an answer sent then never reaches the
+        plant). Until then the answers are held, and they go out once, in order, when the readers have matched;
+        after that one matched reader is enough (none: held until one matches).
     """
 
     def __init__(self, node: Node, lockstep: bool, frame_prefix: str = "",
@@ -71,26 +72,31 @@ class ControllerOutputs:
         self.node = node
         self.readers_needed = command_readers if lockstep else 0  # until first met; then 1
         self.cmd_vel = command_interface == "cmd_vel"
+        self.plans = plan_length is not None
         qos = publish_qos(lockstep)
-        # lockstep: a newly matched plant gets an answer sent before it matched (realtime: the next tick's)
-        matched = PublisherEventCallbacks(matched=self._on_command_matched) if lockstep else None
+        # lockstep: the answers held go out when a reader matches (realtime: nothing is held)
+        matched = PublisherEventCallbacks(matched=self._on_answer_matched) if lockstep else None
+        command_matched = None if self.plans else matched  # with plans the plant reads the plans
         if self.cmd_vel:
-            self.command_pub = node.create_publisher(Twist, "cmd_vel", qos, event_callbacks=matched)
+            self.command_pub = node.create_publisher(Twist, "cmd_vel", qos, event_callbacks=command_matched)
             self.twist = Twist()
         else:
-            self.command_pub = node.create_publisher(Float64MultiArray, "wheel_voltages", qos, event_callbacks=matched)
+            self.command_pub = node.create_publisher(Float64MultiArray, "wheel_voltages", qos,
+                                                     event_callbacks=command_matched)
             self.voltage_cdr = three_values_template(VOLTAGE_LABEL)
         self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", qos)
         self.diag_keys: dict[tuple[str, ...], tuple[bytes, ...]] = {}  # the keys of a status, encoded once
-        self.answered: tuple[int, bool, list[float]] | None = None  # stamp, delivered, command
-        self.held_since: float | None = None  # steady time [s] the answer was first held
+        self.held: list[tuple[int, Any]] = []  # lockstep: the answers not sent yet (stamp, command or plan message)
+        self.held_since: float | None = None  # steady time [s] the first of them was held
         self.path_pub = node.create_publisher(Path, "predicted_path", PATH_QOS) if predicted_path else None
         self.path_frame = frame_prefix + ODOM_FRAME
         self.enabled_pub = node.create_publisher(Bool, "controller_enabled", LATCHED_QOS)
         self.plan_pub, self.plan_writer = None, None
         if plan_length is not None:
-            self.plan_pub = node.create_publisher(plan_type(command_interface), PLAN_TOPICS[command_interface], qos)
+            self.plan_pub = node.create_publisher(plan_type(command_interface), PLAN_TOPICS[command_interface], qos,
+                                                  event_callbacks=matched)
             self.plan_writer = PlanWriter(command_interface, plan_length)
+        self.answer_pub = self.plan_pub if self.plan_pub is not None else self.command_pub  # what the plant reads
 
     def send_enabled(self, enabled: bool) -> None:
         """Publish the enabled state (latched)."""
@@ -100,7 +106,10 @@ class ControllerOutputs:
         """Publish (log) what a loop answered, in its order."""
         for out in outputs:
             if isinstance(out, Command):
-                self.answer(out.stamp_ns, list(out.values))
+                if self.plans:
+                    self.send_command(out.values)
+                else:
+                    self.answer(out.stamp_ns, list(out.values))
             elif isinstance(out, Diagnostic):
                 self.diagnose(out)
             elif isinstance(out, Zero):
@@ -108,11 +117,12 @@ class ControllerOutputs:
             elif isinstance(out, Log):
                 log_throttled(self.node.get_logger(), out.level.name, out.text, out.throttle_s, out.key)
             elif isinstance(out, PlanOut):
-                self.publish_plan(out.plan)
+                assert self.plan_writer is not None
+                self.answer(out.stamp_ns, self.plan_writer.encode(out.plan))
             elif isinstance(out, PredictedPath):
                 self.publish_path(out)
             elif isinstance(out, Resend):
-                self.deliver_answer()
+                self.deliver_answers()
             elif isinstance(out, EnabledChanged):
                 self.send_enabled(out.enabled)
             elif isinstance(out, Waiting):
@@ -129,46 +139,44 @@ class ControllerOutputs:
             msg = self.voltage_cdr.pack(*command)
         publish_acknowledged(self.node, self.command_pub, msg)
 
-    def answer(self, stamp: int, command: list[float]) -> None:
-        """Publish the answer to the odometry of `stamp` (lockstep: held while `_readers_matched` is not met) and
-        remember whether it went out.
+    def answer(self, stamp: int, answer: Any) -> None:
+        """Publish the answer to the odometry of `stamp`: the command (a list), or with plans the plan message; in
+        lockstep held (with those before it) while `_readers_matched` is not met.
         """
-        self.answered = (stamp, False, command)
-        self.deliver_answer()
+        self.held.append((stamp, answer))
+        self.deliver_answers()
 
-    def deliver_answer(self) -> None:
-        """Lockstep: publish the last answer if it was not sent yet and its readers have matched (else: a log)."""
-        if self.answered is None or self.answered[1]:
+    def deliver_answers(self) -> None:
+        """Publish the answers held, in order, once their readers have matched (else, after a while: a log)."""
+        if not self.held:
             return
-        stamp, _, command = self.answered
         if self._readers_matched():
-            self.send_command(command)
-            self.answered, self.held_since = (stamp, True, command), None
+            for _, answer in self.held:
+                if self.plans:
+                    publish_acknowledged(self.node, self.answer_pub, answer)
+                else:
+                    self.send_command(answer)
+            self.held, self.held_since = [], None
             return
         now = time.monotonic()
         self.held_since = now if self.held_since is None else self.held_since
         if self.readers_needed > 1 and now - self.held_since >= _HOLD_REPORT_AFTER_S:
-            warn_throttled(self.node.get_logger(), f"holding the answer to the odometry of stamp {stamp} ns for "
-                           f"{now - self.held_since:.1f} s: {self.command_pub.topic_name} has matched "
-                           f"{self.command_pub.get_subscription_count()} of its {self.readers_needed} readers "
+            warn_throttled(self.node.get_logger(), f"holding the answer to the odometry of stamp {self.held[0][0]} "
+                           f"ns for {now - self.held_since:.1f} s: {self.answer_pub.topic_name} has matched "
+                           f"{self.answer_pub.get_subscription_count()} of its {self.readers_needed} readers "
                            "(lockstep_command_readers)", 2.0)
 
     def _readers_matched(self) -> bool:
-        """The command publisher has its readers: `command_readers` the first time, then one (realtime: always)."""
-        matched = self.command_pub.get_subscription_count()
+        """The answers' publisher has its readers: `command_readers` the first time, then one (realtime: always)."""
+        matched = self.answer_pub.get_subscription_count()
         if matched < self.readers_needed:
             return False
         self.readers_needed = min(self.readers_needed, 1)
-        return matched >= self.readers_needed
+        return True
 
-    def _on_command_matched(self, info: QoSPublisherMatchedInfo) -> None:
+    def _on_answer_matched(self, info: QoSPublisherMatchedInfo) -> None:
         if info.current_count_change > 0:
-            self.deliver_answer()
-
-    def publish_plan(self, plan: CommandPlan) -> None:
-        """Publish a plan (plans over a link)."""
-        assert self.plan_pub is not None and self.plan_writer is not None
-        publish_acknowledged(self.node, self.plan_pub, self.plan_writer.encode(plan))
+            self.deliver_answers()
 
     # prediction ---------------------------------------------------------------------------------
     def path(self) -> bool:

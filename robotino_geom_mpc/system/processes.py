@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "TIMING_REPORT",
-           "RECORDER_WAIT_FOR", "recorder_wait_for", "command_readers", "NamespaceError", "NodeFailed", "NodeProcess",
-           "NodeGroup",
+           "RECORDER_WAIT_FOR", "recorder_wait_for", "command_readers", "scenario_parameters", "NamespaceError",
+           "NodeFailed", "NodeProcess", "NodeGroup",
            "dds_environment",
            "wait_for_exit",
            "FLEET_NODES", "FLEET_PREVIEW_EVERY", "fleet_arguments", "fleet_realtime_parameters", "fleet_wait_for",
@@ -63,11 +63,13 @@ def recorder_wait_for(command_interface: str = "voltages", plans: bool = False) 
     return waits
 
 
-def command_readers(wait_for: Iterable[str], command_interface: str = "voltages") -> int:
-    """The controller's ``lockstep_command_readers``: the count of its command topic (``wheel_voltages`` /
-    ``cmd_vel``) in the plant's ``lockstep_wait_for`` `wait_for`, or 1 (the plant's reader) where it names none.
+def command_readers(wait_for: Iterable[str], command_interface: str = "voltages", plans: bool = False) -> int:
+    """The controller's ``lockstep_command_readers``: the count of the topic the plant reads its answers on (the
+    command's, ``wheel_voltages`` / ``cmd_vel``; with `plans` the plan's) in the plant's ``lockstep_wait_for``
+    `wait_for`, or 1 (the plant's reader) where it names none.
     """
-    topic = "wheel_voltages" if command_interface == "voltages" else "cmd_vel"
+    command = "wheel_voltages" if command_interface == "voltages" else "cmd_vel"
+    topic = f"{command.replace('wheel_voltages', 'wheel_voltage')}_plan" if plans else command  # (as recorder_wait_for)
     counts = [int(count) for name, _, count in (entry.rpartition(":") for entry in wait_for) if name == topic]
     return counts[0] if counts else 1
 
@@ -129,6 +131,31 @@ def namespace_remaps(namespace: str, lockstep: bool) -> dict[str, str]:
     return {"__ns": namespace, **({"/clock": f"{namespace}/clock"} if lockstep else {})}
 
 
+def scenario_parameters(scenario: str, robot: Any, control: Any, link: Any = None,
+                        plans: bool | None = None) -> tuple[dict[str, dict[str, Any]], bool]:
+    """The nodes' parameter overrides of `scenario` (`scenarios.node_parameters`) and whether they run plans.
+
+    `link` (`network.link.LinkParams`, each way) replaces the scenario's own link; `plans` (None: whenever there
+    is a link) makes the controller send delay-compensated plans and the plant take them (``plans`` of both; the
+    trajectory's ``preview_points`` the plans' `DelayCompensatingController.preview_length`), as `simulate` does.
+    """
+    from robotino_geom_mpc.scenarios import node_parameters
+
+    overrides = node_parameters(scenario, robot)
+    if link is not None:
+        overrides["plant_node"].update(
+            {f"link.{way}.{name}": float(value) for way in ("up", "down") for name, value in vars(link).items()})
+    networked = any(name.startswith("link.") and name.rsplit(".", 1)[1] != "burst_length" and value
+                    for name, value in overrides["plant_node"].items())
+    plans = networked if plans is None else plans
+    if plans:
+        from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
+
+        overrides["plant_node"]["plans"] = overrides["controller_node"]["plans"] = True
+        overrides["trajectory_node"]["preview_points"] = DelayCompensatingController(robot, control).preview_length
+    return overrides, plans
+
+
 def node_arguments(
     scenario: str,
     params_file: str | os.PathLike,
@@ -166,34 +193,19 @@ def node_arguments(
     ``env``): where `dds_environment` gives them the package's profile, a lockstep plant settles
     `PROFILE_SETTLE_S` before tick 0 instead of its default.
     `link` (`network.link.LinkParams`, each way) puts the plant's emulated radio link between the robot and the
-    other nodes (over the scenario's own link, e.g. ``wifi``'s). `plans` (None: whenever there is a link) makes
-    the controller send delay-compensated plans and the plant take them (``plans`` of both; the trajectory's
-    ``preview_points`` the plans' `DelayCompensatingController.preview_length`); False over a link is the
-    uncompensated baseline (plain commands acting on arrival).
+    other nodes (over the scenario's own link, e.g. ``wifi``'s); `plans` as `scenario_parameters` takes them:
+    False over a link is the uncompensated baseline (plain commands acting on arrival).
     With `live_view_port` a ``live_view_node`` serves every topic there (Foxglove WebSocket); a lockstep plant
     waits for its subscriptions too (one more on each topic it waits for) and runs at real time at most
     (``lockstep_max_realtime_factor`` 1), so the view shows the run from tick 0 at the pace it would have.
     """
     from robotino_geom_mpc.params.files import load_params
     from robotino_geom_mpc.params.specs import RECORDED_CONTROLLER_SPECS
-    from robotino_geom_mpc.scenarios import node_parameters
     from robotino_geom_mpc.model.encoders import CONTROLLER_TWIST
 
     robot, control = load_params(params_file)
     mode = "lockstep" if lockstep else "realtime"
-    scenario_overrides = node_parameters(scenario, robot)
-    if link is not None:
-        scenario_overrides["plant_node"].update(
-            {f"link.{way}.{name}": float(value) for way in ("up", "down") for name, value in vars(link).items()})
-    networked = any(name.startswith("link.") and name.rsplit(".", 1)[1] != "burst_length" and value
-                    for name, value in scenario_overrides["plant_node"].items())
-    plans = networked if plans is None else plans
-    if plans:
-        from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
-
-        scenario_overrides["plant_node"]["plans"] = scenario_overrides["controller_node"]["plans"] = True
-        scenario_overrides["trajectory_node"]["preview_points"] = DelayCompensatingController(
-            robot, control).preview_length
+    scenario_overrides, plans = scenario_parameters(scenario, robot, control, link, plans)
     extra = overrides or {}
     if wait_for is None:
         wait_for = list(LOCKSTEP_WAIT_FOR) if bag is None else recorder_wait_for(command_interface, plans)
@@ -218,7 +230,7 @@ def node_arguments(
         name: {"command_interface": command_interface} for name in ("controller_node", "plant_node")}
     if lockstep:  # the command's readers the plant waits for, matched by the controller's writer too
         interface.setdefault("controller_node", {})["lockstep_command_readers"] = command_readers(
-            wait_for, command_interface)
+            wait_for, command_interface, plans)
     for name in ("trajectory_node", "controller_node"):
         args[name] = ros_args(params_file, {**scenario_overrides[name], "mode": mode, **twist.get(name, {}),
                                             **interface.get(name, {}), **frames.get(name, {}), **extra.get(name, {})},

@@ -48,7 +48,8 @@ robots         N > 0: a fleet of N robots, ``robot1`` .. ``robotN`` (`ros.fleet`
                ``fleet_controller_node``, ``fleet_plant_node``: one node per robot in its namespace, its frames
                prefixed ``robot<k>/``; in lockstep one /clock for the fleet; in realtime a preview every 10
                periods, `fleet_realtime_parameters`), no description publisher; with no
-               ``namespace``, ``frame_prefix`` auto and no command buffer. 0 (default): one robot
+               ``namespace``, ``frame_prefix`` auto, no command buffer and a scenario without a link (as
+               ``run --robots``). 0 (default): one robot
 rviz           true: also start rviz2 with ``rviz_config`` (fixed frame odom, the robot model, TF, the
                reference and predicted paths, the odometry) where rviz2 is installed; where it is not, the
                launch says so in its log and runs without it (docs/howto/views.md)
@@ -68,6 +69,8 @@ holds tick 0 and the plant gets its answer. Without ``ros2 launch``,
 from the recording.
 """
 
+from pathlib import Path
+
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, EmitEvent, LogInfo, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
@@ -79,12 +82,21 @@ from launch_ros.substitutions import FindPackageShare
 from robotino_geom_mpc.params.files import load_params
 from robotino_geom_mpc.params.specs import RECORDED_CONTROLLER_SPECS
 from robotino_geom_mpc.description.urdf import check_frame_prefix, robotino_urdf
-from robotino_geom_mpc.system.processes import FLEET_NODES, FRAME_PREFIX_NODES, command_readers, \
-    fleet_realtime_parameters, fleet_wait_for, frame_prefix, namespace_remaps, recorder_wait_for, robot_names, \
-    ros_namespace, scenario_parameters
+from robotino_geom_mpc.params.presets import config_file
+from robotino_geom_mpc.system.processes import FASTDDS_PROFILE, FLEET_NODES, FRAME_PREFIX_NODES, LOCKSTEP_WAIT_FOR, \
+    PROFILE_SETTLE_S, command_readers, fleet_realtime_parameters, fleet_wait_for, frame_prefix, namespace_remaps, \
+    recorder_wait_for, robot_names, ros_namespace, scenario_parameters
 from robotino_geom_mpc.system.launch_arguments import flag, node_environment, number
 
 PACKAGE = "robotino_geom_mpc"
+
+
+def _package_profile(path: str) -> bool:
+    """Whether the Fast DDS profile `path` is the package's (`processes.FASTDDS_PROFILE`, by its contents)."""
+    try:
+        return bool(path) and Path(path).read_bytes() == config_file(FASTDDS_PROFILE).read_bytes()
+    except OSError:  # no such file: Fast DDS reports it at the nodes' start
+        return False
 
 
 def _has_robot_state_publisher() -> bool:
@@ -149,6 +161,9 @@ def _nodes(context) -> list:
     if robots and (namespace or config["frame_prefix"] != "auto" or flag(config, "command_buffer")):
         raise ValueError("launch argument 'robots': a fleet's robots are robot1 .. robotN, each its namespace and "
                          "frame prefix (no 'namespace', 'frame_prefix' auto, no 'command_buffer')")
+    if robots and any(name.startswith("link.") for name in overrides["plant_node"]):
+        raise ValueError(f"launch argument 'robots': a fleet runs without a link (scenario {scenario!r} has one), "
+                         "as robotino-geom-mpc run --robots")
 
     def own(name: str) -> dict:  # the frame prefix for the nodes that declare it (a fleet's robots: their own)
         return frames if name in FRAME_PREFIX_NODES and not robots else {}
@@ -158,12 +173,17 @@ def _nodes(context) -> list:
 
     fleet = {"robots": robot_names(robots)} if robots else {}
     realtime_fleet = fleet_realtime_parameters(control.period_s) if robots and not lockstep else {}
-    plant = {**overrides["plant_node"], "mode": mode, "duration_s": number(config, "duration"),
+    # the package's profile announces every 0.1 s: the lockstep plant settles one announcement, as under run
+    settle = {"lockstep_settle_s": PROFILE_SETTLE_S} if lockstep and _package_profile(config["fastdds_profile"]) \
+        else {}
+    plant = {**overrides["plant_node"], "mode": mode, **settle, "duration_s": number(config, "duration"),
              "seed": number(config, "seed", int), **command, **own("plant_node"), **fleet}
     if robots:  # every robot's loop (and the recorder's) subscriptions, the fleet's /clock read by each robot's
         plant["lockstep_wait_for"] = fleet_wait_for(robots, record, interface)
     elif record:  # the lockstep plant also waits for the recorder's subscriptions
         plant["lockstep_wait_for"] = recorder_wait_for(interface, plans)
+    else:  # the loop's subscriptions (the controller's preview one too), as under run
+        plant["lockstep_wait_for"] = list(LOCKSTEP_WAIT_FOR)
     controller = {**overrides["controller_node"], **realtime_fleet.get("controller_node", {})}
     if lockstep:  # the command's readers the plant waits for, matched by the controller's writer too
         controller["lockstep_command_readers"] = command_readers(plant.get("lockstep_wait_for", ()), interface, plans)

@@ -15,10 +15,12 @@ launches (test/data/launch_ros), which an emulation of its writer reproduces byt
 emulated files of every configuration pass each node's parameter-file check.
 """
 
+import itertools
 import json
 from pathlib import Path
 
 import pytest
+import yaml
 
 import ament_index_python.packages
 
@@ -27,8 +29,8 @@ from robotino_geom_mpc.params.files import check_parameter_files, load_params, p
 from robotino_geom_mpc.params.presets import config_file, default_params_file
 from robotino_geom_mpc.params.specs import ALL_SPECS, params_from_values
 from robotino_geom_mpc.description.urdf import DescriptionError, robotino_urdf
-from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, RECORDER_WAIT_FOR, NamespaceError, node_arguments, \
-    recorder_wait_for
+from robotino_geom_mpc.system.processes import FRAME_PREFIX_NODES, LOCKSTEP_WAIT_FOR, RECORDER_WAIT_FOR, \
+    NamespaceError, node_arguments, recorder_wait_for
 from robotino_geom_mpc.scenarios import SCENARIOS, ScenarioError, get_scenario, node_parameters
 from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
 from robotino_geom_mpc.control.delay_compensation import DelayCompensatingController
@@ -113,7 +115,7 @@ def test_each_node_gets_its_scenarios_parameters(description, scenario):
     assert {k: v for k, v in by_node["trajectory_node"].items() if k != "frame_prefix"} == \
         {"scenario": scenario, "mode": "lockstep", **longer}
     plant = by_node["plant_node"]
-    assert plant["duration_s"] == 2.5 and plant["seed"] == 7 and "lockstep_wait_for" not in plant
+    assert plant["duration_s"] == 2.5 and plant["seed"] == 7 and plant["lockstep_wait_for"] == list(LOCKSTEP_WAIT_FOR)
 
     # independently: the controller's parameters (file plus overrides, read as the node reads them) are the
     # model the offline loop gives its controller, and the plant's noise is the offline run's
@@ -146,8 +148,8 @@ def test_with_record_the_recorder_starts_and_the_plant_waits_for_its_subscriptio
     assert _overrides(recorded["recorder_node"]) == {"output": "/tmp/some_bag", "scenario": "lemniscate"}
     waiting = _overrides(recorded["plant_node"])
     assert waiting["lockstep_wait_for"] == recorder_wait_for() != list(RECORDER_WAIT_FOR)  # + the description publisher
-    assert "lockstep_wait_for" not in _overrides(plain["plant_node"])  # the plant's default: the loop's nodes
-    assert waiting.keys() - {"lockstep_wait_for"} == _overrides(plain["plant_node"]).keys()
+    assert _overrides(plain["plant_node"])["lockstep_wait_for"] == list(LOCKSTEP_WAIT_FOR)  # the loop's nodes
+    assert waiting.keys() == _overrides(plain["plant_node"]).keys()
     # the lockstep controller holds its first answer until its command matched the plant's and the recorder's
     # readers (the count the plant waits for), one reader without the recorder, nothing in realtime
     assert "lockstep_command_readers" not in _overrides(recorded["controller_node"])  # realtime
@@ -343,7 +345,52 @@ def test_every_node_accepts_the_files_launch_ros_gives_it(description, tmp_path,
         check_parameter_files(files)
     (values,) = parse_parameter_file(written["plant_node"][-1]).values()
     plans = get_scenario(scenario).link is not None  # over a link the plant reads plans (and the recorder)
-    assert values.get("lockstep_wait_for") == (recorder_wait_for(interface, plans) if record == "true" else None)
+    assert values["lockstep_wait_for"] == (recorder_wait_for(interface, plans) if record == "true"
+                                           else list(LOCKSTEP_WAIT_FOR))
+
+
+def _run_parameters(argv: list[str]) -> dict:
+    """The ``-p name:=value`` of a node's `node_arguments` argv, each value read as YAML (as rcl reads it)."""
+    return {name: yaml.safe_load(value) for flag, arg in zip(argv, argv[1:]) if flag == "-p"
+            for name, _, value in [arg.partition(":=")]}
+
+
+@pytest.mark.parametrize("layout", ["", "robot1", "fleet"])
+@pytest.mark.parametrize("scenario", list(SCENARIOS))
+def test_the_launch_gives_each_node_the_parameters_run_gives_it(description, scenario, layout):
+    """For every scenario, mode, recording and command interface, one robot (without and with a namespace) or a
+    fleet of two: each node's parameters from the launch file are those `run` gives it (`node_arguments`,
+    `fleet_arguments`, with the package's Fast DDS profile), but for two defaults the launch leaves to the node
+    or states itself (``odometry_model`` ideal; ``frame_prefix`` '' without a namespace). A fleet over a link is
+    refused as ``run --robots`` refuses it.
+    """
+    from robotino_geom_mpc.model.encoders import ODOMETRY_DEFAULTS
+    from robotino_geom_mpc.system.processes import fleet_arguments
+
+    defaults = {"odometry_model": ODOMETRY_DEFAULTS["odometry_model"], "frame_prefix": ""}  # the nodes' defaults
+    for lockstep, record, interface in itertools.product((True, False), (True, False), ("voltages", "cmd_vel")):
+        arguments = {"scenario": scenario, "lockstep": str(lockstep).lower(), "record": str(record).lower(),
+                     "bag": "/tmp/b", "command_interface": interface, "duration": "5.0", "seed": "3"}
+        bag = "/tmp/b" if record else None
+        if layout == "fleet":
+            if get_scenario(scenario).link is not None:
+                with pytest.raises(ValueError, match="without a link"):
+                    _launch(description, **arguments, robots="2")
+                continue
+            launched, _ = _launch(description, **arguments, robots="2")
+            run = fleet_arguments(scenario, PARAMS, 5.0, lockstep, 2, 3, bag, command_interface=interface, environ={})
+        else:
+            launched, _ = _launch(description, **arguments, namespace=layout)
+            run = node_arguments(scenario, PARAMS, 5.0, lockstep, 3, bag, command_interface=interface,
+                                 namespace=layout, environ={})
+        assert set(launched) == set(run), arguments
+        for executable, node in launched.items():
+            got = {k: list(v) if isinstance(v, tuple) else v for k, v in _overrides(node).items()}
+            want = _run_parameters(run[executable])
+            for name, value in defaults.items():  # left out on one side: the node's default
+                got.setdefault(name, value)
+                want.setdefault(name, value)
+            assert got == want, (executable, arguments)
 
 
 def test_rviz_starts_rviz2_with_the_packages_view_where_installed_and_says_so_where_not(description, monkeypatch,

@@ -37,10 +37,12 @@ command_interface  voltages (default): the controller sends wheel_voltages to th
 duration       run length [s] of the plant; 0 runs until stopped. The plant ends the run: when it exits
                (its duration, or a failure) the launch shuts the other nodes down, as ``run`` stops them
 seed           seed of the plant's odometry noise
-command_buffer true: also start the robot-side command buffer (``command_buffer_node``: ``cmd_vel_plan`` in,
-               the driver's ``cmd_vel`` out at the plans' times, zero twist when they stop) beside the
-               simulator; on a real Robotino's PC start launch/robot_side.launch.py instead, which starts the
-               buffer alone (docs/howto/real_robot_buffer.md)
+command_buffer true: the variant of docs/howto/real_robot_buffer.md in simulation: also start the robot-side
+               command buffer (``command_buffer_node``: ``cmd_vel_plan`` in, the driver's ``cmd_vel`` out at
+               the plans' times, zero twist when they stop); the controller sends plans and no plain
+               command (``publish_plain_command`` false), the plant is the driver (its ``cmd_vel``, no plans);
+               needs ``command_interface:=cmd_vel``, realtime and a scenario without a link. On a real
+               Robotino's PC start launch/robot_side.launch.py instead, which starts the buffer alone
 record         true: also start the MCAP recorder (bag in ``bag``)
 bag            recording directory (default: rosbag2_<date> in the working directory)
 robots         N > 0: a fleet of N robots, ``robot1`` .. ``robotN`` (`ros.fleet`): the trajectory, the controller and
@@ -142,7 +144,9 @@ def _nodes(context) -> list:
     config = context.launch_configurations
     scenario, params_file = config["scenario"], config["params_file"]
     robot, control = load_params(params_file)
-    overrides, plans = scenario_parameters(scenario, robot, control)  # over a scenario's link: plans, as run
+    buffer = flag(config, "command_buffer")
+    # over a scenario's link: plans, as run; with the buffer the controller's plans go to it
+    overrides, plans = scenario_parameters(scenario, robot, control, plans=True if buffer else None)
     lockstep = flag(config, "lockstep")
     mode = "lockstep" if lockstep else "realtime"
     record = flag(config, "record")
@@ -161,6 +165,13 @@ def _nodes(context) -> list:
     if robots and (namespace or config["frame_prefix"] != "auto" or flag(config, "command_buffer")):
         raise ValueError("launch argument 'robots': a fleet's robots are robot1 .. robotN, each its namespace and "
                          "frame prefix (no 'namespace', 'frame_prefix' auto, no 'command_buffer')")
+    if buffer:  # the robot side of real_robot_buffer.md: the buffer drives the plant's cmd_vel from the plans
+        if interface != "cmd_vel" or lockstep or any(name.startswith("link.") for name in overrides["plant_node"]):
+            raise ValueError("launch argument 'command_buffer': the buffer takes the controller's cmd_vel plans on "
+                             "the robot's clock (command_interface:=cmd_vel, lockstep:=false, a scenario without "
+                             "a link)")
+        del overrides["plant_node"]["plans"]  # the plant is the driver: the buffer's twists on cmd_vel
+        overrides["controller_node"]["publish_plain_command"] = False  # else a second source on cmd_vel
     if robots and any(name.startswith("link.") for name in overrides["plant_node"]):
         raise ValueError(f"launch argument 'robots': a fleet runs without a link (scenario {scenario!r} has one), "
                          "as robotino-geom-mpc run --robots")
@@ -200,7 +211,7 @@ def _nodes(context) -> list:
         plant_node,
         *([] if robots else [_description(config["plant_params"], prefix, mode, **common)]),
     ]
-    if flag(config, "command_buffer"):
+    if buffer:
         nodes.append(Node(package=PACKAGE, executable="command_buffer_node", name="robotino_command_buffer",
                           parameters=[params_file], **common))
     if record:  # it stores the controller's chain and loop settings given here (for the replays)

@@ -349,6 +349,26 @@ def test_every_node_accepts_the_files_launch_ros_gives_it(description, tmp_path,
                                            else list(LOCKSTEP_WAIT_FOR))
 
 
+def test_command_buffer_runs_the_buffer_variant_the_buffer_the_only_cmd_vel_source(description):
+    """``command_buffer:=true``: the controller sends plans and no plain command (a second source beside the
+    buffer's on the driver's cmd_vel), the trajectory the plans' preview, the plant takes cmd_vel without plans
+    (it is the driver); a configuration the buffer cannot serve stops the launch (its closed loop over DDS:
+    test_command_buffer_node).
+    """
+    robot, control = load_params(PARAMS)
+    nodes, _ = _launch(description, command_buffer="true", command_interface="cmd_vel")
+    assert "command_buffer_node" in nodes
+    controller, plant = _overrides(nodes["controller_node"]), _overrides(nodes["plant_node"])
+    assert controller["plans"] is True and controller["publish_plain_command"] is False
+    assert controller["command_interface"] == plant["command_interface"] == "cmd_vel" and "plans" not in plant
+    assert _overrides(nodes["trajectory_node"])["preview_points"] == \
+        DelayCompensatingController(robot, control).preview_length
+    for arguments in ({}, {"command_interface": "cmd_vel", "lockstep": "true"},
+                      {"command_interface": "cmd_vel", "scenario": "wifi"}):
+        with pytest.raises(ValueError, match="command_buffer"):
+            _launch(description, command_buffer="true", **arguments)
+
+
 def _run_parameters(argv: list[str]) -> dict:
     """The ``-p name:=value`` of a node's `node_arguments` argv, each value read as YAML (as rcl reads it)."""
     return {name: yaml.safe_load(value) for flag, arg in zip(argv, argv[1:]) if flag == "-p"

@@ -216,3 +216,16 @@ def test_a_check_that_raises_refuses_the_set_instead_of_crashing(stand_in):
     result = node.set_parameters([Parameter("control.q_y", value=5.0)])[0]
     assert not result.successful and "ZeroDivisionError" in result.reason
     assert params["control.q_y"] != 5.0
+
+
+@pytest.mark.unit
+def test_a_controller_without_plans_must_publish_its_plain_command():
+    """``publish_plain_command`` false leaves only the plans: refused without them (the node would send nothing)."""
+    from robotino_geom_mpc.nodes.controller_inputs import CONTROLLER_DEFAULTS, closed_loop_problem
+    from robotino_geom_mpc.ros.parameters import spec_defaults
+
+    values = {**spec_defaults(), **CONTROLLER_DEFAULTS}
+    assert closed_loop_problem(values) is None
+    assert "'publish_plain_command' false needs 'plans'" in closed_loop_problem({**values,
+                                                                              "publish_plain_command": False})
+    assert closed_loop_problem({**values, "publish_plain_command": False, "plans": True}) is None

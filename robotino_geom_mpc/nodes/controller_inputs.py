@@ -72,6 +72,10 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("plans", bool, "Off-board over a network: per odometry a delay-compensated plan of control.plan_length "
               "commands on wheel_voltage_plan / cmd_vel_plan (the plain command carries its first entry); reads "
               "command_applied (loop.controller_loop)"),
+    ParamSpec("publish_plain_command", bool, "With plans: also publish the plain command (wheel_voltages / cmd_vel: "
+              "the plan's first entry, zero when disabled or on a refused input) for observers; false where a "
+              "robot-side command buffer drives the robot's cmd_vel from the plans (the controller's would be a "
+              "second, delayed source on the driver's topic). Without plans it must stay true"),
     ParamSpec("publish_predicted_path", bool, "Publish predicted_path (the MPCs' predicted poses, computed only while "
               "a subscription is matched; the report does not read it)"),
     ParamSpec("lockstep_command_readers", int, "Lockstep: readers of the topic the plant reads its answers on "
@@ -84,22 +88,25 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
 CONTROLLER_DEFAULTS: dict[str, Any] = {
     "mode": "realtime", **asdict(LoopSettings()),
     "frame_prefix": "", "command_interface": "voltages", "plans": False, "start_enabled": True,
-    "publish_predicted_path": True, "lockstep_command_readers": 1,
+    "publish_predicted_path": True, "publish_plain_command": True, "lockstep_command_readers": 1,
 }
 # the mode, the outputs, and what must agree with the trajectory node (the preview's layout)
 FIXED_WHILE_RUNNING = ("mode", "frame_prefix", "command_interface", "control.period_s", "control.horizon", "plans",
                        "control.plan_length", "control.lead_max_periods",
                        "start_enabled",  # (a start value: ~/enable switches a running node)
-                       "publish_predicted_path", "lockstep_command_readers")
+                       "publish_predicted_path", "publish_plain_command", "lockstep_command_readers")
 
 
 def closed_loop_problem(values: dict[str, Any]) -> str | None:
     """Why the candidate parameter values cannot run, or None.
 
     A timeout shorter than two control periods (every tick's input would be stale, and the
-    watchdog's timer would run at half of it), an unstable nominal closed loop, or a model the
-    controller cannot be built on (e.g. a singular T(theta)): refused before the node takes them.
+    watchdog's timer would run at half of it), an unstable nominal closed loop, a model the
+    controller cannot be built on (e.g. a singular T(theta)), or no output at all (no plans and no
+    plain command): refused before the node takes them.
     """
+    if not values["plans"] and not values["publish_plain_command"]:
+        return "parameter 'publish_plain_command' false needs 'plans' true: the controller would send nothing"
     period = values["control.period_s"]
     for name in ("odom_timeout_s", "reference_timeout_s"):
         if values[name] < 2.0 * period:

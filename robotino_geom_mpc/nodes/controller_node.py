@@ -54,7 +54,8 @@ steady time otherwise. Frames: a preview not in ``<frame_prefix>odom`` is refuse
 Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagnostic naming the reason).
 Plans (``plans``, an off-board controller over a network): delay-compensated plans
 (`control.delay_compensation.DelayCompensatingController`) on ``wheel_voltage_plan`` / ``cmd_vel_plan``
-(`ros.plans`), the plain command carrying the plan's first entry; the robot's ``command_applied``
+(`ros.plans`), the plain command carrying the plan's first entry (``publish_plain_command`` false: none, where a
+robot-side command buffer drives the driver's ``cmd_vel``); the robot's ``command_applied``
 (trajectory_msgs/JointTrajectory) read and handed to the loop in the order it came (in lockstep held while an
 odometry waits for its preview); a report that cannot be read or lies more than 2 s from the newest odometry is
 refused (``refused_reports``); the link in the diagnostics (`loop.controller_loop.LINK_KEYS`: round trip mean,
@@ -157,7 +158,8 @@ class ControllerNode(Node):
         self.sim_time = bool(self.get_parameter("use_sim_time").value)
         self.outputs = ControllerOutputs(self, lockstep, prefix, interface,
                                          control.plan_length if self.params["plans"] else None,
-                                         self.params["publish_predicted_path"], self.params["lockstep_command_readers"])
+                                         self.params["publish_predicted_path"], self.params["lockstep_command_readers"],
+                                         self.params["publish_plain_command"])
         try:
             self.loop = ControllerLoop(robot, control, self._now(), self._settings(), lockstep=lockstep,
                                        interface=interface, plans=self.params["plans"], chain=self._chain(),

@@ -19,6 +19,7 @@ from geometry_msgs.msg import Twist
 from nav_msgs.msg import Path
 from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float64MultiArray
 
@@ -58,6 +59,9 @@ class ControllerOutputs:
         With plans: the plans' length (``wheel_voltage_plan`` / ``cmd_vel_plan`` are published); None: no plans.
     predicted_path
         ``predicted_path`` is published (while subscribed); false: no publisher, the prediction never computed.
+    plain_command
+        With plans: the plain command (the plan's first entry, zero) is published too; false: only the plans
+        (a robot-side buffer drives the robot's ``cmd_vel``).
     command_readers
         Lockstep: the readers the publisher of the answers (the command's, with plans the plan's) must have matched
         before the first answer goes out (the plant's, and a recorder's: matching is per writer and reader, so the
@@ -68,22 +72,26 @@ class ControllerOutputs:
 
     def __init__(self, node: Node, lockstep: bool, frame_prefix: str = "",
                  command_interface: str = "voltages", plan_length: int | None = None,
-                 predicted_path: bool = True, command_readers: int = 1) -> None:
+                 predicted_path: bool = True, command_readers: int = 1, plain_command: bool = True) -> None:
         self.node = node
         self.readers_needed = command_readers if lockstep else 0  # until first met; then 1
         self.cmd_vel = command_interface == "cmd_vel"
         self.plans = plan_length is not None
+        self.plain = plain_command or not self.plans  # the plain command is published
         qos = publish_qos(lockstep)
         # lockstep: the answers held go out when a reader matches (realtime: nothing is held)
         matched = PublisherEventCallbacks(matched=self._on_answer_matched) if lockstep else None
         command_matched = None if self.plans else matched  # with plans the plant reads the plans
         if self.cmd_vel:
-            self.command_pub = node.create_publisher(Twist, "cmd_vel", qos, event_callbacks=command_matched)
+            kind, topic = Twist, "cmd_vel"
             self.twist = Twist()
         else:
-            self.command_pub = node.create_publisher(Float64MultiArray, "wheel_voltages", qos,
-                                                     event_callbacks=command_matched)
+            kind, topic = Float64MultiArray, "wheel_voltages"
             self.voltage_cdr = three_values_template(VOLTAGE_LABEL)
+        # none without the plain command: not on the graph either (a driver's cmd_vel has one source)
+        self.command_pub: Publisher | None = None
+        if self.plain:
+            self.command_pub = node.create_publisher(kind, topic, qos, event_callbacks=command_matched)
         self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", qos)
         self.diag_keys: dict[tuple[str, ...], tuple[bytes, ...]] = {}  # the keys of a status, encoded once
         self.held: list[tuple[int, Any]] = []  # lockstep: the answers not sent yet (stamp, command or plan message)
@@ -96,7 +104,9 @@ class ControllerOutputs:
             self.plan_pub = node.create_publisher(plan_type(command_interface), PLAN_TOPICS[command_interface], qos,
                                                   event_callbacks=matched)
             self.plan_writer = PlanWriter(command_interface, plan_length)
-        self.answer_pub = self.plan_pub if self.plan_pub is not None else self.command_pub  # what the plant reads
+        answer_pub = self.plan_pub if self.plan_pub is not None else self.command_pub  # what the plant reads
+        assert answer_pub is not None  # (without plans the plain command is published)
+        self.answer_pub: Publisher = answer_pub
 
     def send_enabled(self, enabled: bool) -> None:
         """Publish the enabled state (latched)."""
@@ -106,14 +116,15 @@ class ControllerOutputs:
         """Publish (log) what a loop answered, in its order."""
         for out in outputs:
             if isinstance(out, Command):
-                if self.plans:
-                    self.send_command(out.values)
-                else:
+                if not self.plans:
                     self.answer(out.stamp_ns, list(out.values))
+                elif self.plain:
+                    self.send_command(out.values)
             elif isinstance(out, Diagnostic):
                 self.diagnose(out)
             elif isinstance(out, Zero):
-                self.send_command(ZERO)
+                if self.plain:
+                    self.send_command(ZERO)
             elif isinstance(out, Log):
                 log_throttled(self.node.get_logger(), out.level.name, out.text, out.throttle_s, out.key)
             elif isinstance(out, PlanOut):
@@ -137,6 +148,7 @@ class ControllerOutputs:
             msg.linear.x, msg.linear.y, msg.angular.z = command
         else:
             msg = self.voltage_cdr.pack(*command)
+        assert self.command_pub is not None
         publish_acknowledged(self.node, self.command_pub, msg)
 
     def answer(self, stamp: int, answer: Any) -> None:

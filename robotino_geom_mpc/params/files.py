@@ -72,7 +72,7 @@ RCLPY_PARAMETERS: tuple[str, ...] = ("use_sim_time", "start_type_description_ser
 NODE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "robotino_controller": _ROBOT_CONTROL + (
         "mode", *_LOOP, "frame_prefix", "command_interface", "plans", "start_enabled", "publish_predicted_path",
-        "lockstep_command_readers",
+        "lockstep_command_readers", "publish_plain_command",
     ) + _CHAIN,
     "robotino_plant": _ROBOT_CONTROL + (
         "mode", "duration_s", "physics_rate_hz", "command_timeout_s", "lockstep_resend_s",

@@ -347,6 +347,28 @@ def test_plans_reports_held_loss_duplicates_and_window():
     assert commands(lp.on_odometry(o3, at(8))) == []
 
 
+def test_plans_disabled_sends_a_plan_of_zeros_from_the_earliest_period_a_plan_acts():
+    """Disabled with plans: each odometry gets a plan of zeros (newer than every plan sent, it replaces those the
+    robot holds, so the robot stops instead of playing them out) from t_m + lead_min Ts for the plan's length, and
+    the plain zero; no plan of the MPC.
+    """
+    lp = loop(plans=True)
+    points = lp.preview_points + 1
+    lp.on_preview(preview(0, points), at(0))
+    assert [o for o in lp.on_odometry(odometry(0), at(0)) if isinstance(o, PlanOut)]  # enabled: the MPC's plan
+    lp.on_enable(False, at(1))
+    stamp = TS_NS
+    lp.on_preview(preview(stamp, points), at(stamp))
+    out = lp.on_odometry(odometry(stamp), at(stamp + MS))
+    [plan] = [o.plan for o in out if isinstance(o, PlanOut)]
+    first = stamp * 1e-9 + CONTROL.lead_min_periods * TS
+    assert plan.basis_s == stamp * 1e-9 and plan.period_s == TS and plan.problem() is None
+    np.testing.assert_allclose(plan.times_s, first + TS * np.arange(CONTROL.plan_length), rtol=0, atol=1e-12)
+    assert plan.entries == ((0.0, 0.0, 0.0),) * CONTROL.plan_length
+    assert commands(out) == [Command(stamp, (0.0, 0.0, 0.0))]
+    assert [o.message for o in out if isinstance(o, Diagnostic)] == ["disabled"]
+
+
 # the chain -----------------------------------------------------------------------------------------------------
 def test_chain_two_samples_a_stamp_and_noted_zeros():
     chain = chain_params()

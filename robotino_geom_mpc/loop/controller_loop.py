@@ -703,11 +703,14 @@ class ControllerLoop:
 
     def _hold(self, stamp: int) -> None:
         """Disabled: zero for the odometry of `stamp` and the status ``disabled`` (through the chain, the zero
-        noted in its controller's command model: the firmware gets it as any other command).
+        noted in its controller's command model: the firmware gets it as any other command; with plans, a plan of
+        zeros too, `DelayCompensatingController.stop_plan`, which replaces the plans the robot holds).
         """
         self.last_odom_ns = stamp
         if self.chain is not None:
             self.chain.note_zero(self._now.clock_ns)
+        if self.plans is not None:
+            self._out.append(PlanOut(stamp, self.plans.stop_plan(stamp * 1e-9)))
         self._out.append(Command(stamp, _ZERO))
         self._diagnose(stamp, Level.OK, "disabled")
 

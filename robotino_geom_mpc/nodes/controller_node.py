@@ -27,7 +27,8 @@ publishes  ``wheel_voltages``     std_msgs/Float64MultiArray, 3 values [V], layo
                                   and sent only while a subscription is matched (``publish_predicted_path``
                                   false: no publisher).
 services   ``~/enable``           std_srvs/SetBool. Disabled: zero output every tick (diagnostic message
-                                  ``disabled``; realtime: on every odometry, with or without a reference), the
+                                  ``disabled``; realtime: on every odometry, with or without a reference; with
+                                  plans also a plan of zeros, which replaces the plans the robot holds), the
                                   controller holds its state; enabled again: bumpless restart. ``start_enabled``
                                   false starts the node disabled (the first enable is its bumpless start).
 publishes  ``controller_enabled`` std_msgs/Bool, `LATCHED_QOS` (reliable, transient local, depth 1): the enabled

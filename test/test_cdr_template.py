@@ -307,3 +307,7 @@ def test_plan_writer_gives_the_plan_message_bytes(interface, length):
     values = [p.effort.tolist() if interface == "voltages" else
               [p.velocities[0].linear.x, p.velocities[0].linear.y, p.velocities[0].angular.z] for p in decoded.points]
     np.testing.assert_array_equal(values, np.array(plan.entries))
+    # a recording's message (rosbags' class, as regress reads it) gives the plan rclpy's gives
+    read = plan_of_message(decoded, 0.01)
+    np.testing.assert_array_equal(read.entries, np.array(plan.entries))
+    assert read == plan_of_message(msg, 0.01)

@@ -171,7 +171,8 @@ def test_the_launchs_buffer_variant_closes_the_loop_with_the_buffer_as_the_only_
     the offline loop's RMS error with plans over a 0.5 ms link each way (the DDS hops; the controller's tracking
     errors, ideal odometry: measured 0.24 mm against 0.195 mm); after ``~/enable`` false the buffer sends zero
     within 0.15 s (the disabled controller's plan of zeros replaces the plans it holds, which would run for the
-    lead plus 25 periods, 0.25 s and more). Read back with rosbags.
+    lead plus 25 periods, 0.25 s and more). Read back with rosbags; ``regress`` replays every plan (it crashed on
+    a cmd_vel plan recording, and did not follow the disable).
     """
     import time
 
@@ -184,6 +185,7 @@ def test_the_launchs_buffer_variant_closes_the_loop_with_the_buffer_as_the_only_
     from robotino_geom_mpc.offline.results import compute_metrics
     from robotino_geom_mpc.offline.simulation import RunConfig, run_scenario
     from robotino_geom_mpc.params.files import load_params
+    from robotino_geom_mpc.recording.regress import regress_bag
 
     install(monkeypatch.setitem)
     bag = tmp_path / "bag"
@@ -234,3 +236,7 @@ def test_the_launchs_buffer_variant_closes_the_loop_with_the_buffer_as_the_only_
     assert any(any(v) for t, v in twists if t < off_at)  # it was moving
     late = [(t - off_at) * 1e-9 for t, v in twists if t > off_at + 0.15e9 and any(v)]
     assert not late, f"the buffer still sent motion {late[-1]:.3f} s after the disable"
+    # regress recomputes every cmd_vel plan, the disabled ticks' plans of zeros too (the recorded statuses say
+    # when the controller was disabled)
+    result = regress_bag(bag)
+    assert result.command == "cmd_vel_plan" and result.passed and result.compared >= 0.9 * result.ticks, result

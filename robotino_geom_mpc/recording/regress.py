@@ -25,7 +25,10 @@ or preview is missing from the recording, and says so (`RegressionResult.gap_at_
 a fast lockstep loop can have lost samples; the ticks before the gap are still compared.
 
 The node's watchdog stops (its ``watchdog: ...`` statuses) are replayed where they came on the node's clock (the
-status's stamp): before the first odometry the node took later. The loop's own settings (timeouts, tolerances,
+status's stamp): before the first odometry the node took later. ``~/enable`` is replayed from the tick statuses:
+before an odometry whose status is ``disabled`` the loop is disabled, before one with a step's status enabled
+again (`replay_inputs.ControllerInputs.follow_enable`), so a disabled tick answers zero (with plans a plan of
+zeros) and the next enabled one restarts bumplessly, as the node did. The loop's own settings (timeouts, tolerances,
 blend limits) are the node's (`replay_inputs.loop_settings`: its parameter events in the recording, else the values
 the recorder stored, else the defaults). Limits: a parameter change during the run (the node rebuilds its
 controller) is not replayed; such a recording shows a deviation from that tick on.
@@ -204,6 +207,7 @@ def _replay(inputs: ControllerInputs, commands: list[tuple[int, Any]], diags: li
         elif not used or count.ticks > 0:
             answer_publish = odom[index + 1][0] if index + 1 < len(odom) else publish + 10**9
             previews.feed(bisect_left(prev_t, answer_publish) - 1)
+        inputs.follow_enable(replay, stamp, now)
         out = replay.on_input(inputs.odometries[index], now)
         expected = next((o.values for o in out if isinstance(o, Command) and o.stamp_ns == stamp), None)
         if expected is None:

@@ -91,8 +91,9 @@ def regress_plans(bag: BagReader, inputs: ControllerInputs, diags: list[tuple[in
                 fed_stamps += 1
         elif stamp in used:  # the previews up to the one it used
             previews.feed_used(by_stamp.get(used[stamp], previews.fed), inputs.preview_clock.get(stamp))
-        plans = [o.plan for o in replay.on_input(inputs.odometries[index], node.take(replay, stamp, publish))
-                 if isinstance(o, PlanOut)]
+        now = node.take(replay, stamp, publish)
+        inputs.follow_enable(replay, stamp, now)
+        plans = [o.plan for o in replay.on_input(inputs.odometries[index], now) if isinstance(o, PlanOut)]
         if not plans:
             continue
         plan = plans[0]

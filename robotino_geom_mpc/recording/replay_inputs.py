@@ -61,6 +61,9 @@ class ControllerInputs:
     preview_clock
         Odometry stamp [ns] -> the node clock when it took the newest preview it had (its status's
         ``preview_clock_ns``; recordings made before the statuses carried it: none).
+    enabled
+        Odometry stamp [ns] -> whether the controller was enabled at it: its status ``disabled`` (false) or a
+        step's (``tracking``, ``chain``: true); `follow_enable` hands that to a replay.
     settings
         The controller loop's settings the node ran with (`loop_settings`).
     """
@@ -75,6 +78,7 @@ class ControllerInputs:
     received: dict[int, int]
     settings: LoopSettings = LoopSettings()
     preview_clock: dict[int, int] = field(default_factory=dict)
+    enabled: dict[int, bool] = field(default_factory=dict)
     odom_log_ns: list[int] = field(default_factory=list)
     preview_log_ns: list[int] = field(default_factory=list)
 
@@ -92,7 +96,11 @@ class ControllerInputs:
         used: dict[int, int] = {}
         received: dict[int, int] = {}
         preview_clock: dict[int, int] = {}
+        enabled: dict[int, bool] = {}
         for _, msg in diags:
+            for status in msg.status:
+                if status.name == STATUS_NAME and status.message in ("disabled", "tracking", "chain"):
+                    enabled.setdefault(stamp_ns(msg.header.stamp), status.message != "disabled")
             values = controller_diagnostics(msg)
             if values is None:
                 continue
@@ -105,7 +113,8 @@ class ControllerInputs:
                 preview_clock.setdefault(stamp, int(values["preview_clock_ns"]))
         return cls(str(bag.path), odom, previews, [odometry_input(msg) for _, msg in odom],
                    [preview_input(msg) for _, msg in previews], first_of, used, received,
-                   loop_settings(bag, odom_topic), preview_clock, _log_times(bag, odom_topic) if log_times else [],
+                   loop_settings(bag, odom_topic), preview_clock, enabled,
+                   _log_times(bag, odom_topic) if log_times else [],
                    _log_times(bag, preview_topic) if log_times else [])
 
     @property
@@ -121,6 +130,14 @@ class ControllerInputs:
         frame = self.previews[0][1].header.frame_id if self.previews else "odom"
         return ControllerLoop(robot, control, Now(start, start), self.settings, odom_frame=frame, listeners=QUIET,
                               **mode)
+
+    def follow_enable(self, loop: ControllerLoop, stamp: int, now: Now) -> None:
+        """Switch `loop` to the enabled state the node had at the odometry of `stamp` (``~/enable`` between two
+        ticks: the next status says it; a tick without a status leaves the loop as it is).
+        """
+        enabled = self.enabled.get(stamp)
+        if enabled is not None and enabled != loop.enabled:
+            loop.on_enable(enabled, now)
 
     def seconds(self, stamp: int | None) -> float | None:
         """`stamp` [ns] as seconds after the first odometry's stamp (None stays None)."""

@@ -122,8 +122,10 @@ def plan_of_message(msg: JointTrajectory | MultiDOFJointTrajectory, period_s: fl
         raise PlanMessageError("a plan without points", "length")
     basis = _seconds(stamp.sec, stamp.nanosec)
     times, entries = [], []
+    # by the points' fields, not the class: a recording's messages (rosbags, the bag readers) are classes of their own
+    twists = hasattr(msg.points[0], "transforms")  # a MultiDOFJointTrajectoryPoint
     for i, point in enumerate(msg.points):
-        if isinstance(msg, MultiDOFJointTrajectory):
+        if twists:
             if len(point.velocities) != 1:
                 raise PlanMessageError(f"point {i} has {len(point.velocities)} twists (need 1)", "length")
             twist = point.velocities[0]

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import faulthandler
 import gc
-import os
 import signal
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -24,8 +22,8 @@ from robotino_geom_mpc.ros.parameters import NodeStartError
 from robotino_geom_mpc.ros.qos import wait_acknowledged
 from robotino_geom_mpc.system.signals import STOP, ignore_stop_signals, stop_on_signals
 
-__all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "TEARDOWN_LIMIT_S", "clock_s", "data_publishers",
-           "monotonic", "params_files", "run_node", "run_nodes", "start_rclpy"]
+__all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "clock_s", "data_publishers", "monotonic", "params_files",
+           "run_node", "run_nodes", "start_rclpy"]
 
 # before exiting, the longest a node waits for its readers to acknowledge what it published: after a run it
 # ended itself (the lockstep plant; a recorder can be thousands of samples behind), and when stopped by a
@@ -33,9 +31,6 @@ __all__ = ["FINISHED_ACK_WAIT_S", "STOPPED_ACK_WAIT_S", "TEARDOWN_LIMIT_S", "clo
 FINISHED_ACK_WAIT_S = 30.0
 STOPPED_ACK_WAIT_S = 3.0
 _EXECUTOR_SHUTDOWN_S = 1.0  # the loop has ended: nothing is spinning, so the executor's shutdown is immediate
-# the longest the teardown after the loop may take before the process exits without it (`_exit_hung`): within
-# the 5 s `run` and `ros2 launch` give a node after SIGINT, 10x a fleet plant's (0.2-0.3 s for 20 nodes)
-TEARDOWN_LIMIT_S = 3.0
 _RCLPY_TOPICS = ("/rosout", "/parameter_events")  # every node's own publishers of these, not its data
 
 
@@ -114,8 +109,7 @@ def run_nodes(factory: Callable[[], list[Node]], args: list[str] | None = None) 
 
     The spin ends on a signal or once every node that has a ``done`` future has it set (none: only a signal);
     the status is the largest ``exit_status``; each node's ``on_stop`` runs, then the acknowledgement wait of
-    all their publishers; a teardown (executor, nodes, rclpy) that outlasts `TEARDOWN_LIMIT_S` ends the process
-    with the status (`_exit_hung`).
+    all their publishers.
     """
     from rclpy.experimental import EventsExecutor
 
@@ -155,9 +149,6 @@ def run_nodes(factory: Callable[[], list[Node]], args: list[str] | None = None) 
         if not stopped:  # the loop ended by an exception (a failed callback)
             for node in nodes:
                 _stopping(node)
-        limit = threading.Timer(TEARDOWN_LIMIT_S, _exit_hung, (status,))
-        limit.daemon = True
-        limit.start()
         if executor is not None:
             # the executor lets go of the nodes' entities while they are still alive: left to its destructor
             # (after destroy_node and rclpy's shutdown) it finalized QoS events of destroyed publishers, and
@@ -166,22 +157,7 @@ def run_nodes(factory: Callable[[], list[Node]], args: list[str] | None = None) 
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
-        limit.cancel()
     return status
-
-
-def _exit_hung(status: int) -> None:
-    """The teardown did not end within `TEARDOWN_LIMIT_S`: say so with every thread's stack, exit with `status`.
-
-    What the nodes published is acknowledged (or its wait timed out) and `on_stop` has run before the teardown:
-    nothing is lost by ending here. A fleet plant's ``destroy_node`` of its 20 nodes (rcl and Fast DDS node fini)
-    took 0.2-0.3 s, and hung in about 1 of 14 full test runs, which then failed on a node that did not stop.
-    """
-    print(f"{_prog()}: warning: the nodes' teardown (destroy_node, rclpy shutdown) did not end within "
-          f"{TEARDOWN_LIMIT_S:g} s: exiting with status {status}; the threads' stacks:", file=sys.stderr, flush=True)
-    faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
-    sys.stdout.flush()
-    os._exit(status)
 
 
 def _stopping(node: Node) -> None:

@@ -64,9 +64,9 @@ keep-all ``mode`` records every wheel transform; robot_state_publisher's /tf is 
 
 The scenario is resolved when the launch runs (an ``OpaqueFunction``): an unknown name, a bad namespace
 or frame prefix stops the launch with a clear error. With ``record:=true`` the lockstep plant also waits for
-the recorder's subscriptions (``lockstep_wait_for``), and the controller holds its first answer until its
-command has matched the plant's and the recorder's readers (``lockstep_command_readers``), so the recording
-holds tick 0 and the plant gets its answer. Without ``ros2 launch``,
+the recorder's subscriptions (``lockstep_wait_for``), and the controller holds its answers until their topic
+(the command's, with plans the plans') has matched the plant's and the recorder's readers
+(``lockstep_command_readers``), so the recording holds tick 0 and the plant gets its answer. Without ``ros2 launch``,
 ``robotino-geom-mpc run`` starts the same processes and also writes metrics.json and the figures
 from the recording.
 """

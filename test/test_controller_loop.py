@@ -347,26 +347,50 @@ def test_plans_reports_held_loss_duplicates_and_window():
     assert commands(lp.on_odometry(o3, at(8))) == []
 
 
-def test_plans_disabled_sends_a_plan_of_zeros_from_the_earliest_period_a_plan_acts():
-    """Disabled with plans: each odometry gets a plan of zeros (newer than every plan sent, it replaces those the
-    robot holds, so the robot stops instead of playing them out) from t_m + lead_min Ts for the plan's length, and
-    the plain zero; no plan of the MPC.
+def _is_stop(plan, basis_s: float) -> None:
+    """`plan` is zeros from basis + lead_min Ts to basis + (lead_max + plan length) Ts (the end of the latest plan
+    of an odometry up to the basis), a period each.
+    """
+    periods = np.arange(CONTROL.lead_min_periods, CONTROL.lead_max_periods + CONTROL.plan_length)
+    assert plan.basis_s == basis_s and plan.period_s == TS and plan.problem() is None
+    np.testing.assert_allclose(plan.times_s, basis_s + TS * periods, rtol=0, atol=1e-9)
+    assert plan.entries == ((0.0, 0.0, 0.0),) * len(periods)
+
+
+def test_plans_disabled_sends_a_plan_of_zeros_that_outlasts_every_plan_sent():
+    """Disabled with plans: each odometry gets a plan of zeros (newer than every plan sent and ending after the
+    latest a plan can reach, it replaces those the robot holds, so the robot stops instead of playing them out),
+    and the plain zero; no plan of the MPC.
     """
     lp = loop(plans=True)
     points = lp.preview_points + 1
     lp.on_preview(preview(0, points), at(0))
-    assert [o for o in lp.on_odometry(odometry(0), at(0)) if isinstance(o, PlanOut)]  # enabled: the MPC's plan
+    [sent] = [o.plan for o in lp.on_odometry(odometry(0), at(0)) if isinstance(o, PlanOut)]  # enabled: the MPC's
     lp.on_enable(False, at(1))
     stamp = TS_NS
     lp.on_preview(preview(stamp, points), at(stamp))
     out = lp.on_odometry(odometry(stamp), at(stamp + MS))
     [plan] = [o.plan for o in out if isinstance(o, PlanOut)]
-    first = stamp * 1e-9 + CONTROL.lead_min_periods * TS
-    assert plan.basis_s == stamp * 1e-9 and plan.period_s == TS and plan.problem() is None
-    np.testing.assert_allclose(plan.times_s, first + TS * np.arange(CONTROL.plan_length), rtol=0, atol=1e-12)
-    assert plan.entries == ((0.0, 0.0, 0.0),) * CONTROL.plan_length
+    _is_stop(plan, stamp * 1e-9)
+    assert plan.end_s >= sent.end_s
     assert commands(out) == [Command(stamp, (0.0, 0.0, 0.0))]
     assert [o.message for o in out if isinstance(o, Diagnostic)] == ["disabled"]
+
+
+def test_plans_a_zero_comes_with_a_plan_of_zeros_once_per_odometry_planned_from():
+    """Realtime with plans: the watchdog's zero (and a refused input's) also sends a plan of zeros just after the
+    newest odometry planned from (10 us: a basis of its own), once until a newer plan; the plans held would run on.
+    """
+    lp = loop(plans=True)
+    points = lp.preview_points + 1
+    lp.on_preview(preview(0, points), at(0))
+    lp.on_odometry(odometry(0), at(0))
+    late = 10 * round(CONTROL.period_s * 1e9) + round(LoopSettings().odom_timeout_s * 1e9)
+    out = lp.on_watchdog(at(late))
+    assert zeros(out) == ["watchdog"]
+    [plan] = [o.plan for o in out if isinstance(o, PlanOut)]
+    _is_stop(plan, 1e-5)
+    assert not [o for o in lp.on_watchdog(at(late + TS_NS)) if isinstance(o, PlanOut)]  # once
 
 
 # the chain -----------------------------------------------------------------------------------------------------

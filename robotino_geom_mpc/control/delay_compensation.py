@@ -292,15 +292,17 @@ class DelayCompensatingController:
         self.history.add(plan, us, ends)
         return plan
 
-    def stop_plan(self, stamp_s: float) -> CommandPlan:
-        """A plan of zeros (a disabled controller's, for the odometry stamped `stamp_s`) from the earliest period a
-        plan can act in, t_m + ``lead_min_periods`` Ts, for `plan_length` periods: newer than every plan sent, it
-        replaces them on the robot, which stops instead of playing out what it holds. Not kept in the history (an
-        enable restarts the controller with `reset`); the robot's reports of it read as no plan (zero).
+    def stop_plan(self, basis_s: float) -> CommandPlan:
+        """A plan of zeros of basis `basis_s` (robot clock; a disabled tick's odometry stamp, or just after the
+        newest planned from) from the earliest period a plan can act in, basis + ``lead_min_periods`` Ts, to the end
+        of the latest a plan of an odometry up to it can reach, basis + (``lead_max_periods`` + `plan_length`) Ts:
+        newer than every plan sent and outlasting them, it replaces them on the robot, which stops instead of
+        playing out what it holds. Not kept in the history (an enable or a restart resets it); the robot's reports
+        of it read as no plan (zero).
         """
-        t_a = stamp_s + int(self.control.lead_min_periods) * self.period_s
-        return CommandPlan(stamp_s, tuple(t_a + j * self.period_s for j in range(self.plan_length)),
-                           (_ZERO,) * self.plan_length, self.period_s)
+        first, end = int(self.control.lead_min_periods), int(self.control.lead_max_periods) + self.plan_length
+        times = tuple(basis_s + j * self.period_s for j in range(first, end))
+        return CommandPlan(basis_s, times, (_ZERO,) * len(times), self.period_s)
 
     def statistics(self) -> LinkStatistics:
         """The link as seen so far (`LinkStatistics`)."""

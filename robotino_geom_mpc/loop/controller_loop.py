@@ -94,6 +94,9 @@ LINK_KEYS = ("round_trip_mean_s", "round_trip_jitter_s", "round_trip_quantile_s"
 _STAT_FIELDS = LINK_KEYS[:-2]
 _ZERO = (0.0, 0.0, 0.0)
 _THROTTLE_S = 1.0
+# a zero's plan of zeros: its basis this far after the newest odometry planned from (a basis of its own, which the
+# robot's buffer does not take for a duplicate of that odometry's plan, nor regress for that odometry's)
+_STOP_AFTER_S = 1e-5
 
 # a held preview: stamp [ns], positions, velocities, accelerations (each (N + 1, 3): x, y, theta)
 _Held = tuple[int, np.ndarray, np.ndarray, np.ndarray]
@@ -377,6 +380,7 @@ class ControllerLoop:
         self.blend = BlendEngagement(control.period_s, self.preview_points)
         self.watchdog_state = "waiting"
         self.newest_stamp_s: float | None = None  # plans: the newest odometry stamp planned from [s]
+        self._stopped_after_s: float | None = None  # plans: the newest stamp a plan of zeros was sent after [s]
         self.refused_reports = 0
         self.reports_received = 0  # reports handed on, taken or refused (the replay hands them on so)
         self.last_step: ControlOutput | None = None  # the output of the last MotionController.step (its flags)
@@ -710,7 +714,8 @@ class ControllerLoop:
         if self.chain is not None:
             self.chain.note_zero(self._now.clock_ns)
         if self.plans is not None:
-            self._out.append(PlanOut(stamp, self.plans.stop_plan(stamp * 1e-9)))
+            self.newest_stamp_s = self._stopped_after_s = stamp * 1e-9  # (the robot's reports lie near it)
+            self._out.append(PlanOut(stamp, self.plans.stop_plan(self.newest_stamp_s)))
         self._out.append(Command(stamp, _ZERO))
         self._diagnose(stamp, Level.OK, "disabled")
 
@@ -745,10 +750,17 @@ class ControllerLoop:
         self._out.append(Log(level, text, key, throttle_s))
 
     def _zero(self, reason: str) -> None:
-        """Zero volts (zero twist) outside the answers; through the chain noted in its command model."""
+        """Zero volts (zero twist) outside the answers; through the chain noted in its command model; with plans
+        also a plan of zeros (`DelayCompensatingController.stop_plan`) just after the newest odometry planned from,
+        once per such odometry: the plans the robot holds would otherwise run on.
+        """
         if self.chain is not None:
             self.chain.note_zero(self._now.clock_ns)
         self._out.append(Zero(reason))
+        if self.plans is not None and self.newest_stamp_s is not None and self._stopped_after_s != self.newest_stamp_s:
+            self._stopped_after_s = self.newest_stamp_s
+            basis_s = self.newest_stamp_s + _STOP_AFTER_S
+            self._out.append(PlanOut(round(basis_s * 1e9), self.plans.stop_plan(basis_s)))
 
     def _reject(self, stamp: int | None, what: str, reason: str, message: str) -> None:
         """A refused input: counted, logged, zero, an ERROR status naming the reason."""

@@ -81,7 +81,7 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("lockstep_command_readers", int, "Lockstep: readers of the topic the plant reads its answers on "
               "(wheel_voltages / cmd_vel; with plans the plan topic) that its publisher must have matched before the "
               "first answer goes out; the answers are held until then: the plant's, and a recorder's or a live "
-              "view's (an answer sent while only some had matched never reaches the others)", "", 0, 1000, False),
+              "view's (an answer sent while only some had matched never reaches the others)", "", 1, 1000, False),
     ParamSpec("start_enabled", bool, "false: the node starts disabled, as after ~/enable false (zero volts / zero "
               "twist every tick, diagnostic 'disabled') until ~/enable true, then tracks bumplessly"),
 )

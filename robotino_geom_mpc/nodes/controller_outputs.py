@@ -67,7 +67,8 @@ class ControllerOutputs:
         before the first answer goes out (the plant's, and a recorder's: matching is per writer and reader, so the
         controller's writer can match the recorder before the plant, and an answer sent then never reaches the
         plant). Until then the answers are held, and they go out once, in order, when the readers have matched;
-        after that one matched reader is enough (none: held until one matches).
+        after that one matched reader is enough (none: held until one matches). A zero outside the ticks (a
+        refused input, without plans) queues behind them.
     """
 
     def __init__(self, node: Node, lockstep: bool, frame_prefix: str = "",
@@ -94,7 +95,7 @@ class ControllerOutputs:
             self.command_pub = node.create_publisher(kind, topic, qos, event_callbacks=command_matched)
         self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", qos)
         self.diag_keys: dict[tuple[str, ...], tuple[bytes, ...]] = {}  # the keys of a status, encoded once
-        self.held: list[tuple[int, Any]] = []  # lockstep: the answers not sent yet (stamp, command or plan message)
+        self.held: list[tuple[int | None, Any]] = []  # lockstep: the answers not sent yet (stamp, command or plan)
         self.held_since: float | None = None  # steady time [s] the first of them was held
         self.path_pub = node.create_publisher(Path, "predicted_path", PATH_QOS) if predicted_path else None
         self.path_frame = frame_prefix + ODOM_FRAME
@@ -123,7 +124,9 @@ class ControllerOutputs:
             elif isinstance(out, Diagnostic):
                 self.diagnose(out)
             elif isinstance(out, Zero):
-                if self.plain:
+                if not self.plans:  # in the answers' order (lockstep: a refused tick's answer)
+                    self.answer(None, list(ZERO))
+                elif self.plain:  # (with plans the loop sends a plan of zeros too)
                     self.send_command(ZERO)
             elif isinstance(out, Log):
                 log_throttled(self.node.get_logger(), out.level.name, out.text, out.throttle_s, out.key)
@@ -151,9 +154,9 @@ class ControllerOutputs:
         assert self.command_pub is not None
         publish_acknowledged(self.node, self.command_pub, msg)
 
-    def answer(self, stamp: int, answer: Any) -> None:
-        """Publish the answer to the odometry of `stamp`: the command (a list), or with plans the plan message; in
-        lockstep held (with those before it) while `_readers_matched` is not met.
+    def answer(self, stamp: int | None, answer: Any) -> None:
+        """Publish the answer to the odometry of `stamp` (None: a zero outside the ticks): the command (a list), or
+        with plans the plan message; in lockstep held (with those before it) while `_readers_matched` is not met.
         """
         self.held.append((stamp, answer))
         self.deliver_answers()
@@ -173,10 +176,10 @@ class ControllerOutputs:
         now = time.monotonic()
         self.held_since = now if self.held_since is None else self.held_since
         if self.readers_needed > 1 and now - self.held_since >= _HOLD_REPORT_AFTER_S:
-            warn_throttled(self.node.get_logger(), f"holding the answer to the odometry of stamp {self.held[0][0]} "
-                           f"ns for {now - self.held_since:.1f} s: {self.answer_pub.topic_name} has matched "
-                           f"{self.answer_pub.get_subscription_count()} of its {self.readers_needed} readers "
-                           "(lockstep_command_readers)", 2.0)
+            warn_throttled(self.node.get_logger(), f"holding {len(self.held)} answer(s) (the first to the odometry "
+                           f"of stamp {self.held[0][0]} ns) for {now - self.held_since:.1f} s: "
+                           f"{self.answer_pub.topic_name} has matched {self.answer_pub.get_subscription_count()} of "
+                           f"its {self.readers_needed} readers (lockstep_command_readers)", 2.0)
 
     def _readers_matched(self) -> bool:
         """The answers' publisher has its readers: `command_readers` the first time, then one (realtime: always)."""

@@ -230,7 +230,7 @@ def node_arguments(
         name: {"command_interface": command_interface} for name in ("controller_node", "plant_node")}
     if lockstep:  # the command's readers the plant waits for, matched by the controller's writer too
         interface.setdefault("controller_node", {})["lockstep_command_readers"] = command_readers(
-            wait_for, command_interface, plans)
+            extra.get("plant_node", {}).get("lockstep_wait_for", wait_for), command_interface, plans)
     for name in ("trajectory_node", "controller_node"):
         args[name] = ros_args(params_file, {**scenario_overrides[name], "mode": mode, **twist.get(name, {}),
                                             **interface.get(name, {}), **frames.get(name, {}), **extra.get(name, {})},

@@ -249,7 +249,9 @@ def generate_launch_description() -> LaunchDescription:
                               description="run length [s], 0: until stopped; the plant's exit ends the launch"),
         DeclareLaunchArgument("seed", default_value="0", description="seed of the odometry noise"),
         DeclareLaunchArgument("command_buffer", default_value="false",
-                              description="start the robot-side command buffer (cmd_vel_plan -> cmd_vel)"),
+                              description="the buffer variant: the robot-side command buffer turns the controller's "
+                              "plans into the plant's cmd_vel (controller: plans, no plain command); needs "
+                              "command_interface:=cmd_vel, realtime, a scenario without a link"),
         DeclareLaunchArgument("record", default_value="false", description="start the MCAP recorder"),
         DeclareLaunchArgument("bag", default_value="", description="recording directory"),
         DeclareLaunchArgument("robots", default_value="0",

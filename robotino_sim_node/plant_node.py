@@ -45,9 +45,9 @@ the other measurements of tick k, waits for the command of tick k, integrates on
 publishes tick k + 1 (if ``lockstep_max_realtime_factor`` > 0, not before its slot). Startup handshake: tick 0
 goes out once the subscriptions of ``lockstep_wait_for`` are there and have settled (`lockstep_start`; what is
 missing is logged). The current tick is published again (logged: which tick, since how long) when no command
-arrives within ``lockstep_resend_s``, so no discovery race can deadlock the loop (the controller answers a
-repeated tick only if its first answer could not be delivered, so no tick is answered twice; its first answer
-waits until its writer has matched the command's readers, ``lockstep_command_readers``). With
+arrives within ``lockstep_resend_s``, so no discovery race can deadlock the loop (the controller never sends an
+answer twice: it holds its answers until the writer of their topic, the command's or with plans the plan's, has
+matched its ``lockstep_command_readers``, and a repeated tick only releases answers still held). With
 ``duration_s`` > 0 the run has n = round(duration_s / Ts) ticks; when tick n - 1 is answered the node logs its
 real-time factor and exits (status 0). The factor is that of the running loop: ticks 1 .. n - 1, from the
 answer of tick 0 to the answer of the last tick; the wait for tick 0's answer (the end of discovery, which can

@@ -17,7 +17,7 @@ order), the step's ``dt_s`` the interval since the last odometry used
   ``future``); the watchdog gives zero and a bumpless restart; disabled, every odometry is answered with zero.
 * `LockstepPairing`: the preview of the odometry's own stamp (an odometry waits for it; odometries are
   answered in arrival order; a refused preview gives its tick zero); the plant holds the time, so the watchdog
-  only says what is missing; a resent tick asks for the last answer again (`Resend`); tick t = 0 starts robot
+  only says what is missing; a resent tick asks for the answers still held to go out (`Resend`); tick t = 0 starts robot
   and reference together as `offline.simulation.simulate` does.
 
 Refusals (zero, an ERROR diagnostic with the reason key, counted): the input checks of `loop.inputs`
@@ -264,7 +264,7 @@ class LockstepPairing:
         self._drain(loop)
 
     def resent(self, loop: ControllerLoop, stamp: int) -> None:
-        loop._out.append(Resend(stamp))  # the plant resent a tick: answer again only if undelivered
+        loop._out.append(Resend(stamp))  # the plant resent a tick: the answers still held may go out (never twice)
 
     def holds_report(self, report: _Report) -> bool:
         if not self.waiting:

@@ -141,7 +141,7 @@ class Zero:
 
 @dataclass(frozen=True)
 class Resend:
-    """Lockstep: the plant resent the tick `stamp_ns`: send the last answer again if it was not delivered."""
+    """Lockstep: the plant resent the tick `stamp_ns`: send the answers still held, if their readers have matched."""
 
     stamp_ns: int
 

@@ -26,16 +26,16 @@ Bad input (`loop.inputs` and `control.motion_controller.MotionController.state_p
 * dropped, counted (``dropped_duplicate``, ``dropped_old``), with a WARN
   diagnostic and no output (a newer input was used already): an odometry
   (realtime: also a preview) whose stamp equals the last used one
-  (``duplicate``; in lockstep the plant's resend, answered again only if the
-  first answer could not be delivered, also as soon as a subscription
-  matches the wheel_voltages publisher) or is older (``old``: a late
-  message). If nothing valid follows, the watchdog gives zero volts after
+  (``duplicate``; in lockstep the plant's resend, which only releases answers
+  still held for their readers, `controller_outputs`: none is sent twice) or
+  is older (``old``: a late message). If nothing valid follows, the watchdog gives zero volts after
   the timeout.
 
 Stale data: a watchdog checks the arrival age of the accepted odometry and
 preview, in steady time, or in node-clock time under ``use_sim_time`` (a slow
 simulation is slow, not stale): older than ``odom_timeout_s`` / ``reference_timeout_s``
-means (realtime) zero volts, a throttled warning, the watchdog state in the
+means (realtime) zero volts (with plans also a plan of zeros, which replaces
+the plans the robot holds), a throttled warning, the watchdog state in the
 diagnostics, and a bumpless restart when data return; the stamps used so far
 are forgotten then, so inputs stamped before them are taken (a clock that went
 back: a simulator reset, a bag replayed in a loop). In lockstep the plant
@@ -44,7 +44,8 @@ nothing for a timeout (no odometry, or an odometry waiting for its preview)
 logs what it waits for (every 5 s).
 
 Stop: a realtime controller that stops (SIGINT, SIGTERM, or a failed
-callback) sends zero volts (a zero twist) as its last command.
+callback) sends zero volts (a zero twist) as its last command (with plans also
+a plan of zeros; ``publish_plain_command`` false: that plan only).
 """
 
 from __future__ import annotations
@@ -70,7 +71,8 @@ CONTROLLER_SPECS: tuple[ParamSpec, ...] = (
               "cmd_vel: the MPC's base_link velocity for the next period (geometry_msgs/Twist) to a velocity-"
               "controlled base", choices=("voltages", "cmd_vel")),
     ParamSpec("plans", bool, "Off-board over a network: per odometry a delay-compensated plan of control.plan_length "
-              "commands on wheel_voltage_plan / cmd_vel_plan (the plain command carries its first entry); reads "
+              "commands on wheel_voltage_plan / cmd_vel_plan (the plain command, unless publish_plain_command is "
+              "false, carries its first entry; a zero is also a plan of zeros that outlasts the plans sent); reads "
               "command_applied (loop.controller_loop)"),
     ParamSpec("publish_plain_command", bool, "With plans: also publish the plain command (wheel_voltages / cmd_vel: "
               "the plan's first entry, zero when disabled or on a refused input) for observers; false where a "

@@ -56,8 +56,9 @@ Bad input, stale data and the stop: `controller_inputs` (zero volts and a diagno
 Plans (``plans``, an off-board controller over a network): delay-compensated plans
 (`control.delay_compensation.DelayCompensatingController`) on ``wheel_voltage_plan`` / ``cmd_vel_plan``
 (`ros.plans`), the plain command carrying the plan's first entry (``publish_plain_command`` false: none, where a
-robot-side command buffer drives the driver's ``cmd_vel``); every zero (disabled, the watchdog, a refusal, the stop)
-also as a plan of zeros that replaces the plans the robot holds; the robot's ``command_applied``
+robot-side command buffer drives the driver's ``cmd_vel``); a plan of zeros that replaces the plans the robot holds
+on every disabled tick, and with the zero of the watchdog, a refusal or the stop once until it plans again (after
+a first plan); the robot's ``command_applied``
 (trajectory_msgs/JointTrajectory) read and handed to the loop in the order it came (in lockstep held while an
 odometry waits for its preview); a report that cannot be read or lies more than 2 s from the newest odometry is
 refused (``refused_reports``); the link in the diagnostics (`loop.controller_loop.LINK_KEYS`: round trip mean,

@@ -162,17 +162,18 @@ def _nodes(context) -> list:
     common = {"namespace": namespace, "remappings": remappings, "additional_env": env, "output": "screen"}
 
     robots = int(number(config, "robots", int))
-    if robots and (namespace or config["frame_prefix"] != "auto" or flag(config, "command_buffer")):
+    if robots and (namespace or config["frame_prefix"] != "auto" or buffer):
         raise ValueError("launch argument 'robots': a fleet's robots are robot1 .. robotN, each its namespace and "
                          "frame prefix (no 'namespace', 'frame_prefix' auto, no 'command_buffer')")
+    linked = any(name.startswith("link.") for name in overrides["plant_node"])  # the scenario's radio link
     if buffer:  # the robot side of real_robot_buffer.md: the buffer drives the plant's cmd_vel from the plans
-        if interface != "cmd_vel" or lockstep or any(name.startswith("link.") for name in overrides["plant_node"]):
+        if interface != "cmd_vel" or lockstep or linked:
             raise ValueError("launch argument 'command_buffer': the buffer takes the controller's cmd_vel plans on "
                              "the robot's clock (command_interface:=cmd_vel, lockstep:=false, a scenario without "
                              "a link)")
         del overrides["plant_node"]["plans"]  # the plant is the driver: the buffer's twists on cmd_vel
         overrides["controller_node"]["publish_plain_command"] = False  # else a second source on cmd_vel
-    if robots and any(name.startswith("link.") for name in overrides["plant_node"]):
+    if robots and linked:
         raise ValueError(f"launch argument 'robots': a fleet runs without a link (scenario {scenario!r} has one), "
                          "as robotino-geom-mpc run --robots")
 

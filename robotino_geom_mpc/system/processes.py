@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["NODE_MODULES", "FRAME_PREFIX_NODES", "LOCKSTEP_WAIT_FOR", "TIMING_REPORT",
-           "RECORDER_WAIT_FOR", "recorder_wait_for", "command_readers", "scenario_parameters", "NamespaceError",
-           "NodeFailed", "NodeProcess", "NodeGroup",
+           "RECORDER_WAIT_FOR", "recorder_wait_for", "answer_topic", "command_readers", "scenario_parameters",
+           "NamespaceError", "NodeFailed", "NodeProcess", "NodeGroup",
            "dds_environment",
            "wait_for_exit",
            "FLEET_NODES", "FLEET_PREVIEW_EVERY", "fleet_arguments", "fleet_realtime_parameters", "fleet_wait_for",
@@ -45,6 +45,14 @@ RECORDER_WAIT_FOR = ("odom:2", "/clock:2", "reference_preview:2", "wheel_voltage
                      "wheel_currents:1", "joint_states:1", "diagnostics:1")
 
 
+def answer_topic(command_interface: str = "voltages", plans: bool = False) -> str:
+    """The topic the plant reads the controller's answers on: the command's (``wheel_voltages`` / ``cmd_vel``),
+    with `plans` the plan's (``wheel_voltage_plan`` / ``cmd_vel_plan``).
+    """
+    command = "wheel_voltages" if command_interface == "voltages" else "cmd_vel"
+    return f"{command.replace('wheel_voltages', 'wheel_voltage')}_plan" if plans else command
+
+
 def recorder_wait_for(command_interface: str = "voltages", plans: bool = False) -> list[str]:
     """`RECORDER_WAIT_FOR` for a run's nodes (a description publisher among them) and command interface: with
     ``cmd_vel`` the controller's twist (``cmd_vel:2``, the plant's and the recorder's readers) instead of
@@ -57,9 +65,9 @@ def recorder_wait_for(command_interface: str = "voltages", plans: bool = False) 
     if command_interface != "voltages":
         waits = [w.replace("wheel_voltages:", "cmd_vel:") for w in waits] + ["applied_voltages:1"]
     if plans:
-        command = "wheel_voltages" if command_interface == "voltages" else "cmd_vel"
+        command = answer_topic(command_interface)
         waits = [f"{command}:1" if w == f"{command}:2" else w for w in waits]
-        waits += [f"{command.replace('wheel_voltages', 'wheel_voltage')}_plan:2", "command_applied:2"]
+        waits += [f"{answer_topic(command_interface, plans)}:2", "command_applied:2"]
     return waits
 
 
@@ -68,8 +76,7 @@ def command_readers(wait_for: Iterable[str], command_interface: str = "voltages"
     command's, ``wheel_voltages`` / ``cmd_vel``; with `plans` the plan's) in the plant's ``lockstep_wait_for``
     `wait_for`, or 1 (the plant's reader) where it names none.
     """
-    command = "wheel_voltages" if command_interface == "voltages" else "cmd_vel"
-    topic = f"{command.replace('wheel_voltages', 'wheel_voltage')}_plan" if plans else command  # (as recorder_wait_for)
+    topic = answer_topic(command_interface, plans)
     counts = [int(count) for name, _, count in (entry.rpartition(":") for entry in wait_for) if name == topic]
     return counts[0] if counts else 1
 
